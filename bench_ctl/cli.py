@@ -1,0 +1,76 @@
+"""The `bench-ctl` command line: parses, then dispatches to plain functions.
+
+Each sub-command lives in its own module (imported only when used, so `bench-ctl sim` does not
+pay for compiling the identification kernel). Exit codes (STYLE.md): 0 pass, 1 criteria
+failed, 2 aborted / safe state reached, 3 communication error.
+"""
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+
+import click
+
+EXIT_OK = 0
+EXIT_CRITERIA_FAILED = 1
+EXIT_ABORTED = 2
+EXIT_COMMS = 3
+
+# name -> "module:attribute" of a click.Command
+COMMANDS = {
+    "simulate": "bench_ctl.commands.simulate:simulate",
+    "identify": "bench_ctl.commands.identify:identify",
+    "diagnose": "bench_ctl.commands.diagnose:diagnose",
+    "report": "bench_ctl.commands.report:report",
+    "import": "bench_ctl.commands.import_export:import_export",
+    "sim": "bench_ctl.commands.sim:sim",
+    "run": "bench_ctl.commands.run:run",
+    "demo": "bench_ctl.commands.demo:demo",
+}
+
+
+class LazyGroup(click.Group):
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        target = COMMANDS.get(name)
+        if target is None:
+            return None
+        module_name, attr = target.split(":")
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name == module_name:
+                return None  # not built yet
+            raise
+        return getattr(module, attr)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
+@click.version_option(package_name="bench-ctl")
+def cli(verbose: int) -> None:
+    """bench-ctl: pulse test, AVR identification (MVMO), validation report, gap diagnosis."""
+    level = logging.WARNING - 10 * min(verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code instead of exiting (tests call it directly)."""
+    try:
+        rv = cli.main(args=argv, prog_name="bench-ctl", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        return EXIT_ABORTED
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    return int(rv or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,388 @@
+"""The compiled, batched simulation kernel of the reference unit with its eight effects.
+
+One call simulates a whole population of parameter sets driven by one recorded setpoint series.
+Time runs in the outer loop and candidates in the inner loop (states are arrays over candidates),
+chunks of candidates run in parallel (DESIGN.md section 8).
+
+Numerics: classical RK4 at the capture's sample step; the setpoint is zero-order hold (sample k
+acts on [t_k, t_k+1)), so every input jump falls on a step boundary. The dead time delays the AVR
+output VR; its history is kept as the right limit at t_j and the left limit at t_j+1 of every
+step, so a delayed jump stays a jump instead of being smeared over a step. The efd recorder skew
+reads the efd history by cubic Hermite interpolation with the one-sided derivatives of each step.
+Non-smooth effects (non-windup ceiling, slew limit) are evaluated inside every RK stage and the
+state is clamped after the step.
+
+A candidate whose states leave a sane range (unstable loop, stiff parameters beyond what the step
+resolves) is marked failed at that step and frozen; its outputs stay finite (held) and the caller
+turns the failure step into a rankable penalty. No NaN ever leaves the kernel.
+
+Derived per-candidate factors are computed once, in numpy, by `derive` (column order `D_*`).
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from .params import COL, KERNEL_PARAMS
+
+# derived-column indices
+(D_KAVR, D_R1, D_IT2, D_R2, D_IT4, D_ITE, D_ITR, D_ITD0P, D_ITD0PP, D_SATA, D_SATB,
+ D_VRMAX, D_VRMIN, D_TD, D_RATE, D_RAMP, D_GAIN, D_SKEW, D_VT0, D_EFD0, D_E0, D_UREF0,
+ D_VALID, D_TRON, D_TDON) = range(25)
+N_DERIVED = 25
+
+#: a state magnitude beyond this marks the candidate failed (pu; physical values are < 20)
+BLOWUP = 1.0e5
+
+
+def saturation_ab(s10: np.ndarray, s12: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quadratic saturation Sat(x) = B (x - A)^2 for x > A through S(1.0) = S10, S(1.2) = S12."""
+    s10 = np.asarray(s10, float)
+    s12 = np.asarray(s12, float)
+    on = (s10 > 0.0) & (s12 > s10)
+    r = np.sqrt(np.where(on, s12, 1.0) / np.where(on, s10, 1.0))
+    a = np.where(on, (r - 1.2) / np.where(on, r - 1.0, 1.0), 0.0)
+    b = np.where(on, s10 / np.where(on, (1.0 - a) ** 2, 1.0), 0.0)
+    return a, b
+
+
+def derive(P: np.ndarray) -> np.ndarray:
+    """Per-candidate factors for the kernel from the parameter matrix (n, len(KERNEL_PARAMS))."""
+    P = np.atleast_2d(np.asarray(P, dtype=np.float64))
+    if P.shape[1] != len(KERNEL_PARAMS):
+        raise ValueError(f"parameter matrix has {P.shape[1]} columns, expected {len(KERNEL_PARAMS)}")
+    g = {name: P[:, i] for i, name in enumerate(KERNEL_PARAMS)}
+    n = P.shape[0]
+    D = np.zeros((n, N_DERIVED))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        valid = np.ones(n, bool)
+        for name in ("KAVR", "TA2", "TA4", "TE", "Td0p", "Td0pp"):
+            valid &= np.isfinite(g[name]) & (g[name] > 0.0)
+        for name in ("TA1", "TA3", "TR", "TD", "SKEW", "Vt0", "S10", "S12"):
+            valid &= np.isfinite(g[name]) & (g[name] >= 0.0)
+        valid &= (g["RATE"] > 0.0) & (g["RAMP"] > 0.0) & np.isfinite(g["GAIN"])
+        valid &= g["VRMAX"] > g["VRMIN"]
+        safe = lambda x: np.where(valid, x, 1.0)  # noqa: E731
+        a, b = saturation_ab(g["S10"], g["S12"])
+        vt0 = safe(g["Vt0"])
+        sat0 = np.where(vt0 > a, b * (vt0 - a) ** 2, 0.0)
+        efd0 = vt0 + sat0
+        D[:, D_KAVR] = safe(g["KAVR"])
+        D[:, D_R1] = safe(g["TA1"] / g["TA2"])
+        D[:, D_IT2] = safe(1.0 / g["TA2"])
+        D[:, D_R2] = safe(g["TA3"] / g["TA4"])
+        D[:, D_IT4] = safe(1.0 / g["TA4"])
+        D[:, D_ITE] = safe(1.0 / g["TE"])
+        D[:, D_ITR] = np.where(valid & (g["TR"] > 0.0), 1.0 / np.where(g["TR"] > 0, g["TR"], 1.0), 0.0)
+        D[:, D_ITD0P] = safe(1.0 / g["Td0p"])
+        D[:, D_ITD0PP] = safe(1.0 / g["Td0pp"])
+        D[:, D_SATA] = a
+        D[:, D_SATB] = b
+        D[:, D_VRMAX] = g["VRMAX"]
+        D[:, D_VRMIN] = g["VRMIN"]
+        D[:, D_TD] = np.where(valid, g["TD"], 0.0)
+        D[:, D_RATE] = g["RATE"]
+        D[:, D_RAMP] = g["RAMP"]
+        D[:, D_GAIN] = np.where(valid, g["GAIN"], 1.0)
+        D[:, D_SKEW] = np.where(valid, g["SKEW"], 0.0)
+        D[:, D_VT0] = vt0
+        D[:, D_EFD0] = np.clip(efd0, g["VRMIN"], g["VRMAX"])
+        D[:, D_E0] = D[:, D_EFD0] / D[:, D_KAVR]
+        D[:, D_UREF0] = vt0 + D[:, D_E0]
+        D[:, D_VALID] = valid.astype(np.float64)
+        D[:, D_TRON] = (D[:, D_ITR] > 0.0).astype(np.float64)
+        D[:, D_TDON] = (D[:, D_TD] > 0.0).astype(np.float64)
+    return D
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _avr(D, i, uref, vm, x1, x2):
+    """AVR lead-lags: returns (VR, e, y1) for error e = uref - Vm."""
+    e = uref - vm
+    y1 = x1 + D[D_R1, i] * (e - x1)
+    y2 = x2 + D[D_R2, i] * (y1 - x2)
+    return D[D_KAVR, i] * y2, e, y1
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
+    """Derivatives of (xm, x1, x2, efd, E'q, E''q); branch-free so candidate loops vectorise.
+
+    `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1)."""
+    tron = D[D_TRON, i]
+    vm = tron * xm + (1.0 - tron) * eqpp
+    e = uref - vm
+    y1 = x1 + D[D_R1, i] * (e - x1)
+    y2 = x2 + D[D_R2, i] * (y1 - x2)
+    vr = D[D_KAVR, i] * y2
+    dxm = (eqpp - xm) * D[D_ITR, i]
+    dx1 = (e - x1) * D[D_IT2, i]
+    dx2 = (y1 - x2) * D[D_IT4, i]
+    tdon = D[D_TDON, i]
+    drive = vr + tdon * (vrd - vr)
+    rate = D[D_RATE, i]
+    de = min(max((drive - ef) * D[D_ITE, i], -rate), rate)
+    de = min(de, 0.0) if ef >= D[D_VRMAX, i] else de   # non-windup ceiling
+    de = max(de, 0.0) if ef <= D[D_VRMIN, i] else de
+    d = max(eqp - D[D_SATA, i], 0.0)
+    deqp = (ef - eqp - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
+    deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
+    return dxm, dx1, dx2, de, deqp, deqpp
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _delayed(vr_r, vr_l, c, L, tau_steps, k, vr0, left):
+    """VR at time tau_steps * dt from the per-step right/left limits kept in a ring of length L.
+
+    `left` reads the left limit at an integer time (the end of an RK step sees the delayed
+    signal just before a delayed jump, the start of a step just after it)."""
+    if tau_steps < 0.0 or (left and tau_steps <= 0.0):
+        return vr0
+    j = int(math.ceil(tau_steps)) - 1 if left else int(math.floor(tau_steps))
+    if j >= k:  # inside the current step (TD shorter than a step): hold the right limit
+        return vr_r[c, k % L]
+    s = tau_steps - j
+    return vr_r[c, j % L] * (1.0 - s) + vr_l[c, (j + 1) % L] * s
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _hermite(y0, m0, y1, m1, s, h):
+    s2 = s * s
+    s3 = s2 * s
+    return ((2 * s3 - 3 * s2 + 1) * y0 + (s3 - 2 * s2 + s) * h * m0
+            + (-2 * s3 + 3 * s2) * y1 + (s3 - s2) * h * m1)
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt,
+               store, any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step):
+    T = usetp.shape[0]
+    m = hi - lo
+    S = np.empty((6, m))            # states xm, x1, x2, efd, E'q, E''q
+    K1 = np.zeros((6, m)); K2 = np.zeros((6, m)); K3 = np.zeros((6, m)); K4 = np.zeros((6, m))
+    uref = np.empty(m)
+    ua = np.empty(m); ub = np.empty(m)
+    V = np.zeros((3, m))            # delayed VR at stage times 0, 1/2, 1
+    failed = np.zeros(m, np.bool_)
+    e_first = np.zeros(m); e_last = np.zeros(m)
+    out_e = np.zeros(m)
+    vr_r = np.zeros((m, L)); vr_l = np.zeros((m, L))  # VR right/left limits per step (dead time)
+    ef_h = np.zeros((m, Ls)); der_r = np.zeros((m, Ls)); der_l = np.zeros((m, Ls))  # efd history (skew)
+    for c in range(m):
+        i = lo + c
+        vt0 = D[D_VT0, i]
+        S[0, c] = vt0; S[4, c] = vt0; S[5, c] = vt0
+        S[3, c] = D[D_EFD0, i]
+        S[1, c] = D[D_E0, i]; S[2, c] = D[D_E0, i]
+        uref[c] = D[D_UREF0, i]
+        out_e[c] = D[D_GAIN, i] * D[D_EFD0, i]
+        if D[D_VALID, i] == 0.0:
+            failed[c] = True
+            fail_step[i] = 0
+        for q in range(L):
+            vr_r[c, q] = D[D_EFD0, i]; vr_l[c, q] = D[D_EFD0, i]
+        for q in range(Ls):
+            ef_h[c, q] = D[D_EFD0, i]
+    h2 = 0.5 * dt
+    h6 = dt / 6.0
+    for k in range(T):
+        # ---- record sample k (states at t_k); failed candidates hold their last output ----
+        if any_skew:
+            for c in range(m):
+                i = lo + c
+                skew = D[D_SKEW, i]
+                y = S[3, c]
+                if skew > 0.0:
+                    tau = k - skew / dt
+                    if tau <= 0.0:
+                        y = D[D_EFD0, i]
+                    else:
+                        j = int(math.floor(tau))
+                        if j < k:
+                            y = _hermite(ef_h[c, j % Ls], der_r[c, j % Ls], ef_h[c, (j + 1) % Ls],
+                                         der_l[c, (j + 1) % Ls], tau - j, dt)
+                if not failed[c]:
+                    out_e[c] = D[D_GAIN, lo + c] * y
+        else:
+            for c in range(m):
+                out_e[c] = D[D_GAIN, lo + c] * S[3, c] if not failed[c] else out_e[c]
+        if store:
+            for c in range(m):
+                efd_out[lo + c, k] = out_e[c]
+                vt_out[lo + c, k] = S[5, c]
+        if w_efd > 0.0:
+            em = efd_meas[k]
+            for c in range(m):
+                d = out_e[c] - em
+                sse_efd[lo + c] += d * d
+            if k == 0 or k == T - 1:
+                for c in range(m):
+                    d = out_e[c] - em
+                    if k == 0:
+                        e_first[c] += w_efd * d * d
+                    else:
+                        e_last[c] += w_efd * d * d
+        if w_vt > 0.0:
+            vmeas = vt_meas[k]
+            for c in range(m):
+                d = S[5, c] - vmeas
+                sse_vt[lo + c] += d * d
+            if k == 0 or k == T - 1:
+                for c in range(m):
+                    d = S[5, c] - vmeas
+                    if k == 0:
+                        e_first[c] += w_vt * d * d
+                    else:
+                        e_last[c] += w_vt * d * d
+        if k == T - 1:
+            break
+        # ---- setpoint over [t_k, t_k+1): ZOH target, or a ramp towards it ----
+        base_u = usetp[k] - usetp_pre
+        for c in range(m):
+            i = lo + c
+            target = D[D_UREF0, i] + base_u
+            ua[c] = target
+            ub[c] = target
+        if any_ramp:
+            for c in range(m):
+                i = lo + c
+                ramp = D[D_RAMP, i]
+                if ramp < 1.0e300:
+                    step = min(max(ub[c] - uref[c], -ramp * dt), ramp * dt)
+                    ua[c] = uref[c]
+                    ub[c] = uref[c] + step
+        # ---- dead time: VR right limit at t_k, delayed VR at the stage times ----
+        if any_delay:
+            for c in range(m):
+                i = lo + c
+                td = D[D_TD, i]
+                if td > 0.0:
+                    vm0 = S[0, c] if D[D_ITR, i] > 0.0 else S[5, c]
+                    vr_r[c, k % L] = _avr(D, i, ua[c], vm0, S[1, c], S[2, c])[0]
+                    base = k - td / dt
+                    V[0, c] = _delayed(vr_r, vr_l, c, L, base, k, D[D_EFD0, i], False)
+                    V[1, c] = _delayed(vr_r, vr_l, c, L, base + 0.5, k, D[D_EFD0, i], False)
+                    V[2, c] = _delayed(vr_r, vr_l, c, L, base + 1.0, k, D[D_EFD0, i], True)
+        # ---- RK4 stages, straight-line over candidates ----
+        for c in range(m):
+            r = _rhs(D, lo + c, ua[c], V[0, c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c])
+            K1[0, c] = r[0]; K1[1, c] = r[1]; K1[2, c] = r[2]; K1[3, c] = r[3]; K1[4, c] = r[4]; K1[5, c] = r[5]
+        for c in range(m):
+            r = _rhs(D, lo + c, 0.5 * (ua[c] + ub[c]), V[1, c], S[0, c] + h2 * K1[0, c], S[1, c] + h2 * K1[1, c],
+                     S[2, c] + h2 * K1[2, c], S[3, c] + h2 * K1[3, c], S[4, c] + h2 * K1[4, c], S[5, c] + h2 * K1[5, c])
+            K2[0, c] = r[0]; K2[1, c] = r[1]; K2[2, c] = r[2]; K2[3, c] = r[3]; K2[4, c] = r[4]; K2[5, c] = r[5]
+        for c in range(m):
+            r = _rhs(D, lo + c, 0.5 * (ua[c] + ub[c]), V[1, c], S[0, c] + h2 * K2[0, c], S[1, c] + h2 * K2[1, c],
+                     S[2, c] + h2 * K2[2, c], S[3, c] + h2 * K2[3, c], S[4, c] + h2 * K2[4, c], S[5, c] + h2 * K2[5, c])
+            K3[0, c] = r[0]; K3[1, c] = r[1]; K3[2, c] = r[2]; K3[3, c] = r[3]; K3[4, c] = r[4]; K3[5, c] = r[5]
+        for c in range(m):
+            r = _rhs(D, lo + c, ub[c], V[2, c], S[0, c] + dt * K3[0, c], S[1, c] + dt * K3[1, c],
+                     S[2, c] + dt * K3[2, c], S[3, c] + dt * K3[3, c], S[4, c] + dt * K3[4, c], S[5, c] + dt * K3[5, c])
+            K4[0, c] = r[0]; K4[1, c] = r[1]; K4[2, c] = r[2]; K4[3, c] = r[3]; K4[4, c] = r[4]; K4[5, c] = r[5]
+        # ---- histories for skew (before the update: left values are the old state) ----
+        if any_skew:
+            for c in range(m):
+                ef_h[c, k % Ls] = S[3, c]
+                der_r[c, k % Ls] = K1[3, c]
+                der_l[c, (k + 1) % Ls] = K4[3, c]
+        # ---- update, clamp, failure check ----
+        for c in range(m):
+            i = lo + c
+            for q in range(6):
+                S[q, c] += h6 * (K1[q, c] + 2.0 * K2[q, c] + 2.0 * K3[q, c] + K4[q, c])
+            S[3, c] = min(max(S[3, c], D[D_VRMIN, i]), D[D_VRMAX, i])
+            uref[c] = ub[c]
+        for c in range(m):
+            i = lo + c
+            mag = abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
+            if not (mag < BLOWUP):
+                if not failed[c]:
+                    failed[c] = True
+                    fail_step[i] = k + 1
+                # park the state at the steady state so the arithmetic stays finite
+                S[0, c] = D[D_VT0, i]; S[4, c] = D[D_VT0, i]; S[5, c] = D[D_VT0, i]
+                S[3, c] = D[D_EFD0, i]; S[1, c] = D[D_E0, i]; S[2, c] = D[D_E0, i]
+        if any_skew:
+            for c in range(m):
+                ef_h[c, (k + 1) % Ls] = S[3, c]
+        if any_delay:
+            for c in range(m):
+                i = lo + c
+                if D[D_TD, i] > 0.0:  # left limit of VR at t_k+1 (state k+1, input of step k)
+                    vm = S[0, c] if D[D_ITR, i] > 0.0 else S[5, c]
+                    vr_l[c, (k + 1) % L] = _avr(D, i, ub[c], vm, S[1, c], S[2, c])[0]
+    for c in range(m):
+        i = lo + c
+        obj[i] = dt * (w_efd * sse_efd[i] + w_vt * sse_vt[i] - 0.5 * (e_first[c] + e_last[c]))
+
+
+@nb.njit(cache=True, parallel=True, error_model="numpy")
+def _run(D, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt, store, chunk,
+         any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step):
+    n = D.shape[1]
+    nchunks = (n + chunk - 1) // chunk
+    for b in nb.prange(nchunks):
+        lo = b * chunk
+        hi = min(n, lo + chunk)
+        _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt,
+                   store, any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
+
+
+def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
+               efd_meas: np.ndarray | None = None, vt_meas: np.ndarray | None = None,
+               w_efd: float = 1.0, w_vt: float = 0.0, store: bool = True, chunk: int | None = None):
+    """Run the kernel on a parameter matrix P (n, len(KERNEL_PARAMS)).
+
+    Returns a dict with `efd`, `vt` (n, T) traces when `store`, and when measurements are given
+    `obj` (trapezoidal integral of the weighted squared error), `sse_efd`, `sse_vt` (sums of
+    squared sample errors) and always `fail_step` (-1 for candidates that did not fail).
+    """
+    D = derive(P)
+    n = D.shape[0]
+    usetp = np.ascontiguousarray(usetp, dtype=np.float64)
+    T = usetp.shape[0]
+    if T < 2:
+        raise ValueError("a simulation needs at least two samples")
+    if not (dt > 0 and math.isfinite(dt)):
+        raise ValueError(f"time step {dt!r} must be positive")
+    td_max = float(np.max(D[:, D_TD])) if n else 0.0
+    sk_max = float(np.max(D[:, D_SKEW])) if n else 0.0
+    L = int(math.ceil(td_max / dt)) + 3 if td_max > 0 else 1
+    Ls = int(math.ceil(sk_max / dt)) + 3 if sk_max > 0 else 1
+    have_efd = efd_meas is not None
+    have_vt = vt_meas is not None
+    em = np.ascontiguousarray(efd_meas if have_efd else np.zeros(T), dtype=np.float64)
+    vm = np.ascontiguousarray(vt_meas if have_vt else np.zeros(T), dtype=np.float64)
+    if em.shape[0] != T or vm.shape[0] != T:
+        raise ValueError("measured signals must have the same length as usetp")
+    we = float(w_efd) if have_efd else 0.0
+    wv = float(w_vt) if have_vt else 0.0
+    shape = (n, T) if store else (1, 1)
+    efd_out = np.zeros(shape)
+    vt_out = np.zeros(shape)
+    sse_efd = np.zeros(n)
+    sse_vt = np.zeros(n)
+    obj = np.zeros(n)
+    fail_step = np.full(n, -1, dtype=np.int64)
+    if chunk is None:
+        chunk = max(1, min(64, -(-n // nb.get_num_threads())))
+    if n:
+        any_ramp = bool(np.any(D[:, D_RAMP] < 1.0e300))
+        Dt = np.ascontiguousarray(D.T)
+        _run(Dt, usetp, float(usetp_pre), float(dt), L, Ls, em, vm, we, wv, bool(store), int(chunk),
+             td_max > 0, sk_max > 0, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
+    out = {"fail_step": fail_step}
+    if store:
+        out["efd"] = efd_out
+        out["vt"] = vt_out
+    if have_efd or have_vt:
+        out["obj"] = obj
+        out["sse_efd"] = sse_efd
+        out["sse_vt"] = sse_vt
+    return out
+
+
+def column(name: str) -> int:
+    return COL[name]

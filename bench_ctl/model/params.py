@@ -1,0 +1,83 @@
+"""The parameter catalogue of the reference unit and its effects (DESIGN.md section 3).
+
+Names follow IEEE 421.5 / the reference paper. Every parameter the kernel knows has a fixed
+column in the kernel's parameter matrix (`KERNEL_PARAMS` order); a `ParamInfo` carries its unit,
+meaning and physically sensible range, like ANDES' `NumParam(info=..., vrange=...)`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class ParamInfo:
+    name: str
+    unit: str
+    info: str
+    lo: float
+    hi: float
+    neutral: float | None = None  # the value that switches an effect off
+
+    def check(self, value: float, where: str = "") -> None:
+        if not (self.lo <= value <= self.hi) and not (self.neutral is not None and value == self.neutral):
+            raise ValueError(
+                f"{where}{self.name} = {value!r} {self.unit} is outside its physical range "
+                f"[{self.lo}, {self.hi}] ({self.info})"
+            )
+
+
+INF = math.inf
+
+_CATALOGUE = [
+    # AVR (the paper's six)
+    ParamInfo("KAVR", "pu/pu", "AVR proportional gain", 1.0, 5000.0),
+    ParamInfo("TA1", "s", "AVR lead time constant 1", 0.0, 100.0),
+    ParamInfo("TA2", "s", "AVR lag time constant 1", 0.0, 100.0),
+    ParamInfo("TA3", "s", "AVR lead time constant 2", 0.0, 100.0),
+    ParamInfo("TA4", "s", "AVR lag time constant 2", 0.0, 500.0),
+    ParamInfo("TE", "s", "exciter / bridge time constant", 0.0, 5.0),
+    # generator and steady state
+    ParamInfo("Td0p", "s", "open-circuit d-axis transient time constant T'd0", 0.1, 30.0),
+    ParamInfo("Td0pp", "s", "open-circuit d-axis subtransient time constant T''d0", 0.001, 1.0),
+    ParamInfo("Vt0", "pu", "initial terminal voltage", 0.5, 1.3),
+    # effects (neutral value = effect off)
+    ParamInfo("VRMAX", "pu", "exciter ceiling, upper (ceiling_limit)", 1.05, 20.0, INF),
+    ParamInfo("VRMIN", "pu", "exciter ceiling, lower (ceiling_limit)", -20.0, 0.95, -INF),
+    ParamInfo("TD", "s", "dead time in the control path (dead_time)", 0.0, 0.2, 0.0),
+    ParamInfo("TR", "s", "terminal-voltage transducer lag (transducer_lag)", 0.0, 0.5, 0.0),
+    ParamInfo("S10", "pu", "open-circuit saturation at 1.0 pu (saturation)", 0.0, 0.5, 0.0),
+    ParamInfo("S12", "pu", "open-circuit saturation at 1.2 pu (saturation)", 0.0, 2.0, 0.0),
+    ParamInfo("RATE", "pu/s", "slew limit on the exciter output (rate_limit)", 1.0, 1.0e4, INF),
+    ParamInfo("RAMP", "pu/s", "setpoint ramp rate of the device (setpoint_ramp)", 0.005, 100.0, INF),
+    ParamInfo("GAIN", "1", "efd recorder channel gain (recorder_gain)", 0.5, 1.5, 1.0),
+    ParamInfo("SKEW", "s", "efd channel recorded late vs usetp (time_skew)", 0.0, 0.2, 0.0),
+]
+
+PARAMS: dict[str, ParamInfo] = {p.name: p for p in _CATALOGUE}
+
+#: Column order of the kernel's parameter matrix.
+KERNEL_PARAMS: tuple[str, ...] = tuple(p.name for p in _CATALOGUE)
+COL: dict[str, int] = {name: i for i, name in enumerate(KERNEL_PARAMS)}
+
+AVR_PARAMS = ("KAVR", "TA1", "TA2", "TA3", "TA4", "TE")
+GENERATOR_PARAMS = ("Td0p", "Td0pp", "Vt0")
+
+#: Reference values of the simulated unit (DESIGN.md section 3).
+REFERENCE_VALUES: dict[str, float] = {
+    "KAVR": 200.0, "TA1": 1.0, "TA2": 0.2, "TA3": 0.5, "TA4": 10.0, "TE": 0.02,
+    "Td0p": 7.5, "Td0pp": 0.05, "Vt0": 1.0,
+}
+
+#: Suggested identification bounds (DESIGN.md section 3).
+REFERENCE_BOUNDS: dict[str, tuple[float, float]] = {
+    "KAVR": (50.0, 800.0), "TA1": (0.05, 5.0), "TA2": (0.01, 2.0),
+    "TA3": (0.05, 5.0), "TA4": (1.0, 50.0), "TE": (0.002, 0.2),
+}
+
+REFERENCE_CONSTRAINTS = ("TA2 <= TA1", "TA4 >= TA2")
+
+
+def neutral_values() -> dict[str, float]:
+    """Every effect parameter at its neutral value (the model without effects)."""
+    return {p.name: p.neutral for p in _CATALOGUE if p.neutral is not None}

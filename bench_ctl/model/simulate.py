@@ -1,0 +1,94 @@
+"""High-level simulation: parameter matrices from named values, pulse inputs, synthetic captures.
+
+`param_matrix` turns a unit's values plus a population of candidate values for some named
+parameters into the kernel's parameter matrix. `simulate` runs one parameter set;
+`synthetic_record` produces what a recorder would have stored (noise, quantisation).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from .kernel import run_kernel
+from .params import COL, KERNEL_PARAMS
+from .unit import Unit
+
+
+def param_matrix(base: Mapping[str, float], names: Sequence[str] = (), X: np.ndarray | None = None) -> np.ndarray:
+    """Kernel parameter matrix: every row starts from `base`; columns `names` take the rows of X."""
+    row = np.empty(len(KERNEL_PARAMS))
+    for i, name in enumerate(KERNEL_PARAMS):
+        if name not in base:
+            raise KeyError(f"no value for model parameter {name!r}")
+        row[i] = base[name]
+    if X is None:
+        return row[None, :].copy()
+    X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+    if X.shape[1] != len(names):
+        raise ValueError(f"candidate matrix has {X.shape[1]} columns for {len(names)} names")
+    P = np.repeat(row[None, :], X.shape[0], axis=0)
+    for j, name in enumerate(names):
+        P[:, COL[name]] = X[:, j]
+    return P
+
+
+def pre_trigger_mean(usetp: np.ndarray, dt: float, start_s: float | None = None) -> float:
+    """usetp_pre: mean of the samples before the first change (or before start_s when given)."""
+    usetp = np.asarray(usetp, float)
+    if start_s is not None:
+        n = max(1, int(round(start_s / dt)))
+        return float(np.mean(usetp[:n]))
+    changed = np.flatnonzero(np.abs(usetp - usetp[0]) > 1e-9)
+    n = int(changed[0]) if changed.size else usetp.size
+    return float(np.mean(usetp[: max(1, n)]))
+
+
+def simulate(values: Mapping[str, float], usetp: np.ndarray, dt: float,
+             usetp_pre: float | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """Simulate one parameter set; returns (efd as recorded, vt, fail_step or -1)."""
+    pre = pre_trigger_mean(usetp, dt) if usetp_pre is None else usetp_pre
+    out = run_kernel(param_matrix(values), usetp, dt, pre)
+    return out["efd"][0], out["vt"][0], int(out["fail_step"][0])
+
+
+def pulse_usetp(*, amplitude: float = 0.05, width: float = 1.0, start: float = 1.0,
+                duration: float = 10.0, rate: float = 1000.0, usetp0: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Time and a rectangular setpoint pulse (zero-order hold on the sample grid)."""
+    if rate <= 0 or duration <= 0:
+        raise ValueError("rate and duration must be positive")
+    n = int(round(duration * rate)) + 1
+    t = np.arange(n) / rate
+    k0 = int(round(start * rate))
+    k1 = int(round((start + width) * rate)) if width is not None else n
+    u = np.full(n, usetp0, dtype=float)
+    u[k0:k1] += amplitude
+    return t, u
+
+
+@dataclass(frozen=True)
+class RecorderModel:
+    """Noise and quantisation of a recorder channel (defaults: 0.01 pu, 12 bit over +-10 pu)."""
+    noise_pu: float = 0.01
+    lsb_pu: float = 20.0 / 4096
+
+    def apply(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        y = np.asarray(x, float)
+        if self.noise_pu > 0:
+            y = y + rng.normal(0.0, self.noise_pu, size=y.shape)
+        if self.lsb_pu > 0:
+            y = np.round(y / self.lsb_pu) * self.lsb_pu
+        return y
+
+
+def synthetic_record(unit: Unit, t: np.ndarray, usetp: np.ndarray, recorder: RecorderModel,
+                     seed: int | None) -> dict[str, np.ndarray]:
+    """What the recorder stores: usetp is the AVR's digital setpoint (recorded exactly); efd and vt
+    are measured channels with the recorder's noise and quantisation."""
+    dt = float(t[1] - t[0])
+    efd, vt, fail = simulate(unit.values(), usetp, dt)
+    if fail >= 0:
+        raise ValueError(f"the unit {unit.name!r} is unstable with these parameters (failed at t = {fail * dt:.3f} s)")
+    rng = np.random.default_rng(seed)
+    return {"time": t, "usetp": usetp, "efd": recorder.apply(efd, rng), "vt": recorder.apply(vt, rng)}

@@ -1,0 +1,231 @@
+"""Unit files: generator constants, parameters to identify, fixed parameters, constraints, effects.
+
+A unit file is TOML (see `bench_ctl/data/reference_unit.toml`, the built-in default). Unknown keys
+are errors. `--set NAME=VALUE` overrides go through `apply_overrides`: a generator constant
+(`Td0p=6.0`), a fixed parameter (`TR=0.01`), the value of an identified parameter (`KAVR=250`), a
+bound (`KAVR.min=20`), a weight (`weights.vt=0.5`) or an effect parameter (`VRMAX=2.8`, which
+switches its effect on).
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+from typing import Iterable, Mapping
+
+from .effects import EFFECTS, effect
+from .params import GENERATOR_PARAMS, PARAMS, neutral_values
+
+
+class UnitError(ValueError):
+    """A unit file or override that cannot be used; the message names the file and key."""
+
+
+@dataclass(frozen=True)
+class Bound:
+    value: float
+    min: float
+    max: float
+
+
+@dataclass(frozen=True)
+class Unit:
+    name: str
+    generator: dict[str, float]
+    identify: dict[str, Bound]
+    fixed: dict[str, float]
+    constraints: tuple[str, ...]
+    weights: dict[str, float]
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    source: str = "<built-in reference unit>"
+
+    @property
+    def identified_names(self) -> tuple[str, ...]:
+        return tuple(self.identify)
+
+    @property
+    def bounds(self) -> list[tuple[float, float]]:
+        return [(b.min, b.max) for b in self.identify.values()]
+
+    def values(self) -> dict[str, float]:
+        """Every kernel parameter: neutral effects, then generator, fixed, identified, effects on."""
+        out = dict(neutral_values())
+        out.update(self.generator)
+        out.update(self.fixed)
+        out.update({k: b.value for k, b in self.identify.items()})
+        for params in self.effects.values():
+            out.update(params)
+        return out
+
+    def with_effects(self, effects: Mapping[str, Mapping[str, float]]) -> "Unit":
+        merged = {k: dict(v) for k, v in self.effects.items()}
+        for name, params in effects.items():
+            eff = effect(name)
+            eff.check(dict(params))
+            merged.setdefault(name, {}).update({k: float(v) for k, v in params.items()})
+            missing = set(eff.params) - set(merged[name])
+            if missing:
+                # a partly given effect keeps the other parameters neutral
+                merged[name].update({p: eff.neutral()[p] for p in missing})
+        return replace(self, effects=merged)
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "source": self.source,
+            "generator": dict(self.generator),
+            "identify": {k: {"value": b.value, "min": b.min, "max": b.max} for k, b in self.identify.items()},
+            "fixed": dict(self.fixed),
+            "constraints": list(self.constraints),
+            "weights": dict(self.weights),
+            "effects": {k: dict(v) for k, v in self.effects.items()},
+        }
+
+
+_TOP_KEYS = {"name", "constraints", "generator", "identify", "fixed", "weights", "effects"}
+_WEIGHT_KEYS = {"efd", "vt"}
+
+
+def _num(value: object, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise UnitError(f"{where}: expected a number, got {value!r}")
+    v = float(value)
+    if math.isnan(v):
+        raise UnitError(f"{where}: NaN is not a value")
+    return v
+
+
+def unit_from_dict(data: Mapping, source: str) -> Unit:
+    unknown = set(data) - _TOP_KEYS
+    if unknown:
+        raise UnitError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_TOP_KEYS)}")
+    gen_raw = data.get("generator", {})
+    bad = set(gen_raw) - set(GENERATOR_PARAMS)
+    if bad:
+        raise UnitError(f"{source}: [generator] unknown key(s) {sorted(bad)}; allowed: {list(GENERATOR_PARAMS)}")
+    generator = {k: _num(v, f"{source}: generator.{k}") for k, v in gen_raw.items()}
+    missing = set(GENERATOR_PARAMS) - set(generator)
+    if missing:
+        raise UnitError(f"{source}: [generator] is missing {sorted(missing)}")
+
+    identify: dict[str, Bound] = {}
+    for name, spec in data.get("identify", {}).items():
+        where = f"{source}: identify.{name}"
+        if name not in PARAMS:
+            raise UnitError(f"{where}: unknown parameter; known: {', '.join(PARAMS)}")
+        if not isinstance(spec, Mapping) or set(spec) - {"value", "min", "max"} or not {"min", "max"} <= set(spec):
+            raise UnitError(f"{where}: expected a table with min, max and optional value, got {spec!r}")
+        lo, hi = _num(spec["min"], where + ".min"), _num(spec["max"], where + ".max")
+        val = _num(spec.get("value", 0.5 * (lo + hi)), where + ".value")
+        if not lo < hi:
+            raise UnitError(f"{where}: min {lo} must be below max {hi}")
+        identify[name] = Bound(val, lo, hi)
+
+    fixed = {}
+    for name, v in data.get("fixed", {}).items():
+        if name not in PARAMS:
+            raise UnitError(f"{source}: fixed.{name}: unknown parameter; known: {', '.join(PARAMS)}")
+        if name in identify:
+            raise UnitError(f"{source}: fixed.{name}: also listed under [identify]")
+        fixed[name] = _num(v, f"{source}: fixed.{name}")
+
+    weights = {"efd": 1.0, "vt": 0.0}
+    for name, v in data.get("weights", {}).items():
+        if name not in _WEIGHT_KEYS:
+            raise UnitError(f"{source}: weights.{name}: unknown signal; allowed: {sorted(_WEIGHT_KEYS)}")
+        weights[name] = _num(v, f"{source}: weights.{name}")
+
+    constraints = data.get("constraints", [])
+    if not isinstance(constraints, list) or not all(isinstance(c, str) for c in constraints):
+        raise UnitError(f"{source}: constraints must be a list of strings like \"TA2 <= TA1\"")
+
+    unit = Unit(
+        name=str(data.get("name", Path(source).stem)),
+        generator=generator, identify=identify, fixed=fixed,
+        constraints=tuple(constraints), weights=weights, source=source,
+    )
+    effects_raw = data.get("effects", {})
+    for name in effects_raw:
+        if name not in EFFECTS:
+            raise UnitError(f"{source}: effects.{name}: unknown effect; known: {', '.join(EFFECTS)}")
+    try:
+        return unit.with_effects({k: {p: _num(v, f"{source}: effects.{k}.{p}") for p, v in ps.items()}
+                                  for k, ps in effects_raw.items()})
+    except ValueError as exc:
+        raise UnitError(f"{source}: {exc}") from None
+
+
+def load_unit(path: str | Path | None = None) -> Unit:
+    """Load a unit file, or the built-in reference unit when `path` is None."""
+    if path is None:
+        text = resources.files("bench_ctl.data").joinpath("reference_unit.toml").read_text("utf-8")
+        source = "<built-in reference unit>"
+    else:
+        p = Path(path)
+        try:
+            text = p.read_text("utf-8")
+        except OSError as exc:
+            raise UnitError(f"{p}: cannot read unit file: {exc.strerror}") from None
+        source = str(p)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise UnitError(f"{source}: not valid TOML: {exc}") from None
+    return unit_from_dict(data, source)
+
+
+def reference_unit() -> Unit:
+    return load_unit(None)
+
+
+def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
+    """Apply `--set NAME=VALUE` overrides (see the module docstring); unknown names are errors."""
+    for item in overrides:
+        if "=" not in item:
+            raise UnitError(f"--set {item!r}: expected NAME=VALUE")
+        key, raw = (s.strip() for s in item.split("=", 1))
+        try:
+            value = float(raw)
+        except ValueError:
+            raise UnitError(f"--set {item!r}: {raw!r} is not a number") from None
+        if math.isnan(value):
+            raise UnitError(f"--set {item!r}: NaN is not a value")
+        unit = _apply_one(unit, key, value, item)
+    return unit
+
+
+def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
+    if key.startswith("weights."):
+        sig = key.split(".", 1)[1]
+        if sig not in _WEIGHT_KEYS:
+            raise UnitError(f"--set {item!r}: unknown signal {sig!r}; allowed: {sorted(_WEIGHT_KEYS)}")
+        return replace(unit, weights={**unit.weights, sig: value})
+    if "." in key:
+        name, attr = key.split(".", 1)
+        if name not in unit.identify or attr not in ("min", "max", "value"):
+            raise UnitError(f"--set {item!r}: {name!r} is not an identified parameter with min/max/value"
+                            f" (identified: {', '.join(unit.identify)})")
+        b = replace(unit.identify[name], **{attr: value})
+        if not b.min < b.max:
+            raise UnitError(f"--set {item!r}: min {b.min} must be below max {b.max}")
+        return replace(unit, identify={**unit.identify, name: b})
+    if key in unit.generator:
+        PARAMS[key].check(value, where="--set ")
+        return replace(unit, generator={**unit.generator, key: value})
+    if key in unit.identify:
+        return replace(unit, identify={**unit.identify, key: replace(unit.identify[key], value=value)})
+    if key in unit.fixed:
+        PARAMS[key].check(value, where="--set ")
+        return replace(unit, fixed={**unit.fixed, key: value})
+    for eff in EFFECTS.values():
+        if key in eff.params:
+            try:
+                return unit.with_effects({eff.name: {key: value}})
+            except ValueError as exc:
+                raise UnitError(f"--set {item!r}: {exc}") from None
+    if key in PARAMS:
+        PARAMS[key].check(value, where="--set ")
+        return replace(unit, fixed={**unit.fixed, key: value})
+    raise UnitError(f"--set {item!r}: unknown name {key!r}; known: {', '.join(PARAMS)}")
