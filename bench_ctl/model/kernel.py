@@ -155,12 +155,29 @@ def _hermite(y0, m0, y1, m1, s, h):
             + (-2 * s3 + 3 * s2) * y1 + (s3 - s2) * h * m1)
 
 
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
+    """One RK4 step of length h with input u0 -> u1 (linear) and delayed VR v0, vm, v1."""
+    um = 0.5 * (u0 + u1)
+    h2 = 0.5 * h
+    a = _rhs(D, i, u0, v0, x0, x1, x2, x3, x4, x5)
+    b = _rhs(D, i, um, vm, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3], x4 + h2 * a[4], x5 + h2 * a[5])
+    c = _rhs(D, i, um, vm, x0 + h2 * b[0], x1 + h2 * b[1], x2 + h2 * b[2], x3 + h2 * b[3], x4 + h2 * b[4], x5 + h2 * b[5])
+    d = _rhs(D, i, u1, v1, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3], x4 + h * c[4], x5 + h * c[5])
+    h6 = h / 6.0
+    y3 = min(max(x3 + h6 * (a[3] + 2 * b[3] + 2 * c[3] + d[3]), D[D_VRMIN, i]), D[D_VRMAX, i])
+    return (x0 + h6 * (a[0] + 2 * b[0] + 2 * c[0] + d[0]), x1 + h6 * (a[1] + 2 * b[1] + 2 * c[1] + d[1]),
+            x2 + h6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2]), y3, x4 + h6 * (a[4] + 2 * b[4] + 2 * c[4] + d[4]),
+            x5 + h6 * (a[5] + 2 * b[5] + 2 * c[5] + d[5]), a[3], d[3])
+
+
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt,
                store, any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step):
     T = usetp.shape[0]
     m = hi - lo
     S = np.empty((6, m))            # states xm, x1, x2, efd, E'q, E''q
+    S0 = np.empty((6, m))           # state at t_k, kept for split steps
     K1 = np.zeros((6, m)); K2 = np.zeros((6, m)); K3 = np.zeros((6, m)); K4 = np.zeros((6, m))
     uref = np.empty(m)
     ua = np.empty(m); ub = np.empty(m)
@@ -288,6 +305,10 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                 der_r[c, k % Ls] = K1[3, c]
                 der_l[c, (k + 1) % Ls] = K4[3, c]
         # ---- update, clamp, failure check ----
+        if any_delay:
+            for c in range(m):
+                for q in range(6):
+                    S0[q, c] = S[q, c]
         for c in range(m):
             i = lo + c
             for q in range(6):
@@ -304,6 +325,35 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                 # park the state at the steady state so the arithmetic stays finite
                 S[0, c] = D[D_VT0, i]; S[4, c] = D[D_VT0, i]; S[5, c] = D[D_VT0, i]
                 S[3, c] = D[D_EFD0, i]; S[1, c] = D[D_E0, i]; S[2, c] = D[D_E0, i]
+        # ---- dead time not a whole number of steps: the delayed signal jumps inside the step,
+        # so such a step is split at that instant into two RK4 sub-steps ----
+        if any_delay:
+            for c in range(m):
+                i = lo + c
+                td = D[D_TD, i]
+                if td <= 0.0 or failed[c]:
+                    continue
+                base = k - td / dt
+                j0 = math.floor(base)
+                frac = base - j0
+                if frac < 1e-9 or j0 + 1 >= k:
+                    continue
+                th = 1.0 - frac
+                e0 = D[D_EFD0, i]
+                uth = ua[c] + th * (ub[c] - ua[c])
+                va = _delayed(vr_r, vr_l, c, L, base, k, e0, False)
+                vam = _delayed(vr_r, vr_l, c, L, base + 0.5 * th, k, e0, False)
+                vae = _delayed(vr_r, vr_l, c, L, j0 + 1.0, k, e0, True)
+                vb = _delayed(vr_r, vr_l, c, L, j0 + 1.0, k, e0, False)
+                vbm = _delayed(vr_r, vr_l, c, L, j0 + 1.0 + 0.5 * frac, k, e0, False)
+                vbe = _delayed(vr_r, vr_l, c, L, base + 1.0, k, e0, True)
+                x0, x1, x2, x3, x4, x5 = S0[0, c], S0[1, c], S0[2, c], S0[3, c], S0[4, c], S0[5, c]
+                ra = _rk4(D, i, ua[c], uth, va, vam, vae, x0, x1, x2, x3, x4, x5, th * dt)
+                rb = _rk4(D, i, uth, ub[c], vb, vbm, vbe, ra[0], ra[1], ra[2], ra[3], ra[4], ra[5], frac * dt)
+                S[0, c] = rb[0]; S[1, c] = rb[1]; S[2, c] = rb[2]; S[3, c] = rb[3]; S[4, c] = rb[4]; S[5, c] = rb[5]
+                if any_skew:
+                    der_r[c, k % Ls] = ra[6]
+                    der_l[c, (k + 1) % Ls] = rb[7]
         if any_skew:
             for c in range(m):
                 ef_h[c, (k + 1) % Ls] = S[3, c]
