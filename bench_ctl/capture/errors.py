@@ -1,0 +1,38 @@
+"""The one error type of the capture layer: bad input named by file, row and column.
+
+A `CaptureError` is a `ValueError` whose message always starts with the file, then (where they
+apply) the row - the 1-based line number a text editor shows, header included, or the sample
+number of a binary COMTRADE record - and the column or channel name, then what is wrong.
+"""
+from __future__ import annotations
+
+import os
+
+
+class CaptureError(ValueError):
+    """Refused capture input.
+
+    Attributes keep the parts apart for callers that want them: `file`, `row` (int or None),
+    `column` (str or None; a COMTRADE channel is named with column_kind="channel"), `reason` (the message without the location).
+    """
+
+    def __init__(
+        self,
+        file: str | os.PathLike[str],
+        reason: str,
+        *,
+        row: int | None = None,
+        column: str | None = None,
+        row_kind: str = "row",
+        column_kind: str = "column",
+    ) -> None:
+        self.file = os.fspath(file)
+        self.row = row
+        self.column = column
+        self.reason = reason
+        where = [self.file]
+        if row is not None:
+            where.append(f"{row_kind} {row}")
+        if column is not None:
+            where.append(f"{column_kind} {column!r}")
+        super().__init__(f"{', '.join(where)}: {reason}")
