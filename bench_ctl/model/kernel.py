@@ -178,7 +178,7 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
     m = hi - lo
     S = np.empty((6, m))            # states xm, x1, x2, efd, E'q, E''q
     S0 = np.empty((6, m))           # state at t_k, kept for split steps
-    K1 = np.zeros((6, m)); K2 = np.zeros((6, m)); K3 = np.zeros((6, m)); K4 = np.zeros((6, m))
+    DR = np.zeros(m); DL = np.zeros(m)  # efd derivative at the step's start (right) and end (left)
     uref = np.empty(m)
     ua = np.empty(m); ub = np.empty(m)
     V = np.zeros((3, m))            # delayed VR at stage times 0, 1/2, 1
@@ -189,19 +189,19 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
     ef_h = np.zeros((m, Ls)); der_r = np.zeros((m, Ls)); der_l = np.zeros((m, Ls))  # efd history (skew)
     for c in range(m):
         i = lo + c
-        vt0 = D[D_VT0, i]
+        vt0 = D[D_VT0, c]
         S[0, c] = vt0; S[4, c] = vt0; S[5, c] = vt0
-        S[3, c] = D[D_EFD0, i]
-        S[1, c] = D[D_E0, i]; S[2, c] = D[D_E0, i]
-        uref[c] = D[D_UREF0, i]
-        out_e[c] = D[D_GAIN, i] * D[D_EFD0, i]
-        if D[D_VALID, i] == 0.0:
+        S[3, c] = D[D_EFD0, c]
+        S[1, c] = D[D_E0, c]; S[2, c] = D[D_E0, c]
+        uref[c] = D[D_UREF0, c]
+        out_e[c] = D[D_GAIN, c] * D[D_EFD0, c]
+        if D[D_VALID, c] == 0.0:
             failed[c] = True
             fail_step[i] = 0
         for q in range(L):
-            vr_r[c, q] = D[D_EFD0, i]; vr_l[c, q] = D[D_EFD0, i]
+            vr_r[c, q] = D[D_EFD0, c]; vr_l[c, q] = D[D_EFD0, c]
         for q in range(Ls):
-            ef_h[c, q] = D[D_EFD0, i]
+            ef_h[c, q] = D[D_EFD0, c]
     h2 = 0.5 * dt
     h6 = dt / 6.0
     for k in range(T):
@@ -209,22 +209,22 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         if any_skew:
             for c in range(m):
                 i = lo + c
-                skew = D[D_SKEW, i]
+                skew = D[D_SKEW, c]
                 y = S[3, c]
                 if skew > 0.0:
                     tau = k - skew / dt
                     if tau <= 0.0:
-                        y = D[D_EFD0, i]
+                        y = D[D_EFD0, c]
                     else:
                         j = int(math.floor(tau))
                         if j < k:
                             y = _hermite(ef_h[c, j % Ls], der_r[c, j % Ls], ef_h[c, (j + 1) % Ls],
                                          der_l[c, (j + 1) % Ls], tau - j, dt)
                 if not failed[c]:
-                    out_e[c] = D[D_GAIN, lo + c] * y
+                    out_e[c] = D[D_GAIN, c] * y
         else:
             for c in range(m):
-                out_e[c] = D[D_GAIN, lo + c] * S[3, c] if not failed[c] else out_e[c]
+                out_e[c] = D[D_GAIN, c] * S[3, c] if not failed[c] else out_e[c]
         if store:
             for c in range(m):
                 efd_out[lo + c, k] = out_e[c]
@@ -259,13 +259,13 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         base_u = usetp[k] - usetp_pre
         for c in range(m):
             i = lo + c
-            target = D[D_UREF0, i] + base_u
+            target = D[D_UREF0, c] + base_u
             ua[c] = target
             ub[c] = target
         if any_ramp:
             for c in range(m):
                 i = lo + c
-                ramp = D[D_RAMP, i]
+                ramp = D[D_RAMP, c]
                 if ramp < 1.0e300:
                     step = min(max(ub[c] - uref[c], -ramp * dt), ramp * dt)
                     ua[c] = uref[c]
@@ -274,47 +274,32 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         if any_delay:
             for c in range(m):
                 i = lo + c
-                td = D[D_TD, i]
+                td = D[D_TD, c]
                 if td > 0.0:
-                    vm0 = S[0, c] if D[D_ITR, i] > 0.0 else S[5, c]
-                    vr_r[c, k % L] = _avr(D, i, ua[c], vm0, S[1, c], S[2, c])[0]
+                    vm0 = S[0, c] if D[D_ITR, c] > 0.0 else S[5, c]
+                    vr_r[c, k % L] = _avr(D, c, ua[c], vm0, S[1, c], S[2, c])[0]
                     base = k - td / dt
-                    V[0, c] = _delayed(vr_r, vr_l, c, L, base, k, D[D_EFD0, i], False)
-                    V[1, c] = _delayed(vr_r, vr_l, c, L, base + 0.5, k, D[D_EFD0, i], False)
-                    V[2, c] = _delayed(vr_r, vr_l, c, L, base + 1.0, k, D[D_EFD0, i], True)
-        # ---- RK4 stages, straight-line over candidates ----
-        for c in range(m):
-            r = _rhs(D, lo + c, ua[c], V[0, c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c])
-            K1[0, c] = r[0]; K1[1, c] = r[1]; K1[2, c] = r[2]; K1[3, c] = r[3]; K1[4, c] = r[4]; K1[5, c] = r[5]
-        for c in range(m):
-            r = _rhs(D, lo + c, 0.5 * (ua[c] + ub[c]), V[1, c], S[0, c] + h2 * K1[0, c], S[1, c] + h2 * K1[1, c],
-                     S[2, c] + h2 * K1[2, c], S[3, c] + h2 * K1[3, c], S[4, c] + h2 * K1[4, c], S[5, c] + h2 * K1[5, c])
-            K2[0, c] = r[0]; K2[1, c] = r[1]; K2[2, c] = r[2]; K2[3, c] = r[3]; K2[4, c] = r[4]; K2[5, c] = r[5]
-        for c in range(m):
-            r = _rhs(D, lo + c, 0.5 * (ua[c] + ub[c]), V[1, c], S[0, c] + h2 * K2[0, c], S[1, c] + h2 * K2[1, c],
-                     S[2, c] + h2 * K2[2, c], S[3, c] + h2 * K2[3, c], S[4, c] + h2 * K2[4, c], S[5, c] + h2 * K2[5, c])
-            K3[0, c] = r[0]; K3[1, c] = r[1]; K3[2, c] = r[2]; K3[3, c] = r[3]; K3[4, c] = r[4]; K3[5, c] = r[5]
-        for c in range(m):
-            r = _rhs(D, lo + c, ub[c], V[2, c], S[0, c] + dt * K3[0, c], S[1, c] + dt * K3[1, c],
-                     S[2, c] + dt * K3[2, c], S[3, c] + dt * K3[3, c], S[4, c] + dt * K3[4, c], S[5, c] + dt * K3[5, c])
-            K4[0, c] = r[0]; K4[1, c] = r[1]; K4[2, c] = r[2]; K4[3, c] = r[3]; K4[4, c] = r[4]; K4[5, c] = r[5]
-        # ---- histories for skew (before the update: left values are the old state) ----
+                    V[0, c] = _delayed(vr_r, vr_l, c, L, base, k, D[D_EFD0, c], False)
+                    V[1, c] = _delayed(vr_r, vr_l, c, L, base + 0.5, k, D[D_EFD0, c], False)
+                    V[2, c] = _delayed(vr_r, vr_l, c, L, base + 1.0, k, D[D_EFD0, c], True)
+        # ---- RK4 step, one fused straight-line body per candidate (vectorises across c) ----
         if any_skew:
             for c in range(m):
                 ef_h[c, k % Ls] = S[3, c]
-                der_r[c, k % Ls] = K1[3, c]
-                der_l[c, (k + 1) % Ls] = K4[3, c]
-        # ---- update, clamp, failure check ----
         if any_delay:
             for c in range(m):
                 for q in range(6):
                     S0[q, c] = S[q, c]
         for c in range(m):
-            i = lo + c
-            for q in range(6):
-                S[q, c] += h6 * (K1[q, c] + 2.0 * K2[q, c] + 2.0 * K3[q, c] + K4[q, c])
-            S[3, c] = min(max(S[3, c], D[D_VRMIN, i]), D[D_VRMAX, i])
+            r = _rk4(D, c, ua[c], ub[c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
+                     S[4, c], S[5, c], dt)
+            S[0, c] = r[0]; S[1, c] = r[1]; S[2, c] = r[2]; S[3, c] = r[3]; S[4, c] = r[4]; S[5, c] = r[5]
+            DR[c] = r[6]; DL[c] = r[7]
             uref[c] = ub[c]
+        if any_skew:
+            for c in range(m):
+                der_r[c, k % Ls] = DR[c]
+                der_l[c, (k + 1) % Ls] = DL[c]
         for c in range(m):
             i = lo + c
             mag = abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
@@ -323,14 +308,14 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                     failed[c] = True
                     fail_step[i] = k + 1
                 # park the state at the steady state so the arithmetic stays finite
-                S[0, c] = D[D_VT0, i]; S[4, c] = D[D_VT0, i]; S[5, c] = D[D_VT0, i]
-                S[3, c] = D[D_EFD0, i]; S[1, c] = D[D_E0, i]; S[2, c] = D[D_E0, i]
+                S[0, c] = D[D_VT0, c]; S[4, c] = D[D_VT0, c]; S[5, c] = D[D_VT0, c]
+                S[3, c] = D[D_EFD0, c]; S[1, c] = D[D_E0, c]; S[2, c] = D[D_E0, c]
         # ---- dead time not a whole number of steps: the delayed signal jumps inside the step,
         # so such a step is split at that instant into two RK4 sub-steps ----
         if any_delay:
             for c in range(m):
                 i = lo + c
-                td = D[D_TD, i]
+                td = D[D_TD, c]
                 if td <= 0.0 or failed[c]:
                     continue
                 base = k - td / dt
@@ -339,7 +324,7 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                 if frac < 1e-9 or j0 + 1 >= k:
                     continue
                 th = 1.0 - frac
-                e0 = D[D_EFD0, i]
+                e0 = D[D_EFD0, c]
                 uth = ua[c] + th * (ub[c] - ua[c])
                 va = _delayed(vr_r, vr_l, c, L, base, k, e0, False)
                 vam = _delayed(vr_r, vr_l, c, L, base + 0.5 * th, k, e0, False)
@@ -348,8 +333,8 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                 vbm = _delayed(vr_r, vr_l, c, L, j0 + 1.0 + 0.5 * frac, k, e0, False)
                 vbe = _delayed(vr_r, vr_l, c, L, base + 1.0, k, e0, True)
                 x0, x1, x2, x3, x4, x5 = S0[0, c], S0[1, c], S0[2, c], S0[3, c], S0[4, c], S0[5, c]
-                ra = _rk4(D, i, ua[c], uth, va, vam, vae, x0, x1, x2, x3, x4, x5, th * dt)
-                rb = _rk4(D, i, uth, ub[c], vb, vbm, vbe, ra[0], ra[1], ra[2], ra[3], ra[4], ra[5], frac * dt)
+                ra = _rk4(D, c, ua[c], uth, va, vam, vae, x0, x1, x2, x3, x4, x5, th * dt)
+                rb = _rk4(D, c, uth, ub[c], vb, vbm, vbe, ra[0], ra[1], ra[2], ra[3], ra[4], ra[5], frac * dt)
                 S[0, c] = rb[0]; S[1, c] = rb[1]; S[2, c] = rb[2]; S[3, c] = rb[3]; S[4, c] = rb[4]; S[5, c] = rb[5]
                 if any_skew:
                     der_r[c, k % Ls] = ra[6]
@@ -360,9 +345,9 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         if any_delay:
             for c in range(m):
                 i = lo + c
-                if D[D_TD, i] > 0.0:  # left limit of VR at t_k+1 (state k+1, input of step k)
-                    vm = S[0, c] if D[D_ITR, i] > 0.0 else S[5, c]
-                    vr_l[c, (k + 1) % L] = _avr(D, i, ub[c], vm, S[1, c], S[2, c])[0]
+                if D[D_TD, c] > 0.0:  # left limit of VR at t_k+1 (state k+1, input of step k)
+                    vm = S[0, c] if D[D_ITR, c] > 0.0 else S[5, c]
+                    vr_l[c, (k + 1) % L] = _avr(D, c, ub[c], vm, S[1, c], S[2, c])[0]
     for c in range(m):
         i = lo + c
         obj[i] = dt * (w_efd * sse_efd[i] + w_vt * sse_vt[i] - 0.5 * (e_first[c] + e_last[c]))
@@ -376,7 +361,7 @@ def _run(D, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt, store, 
     for b in nb.prange(nchunks):
         lo = b * chunk
         hi = min(n, lo + chunk)
-        _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt,
+        _run_chunk(np.ascontiguousarray(D[:, lo:hi]), lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt,
                    store, any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
 
 

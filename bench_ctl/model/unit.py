@@ -80,8 +80,13 @@ class Unit:
             "fixed": dict(self.fixed),
             "constraints": list(self.constraints),
             "weights": dict(self.weights),
-            "effects": {k: dict(v) for k, v in self.effects.items()},
+            "effects": {k: {p: _finite_or_none(v) for p, v in ps.items()} for k, ps in self.effects.items()},
         }
+
+
+def _finite_or_none(v: float) -> float | None:
+    """JSON has no infinity: a neutral limit (+-inf) is written as null."""
+    return v if math.isfinite(v) else None
 
 
 _TOP_KEYS = {"name", "constraints", "generator", "identify", "fixed", "weights", "effects"}
@@ -109,6 +114,11 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     missing = set(GENERATOR_PARAMS) - set(generator)
     if missing:
         raise UnitError(f"{source}: [generator] is missing {sorted(missing)}")
+    for k, v in generator.items():
+        try:
+            PARAMS[k].check(v, where=f"{source}: generator.")
+        except ValueError as exc:
+            raise UnitError(str(exc)) from None
 
     identify: dict[str, Bound] = {}
     for name, spec in data.get("identify", {}).items():
@@ -192,7 +202,12 @@ def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
             raise UnitError(f"--set {item!r}: {raw!r} is not a number") from None
         if math.isnan(value):
             raise UnitError(f"--set {item!r}: NaN is not a value")
-        unit = _apply_one(unit, key, value, item)
+        try:
+            unit = _apply_one(unit, key, value, item)
+        except UnitError:
+            raise
+        except ValueError as exc:
+            raise UnitError(str(exc)) from None
     return unit
 
 

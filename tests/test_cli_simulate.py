@@ -1,0 +1,46 @@
+"""`bench-ctl simulate` end to end: capture + sidecar, effects, refusal to overwrite, bad input."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from bench_ctl.capture import read_capture
+from bench_ctl.cli import main
+
+
+def test_simulate_writes_capture_with_effects(tmp_path):
+    out = tmp_path / "cap.csv"
+    rc = main(["simulate", "--effect", "ceiling_limit:VRMAX=2.8,VRMIN=-1.0", "--effect", "dead_time:TD=0.015",
+               "--noise", "0", "--lsb", "0", "--duration", "5", "-o", str(out)])
+    assert rc == 0
+    cap = read_capture(out)
+    assert cap.n == 5001 and cap.dt == 0.001
+    assert np.max(cap.efd) <= 2.8 + 1e-12           # the ceiling is on
+    assert np.isclose(np.max(cap.efd), 2.8)
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["effects"]["dead_time"] == {"TD": 0.015}
+    assert meta["test"] == {"kind": "pulse", "amplitude_pu": 0.05, "start_s": 1.0, "width_s": 1.0}
+
+
+def test_simulate_noise_and_quantisation(tmp_path):
+    ideal, noisy = tmp_path / "a.csv", tmp_path / "b.csv"
+    assert main(["simulate", "--noise", "0", "--lsb", "0", "--duration", "3", "-o", str(ideal)]) == 0
+    assert main(["simulate", "--seed", "1", "--duration", "3", "-o", str(noisy)]) == 0
+    a, b = read_capture(ideal), read_capture(noisy)
+    resid = b.efd - a.efd
+    assert 0.008 < np.std(resid) < 0.012
+    lsb = 20.0 / 4096
+    assert np.allclose(np.round(b.efd / lsb) * lsb, b.efd)
+    assert np.array_equal(a.usetp, b.usetp)          # the setpoint is recorded exactly
+
+
+def test_simulate_refuses_overwrite_and_bad_effect(tmp_path, capsys):
+    out = tmp_path / "cap.csv"
+    assert main(["simulate", "--duration", "3", "-o", str(out)]) == 0
+    assert main(["simulate", "--duration", "3", "-o", str(out)]) == 2
+    assert "never overwritten" in capsys.readouterr().err
+    assert main(["simulate", "--effect", "backlash:B=1", "-o", str(tmp_path / "x.csv")]) == 2
+    assert "unknown effect 'backlash'" in capsys.readouterr().err
+    assert main(["simulate", "--effect", "dead_time:TD=5", "-o", str(tmp_path / "y.csv")]) == 2
+    assert "outside its physical range" in capsys.readouterr().err

@@ -1,0 +1,78 @@
+"""The kernel never crashes and never returns NaN: parameters at their bounds, unstable loops,
+invalid values; failures carry a step the optimizer can rank."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bench_ctl.model.kernel import run_kernel
+from bench_ctl.model.simulate import param_matrix, pulse_usetp
+from bench_ctl.model.unit import reference_unit
+
+NAMES = ["KAVR", "TA1", "TA2", "TA3", "TA4", "TE"]
+
+
+def _run(X, **extra):
+    unit = reference_unit()
+    base = {**unit.values(), **extra}
+    t, u = pulse_usetp(duration=4.0)
+    P = param_matrix(base, NAMES, np.asarray(X, float))
+    ref = run_kernel(param_matrix(unit.values()), u, 1e-3, 1.0)["efd"][0]
+    return run_kernel(P, u, 1e-3, 1.0, efd_meas=ref)
+
+
+def test_corners_of_the_bounds_are_finite_or_failed():
+    unit = reference_unit()
+    lo = np.array([unit.identify[n].min for n in NAMES])
+    hi = np.array([unit.identify[n].max for n in NAMES])
+    corners = np.array([[lo[j] if (k >> j) & 1 else hi[j] for j in range(6)] for k in range(64)])
+    out = _run(corners)
+    assert np.all(np.isfinite(out["efd"]))
+    assert np.all(np.isfinite(out["obj"]))
+    assert np.all(np.isfinite(out["vt"]))
+    # some corners are violently unstable at a 1 ms step: they must be reported, not hidden
+    assert np.any(out["fail_step"] >= 0)
+    assert np.any(out["fail_step"] == -1)
+
+
+def test_unstable_loop_fails_early_with_a_step():
+    # a very large gain with a high-frequency lead: the closed loop diverges
+    out = _run([[5000.0, 5.0, 0.01, 5.0, 1.0, 0.2]])
+    k = out["fail_step"][0]
+    assert k >= 0
+    assert np.all(np.isfinite(out["efd"]))
+
+
+def test_ta2_towards_zero_and_invalid_values():
+    X = [[200.0, 1.0, 1e-9, 0.5, 10.0, 0.02],   # TA2 -> 0
+         [200.0, 1.0, 0.0, 0.5, 10.0, 0.02],    # TA2 = 0: improper lead, invalid
+         [200.0, 1.0, math.nan, 0.5, 10.0, 0.02],
+         [-5.0, 1.0, 0.2, 0.5, 10.0, 0.02],
+         [200.0, 1.0, 0.2, 0.5, 10.0, math.inf]]
+    out = _run(X)
+    assert np.all(np.isfinite(out["efd"]))
+    assert np.all(out["fail_step"][1:] == 0)        # refused at the start
+    assert out["fail_step"][0] >= 0                  # stiff beyond the step: fails, finite
+
+
+def test_population_evaluation_matches_single_runs():
+    rng = np.random.default_rng(3)
+    X = np.array([200, 1, 0.2, 0.5, 10, 0.02]) * (1 + 0.3 * (rng.random((9, 6)) - 0.5))
+    batch = _run(X)
+    for j in range(X.shape[0]):
+        one = _run(X[j:j + 1])
+        assert np.array_equal(one["efd"][0], batch["efd"][j])
+        assert one["obj"][0] == batch["obj"][j]
+
+
+def test_objective_is_the_trapezoidal_integral():
+    rng = np.random.default_rng(4)
+    X = np.array([[230.0, 0.9, 0.25, 0.6, 12.0, 0.03]])
+    unit = reference_unit()
+    t, u = pulse_usetp(duration=4.0)
+    meas = run_kernel(param_matrix(unit.values()), u, 1e-3, 1.0)["efd"][0] + rng.normal(0, 0.01, t.size)
+    out = run_kernel(param_matrix(unit.values(), NAMES, X), u, 1e-3, 1.0, efd_meas=meas)
+    err2 = (out["efd"][0] - meas) ** 2
+    assert math.isclose(out["obj"][0], np.trapezoid(err2, t), rel_tol=1e-9)
+    assert math.isclose(out["sse_efd"][0], err2.sum(), rel_tol=1e-9)

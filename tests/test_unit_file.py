@@ -1,0 +1,73 @@
+"""Unit files: the built-in reference unit, strict keys, --set overrides, effects."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from bench_ctl.model.effects import EFFECTS
+from bench_ctl.model.params import PARAMS
+from bench_ctl.model.unit import UnitError, apply_overrides, load_unit, reference_unit
+
+
+def test_reference_unit_matches_design():
+    u = reference_unit()
+    assert u.generator == {"Td0p": 7.5, "Td0pp": 0.05, "Vt0": 1.0}
+    assert {k: b.value for k, b in u.identify.items()} == {
+        "KAVR": 200.0, "TA1": 1.0, "TA2": 0.2, "TA3": 0.5, "TA4": 10.0, "TE": 0.02}
+    assert (u.identify["KAVR"].min, u.identify["KAVR"].max) == (50.0, 800.0)
+    assert u.constraints == ("TA2 <= TA1", "TA4 >= TA2")
+    assert u.effects == {}
+
+
+def test_every_effect_has_named_params_neutral_and_bounds_inside_physical_range():
+    assert set(EFFECTS) == {"ceiling_limit", "dead_time", "transducer_lag", "saturation", "rate_limit",
+                            "setpoint_ramp", "recorder_gain", "time_skew"}
+    for eff in EFFECTS.values():
+        for p in eff.params:
+            info = PARAMS[p]
+            assert info.neutral is not None
+            lo, hi = eff.bounds[p]
+            assert info.lo <= lo < hi <= info.hi
+
+
+def test_unknown_keys_are_errors(tmp_path):
+    f = tmp_path / "u.toml"
+    f.write_text('name = "x"\ncolour = "red"\n[generator]\nTd0p = 7.5\nTd0pp = 0.05\nVt0 = 1.0\n')
+    with pytest.raises(UnitError, match=r"u.toml.*colour"):
+        load_unit(f)
+    f.write_text('[generator]\nTd0p = 7.5\nTd0pp = 0.05\nVt0 = 1.0\nXd = 1.0\n')
+    with pytest.raises(UnitError, match="Xd"):
+        load_unit(f)
+    f.write_text('[generator]\nTd0p = 7.5\nTd0pp = 0.05\nVt0 = 1.0\n[effects.backlash]\nB = 1\n')
+    with pytest.raises(UnitError, match="backlash"):
+        load_unit(f)
+
+
+def test_unit_file_with_effects(tmp_path):
+    f = tmp_path / "u.toml"
+    f.write_text('constraints = ["TA2 <= TA1"]\n[generator]\nTd0p = 6.0\nTd0pp = 0.04\nVt0 = 1.0\n'
+                 '[identify.KAVR]\nmin = 50\nmax = 500\nvalue = 150\n[fixed]\nTA1 = 1.0\n'
+                 '[effects.ceiling_limit]\nVRMAX = 2.8\nVRMIN = -1.0\n')
+    u = load_unit(f)
+    v = u.values()
+    assert v["VRMAX"] == 2.8 and v["Td0p"] == 6.0 and v["KAVR"] == 150 and v["TA1"] == 1.0
+    assert math.isinf(v["RATE"])
+
+
+def test_set_overrides():
+    u = apply_overrides(reference_unit(), ["Td0p=6.0", "KAVR.min=20", "KAVR=250", "TR=0.01", "VRMAX=2.8",
+                                           "weights.vt=0.5"])
+    assert u.generator["Td0p"] == 6.0
+    assert u.identify["KAVR"].min == 20 and u.identify["KAVR"].value == 250
+    assert u.fixed["TR"] == 0.01
+    assert u.effects["ceiling_limit"]["VRMAX"] == 2.8 and u.effects["ceiling_limit"]["VRMIN"] == -math.inf
+    assert u.weights["vt"] == 0.5
+
+
+@pytest.mark.parametrize("bad, msg", [("Xd=1", "unknown name 'Xd'"), ("KAVR.min=900", "below max"),
+                                      ("Td0p=abc", "not a number"), ("Td0p", "NAME=VALUE"),
+                                      ("Td0p=-1", "outside its physical range")])
+def test_bad_overrides(bad, msg):
+    with pytest.raises(UnitError, match=msg):
+        apply_overrides(reference_unit(), [bad])
