@@ -1,0 +1,18 @@
+"""The validation report an engineer hands to the grid operator (issue 6).
+
+`render_report(result, out_html, diagnosis=None, pdf=None)` re-simulates the identified model on
+the capture(s) the result names (after checking their SHA-256), and writes one self-contained
+HTML page (inline CSS, figures as base64 PNG, nothing fetched from the network, print CSS for A4),
+each figure as a PNG beside it, and optionally a PDF made with matplotlib's PdfPages.
+
+Contents: pass / fail summary; measured vs simulated efd with the setpoint, residual, zooms on
+both pulse edges; MSE / RMSE / NRMSE / peak error / segment shares; parameter table with units,
+bounds, uncertainty, identifiability and equivalent sets; constraints; convergence; optimizer
+comparison; diagnosis (when given); unit, test and capture metadata; software and command lines.
+"""
+from bench_ctl.report.analysis import ReportData, analyse
+from bench_ctl.report.inputs import ReportError, load_json
+from bench_ctl.report.render import figure_path, render_report, write_report
+
+__all__ = ["ReportData", "ReportError", "analyse", "figure_path", "load_json", "render_report",
+           "write_report"]

@@ -1,0 +1,87 @@
+"""`bench-ctl report`: the validation report for an identification result.
+
+Example:
+  bench-ctl report result.json --diagnosis diag.json -o report.html --pdf report.pdf
+
+Writes one self-contained HTML page (figures embedded, nothing fetched), each figure as
+`<stem>_<name>.png` beside it, and the PDF (matplotlib PdfPages) when asked. Capture paths in
+the result are used as written, else relative to the result file's folder.
+
+Exit codes: 0 report written, every check passed; 1 report written, a check failed (constraint
+violated, reported MSE not reproduced, model blew up); 2 nothing written: the result, the
+diagnosis or a capture was refused (missing file, SHA-256 mismatch, malformed JSON) or the
+output could not be written.
+"""
+from __future__ import annotations
+
+import logging
+import shlex
+from pathlib import Path
+
+import click
+
+from bench_ctl.report import ReportError, analyse, load_json, write_report
+from bench_ctl.report.checks import DEFAULT_NOISE_RATIO_LIMIT
+from bench_ctl.report.inputs import DIAGNOSIS_SCHEMA, RESULT_SCHEMA
+from bench_ctl.report.metrics import DEFAULT_EDGE_WINDOW_S
+
+log = logging.getLogger(__name__)
+
+EXIT_OK, EXIT_FAILED, EXIT_REFUSED = 0, 1, 2
+
+
+def _command_line(result_json: str, diagnosis_json: str | None, out: str, pdf: str | None,
+                  edge_window: float, noise_ratio_limit: float) -> str:
+    args = ["bench-ctl", "report", result_json]
+    if diagnosis_json:
+        args += ["--diagnosis", diagnosis_json]
+    args += ["-o", out]
+    if pdf:
+        args += ["--pdf", pdf]
+    if edge_window != DEFAULT_EDGE_WINDOW_S:
+        args += ["--edge-window", repr(edge_window)]
+    if noise_ratio_limit != DEFAULT_NOISE_RATIO_LIMIT:
+        args += ["--noise-ratio-limit", repr(noise_ratio_limit)]
+    return shlex.join(args)
+
+
+@click.command("report")
+@click.argument("result_json", metavar="RESULT.json", type=click.Path(dir_okay=False))
+@click.option("--diagnosis", "diagnosis_json", metavar="DIAG.json", default=None,
+              type=click.Path(dir_okay=False), help="Diagnosis JSON to include.")
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
+              help="HTML file to write (replaced when it exists); PNGs go beside it.")
+@click.option("--pdf", default=None, type=click.Path(dir_okay=False),
+              help="Also write a PDF (matplotlib PdfPages, A4).")
+@click.option("--edge-window", type=click.FloatRange(min=0.0, min_open=True),
+              default=DEFAULT_EDGE_WINDOW_S, show_default=True,
+              help="Length (s) of the leading / trailing edge segments.")
+@click.option("--noise-ratio-limit", type=click.FloatRange(min=1.0),
+              default=DEFAULT_NOISE_RATIO_LIMIT, show_default=True,
+              help="Warn when MSE exceeds this multiple of the noise floor.")
+def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | None,
+           edge_window: float, noise_ratio_limit: float) -> int:
+    """Write the validation report for RESULT.json (from `bench-ctl identify --json`)."""
+    try:
+        result = load_json(result_json, RESULT_SCHEMA)
+        diagnosis = load_json(diagnosis_json, DIAGNOSIS_SCHEMA) if diagnosis_json else None
+        data = analyse(result, diagnosis=diagnosis, base_dir=Path(result_json).resolve().parent,
+                       where=result_json, window_s=edge_window,
+                       noise_ratio_limit=noise_ratio_limit,
+                       report_command=_command_line(result_json, diagnosis_json, out, pdf,
+                                                    edge_window, noise_ratio_limit))
+    except ReportError as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_REFUSED
+    try:
+        written = write_report(data, out, pdf=pdf)
+    except OSError as exc:
+        click.echo(f"error: cannot write the report: {exc}", err=True)
+        return EXIT_REFUSED
+    for path in written:
+        click.echo(f"wrote {path}")
+    for c in data.checks:
+        if c.status in ("fail", "warn"):
+            click.echo(f"{c.status.upper()}: {c.name}: {c.detail}")
+    click.echo(f"overall: {data.verdict}")
+    return EXIT_OK if data.verdict == "PASS" else EXIT_FAILED

@@ -1,0 +1,168 @@
+"""Re-simulating the identified model on its captures and computing what the report shows.
+
+`analyse` takes a result dict (schema bench-ctl/result/1), verifies its captures, simulates the
+model from `params` + `fixed` with `bench_ctl.model.simulate.simulate` (it does not call the
+identification code, so the report is an independent check of the figures it prints), computes
+the error figures, re-evaluates the constraints and sets up the pass / fail checks.
+"""
+from __future__ import annotations
+
+import datetime as dt
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench_ctl.model.simulate import simulate
+from bench_ctl.report import checks as chk
+from bench_ctl.report.inputs import (DIAGNOSIS_SCHEMA, LoadedCapture, ReportError, check_result,
+                                     check_schema, load_captures, model_values)
+from bench_ctl.report.metrics import (DEFAULT_EDGE_WINDOW_S, ErrorFigures, PulseEdges,
+                                      error_figures, find_edges, trapezoid_sq, window_slice)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CaptureAnalysis:
+    loaded: LoadedCapture
+    efd_sim: np.ndarray
+    vt_sim: np.ndarray
+    fail_step: int
+    edges: PulseEdges
+    figures: ErrorFigures
+    suffix: str  # "" for a single capture, else "_<1-based index>"
+    fit_mse: float        # MSE over the fit window (= figures.mse without a window)
+    fit_objective: float  # objective over the fit window (unweighted by the capture weight)
+
+    @property
+    def residual(self) -> np.ndarray:
+        return self.loaded.capture.efd - self.efd_sim
+
+    @property
+    def label(self) -> str:
+        return f"capture {self.loaded.index + 1} ({self.loaded.path.name})"
+
+
+@dataclass(frozen=True)
+class ReportData:
+    result: dict[str, Any]
+    diagnosis: dict[str, Any] | None
+    values: dict[str, float]
+    captures: tuple[CaptureAnalysis, ...]
+    mse: float                       # mean over captures of the fit-window MSE (re-simulated)
+    objective: float                 # sum over captures of weight * fit-window objective
+    fit_window: tuple[float, float] | None  # s from each record's start, as identification used
+    constraints: list[dict[str, Any]]
+    checks: list[chk.Check]
+    verdict: str
+    noise_floor: float | None
+    noise_source: str
+    window_s: float
+    noise_ratio_limit: float
+    report_command: str
+    generated_utc: str
+
+
+def _num(x: Any, default: float) -> float:
+    return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else default
+
+
+def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = None,
+            base_dir: Path | None = None, where: str = "result",
+            window_s: float = DEFAULT_EDGE_WINDOW_S,
+            noise_ratio_limit: float = chk.DEFAULT_NOISE_RATIO_LIMIT,
+            report_command: str = "") -> ReportData:
+    """Verify the captures of `result`, re-simulate, compute every figure and the checks.
+
+    `where` names the result in error messages (its file name); `base_dir` is where relative
+    capture paths are looked for when they do not exist relative to the current directory.
+    Raises `ReportError` (see `inputs`) for input that cannot be reported on.
+    """
+    result = dict(result)
+    check_result(result, where)
+    if diagnosis is not None:
+        check_schema(diagnosis, DIAGNOSIS_SCHEMA, "diagnosis")
+        diagnosis = dict(diagnosis)
+    values = model_values(result, where)
+    loaded = load_captures(result, where, base_dir)
+    weights = dict((result.get("unit") or {}).get("weights") or {})
+    w_efd, w_vt = _num(weights.get("efd"), 1.0), _num(weights.get("vt"), 0.0)
+    window = _fit_window(result.get("fit_window"), where)
+    analyses = [_analyse_capture(lc, values, window, where, window_s=window_s, w_efd=w_efd,
+                                 w_vt=w_vt, single=len(loaded) == 1) for lc in loaded]
+    failures = [f"{a.loaded.path.name}: the model blew up at t = "
+                f"{a.loaded.capture.time[a.fail_step]:.3f} s" for a in analyses if a.fail_step >= 0]
+    mse = float(np.mean([a.fit_mse for a in analyses]))
+    objective = float(sum(_num(a.loaded.entry.get("weight"), 1.0) * a.fit_objective
+                          for a in analyses))
+    constraints = chk.recheck_constraints(
+        [c for c in (result.get("constraints") or []) if isinstance(c, Mapping)], values)
+    noise_floor, noise_source = _noise_floor(diagnosis, analyses)
+    ident = result.get("identifiability") if isinstance(result.get("identifiability"), Mapping) else {}
+    if result.get("failed") is True:
+        failures.insert(0, f"identification reported a failed fit: {result.get('message', '')}")
+    checks = chk.summary_checks(
+        sim_failures=failures, mse_recomputed=mse, mse_reported=result.get("mse"),
+        constraints=constraints, noise_floor=noise_floor, noise_source=noise_source,
+        noise_ratio_limit=noise_ratio_limit, determined=ident.get("determined"),
+        at_bounds=chk.params_at_bounds(dict(result.get("params") or {}),
+                                       dict(result.get("bounds") or {})),
+        n_captures=len(analyses))
+    return ReportData(result=result, diagnosis=diagnosis, values=values,
+                      captures=tuple(analyses), mse=mse, objective=objective, fit_window=window,
+                      constraints=constraints, checks=checks, verdict=chk.overall(checks),
+                      noise_floor=noise_floor, noise_source=noise_source, window_s=window_s,
+                      noise_ratio_limit=noise_ratio_limit, report_command=report_command,
+                      generated_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
+
+
+def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
+                     window: tuple[float, float] | None, where: str, *, window_s: float,
+                     w_efd: float, w_vt: float, single: bool) -> CaptureAnalysis:
+    cap = lc.capture
+    efd, vt, fail = simulate(values, cap.usetp, cap.dt)
+    edges = find_edges(cap.time, cap.usetp)
+    figs = error_figures(cap.time, cap.efd, efd, edges, window_s=window_s, w_efd=w_efd,
+                         vt_meas=cap.vt, vt_sim=vt, w_vt=w_vt)
+    sl = window_slice(cap.time, window)
+    if sl.stop - sl.start < 2:
+        raise ReportError(f"{where}: fit_window {list(window or ())} holds fewer than 2 samples "
+                          f"of {lc.path}")
+    if window is None:
+        fit_mse, fit_obj = figs.mse, figs.objective
+    else:
+        r = cap.efd[sl] - efd[sl]
+        fit_mse = float(np.mean(r * r))
+        fit_obj = w_efd * trapezoid_sq(r, cap.dt)
+        if w_vt and cap.vt is not None:
+            fit_obj += w_vt * trapezoid_sq(cap.vt[sl] - vt[sl], cap.dt)
+    suffix = "" if single else f"_{lc.index + 1}"
+    return CaptureAnalysis(lc, efd, vt, fail, edges, figs, suffix, fit_mse, fit_obj)
+
+
+def _fit_window(value: Any, where: str) -> tuple[float, float] | None:
+    if value is None:
+        return None
+    vals = [_num(v, math.nan) for v in value] if isinstance(value, list) else []
+    if len(vals) != 2 or any(math.isnan(v) for v in vals) or not vals[0] < vals[1]:
+        raise ReportError(f"{where}: fit_window must be null or [t0, t1] in s with t0 < t1, "
+                          f"got {value!r}")
+    return vals[0], vals[1]
+
+
+def _noise_floor(diagnosis: Mapping[str, Any] | None,
+                 analyses: list[CaptureAnalysis]) -> tuple[float | None, str]:
+    if diagnosis is not None:
+        nf = diagnosis.get("noise_floor")
+        if isinstance(nf, (int, float)) and not isinstance(nf, bool) and nf > 0:
+            return float(nf), "from the diagnosis"
+    own = [a.figures.noise_floor for a in analyses]
+    if own and all(v is not None for v in own):
+        return float(np.mean(own)), "variance of the measured efd before the trigger"
+    return None, "not available"
+

@@ -1,0 +1,328 @@
+"""What the report says, section by section, as blocks (see `blocks`): summary, response figures,
+error figures, parameters, constraints, convergence, optimizer comparison. The diagnosis,
+metadata and provenance sections are in `content_more`.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from bench_ctl.model.params import PARAMS
+from bench_ctl.report import figures as F
+from bench_ctl.report.analysis import CaptureAnalysis, ReportData
+from bench_ctl.report.blocks import (NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section,
+                                     Status, Verdict, fmt, num, table)
+
+STRONG_CORRELATION = 0.9
+
+
+def summary(d: ReportData) -> Section:
+    r = d.result
+    counts = {s: sum(c.status == s for c in d.checks) for s in ("pass", "warn", "fail", "n/a")}
+    text = (f"{counts['pass']} passed, {counts['warn']} warning(s), {counts['fail']} failed, "
+            f"{counts['n/a']} not applicable")
+    unit = r.get("unit") or {}
+    opt = r.get("optimizer") or {}
+    diag = d.diagnosis
+    rows = [
+        ("unit", str(unit.get("name", NOT_AVAILABLE)), "", ""),
+        ("captures", ", ".join(a.loaded.path.name for a in d.captures), "",
+         "SHA-256 verified; see Metadata"),
+        *([("fit window", f"{fmt(d.fit_window[0])} … {fmt(d.fit_window[1])}", "s",
+            "identification fitted this part of each record; MSE and objective below are over it")]
+          if d.fit_window else []),
+        ("MSE (re-simulated)", Num(d.mse, "mse"), "pu²", "mean over captures of mean(r²)"),
+        ("MSE (reported by identification)", Num(num(r.get("mse")), "mse-reported"), "pu²", ""),
+        ("objective (re-simulated)", Num(d.objective, "objective"), "pu² s",
+         "trapezoidal integral of the weighted squared error"),
+        ("objective (reported)", Num(num(r.get("objective")), "objective-reported"), "pu² s", ""),
+        ("noise floor", Num(d.noise_floor, "noise-floor"), "pu²", d.noise_source),
+        ("optimizer", str(opt.get("name", NOT_AVAILABLE)), "",
+         f"seed {fmt(opt.get('seed'))}, {fmt(r.get('evaluations'))} evaluations"),
+        *_single_capture_rows(d),
+        ("diagnosis verdict", str(diag.get("verdict", NOT_AVAILABLE)) if diag else NOT_AVAILABLE,
+         "", "see Diagnosis" if diag else "no diagnosis given"),
+    ]
+    return Section("summary", "Summary", (
+        Verdict(d.verdict, text),
+        table(("check", "status", "detail"),
+              [(c.name, Status(c.status), c.detail) for c in d.checks], id="checks"),
+        table(("quantity", "value", "unit", "note"), rows, id="key-figures"),
+    ))
+
+
+def _single_capture_rows(d: ReportData) -> list[tuple[str, Num, str, str]]:
+    if len(d.captures) != 1:
+        return []
+    f = d.captures[0].figures
+    return [("RMSE", Num(f.rmse), "pu", "√MSE"),
+            ("NRMSE", Num(100.0 * f.nrmse, digits=4), "%", "RMSE / measured efd range"),
+            ("peak error |r|", Num(f.peak_abs), "pu", f"at t = {fmt(f.peak_time_s, 5)} s")]
+
+
+def _edge_text(a: CaptureAnalysis) -> str:
+    e = a.edges
+    if e.leading_s is None:
+        return "No setpoint change found in usetp: no edge zooms, the whole record is one segment."
+    trail = f", trailing edge at t = {e.trailing_s:.4f} s" if e.trailing_s is not None else \
+        " (a step: no trailing edge)"
+    return (f"Setpoint change of {e.amplitude:+.4g} pu from {e.usetp_pre:.4g} pu; leading edge at "
+            f"t = {e.leading_s:.4f} s{trail}. Edges are where usetp crosses half its largest "
+            "excursion from the pre-trigger mean.")
+
+
+def response(d: ReportData) -> Section:
+    blocks: list[Block] = []
+    for a in d.captures:
+        cap = a.loaded.capture
+        if len(d.captures) > 1:
+            blocks.append(Heading(a.label))
+        blocks.append(Fig(f"response{a.suffix}",
+                          "Measured and simulated efd (top) and the recorded setpoint usetp (bottom); "
+                          "dotted lines mark the setpoint edges.",
+                          partial(F.draw_response, time=cap.time, usetp=cap.usetp, meas=cap.efd,
+                                  sim=a.efd_sim, edges=a.edges,
+                                  title=f"Measured vs simulated efd, {a.loaded.path.name}")))
+        blocks.append(Fig(f"residual{a.suffix}",
+                          "Residual r = measured − simulated efd; shading marks the segments, the "
+                          "legend gives each segment's share of the residual energy Σr².",
+                          partial(F.draw_residual, time=cap.time, residual=a.residual, figs=a.figures)))
+        if a.edges.leading_s is not None:
+            blocks.append(Fig(f"edges{a.suffix}",
+                              f"Zooms on the setpoint edges ({F.ZOOM_BEFORE_S:g} s before to "
+                              f"{F.ZOOM_AFTER_S:g} s after), usetp on the right axis.",
+                              partial(F.draw_edges, time=cap.time, usetp=cap.usetp, meas=cap.efd,
+                                      sim=a.efd_sim, edges=a.edges)))
+        blocks.append(Para(_edge_text(a), "note"))
+    return Section("response", "Measured vs simulated response", tuple(blocks))
+
+
+def errors(d: ReportData) -> Section:
+    blocks: list[Block] = [Para(
+        "r = efd measured − efd simulated, sample by sample. MSE = mean(r²) over all samples, as "
+        "in the reference paper; RMSE = √MSE; NRMSE = RMSE normalised by the range (max − min) of "
+        "the measured efd. Objective = trapezoidal integral of the weighted squared error "
+        "(the identification's objective function). Segments: pre-trigger (start to the leading "
+        f"edge), leading edge ({d.window_s:g} s from the leading edge), plateau (to the trailing "
+        f"edge), trailing edge ({d.window_s:g} s from the trailing edge), recovery (to the end); "
+        "share = Σr² in the segment / Σr² over the record.", "note")]
+    for a in d.captures:
+        f, s, e = a.figures, a.suffix, a.loaded.entry
+        if len(d.captures) > 1:
+            blocks.append(Heading(a.label))
+        win = ""
+        if d.fit_window:
+            win = f" over the fit window {fmt(d.fit_window[0])} … {fmt(d.fit_window[1])} s"
+        rows = [
+            ("MSE (re-simulated)" + win, Num(a.fit_mse, f"mse{s}-capture"), "pu²", "mean(r²)"),
+            ("MSE (reported)", Num(num(e.get("mse")), f"mse{s}-capture-reported"), "pu²",
+             "captures[].mse of the result"),
+            *([("MSE over the whole record", Num(f.mse, f"mse{s}-record"), "pu²",
+                "mean(r²), all samples")] if win else []),
+            ("RMSE", Num(f.rmse, f"rmse{s}"), "pu", "√MSE"),
+            ("NRMSE", Num(100.0 * f.nrmse, f"nrmse{s}", 4), "%",
+             f"RMSE / measured efd range ({fmt(f.efd_range, 4)} pu)"),
+            ("measured efd range", Num(f.efd_range, f"efd-range{s}"), "pu", "max − min"),
+            ("peak error |r|", Num(f.peak_abs, f"peak{s}"), "pu",
+             f"signed r = {fmt(f.peak_signed, 4)} pu"),
+            ("time of peak error", Num(f.peak_time_s, f"peak-time{s}"), "s", ""),
+            ("objective (re-simulated)" + win, Num(a.fit_objective, f"objective{s}-capture"),
+             "pu² s", "trapezoidal ∫ w r² dt"),
+            ("objective (reported)", Num(num(e.get("objective")), f"objective{s}-capture-reported"),
+             "pu² s", "captures[].objective of the result"),
+            ("pre-trigger efd variance", Num(f.noise_floor, f"noise-pre{s}"), "pu²",
+             f"{f.noise_samples} samples before the leading edge (noise estimate)"),
+        ]
+        blocks.append(table(("figure", "value", "unit", "definition"), rows, id=f"errors{s}"))
+        seg_rows = [(g.name.replace("_", " "), Num(g.t0, digits=5), Num(g.t1, digits=5), Num(g.n),
+                     Num(g.mse if g.n else None), Num(100.0 * g.share, f"share-{g.name}{s}", 4))
+                    for g in f.segments]
+        blocks.append(table(("segment", "from (s)", "to (s)", "samples", "MSE (pu²)",
+                             "share of Σr² (%)"), seg_rows, id=f"segments{s}",
+                            caption="Residual energy per segment of the response"))
+    return Section("errors", "Error figures", tuple(blocks))
+
+
+def _strong_pairs(ident: Mapping[str, Any]) -> list[tuple[str, float]]:
+    names, corr = ident.get("names"), ident.get("correlation")
+    try:
+        c = np.asarray(corr, float)
+    except (TypeError, ValueError):
+        return []
+    if not isinstance(names, list) or c.shape != (len(names), len(names)):
+        return []
+    out = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if abs(c[i, j]) >= STRONG_CORRELATION:
+                out.append((f"{names[i]} – {names[j]}", float(c[i, j])))
+    return out
+
+
+def _allowed(s: Mapping[str, Any]) -> str:
+    allowed = s.get("allowed")
+    return fmt(allowed) if isinstance(allowed, bool) else NOT_AVAILABLE
+
+
+def _set_verdict(s: Mapping[str, Any]) -> str:
+    if s.get("verdict"):
+        return str(s["verdict"])
+    why = [*map(str, s.get("outside_bounds") or []),
+           *(f"violates {c}" for c in s.get("constraints_violated") or [])]
+    return "; ".join(why)
+
+
+def _determined(det: Any, reasons: Any) -> str:
+    if det is None:
+        return NOT_AVAILABLE
+    text = "yes" if det is True else "NO"
+    if isinstance(reasons, list) and reasons:
+        text += ": " + "; ".join(map(str, reasons))
+    elif isinstance(reasons, str) and reasons:
+        text += ": " + reasons
+    return text
+
+
+def parameters(d: ReportData) -> Section:
+    r = d.result
+    params = dict(r.get("params") or {})
+    bounds = dict(r.get("bounds") or {})
+    ident = r.get("identifiability") if isinstance(r.get("identifiability"), Mapping) else None
+    get = (lambda key, name: (ident.get(key) or {}).get(name)) if ident else (lambda k, n: None)
+    rows = []
+    for name, value in params.items():
+        info = PARAMS.get(name)
+        b = bounds.get(name) if isinstance(bounds.get(name), (list, tuple)) else (None, None)
+        rel = num(get("rel_std", name))
+        det = get("determined", name)
+        rows.append((name, Num(num(value), f"param-{name}"), info.unit if info else "?",
+                     info.info if info else "", Num(num(b[0])), Num(num(b[1])),
+                     Num(num(get("std", name)), f"std-{name}", 3),
+                     Num(None if rel is None else 100.0 * rel, digits=3),
+                     Num(num(get("sensitivity", name)), digits=3),
+                     _determined(det, get("reasons", name))))
+    blocks: list[Block] = [table(("parameter", "value", "unit", "meaning", "lower bound",
+                                  "upper bound", "std", "rel. std (%)", "sensitivity",
+                                  "determined"), rows, id="params",
+                                 caption="Identified parameters")]
+    if ident is None:
+        blocks.append(Para("Identifiability (uncertainty, sensitivity, determined, equivalent "
+                           f"parameter sets): {NOT_AVAILABLE} in this result.", "na"))
+    else:
+        blocks.append(Para("std from the Fisher information (Gauss–Newton) at the optimum; "
+                           "sensitivity = relative sensitivity norm of efd to the parameter.",
+                           "note"))
+        sets = [s for s in (ident.get("equivalent_sets") or []) if isinstance(s, Mapping)]
+        if sets:
+            blocks.append(table(("#", "parameters", "MSE (pu²)", "note", "allowed", "verdict"),
+                                [(str(i + 1), fmt(s.get("params"), 5), Num(num(s.get("mse"))),
+                                  str(s.get("note", "")), _allowed(s), _set_verdict(s))
+                                 for i, s in enumerate(sets)],
+                                id="equivalent-sets",
+                                caption="Equivalent parameter sets (same response within noise)"))
+        else:
+            blocks.append(Para("Equivalent parameter sets: none reported.", "note"))
+        pairs = _strong_pairs(ident)
+        if pairs:
+            blocks.append(table(("pair", "correlation"), [(p, Num(c, digits=3)) for p, c in pairs],
+                                id="correlations",
+                                caption=f"Strongly correlated estimates (|r| ≥ {STRONG_CORRELATION:g})"))
+        for note in ident.get("notes") or []:
+            blocks.append(Para(str(note), "note"))
+    fixed = dict(r.get("fixed") or {})
+    frows = []
+    for name, value in fixed.items():
+        info = PARAMS.get(name)
+        if value is None:
+            neutral = info.neutral if info and info.neutral is not None else float("inf")
+            text: Any = f"{fmt(neutral)} (effect off)"
+        else:
+            text = Num(num(value), f"fixed-{name}")
+        frows.append((name, text, info.unit if info else "?", info.info if info else ""))
+    if frows:
+        blocks.append(table(("parameter", "value", "unit", "meaning"), frows, id="fixed",
+                            caption="Fixed parameters used in the simulation"))
+    else:
+        blocks.append(Para(f"Fixed parameters: {NOT_AVAILABLE}.", "na"))
+    return Section("parameters", "Parameters", tuple(blocks))
+
+
+def constraints(d: ReportData) -> Section:
+    if not d.constraints:
+        return Section("constraints", "Constraints",
+                       (Para("The result lists no constraints.", "na"),))
+    rows = []
+    for c in d.constraints:
+        rep, re_ok = c.get("satisfied"), c.get("recheck_satisfied")
+        ok = rep is True and re_ok is not False
+        rows.append((str(c.get("expr", "?")), Status("pass" if ok else "fail"),
+                     fmt(rep) if isinstance(rep, bool) else NOT_AVAILABLE,
+                     Num(num(c.get("margin"))), Num(c.get("recheck_margin")),
+                     "not re-evaluated" if re_ok is None else fmt(re_ok)))
+    return Section("constraints", "Constraints", (
+        table(("constraint", "status", "satisfied (reported)", "margin (reported)",
+               "margin (re-evaluated)", "satisfied (re-evaluated)"), rows, id="constraints"),
+        Para("Margin = slack of the inequality at the identified values (≥ 0 when satisfied); "
+             "re-evaluated by the report from params + fixed.", "note")))
+
+
+def convergence(d: ReportData) -> Section:
+    r = d.result
+    opt = r.get("optimizer") or {}
+    blocks: list[Block] = []
+    # entries whose best is still null (no finite objective yet) or not positive are left out
+    pts = [(float(p[0]), float(p[1])) for p in (r.get("history") or [])
+           if isinstance(p, list) and len(p) == 2 and num(p[0]) is not None
+           and num(p[1]) is not None and p[1] > 0]
+    h = np.asarray(pts, float).reshape(-1, 2)
+    ok = h.shape[0] > 0
+    if ok:
+        name = str(opt.get("name", "optimizer"))
+        left_out = len(r.get("history") or []) - h.shape[0]
+        blocks.append(Fig("convergence", "Best objective found vs number of objective "
+                          "evaluations (log scale)." + (f" {left_out} history entries without a "
+                                                        "finite positive objective are not drawn."
+                                                        if left_out else ""),
+                          partial(F.draw_convergence, history=h.tolist(), label=name)))
+        best = float(h[:, 1].min())
+        reached = int(h[int(np.argmax(h[:, 1] <= best)), 0])
+    else:
+        blocks.append(Para(f"Convergence history: {NOT_AVAILABLE}.", "na"))
+        best, reached = None, None
+    rows = [("optimizer", str(opt.get("name", NOT_AVAILABLE))), ("seed", fmt(opt.get("seed"))),
+            ("evaluations", Num(num(r.get("evaluations")), "evaluations")),
+            ("best objective in history", Num(best)),
+            ("best reached after (evaluations)", Num(reached, "best-reached")),
+            ("optimizer wall time (s)", Num(num(r.get("wall_s")), "wall-s", 4)),
+            ("compile time (s), excluded", Num(num(r.get("compile_s")), digits=4))]
+    for key, value in dict(opt.get("settings") or {}).items():
+        rows.append((f"setting: {key}", fmt(value)))
+    blocks.append(table(("item", "value"), rows, id="optimizer", kind="kv"))
+    return Section("convergence", "Convergence", tuple(blocks))
+
+
+def comparison(d: ReportData) -> Section:
+    r = d.result
+    comp = [c for c in (r.get("comparison") or []) if isinstance(c, Mapping)]
+    if not comp:
+        return Section("comparison", "Optimizer comparison", (
+            Para(f"Optimizer comparison: {NOT_AVAILABLE} (one optimizer was run).", "na"),))
+    main = str((r.get("optimizer") or {}).get("name", "this result"))
+    rows = [(str(c.get("optimizer", "?")) + (" (this result)" if c.get("optimizer") == main else ""),
+             Num(num(c.get("mse"))), Num(num(c.get("objective"))), Num(num(c.get("evaluations"))),
+             Num(num(c.get("wall_s")), digits=4),
+             ", ".join(map(str, c.get("constraints_violated") or [])) or "none",
+             f"failed: {c.get('message', '')}" if c.get("failed") is True else "")
+            for c in comp]
+    if not any(c.get("optimizer") == main for c in comp):  # the chosen run is not listed: add it
+        violated = [str(c.get("expr")) for c in d.constraints if c.get("satisfied") is not True]
+        rows.insert(0, (main + " (this result)", Num(num(r.get("mse"))),
+                        Num(num(r.get("objective"))), Num(num(r.get("evaluations"))),
+                        Num(num(r.get("wall_s")), digits=4), ", ".join(violated) or "none", ""))
+    return Section("comparison", "Optimizer comparison", (
+        table(("optimizer", "MSE (pu²)", "objective (pu² s)", "evaluations", "wall time (s)",
+               "constraints violated", "note"), rows, id="comparison",
+              caption="Optimizers run on the same capture(s)"),))

@@ -1,0 +1,170 @@
+"""Report sections after the fit itself: diagnosis (when given), unit / test / capture metadata,
+provenance; and `sections`, the whole report in order.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from functools import partial
+from typing import Any
+
+import bench_ctl
+from bench_ctl.report import content
+from bench_ctl.report import figures as F
+from bench_ctl.report.analysis import ReportData
+from bench_ctl.report.blocks import (NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section, flatten,
+                                     fmt, num, table)
+from bench_ctl.report.inputs import same_file
+
+PDF_METHOD = "matplotlib PdfPages (text pages with the tables, then the figures, A4)"
+
+
+def _objs(value: Any) -> list[Mapping[str, Any]]:
+    return [v for v in (value or []) if isinstance(v, Mapping)] if isinstance(value, list) else []
+
+
+def diagnosis(d: ReportData) -> Section | None:
+    g = d.diagnosis
+    if g is None:
+        return None
+    blocks: list[Block] = []
+    cap = g.get("capture") if isinstance(g.get("capture"), Mapping) else {}
+    if not any(same_file(cap, a.loaded) for a in d.captures):
+        blocks.append(Para(f"Note: the diagnosis was made on {cap.get('path', '?')} (SHA-256 "
+                           f"{cap.get('sha256', '?')}), not on a capture of this result.", "note"))
+    base = g.get("base") if isinstance(g.get("base"), Mapping) else {}
+    hold = g.get("holdout") if isinstance(g.get("holdout"), Mapping) else None
+    rows = [("verdict", str(g.get("verdict", NOT_AVAILABLE))),
+            ("noise floor (pu²)", Num(num(g.get("noise_floor")), "diag-noise-floor")),
+            ("base model MSE (pu²)", Num(num(base.get("mse")), "diag-base-mse")),
+            ("base model MSE on hold-out (pu²)", Num(num(base.get("mse_holdout")))),
+            ("capture", f"{cap.get('path', '?')} (SHA-256 {cap.get('sha256', '?')})"),
+            ("hold-out capture", f"{hold.get('path', '?')} (SHA-256 {hold.get('sha256', '?')})"
+             if hold else "none")]
+    if isinstance(base.get("at_noise_floor"), bool):
+        rows.insert(3, ("base model at the noise floor", fmt(base["at_noise_floor"])))
+    for key, label in (("validation", "validation (fit / check records)"),
+                       ("criteria", "decision criteria")):
+        if isinstance(g.get(key), Mapping):
+            rows.append((label, fmt(g[key], 5)))
+    blocks.append(table(("item", "value"), rows, id="diagnosis-summary", kind="kv"))
+    effects = _objs(g.get("effects"))
+    if effects:
+        blocks.append(table(
+            ("rank", "effect", "parameters", "MSE (pu²)", "MSE hold-out (pu²)", "gap closed",
+             "score", "AIC", "significant"),
+            [(str(i + 1), str(e.get("name", "?")), fmt(e.get("params") or {}, 4),
+              Num(num(e.get("mse"))), Num(num(e.get("mse_holdout"))),
+              Num(num(e.get("gap_closed")), f"gap-{e.get('name')}", 3),
+              Num(num(e.get("score")), digits=4), Num(num(e.get("aic")), digits=5),
+              fmt(e["significant"]) if isinstance(e.get("significant"), bool) else "—")
+             for i, e in enumerate(effects)], id="diagnosis-effects",
+            caption="Effects ranked, best first (gap closed: fraction of the base model's "
+                    "excess MSE over the noise floor that the effect removes)"))
+        if any(num(e.get("gap_closed")) is not None for e in effects):
+            blocks.append(Fig("diagnosis_effects", "How much of the gap between the base model "
+                              "and the noise floor each effect closes.",
+                              partial(F.draw_effects, effects=effects),
+                              size=(F.FIGSIZE[0], 1.6 + 0.45 * len(effects))))
+    else:
+        blocks.append(Para(f"Effects: {NOT_AVAILABLE}.", "na"))
+    loc = g.get("localization") if isinstance(g.get("localization"), Mapping) else {}
+    segs, bands = _objs(loc.get("segments")), _objs(loc.get("bands"))
+    if segs:
+        blocks.append(table(("segment", "from (s)", "to (s)", "share", "MSE (pu²)"),
+                            [(str(s.get("name", "?")), Num(num(s.get("t0")), digits=5),
+                              Num(num(s.get("t1")), digits=5), Num(num(s.get("share")), digits=3),
+                              Num(num(s.get("mse")))) for s in segs],
+                            id="diagnosis-segments", caption="Localization: residual share per "
+                            "segment (as computed by the diagnosis)"))
+    if bands:
+        blocks.append(table(("band", "from (Hz)", "to (Hz)", "share"),
+                            [(str(b.get("name", "?")), Num(num(b.get("f0_hz")), digits=4),
+                              Num(num(b.get("f1_hz")), digits=4), Num(num(b.get("share")), digits=3))
+                             for b in bands], id="diagnosis-bands",
+                            caption="Localization: residual share per frequency band"))
+    if not segs and not bands:
+        blocks.append(Para(f"Localization: {NOT_AVAILABLE}.", "na"))
+    feats = _objs(g.get("features"))
+    blocks.append(table(("feature", "detected", "evidence"),
+                        [(str(f.get("name", "?")), fmt(f.get("detected")), str(f.get("evidence", "")))
+                         for f in feats], id="diagnosis-features", caption="Features of the residual")
+                  if feats else Para(f"Features: {NOT_AVAILABLE}.", "na"))
+    amb = _objs(g.get("ambiguous"))
+    blocks.append(table(("effects", "test that would separate them"),
+                        [(", ".join(map(str, a.get("effects") or [])), str(a.get("separating_test", "")))
+                         for a in amb], id="diagnosis-ambiguous", caption="Ambiguities")
+                  if amb else Para("Ambiguities: none reported.", "note"))
+    seq = _objs(g.get("sequence"))
+    blocks.append(table(("step", "effect added", "MSE hold-out (pu²)"),
+                        [(str(i + 1), str(s.get("added", "?")), Num(num(s.get("mse_holdout"))))
+                         for i, s in enumerate(seq)], id="diagnosis-sequence",
+                        caption="Greedy sequence: effects added one after another")
+                  if seq else Para(f"Greedy sequence: {NOT_AVAILABLE}.", "na"))
+    return Section("diagnosis", "Diagnosis of the remaining gap", tuple(blocks))
+
+
+def _unit_rows(unit: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """Unit.to_dict() as rows: one per identified parameter, the rest as flattened keys."""
+    rows = []
+    for key, value in unit.items():
+        if key == "identify" and isinstance(value, Mapping):
+            for name, spec in value.items():
+                spec = spec if isinstance(spec, Mapping) else {}
+                rows.append((f"identify {name}", f"start {fmt(spec.get('value'))}, bounds "
+                             f"{fmt(spec.get('min'))} … {fmt(spec.get('max'))}"))
+        elif isinstance(value, Mapping) and value and all(
+                not isinstance(v, (Mapping, list)) for v in value.values()):
+            rows.append((str(key), fmt(value)))
+        else:
+            rows += flatten({key: value})
+    return rows
+
+
+def metadata(d: ReportData) -> Section:
+    unit = d.result.get("unit") if isinstance(d.result.get("unit"), Mapping) else None
+    blocks: list[Block] = [Heading("Unit")]
+    if unit:
+        blocks.append(table(("key", "value"), _unit_rows(unit), id="unit", kind="kv"))
+    else:
+        blocks.append(Para(f"Unit description: {NOT_AVAILABLE}.", "na"))
+    for a in d.captures:
+        cap = a.loaded.capture
+        blocks.append(Heading(f"Capture {a.loaded.index + 1}: test, recorder and bench"))
+        rows = [("file", str(a.loaded.path)), ("SHA-256 (verified)", a.loaded.sha256),
+                ("samples", Num(cap.n)), ("rate (Hz)", Num(cap.rate_hz)),
+                ("duration (s)", Num(float(cap.time[-1] - cap.time[0]))),
+                ("weight in the objective", Num(num(a.loaded.entry.get("weight"))))]
+        meta = cap.meta or a.loaded.entry.get("meta") or {}
+        rows += [(f"sidecar: {k}", v) for k, v in flatten(meta)] if meta else \
+            [("sidecar", "none (no test / bench description recorded)")]
+        blocks.append(table(("key", "value"), rows, id=f"capture{a.suffix or '_1'}",
+                            kind="kv"))
+    return Section("metadata", "Unit, test and capture metadata", tuple(blocks))
+
+
+def provenance(d: ReportData, pdf: bool) -> Section:
+    r = d.result
+    rows = [("result schema", str(r.get("schema"))),
+            ("result software version", str(r.get("software_version", NOT_AVAILABLE))),
+            ("result command line", str(r.get("command_line", NOT_AVAILABLE))),
+            ("result created (UTC)", str(r.get("created_utc", NOT_AVAILABLE)))]
+    if d.diagnosis is not None:
+        rows += [("diagnosis software version", str(d.diagnosis.get("software_version", "?"))),
+                 ("diagnosis command line", str(d.diagnosis.get("command_line", "?"))),
+                 ("diagnosis created (UTC)", str(d.diagnosis.get("created_utc", "?")))]
+    rows += [("report software version", bench_ctl.__version__),
+             ("report command line", d.report_command or NOT_AVAILABLE),
+             ("report generated (UTC)", d.generated_utc),
+             ("PDF", PDF_METHOD if pdf else "not requested")]
+    return Section("provenance", "Software and command lines",
+                   (table(("item", "value"), rows, id="provenance", kind="kv"),))
+
+
+def sections(d: ReportData, *, pdf: bool = False) -> list[Section]:
+    out = [content.summary(d), content.response(d), content.errors(d), content.parameters(d),
+           content.constraints(d), content.convergence(d), content.comparison(d)]
+    diag = diagnosis(d)
+    if diag is not None:
+        out.append(diag)
+    out += [metadata(d), provenance(d, pdf)]
+    return out

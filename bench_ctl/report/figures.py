@@ -1,0 +1,143 @@
+"""The report's figures, drawn with matplotlib (Agg, no pyplot state).
+
+Each `draw_*` function draws into a given `Figure` or `SubFigure`, so the same drawing serves the
+HTML (one figure per PNG, `png_bytes`) and the PDF (two figures per A4 page). Colours are fixed
+(`COLORS`) so a rendered page can be checked for the plotted lines.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from io import BytesIO
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure, SubFigure
+
+from bench_ctl.report.metrics import ErrorFigures, PulseEdges
+
+DPI = 110
+FIGSIZE = (9.6, 5.2)  # inches: 1056 x 572 px at DPI, fits an A4 page width when printed
+COLORS = {
+    "measured": "#1f77b4",   # blue
+    "simulated": "#d62728",  # red
+    "usetp": "#2ca02c",      # green
+    "residual": "#9467bd",   # purple
+    "residual_mean": "#3b0a57",  # dark purple
+    "history": "#ff7f0e",    # orange
+    "bar": "#17becf",        # cyan
+}
+SEGMENT_SHADES = {"pre_trigger": "#f0f0f0", "leading_edge": "#fde0c5", "plateau": "#e0ecf8",
+                  "trailing_edge": "#f9d0d9", "recovery": "#e3f2d9", "whole record": "#f0f0f0"}
+ZOOM_BEFORE_S = 0.1
+ZOOM_AFTER_S = 0.5
+SMOOTH_S = 0.025
+
+Canvas = Figure | SubFigure
+
+
+def png_bytes(draw: Callable[[Canvas], None], figsize: tuple[float, float] = FIGSIZE,
+              dpi: int = DPI) -> bytes:
+    fig = Figure(figsize=figsize, dpi=dpi, layout="constrained")
+    draw(fig)
+    buf = BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def draw_response(fig: Canvas, time: np.ndarray, usetp: np.ndarray, meas: np.ndarray,
+                  sim: np.ndarray, edges: PulseEdges, title: str) -> None:
+    ax, axu = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    ax.plot(time, meas, color=COLORS["measured"], lw=0.8, label="efd measured")
+    ax.plot(time, sim, color=COLORS["simulated"], lw=1.4, label="efd simulated")
+    ax.set_ylabel("efd (pu)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    axu.plot(time, usetp, color=COLORS["usetp"], lw=1.2, label="usetp (setpoint)")
+    for t_edge in (edges.leading_s, edges.trailing_s):
+        if t_edge is not None:
+            for a in (ax, axu):
+                a.axvline(t_edge, color="0.5", ls=":", lw=0.8)
+    axu.set_ylabel("usetp (pu)")
+    axu.set_xlabel("time (s)")
+    axu.grid(alpha=0.3)
+    axu.legend(loc="upper right", fontsize=8)
+
+
+def draw_residual(fig: Canvas, time: np.ndarray, residual: np.ndarray,
+                  figs: ErrorFigures) -> None:
+    ax = fig.subplots()
+    for seg in figs.segments:
+        ax.axvspan(seg.t0, seg.t1, color=SEGMENT_SHADES.get(seg.name, "#eeeeee"), lw=0,
+                   label=f"{seg.name.replace('_', ' ')}: {100 * seg.share:.1f} % of r²")
+    ax.plot(time, residual, color=COLORS["residual"], lw=0.6, label="residual r = measured − simulated")
+    dt = float(time[-1] - time[0]) / (time.size - 1)
+    w = max(1, int(round(SMOOTH_S / dt)))
+    if 1 < w < residual.size:
+        smooth = np.convolve(residual, np.ones(w) / w, mode="same")
+        ax.plot(time, smooth, color=COLORS["residual_mean"], lw=1.3,
+                label=f"r, {1000 * SMOOTH_S:g} ms moving average")
+    ax.plot([figs.peak_time_s], [figs.peak_signed], "o", mfc="none", mec="k", ms=9,
+            label=f"peak |r| = {figs.peak_abs:.3g} pu at t = {figs.peak_time_s:.3f} s")
+    ax.axhline(0.0, color="0.3", lw=0.6)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("residual efd (pu)")
+    ax.set_title("Residual and its share per segment of the response", fontsize=10)
+    ax.grid(alpha=0.3)
+    fig.legend(loc="outside lower center", ncols=3, fontsize=8)
+
+
+def _zoom(ax: Any, time: np.ndarray, usetp: np.ndarray, meas: np.ndarray, sim: np.ndarray,
+          t_edge: float, title: str) -> None:
+    lo, hi = max(time[0], t_edge - ZOOM_BEFORE_S), min(time[-1], t_edge + ZOOM_AFTER_S)
+    m = (time >= lo) & (time <= hi)
+    h1 = ax.plot(time[m], meas[m], color=COLORS["measured"], lw=0.9, label="efd measured")
+    h2 = ax.plot(time[m], sim[m], color=COLORS["simulated"], lw=1.5, label="efd simulated")
+    ax.axvline(t_edge, color="0.5", ls=":", lw=0.8)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("efd (pu)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    axu = ax.twinx()
+    h3 = axu.step(time[m], usetp[m], where="post", color=COLORS["usetp"], lw=1.0, ls="--",
+                  label="usetp")
+    axu.set_ylabel("usetp (pu)")
+    handles = h1 + h2 + h3
+    ax.legend(handles, [h.get_label() for h in handles], loc="best", fontsize=8)
+
+
+def draw_edges(fig: Canvas, time: np.ndarray, usetp: np.ndarray, meas: np.ndarray,
+               sim: np.ndarray, edges: PulseEdges) -> None:
+    zooms = [("Leading edge", edges.leading_s), ("Trailing edge", edges.trailing_s)]
+    zooms = [(name, t) for name, t in zooms if t is not None]
+    axes = np.atleast_1d(fig.subplots(1, len(zooms)))
+    for ax, (name, t_edge) in zip(axes, zooms):
+        _zoom(ax, time, usetp, meas, sim, t_edge, f"{name} at t = {t_edge:.3f} s")
+
+
+def draw_convergence(fig: Canvas, history: Sequence[Sequence[float]], label: str) -> None:
+    ax = fig.subplots()
+    h = np.asarray(history, float)
+    ax.step(h[:, 0], h[:, 1], where="post", color=COLORS["history"], lw=1.5, marker=".",
+            ms=4, label=label)
+    ax.set_yscale("log")
+    ax.set_xlabel("objective evaluations")
+    ax.set_ylabel("best objective (pu² s)")
+    ax.set_title("Convergence: best objective vs evaluations", fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="upper right", fontsize=8)
+
+
+def draw_effects(fig: Canvas, effects: Sequence[Mapping[str, Any]]) -> None:
+    names = [str(e.get("name", "?")) for e in effects][::-1]
+    gaps = [float(e["gap_closed"]) if isinstance(e.get("gap_closed"), (int, float)) else 0.0
+            for e in effects][::-1]
+    ax = fig.subplots()
+    y = np.arange(len(names))
+    ax.barh(y, gaps, color=COLORS["bar"], label="gap closed")
+    ax.set_yticks(y, names)
+    ax.set_xlabel("gap closed (fraction of the base model's excess over the noise floor)")
+    ax.set_title("Diagnosis: effects ranked by how much of the gap they close", fontsize=10)
+    ax.axvline(0.0, color="0.3", lw=0.6)
+    ax.grid(alpha=0.3, axis="x")
+    ax.legend(loc="lower right", fontsize=8)

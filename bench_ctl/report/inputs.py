@@ -1,0 +1,159 @@
+"""Reading what a report is made from: the result JSON, the optional diagnosis JSON, and the
+captures the result names (checked against their SHA-256 before anything is simulated).
+
+Everything refused here is a `ReportError` whose message names the file and the key or value;
+the `report` command turns it into exit code 2. Nothing is repaired: a capture whose bytes do
+not hash to the result's `sha256`, or whose sample count / rate disagree with the result, is
+refused, because the report would otherwise certify a fit on data it was not made on.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bench_ctl.capture import Capture, CaptureError, read_capture
+from bench_ctl.capture.capture import sha256_file
+from bench_ctl.model.params import KERNEL_PARAMS, PARAMS, neutral_values
+
+log = logging.getLogger(__name__)
+
+RESULT_SCHEMA = "bench-ctl/result/1"
+DIAGNOSIS_SCHEMA = "bench-ctl/diagnosis/1"
+RESULT_REQUIRED = ("captures", "params", "objective", "mse")
+
+
+class ReportError(ValueError):
+    """Input a report cannot be made from; the message names the file and key."""
+
+
+def load_json(path: str | os.PathLike[str], schema: str) -> dict[str, Any]:
+    """Read a result or diagnosis JSON file and check its `schema` tag."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ReportError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ReportError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{path}: invalid JSON: {exc.msg} (line {exc.lineno}, column "
+                          f"{exc.colno})") from None
+    if not isinstance(data, dict):
+        raise ReportError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    check_schema(data, schema, str(path))
+    return data
+
+
+def check_schema(data: Mapping[str, Any], schema: str, where: str) -> None:
+    got = data.get("schema")
+    if got != schema:
+        raise ReportError(f"{where}: key 'schema' is {got!r}, expected {schema!r}")
+
+
+def check_result(result: Mapping[str, Any], where: str) -> None:
+    """The keys the report cannot do without, with the types it relies on."""
+    check_schema(result, RESULT_SCHEMA, where)
+    missing = [k for k in RESULT_REQUIRED if k not in result]
+    if missing:
+        raise ReportError(f"{where}: missing key(s) {missing}")
+    caps = result["captures"]
+    if not isinstance(caps, list) or not caps:
+        raise ReportError(f"{where}: key 'captures' must be a non-empty list")
+    for i, cap in enumerate(caps):
+        if not isinstance(cap, Mapping) or "path" not in cap or "sha256" not in cap:
+            raise ReportError(f"{where}: captures[{i}] must be an object with 'path' and 'sha256'")
+    for key in ("params", "fixed", "bounds"):
+        if key in result and not isinstance(result[key], Mapping):
+            raise ReportError(f"{where}: key {key!r} must be an object")
+
+
+def model_values(result: Mapping[str, Any], where: str) -> dict[str, float]:
+    """Every kernel parameter for the re-simulation: neutral effects, then `fixed` (null = the
+    parameter's infinite neutral value, as the contract writes inf), then the identified `params`."""
+    values: dict[str, float] = dict(neutral_values())
+    for section in ("fixed", "params"):
+        for name, value in dict(result.get(section) or {}).items():
+            key = f"{where}: {section}.{name}"
+            if name not in PARAMS:
+                raise ReportError(f"{key}: unknown model parameter; known: {', '.join(PARAMS)}")
+            if value is None:
+                neutral = PARAMS[name].neutral
+                if neutral is None or math.isfinite(neutral):
+                    raise ReportError(f"{key}: null is only allowed for a parameter whose "
+                                      "neutral value is infinite")
+                values[name] = neutral
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value):
+                raise ReportError(f"{key}: expected a number, got {value!r}")
+            values[name] = float(value)
+    missing = [n for n in KERNEL_PARAMS if n not in values]
+    if missing:
+        raise ReportError(f"{where}: no value for model parameter(s) {missing} in 'params' "
+                          "or 'fixed'")
+    return values
+
+
+@dataclass(frozen=True)
+class LoadedCapture:
+    """One capture the result names, read and verified."""
+    index: int
+    path: Path
+    sha256: str
+    capture: Capture
+    entry: dict[str, Any]
+
+
+def resolve_capture_path(raw: str, base_dir: Path | None) -> Path:
+    """A capture path as written in the result: absolute, or relative to the current directory,
+    else relative to the result file's folder."""
+    path = Path(raw)
+    if path.is_absolute() or path.exists() or base_dir is None:
+        return path
+    return base_dir / path
+
+
+def load_captures(result: Mapping[str, Any], where: str,
+                  base_dir: Path | None = None) -> list[LoadedCapture]:
+    """Read every capture of the result, refusing a missing file or a SHA-256 / n / rate
+    mismatch."""
+    out = []
+    for i, entry in enumerate(result["captures"]):
+        key = f"{where}: captures[{i}]"
+        path = resolve_capture_path(str(entry["path"]), base_dir)
+        if not path.is_file():
+            raise ReportError(f"{key}.path: capture file {path} not found")
+        if not isinstance(entry["sha256"], str) or not entry["sha256"]:
+            raise ReportError(f"{key}.sha256: the result records no SHA-256 for {path}, so the "
+                              "capture cannot be verified")
+        expected = entry["sha256"].lower()
+        actual = sha256_file(path)
+        if actual != expected:
+            raise ReportError(f"{key}.sha256: capture {path} has SHA-256 {actual}, the result "
+                              f"was made on {expected}: the file is not the one identified")
+        try:
+            capture = read_capture(path)
+        except CaptureError as exc:
+            raise ReportError(f"{key}: {exc}") from None
+        n = entry.get("n")
+        if n is not None and int(n) != capture.n:
+            raise ReportError(f"{key}.n: result says {n} samples, {path} has {capture.n}")
+        rate = entry.get("rate_hz")
+        if rate is not None and not math.isclose(float(rate), capture.rate_hz, rel_tol=1e-6):
+            raise ReportError(f"{key}.rate_hz: result says {rate} Hz, {path} has "
+                              f"{capture.rate_hz:g} Hz")
+        log.debug("capture %d %s verified (sha256 %s)", i, path, actual)
+        out.append(LoadedCapture(i, path, actual, capture, dict(entry)))
+    return out
+
+
+def same_file(a: Mapping[str, Any] | None, b: LoadedCapture) -> bool:
+    """Whether a diagnosis' {path, sha256} refers to this capture (by hash)."""
+    return bool(a) and str(a.get("sha256", "")).lower() == b.sha256

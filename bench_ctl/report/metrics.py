@@ -1,0 +1,151 @@
+"""Error figures of a fit: where the setpoint pulse edges are, MSE / RMSE / NRMSE, peak error,
+the objective, and how the residual's energy splits over the segments of the response.
+
+Definitions (they are printed in the report too):
+- residual r = efd measured - efd simulated, sample by sample;
+- MSE = mean(r^2) over all samples (the paper's figure), RMSE = sqrt(MSE);
+- NRMSE = RMSE / (max - min of the measured efd);
+- objective = trapezoidal integral of w_efd r^2 (+ w_vt r_vt^2 when vt is weighted and recorded);
+- segments: pre-trigger [start, leading edge), leading edge [edge, edge + window), plateau
+  [edge + window, trailing edge), trailing edge [trailing, trailing + window), recovery [..., end];
+  share = sum of r^2 in the segment / sum of r^2 over the record.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench_ctl.model.simulate import pre_trigger_mean
+
+DEFAULT_EDGE_WINDOW_S = 0.2
+MIN_NOISE_SAMPLES = 20
+
+
+@dataclass(frozen=True)
+class PulseEdges:
+    """Setpoint edges found in usetp: the first sample past half the largest excursion from the
+    pre-trigger mean (leading), the first sample back below it (trailing; None for a step)."""
+    usetp_pre: float
+    amplitude: float
+    leading_index: int | None
+    trailing_index: int | None
+    leading_s: float | None
+    trailing_s: float | None
+
+
+def find_edges(time: np.ndarray, usetp: np.ndarray) -> PulseEdges:
+    time = np.asarray(time, float)
+    usetp = np.asarray(usetp, float)
+    dt = float(time[1] - time[0])
+    pre = pre_trigger_mean(usetp, dt)
+    dev = usetp - pre
+    k_max = int(np.argmax(np.abs(dev)))
+    amp = float(dev[k_max])
+    if abs(amp) < 1e-9:
+        return PulseEdges(pre, 0.0, None, None, None, None)
+    on = np.sign(amp) * dev > 0.5 * abs(amp)
+    k0 = int(np.argmax(on))
+    off = np.flatnonzero(~on[k0:])
+    k1 = int(k0 + off[0]) if off.size else None
+    return PulseEdges(pre, amp, k0, k1, float(time[k0]),
+                      None if k1 is None else float(time[k1]))
+
+
+@dataclass(frozen=True)
+class Segment:
+    name: str
+    t0: float
+    t1: float
+    n: int
+    share: float  # of the residual energy
+    mse: float    # mean squared residual within the segment (nan when empty)
+
+
+@dataclass(frozen=True)
+class ErrorFigures:
+    mse: float
+    rmse: float
+    nrmse: float
+    efd_range: float
+    peak_abs: float
+    peak_signed: float
+    peak_time_s: float
+    objective: float
+    segments: tuple[Segment, ...]
+    noise_floor: float | None  # variance of the measured efd before the trigger
+    noise_samples: int
+
+
+def trapezoid_sq(r: np.ndarray, dt: float) -> float:
+    sq = np.asarray(r, float) ** 2
+    return float(dt * (sq.sum() - 0.5 * (sq[0] + sq[-1])))
+
+
+def window_slice(time: np.ndarray, window: tuple[float, float] | None) -> slice:
+    """Samples of a fit window given in seconds from the record's start (both ends included,
+    to within 1e-9 of a step), as identification selects them; the whole record for None."""
+    if window is None:
+        return slice(0, time.size)
+    t = np.asarray(time, float) - time[0]
+    dt = float(t[-1]) / (t.size - 1)
+    i0 = int(np.searchsorted(t, window[0] - 1e-9 * dt, side="left"))
+    i1 = int(np.searchsorted(t, window[1] + 1e-9 * dt, side="right"))
+    return slice(i0, i1)
+
+
+def segment_bounds(time: np.ndarray, edges: PulseEdges,
+                   window_s: float = DEFAULT_EDGE_WINDOW_S) -> list[tuple[str, float, float]]:
+    """(name, t0, t1) of each segment; samples with t0 <= t < t1 belong to it (the last one
+    includes the final sample)."""
+    t_start, t_end = float(time[0]), float(time[-1])
+    if edges.leading_s is None:
+        return [("whole record", t_start, t_end)]
+    lead = edges.leading_s
+    if edges.trailing_s is None:
+        cut = min(lead + window_s, t_end)
+        return [("pre_trigger", t_start, lead), ("leading_edge", lead, cut),
+                ("plateau", cut, t_end)]
+    trail = edges.trailing_s
+    lead_end = min(lead + window_s, trail)
+    trail_end = min(trail + window_s, t_end)
+    return [("pre_trigger", t_start, lead), ("leading_edge", lead, lead_end),
+            ("plateau", lead_end, trail), ("trailing_edge", trail, trail_end),
+            ("recovery", trail_end, t_end)]
+
+
+def error_figures(time: np.ndarray, efd_meas: np.ndarray, efd_sim: np.ndarray, edges: PulseEdges,
+                  *, window_s: float = DEFAULT_EDGE_WINDOW_S, w_efd: float = 1.0,
+                  vt_meas: np.ndarray | None = None, vt_sim: np.ndarray | None = None,
+                  w_vt: float = 0.0) -> ErrorFigures:
+    time = np.asarray(time, float)
+    meas = np.asarray(efd_meas, float)
+    r = meas - np.asarray(efd_sim, float)
+    dt = float(time[-1] - time[0]) / (time.size - 1)
+    sq = r * r
+    total = float(sq.sum())
+    mse = float(sq.mean())
+    rng = float(meas.max() - meas.min())
+    k = int(np.argmax(np.abs(r)))
+    obj = w_efd * trapezoid_sq(r, dt)
+    if w_vt and vt_meas is not None and vt_sim is not None:
+        obj += w_vt * trapezoid_sq(np.asarray(vt_meas, float) - np.asarray(vt_sim, float), dt)
+    segments = []
+    bounds = segment_bounds(time, edges, window_s)
+    for j, (name, t0, t1) in enumerate(bounds):
+        last = j == len(bounds) - 1
+        mask = (time >= t0) & ((time <= t1) if last else (time < t1))
+        n = int(mask.sum())
+        seg_sq = float(sq[mask].sum())
+        segments.append(Segment(name, t0, t1, n, seg_sq / total if total > 0 else 0.0,
+                                seg_sq / n if n else float("nan")))
+    noise, n_pre = None, 0
+    if edges.leading_index is not None:
+        n_pre = edges.leading_index
+        if n_pre >= MIN_NOISE_SAMPLES:
+            noise = float(np.var(meas[:n_pre], ddof=1))
+    return ErrorFigures(mse=mse, rmse=float(np.sqrt(mse)),
+                        nrmse=float(np.sqrt(mse) / rng) if rng > 0 else float("nan"),
+                        efd_range=rng, peak_abs=float(abs(r[k])), peak_signed=float(r[k]),
+                        peak_time_s=float(time[k]), objective=obj, segments=tuple(segments),
+                        noise_floor=noise, noise_samples=n_pre)

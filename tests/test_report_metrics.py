@@ -1,0 +1,154 @@
+"""Report building blocks without rendering: edge detection and segments, the constraint
+re-check, parameter reconstruction from a result, several captures in one result."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench_ctl.capture import write_capture
+from bench_ctl.capture.capture import sha256_file
+from bench_ctl.model.params import AVR_PARAMS, REFERENCE_VALUES, neutral_values
+from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
+from bench_ctl.model.unit import load_unit
+from bench_ctl.report import ReportError, analyse
+from bench_ctl.report.blocks import Fig
+from bench_ctl.report.checks import constraint_margin
+from bench_ctl.report.content_more import sections
+from bench_ctl.report.inputs import model_values
+from bench_ctl.report.metrics import error_figures, find_edges, segment_bounds
+
+
+def test_edges_of_a_pulse_a_negative_pulse_a_step_and_nothing() -> None:
+    t, u = pulse_usetp(amplitude=0.05, width=1.0, start=1.5, duration=5.0, rate=200.0)
+    e = find_edges(t, u)
+    assert (e.leading_s, e.trailing_s, e.leading_index) == (1.5, 2.5, 300)
+    assert e.amplitude == pytest.approx(0.05) and e.usetp_pre == 1.0
+    t, u = pulse_usetp(amplitude=-0.02, width=0.3, start=0.5, duration=2.0, rate=1000.0)
+    e = find_edges(t, u)
+    assert (e.leading_s, e.trailing_s) == (0.5, 0.8) and e.amplitude == pytest.approx(-0.02)
+    t = np.arange(1000) / 1000.0
+    u = np.where(t >= 0.25, 1.05, 1.0)
+    e = find_edges(t, u)
+    assert e.leading_s == 0.25 and e.trailing_s is None
+    assert [s[0] for s in segment_bounds(t, e)] == ["pre_trigger", "leading_edge", "plateau"]
+    e = find_edges(t, np.ones_like(t))
+    assert e.leading_s is None and segment_bounds(t, e) == [("whole record", 0.0, 0.999)]
+
+
+def test_segments_cover_every_sample_once_and_shares_sum_to_one() -> None:
+    rng = np.random.default_rng(3)
+    t, u = pulse_usetp(amplitude=0.05, width=0.1, start=1.0, duration=3.0, rate=1000.0)
+    meas = rng.normal(size=t.size)
+    f = error_figures(t, meas, np.zeros_like(t), find_edges(t, u), window_s=0.2)
+    # the pulse is shorter than the edge window: the leading edge ends at the trailing edge
+    names = [s.name for s in f.segments]
+    assert names == ["pre_trigger", "leading_edge", "plateau", "trailing_edge", "recovery"]
+    assert [s.n for s in f.segments] == [1000, 100, 0, 200, 1701]
+    assert sum(s.share for s in f.segments) == pytest.approx(1.0)
+    assert f.mse == pytest.approx(np.mean(meas ** 2))
+    assert f.noise_floor == pytest.approx(np.var(meas[:1000], ddof=1))
+
+
+@pytest.mark.parametrize("expr, margin", [("TA2 <= TA1", 0.8), ("TA4 >= TA2", 9.8),
+                                          ("0 <= TA2 <= TA1", 0.2), ("S12 >= 1.44*S10", 0.0),
+                                          ("TA1 + TA3 <= 1", -0.5), ("TA2 < TA1 / 10", -0.1)])
+def test_constraint_margin(expr: str, margin: float) -> None:
+    values = {**REFERENCE_VALUES, "S10": 0.0, "S12": 0.0}
+    assert constraint_margin(expr, values) == pytest.approx(margin)
+
+
+@pytest.mark.parametrize("expr", ["TA2 == TA1", "XX <= TA1", "TA2 <=", "__import__('os')",
+                                  "TA2 ** 2 <= TA1"])
+def test_constraint_margin_refuses_what_it_cannot_evaluate(expr: str) -> None:
+    assert constraint_margin(expr, REFERENCE_VALUES) is None
+
+
+def test_model_values_from_result() -> None:
+    fixed = {"Td0p": 7.5, "Td0pp": 0.05, "Vt0": 1.0, "VRMAX": None, "VRMIN": None, "RATE": 50.0}
+    values = model_values({"params": {k: REFERENCE_VALUES[k] for k in AVR_PARAMS},
+                           "fixed": fixed}, "r.json")
+    assert values["VRMAX"] == math.inf and values["VRMIN"] == -math.inf
+    assert values["RATE"] == 50.0 and values["TD"] == neutral_values()["TD"]
+    with pytest.raises(ReportError, match=r"r.json: fixed.Td0p: null is only allowed"):
+        model_values({"params": {}, "fixed": {"Td0p": None}}, "r.json")
+    with pytest.raises(ReportError, match=r"r.json: params.KAVR: expected a number"):
+        model_values({"params": {"KAVR": "200"}, "fixed": fixed}, "r.json")
+    with pytest.raises(ReportError, match=r"no value for model parameter\(s\) \['KAVR'"):
+        model_values({"params": {}, "fixed": fixed}, "r.json")
+
+
+def test_two_captures_mean_mse_weighted_objective_and_figures_per_capture(tmp_path: Path) -> None:
+    unit = load_unit(None)
+    entries, mses, objs = [], [], []
+    for i, (amp, weight) in enumerate([(0.05, 1.0), (-0.03, 0.5)]):
+        t, u = pulse_usetp(amplitude=amp, width=0.5, start=0.5, duration=3.0, rate=500.0)
+        rec = synthetic_record(unit, t, u, RecorderModel(), seed=i)
+        csv, _ = write_capture(tmp_path / f"c{i}.csv", rec)
+        sim, _, _ = simulate(unit.values(), u, 1 / 500.0)
+        r = rec["efd"] - sim
+        mses.append(float(np.mean(r ** 2)))
+        objs.append(weight * float(np.trapezoid(r ** 2, dx=1 / 500.0)))
+        entries.append({"path": str(csv), "sha256": sha256_file(csv), "weight": weight})
+    values = unit.values()
+    result = {"schema": "bench-ctl/result/1", "captures": entries, "mse": float(np.mean(mses)),
+              "objective": sum(objs), "params": {k: values[k] for k in AVR_PARAMS},
+              "fixed": {k: (None if math.isinf(v) else v) for k, v in values.items()
+                        if k not in AVR_PARAMS}}
+    d = analyse(json.loads(json.dumps(result)))
+    assert d.mse == pytest.approx(np.mean(mses), rel=1e-12)
+    assert d.objective == pytest.approx(sum(objs), rel=1e-12)
+    assert d.verdict == "PASS"
+    figs = [b.name for s in sections(d) for b in s.blocks if isinstance(b, Fig)]
+    assert figs == ["response_1", "residual_1", "edges_1", "response_2", "residual_2", "edges_2"]
+    # a wrong reported MSE is caught
+    result["mse"] *= 1.01
+    bad = analyse(result)
+    assert bad.verdict == "FAIL"
+    assert [c.status for c in bad.checks if c.name == "reported MSE reproduced"] == ["fail"]
+
+
+def test_sample_count_mismatch_is_refused(tmp_path: Path) -> None:
+    t, u = pulse_usetp(duration=1.0, rate=100.0)
+    csv, _ = write_capture(tmp_path / "c.csv", {"time": t, "usetp": u, "efd": np.ones_like(t)})
+    values = load_unit(None).values()
+    result = {"schema": "bench-ctl/result/1", "mse": 0.0, "objective": 0.0,
+              "params": {k: v for k, v in values.items() if math.isfinite(v)},
+              "fixed": {k: None for k, v in values.items() if not math.isfinite(v)},
+              "captures": [{"path": str(csv), "sha256": sha256_file(csv), "n": 5}]}
+    with pytest.raises(ReportError, match=r"captures\[0\].n: result says 5 samples, .*c.csv has 101"):
+        analyse(result)
+
+
+def test_fit_window_failed_flag_and_null_history(tmp_path: Path) -> None:
+    unit = load_unit(None)
+    t, u = pulse_usetp(amplitude=0.05, width=0.5, start=0.5, duration=3.0, rate=500.0)
+    rec = synthetic_record(unit, t, u, RecorderModel(), seed=5)
+    csv, _ = write_capture(tmp_path / "w.csv", rec)
+    values = {**unit.values(), "KAVR": 170.0}
+    sim, _, _ = simulate(values, u, 1 / 500.0)
+    r = (rec["efd"] - sim)[250:1001]  # 0.5 s .. 2.0 s, both ends included
+    result = {"schema": "bench-ctl/result/1", "fit_window": [0.5, 2.0], "mse": float(np.mean(r ** 2)),
+              "objective": float(np.trapezoid(r ** 2, dx=1 / 500.0)),
+              "captures": [{"path": str(csv), "sha256": sha256_file(csv)}],
+              "params": {k: values[k] for k in AVR_PARAMS},
+              "fixed": {k: (None if math.isinf(v) else v) for k, v in values.items()
+                        if k not in AVR_PARAMS},
+              "history": [[8, None], [16, 0.5], [24, 0.2]]}
+    d = analyse(result)
+    assert d.verdict == "PASS", d.checks
+    assert d.objective == pytest.approx(result["objective"], rel=1e-12)
+    assert d.mse == pytest.approx(result["mse"], rel=1e-12)  # over the window...
+    assert d.captures[0].figures.mse == pytest.approx(np.mean((rec["efd"] - sim) ** 2), rel=1e-12)
+    assert d.captures[0].figures.mse < 0.6 * d.mse  # ...and not over the whole record
+    secs = {s.id: s for s in sections(d)}
+    conv = [b for b in secs["convergence"].blocks if isinstance(b, Fig)]
+    assert len(conv) == 1 and "1 history entries without" in conv[0].caption
+    failed = analyse({**result, "failed": True, "message": "max_evals reached"})
+    assert failed.verdict == "FAIL"
+    assert "failed fit: max_evals reached" in failed.checks[1].detail
+    with pytest.raises(ReportError, match=r"fit_window must be null or \[t0, t1\]"):
+        analyse({**result, "fit_window": [2.0, 0.5]})
