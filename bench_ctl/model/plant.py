@@ -10,16 +10,22 @@ Conventions (the kernel's): sample k is the state at t_k = k * dt; the setpoint 
 on [t_k, t_k+1) (zero-order hold); the recorded efd (`efd_rec`) includes the recorder-side
 effects (recorder_gain, time_skew), `efd` is the exciter's true output.
 
-Real time (`start()`): a thread steps the plant against `time.monotonic()`; step k is computed
-once the wall clock has passed t_k+1, in a burst when the thread was late, so plant time never
-runs ahead of wall time and catches up after a stall. A setpoint written at wall time t
-(`write_setpoint`) acts from step ceil((t - t0) / dt), i.e. from the next plant step, whatever
-the thread's lag. `timing()` reports the lag statistics.
+Real time (`start()`): a thread runs a compiled loop that does not hold the GIL (so the
+Python threads serving Modbus cannot delay it) against CLOCK_MONOTONIC (= `time.monotonic`):
+step k is computed once the clock has passed t_k+1, in a burst when the loop woke late, so plant
+time never runs ahead of wall time and catches up after a stall; between steps it sleeps to an
+absolute deadline (no accumulated drift). The thread asks for SCHED_FIFO priority (`rt_priority`,
+best effort) so that other processes on a loaded machine do not delay it. A setpoint written at
+wall time t (`write_setpoint`) acts from step ceil((t - t0) / dt), i.e. from the next plant
+step, whatever the loop's lag. Samples go to a ring buffer; a second (Python) thread hands them
+to the listeners (recorder, watchdog) a few ms later, in order and without gaps. `timing()`
+reports lag statistics.
 """
 from __future__ import annotations
 
 import logging
 import math
+import os
 import threading
 import time
 from collections import deque
@@ -28,6 +34,10 @@ from typing import Callable
 
 import numba as nb
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from . import kernel as K
 from .simulate import param_matrix
@@ -45,6 +55,13 @@ _FM = {"contract", "arcp", "reassoc", "afn"}
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def _rk4_step(D, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
+    """The kernel's RK4 step (with the efd clamp) for candidate 0. Kept out of line: the
+    kernel's stage functions are inlined, and three inlined copies would triple compile time."""
+    return K._rk4(D, 0, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h)
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
 def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
     """Advance one candidate (D transposed, column 0) over len(u) steps from step k0.
 
@@ -56,8 +73,6 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
     skew = D[K.D_SKEW, 0]
     ramp = D[K.D_RAMP, 0]
     e0 = D[K.D_EFD0, 0]
-    h2 = 0.5 * dt
-    h6 = dt / 6.0
     for s in range(u.shape[0]):
         k = k0 + s
         # ---- sample k (states at t_k) ----
@@ -99,25 +114,12 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
             v1 = K._delayed(vr_r, vr_l, 0, L, base + 0.5, k, e0, False)
             v2 = K._delayed(vr_r, vr_l, 0, L, base + 1.0, k, e0, True)
         x0, x1, x2, x3, x4, x5 = X[0], X[1], X[2], X[3], X[4], X[5]
-        um = 0.5 * (ua + ub)
-        a = K._rhs(D, 0, ua, v0, x0, x1, x2, x3, x4, x5)
-        b = K._rhs(D, 0, um, v1, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3],
-                   x4 + h2 * a[4], x5 + h2 * a[5])
-        c = K._rhs(D, 0, um, v1, x0 + h2 * b[0], x1 + h2 * b[1], x2 + h2 * b[2], x3 + h2 * b[3],
-                   x4 + h2 * b[4], x5 + h2 * b[5])
-        d = K._rhs(D, 0, ub, v2, x0 + dt * c[0], x1 + dt * c[1], x2 + dt * c[2], x3 + dt * c[3],
-                   x4 + dt * c[4], x5 + dt * c[5])
+        r = _rk4_step(D, ua, ub, v0, v1, v2, x0, x1, x2, x3, x4, x5, dt)
         if skew > 0.0:
             ef_h[0, k % Ls] = x3
-            der_r[0, k % Ls] = a[3]
-            der_l[0, (k + 1) % Ls] = d[3]
-        X[0] = x0 + h6 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0])
-        X[1] = x1 + h6 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1])
-        X[2] = x2 + h6 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2])
-        X[3] = x3 + h6 * (a[3] + 2.0 * b[3] + 2.0 * c[3] + d[3])
-        X[4] = x4 + h6 * (a[4] + 2.0 * b[4] + 2.0 * c[4] + d[4])
-        X[5] = x5 + h6 * (a[5] + 2.0 * b[5] + 2.0 * c[5] + d[5])
-        X[3] = min(max(X[3], D[K.D_VRMIN, 0]), D[K.D_VRMAX, 0])
+            der_r[0, k % Ls] = r[6]
+            der_l[0, (k + 1) % Ls] = r[7]
+        X[0] = r[0]; X[1] = r[1]; X[2] = r[2]; X[3] = r[3]; X[4] = r[4]; X[5] = r[5]
         X[6] = ub
         mag = abs(X[0]) + abs(X[1]) + abs(X[2]) + abs(X[3]) + abs(X[4]) + abs(X[5])
         if not (mag < K.BLOWUP):
@@ -138,9 +140,9 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
                 vb = K._delayed(vr_r, vr_l, 0, L, j0 + 1.0, k, e0, False)
                 vbm = K._delayed(vr_r, vr_l, 0, L, j0 + 1.0 + 0.5 * frac, k, e0, False)
                 vbe = K._delayed(vr_r, vr_l, 0, L, base + 1.0, k, e0, True)
-                ra = K._rk4(D, 0, ua, uth, va, vam, vae, x0, x1, x2, x3, x4, x5, th * dt)
-                rb = K._rk4(D, 0, uth, ub, vb, vbm, vbe, ra[0], ra[1], ra[2], ra[3], ra[4], ra[5],
-                            frac * dt)
+                ra = _rk4_step(D, ua, uth, va, vam, vae, x0, x1, x2, x3, x4, x5, th * dt)
+                rb = _rk4_step(D, uth, ub, vb, vbm, vbe, ra[0], ra[1], ra[2], ra[3], ra[4], ra[5],
+                               frac * dt)
                 X[0] = rb[0]; X[1] = rb[1]; X[2] = rb[2]; X[3] = rb[3]; X[4] = rb[4]; X[5] = rb[5]
                 if skew > 0.0:
                     der_r[0, k % Ls] = ra[6]
@@ -164,6 +166,119 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
         out[s, 6] = flags
 
 
+# ---------------------------------------------------------------------------- real-time loop
+# libc clock calls declared by symbol name (not ctypes pointers) so the loop can be cached.
+CLOCK_MONOTONIC = 1
+TIMER_ABSTIME = 1
+(C_STOP, C_K, C_SPW, C_SPR, C_TS, C_TS1, C_NSTAT, C_BURSTS, C_MAXBURST, C_STALLS, C_LATESP,
+ C_RESET) = range(12)
+N_CTRL = 12
+(F_USETP, F_LAGMAX, F_BEHINDMAX, F_FIRSTLAG, F_LASTLAG) = range(5)
+N_F = 5
+RING = 1 << 14          # samples kept for the listeners (16 s at 1 kHz)
+SP_RING = 1 << 10       # pending setpoint changes
+STAT_RING = 1 << 17     # lag samples kept for percentiles (131 s of 1 ms wake-ups)
+MAX_BURST = 1000
+
+
+@intrinsic
+def _clock_gettime(typingctx, clk, addr):
+    sig = types.int32(types.int32, types.uintp)
+
+    def codegen(context, builder, signature, args):
+        fnty = ir.FunctionType(ir.IntType(32), [ir.IntType(32), ir.IntType(8).as_pointer()])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "clock_gettime")
+        return builder.call(fn, [args[0], builder.inttoptr(args[1], ir.IntType(8).as_pointer())])
+    return sig, codegen
+
+
+@intrinsic
+def _clock_nanosleep(typingctx, clk, flags, addr):
+    sig = types.int32(types.int32, types.int32, types.uintp)
+
+    def codegen(context, builder, signature, args):
+        ptr = ir.IntType(8).as_pointer()
+        fnty = ir.FunctionType(ir.IntType(32), [ir.IntType(32), ir.IntType(32), ptr, ptr])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "clock_nanosleep")
+        return builder.call(fn, [args[0], args[1], builder.inttoptr(args[2], ptr),
+                                 ir.Constant(ptr, None)])
+    return sig, codegen
+
+
+@nb.njit(cache=True, nogil=True)
+def _now_ns(ctrl):
+    """CLOCK_MONOTONIC in ns, through ctrl's timespec slots (the call may write ctrl, so the
+    compiler re-reads the shared control words after it)."""
+    _clock_gettime(np.int32(CLOCK_MONOTONIC), ctrl.ctypes.data + 8 * C_TS)
+    return ctrl[C_TS] * 1_000_000_000 + ctrl[C_TS1]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FM)
+def _rt_loop(D, X, vr_r, vr_l, ef_h, der_r, der_l, ctrl, sp_step, sp_val, fst, ring, lag, behind,
+             t0_ns, dt_ns, usetp_pre, dt, max_burst):
+    R = ring.shape[0]
+    RS = sp_step.shape[0]
+    NS = lag.shape[0]
+    u1 = np.empty(1)
+    k = ctrl[C_K]
+    usetp = fst[F_USETP]
+    while ctrl[C_STOP] == 0:
+        now = _now_ns(ctrl)
+        n = (now - t0_ns) // dt_ns - k
+        if n <= 0:
+            deadline = t0_ns + (k + 1) * dt_ns
+            ctrl[C_TS] = deadline // 1_000_000_000
+            ctrl[C_TS1] = deadline % 1_000_000_000
+            _clock_nanosleep(np.int32(CLOCK_MONOTONIC), np.int32(TIMER_ABSTIME),
+                             ctrl.ctypes.data + 8 * C_TS)
+            continue
+        behind_ns = now - t0_ns - k * dt_ns
+        if n > max_burst:
+            n = max_burst
+        spw = ctrl[C_SPW]
+        spr = ctrl[C_SPR]
+        for s in range(n):
+            kk = k + s
+            while spr < spw and sp_step[spr % RS] <= kk:
+                if sp_step[spr % RS] < kk:
+                    ctrl[C_LATESP] += 1
+                usetp = sp_val[spr % RS]
+                spr += 1
+            u1[0] = usetp
+            row = kk % R
+            _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, kk, u1, usetp_pre, dt,
+                     ring[row:row + 1])
+        ctrl[C_SPR] = spr
+        fst[F_USETP] = usetp
+        k += n
+        after = _now_ns(ctrl)          # an external call: the samples are stored before K
+        ctrl[C_K] = k
+        if ctrl[C_RESET] != 0:
+            ctrl[C_NSTAT] = 0
+            ctrl[C_BURSTS] = 0
+            ctrl[C_MAXBURST] = 0
+            ctrl[C_STALLS] = 0
+            fst[F_LAGMAX] = 0.0
+            fst[F_BEHINDMAX] = 0.0
+            ctrl[C_RESET] = 0
+        lag_s = (after - t0_ns - k * dt_ns) * 1e-9
+        behind_s = behind_ns * 1e-9
+        i = ctrl[C_NSTAT]
+        if i == 0:
+            fst[F_FIRSTLAG] = lag_s
+        fst[F_LASTLAG] = lag_s
+        lag[i % NS] = lag_s
+        behind[i % NS] = behind_s
+        ctrl[C_NSTAT] = i + 1
+        fst[F_LAGMAX] = max(fst[F_LAGMAX], lag_s)
+        fst[F_BEHINDMAX] = max(fst[F_BEHINDMAX], behind_s)
+        if n > 1:
+            ctrl[C_BURSTS] += 1
+            ctrl[C_MAXBURST] = max(ctrl[C_MAXBURST], n)
+        if behind_ns > dt_ns + 1_000_000:
+            ctrl[C_STALLS] += 1
+
+
 @dataclass(frozen=True)
 class PlantState:
     """A snapshot of the plant after its last step (exciter readings)."""
@@ -179,18 +294,19 @@ class PlantState:
 
 @dataclass(frozen=True)
 class PlantTiming:
-    """Real-time statistics: lag = wall time - plant time, sampled after every burst."""
+    """Real-time statistics: lag = wall time - plant time after each burst of steps."""
     steps: int
     elapsed_s: float
     lag_mean_s: float
     lag_max_s: float
     lag_p99_s: float
-    late_bursts: int          # bursts of more than one step (the thread woke late)
+    late_bursts: int          # bursts of more than one step (the loop woke late)
     max_burst: int
-    drift_s: float            # (wall - plant) at the end minus at the start
-    behind_max_s: float       # wall - plant time when the thread woke, before catching up
+    drift_s: float            # lag at the last burst minus lag at the first
+    behind_max_s: float       # wall - plant time when the loop woke, before catching up
     behind_p99_s: float       # (>= one step by construction: a step is computed after its end)
     stalls_over_1ms: int      # wake-ups that found the plant more than one step + 1 ms behind
+    late_setpoints: int       # setpoint changes published after their step had been computed
 
 
 Listener = Callable[[int, np.ndarray], None]
@@ -200,47 +316,59 @@ class Plant:
     """The reference unit stepping with carried state; offline (`advance`) or real time (`start`)."""
 
     def __init__(self, unit: Unit | None = None, *, dt: float = 1e-3,
-                 usetp0: float | None = None) -> None:
+                 usetp0: float | None = None, rt_priority: int | None = 10) -> None:
         self.unit = unit if unit is not None else load_unit(None)
         self.dt = float(dt)
+        self._dt_ns = int(round(self.dt * 1e9))
+        if self._dt_ns * 1e-9 != self.dt and abs(self._dt_ns * 1e-9 - self.dt) > 1e-15:
+            raise ValueError(f"plant step {dt!r} s is not a whole number of ns")
+        #: SCHED_FIFO priority of the stepping thread (None: normal scheduling)
+        self.rt_priority = rt_priority
+        self.rt_active = False
         values = self.unit.values()
         self._D = np.ascontiguousarray(K.derive(param_matrix(values)).T)
         if self._D[K.D_VALID, 0] == 0.0:
             raise ValueError(f"unit {self.unit.name!r}: parameters are not valid for the kernel")
-        self.vt0 = float(self._D[K.D_VT0, 0])
+        D = self._D
+        self.vt0 = float(D[K.D_VT0, 0])
         #: the setpoint at which the plant starts in steady state (uref = uref0)
         self.usetp_pre = float(values["Vt0"] if usetp0 is None else usetp0)
-        D = self._D
-        sat_a, sat_b = float(D[K.D_SATA, 0]), float(D[K.D_SATB, 0])
-        self._sat = (sat_a, sat_b)
+        self._sat = (float(D[K.D_SATA, 0]), float(D[K.D_SATB, 0]))
         L = int(math.ceil(D[K.D_TD, 0] / self.dt)) + 3 if D[K.D_TD, 0] > 0 else 1
         Ls = int(math.ceil(D[K.D_SKEW, 0] / self.dt)) + 3 if D[K.D_SKEW, 0] > 0 else 1
         e0 = D[K.D_EFD0, 0]
         self._X = np.array([self.vt0, D[K.D_E0, 0], D[K.D_E0, 0], e0, self.vt0, self.vt0,
                             D[K.D_UREF0, 0], D[K.D_GAIN, 0] * e0, 0.0])
-        self._vr_r = np.full((1, L), e0)
-        self._vr_l = np.full((1, L), e0)
-        self._ef_h = np.full((1, Ls), e0)
-        self._der_r = np.zeros((1, Ls))
-        self._der_l = np.zeros((1, Ls))
-        self._k = 0
-        self._usetp = self.usetp_pre
+        self._hist = (np.full((1, L), e0), np.full((1, L), e0), np.full((1, Ls), e0),
+                      np.zeros((1, Ls)), np.zeros((1, Ls)))
+        self._ctrl = np.zeros(N_CTRL, np.int64)          # shared with the compiled loop
+        self._fst = np.zeros(N_F)
+        self._fst[F_USETP] = self.usetp_pre
+        self._sp_step = np.zeros(SP_RING, np.int64)
+        self._sp_val = np.zeros(SP_RING)
+        self._ring = np.zeros((RING, N_OUT))
+        self._lag = np.zeros(STAT_RING)
+        self._behind = np.zeros(STAT_RING)
         self._flags = 0
-        self._lock = threading.Lock()              # state + setpoint queue
-        self._pending: deque[tuple[int, float]] = deque()   # (step, value) for real time
+        self._lock = threading.Lock()                    # offline stepping, setpoint writers
+        self._pending: deque[tuple[int, float]] = deque()   # offline setpoint changes
+        self._last_sp_step = 0
         self._listeners: list[Listener] = []
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._running = threading.Event()
-        self.t0: float | None = None               # monotonic time of plant time 0 (real time)
-        self._lags: list[float] = []
-        self._behind: list[float] = []
-        self._bursts = 0
-        self._max_burst = 0
-        self._first_lag: float | None = None
-        self._last_lag = 0.0
+        self._threads: list[threading.Thread] = []
+        self._stopping = threading.Event()
+        self.t0: float | None = None     # monotonic time of plant time 0 (real time)
+        self._t0_ns = 0
 
     # ------------------------------------------------------------------ offline stepping
+    @property
+    def realtime(self) -> bool:
+        return self.t0 is not None
+
+    @property
+    def step(self) -> int:
+        """Steps taken so far; plant time = step * dt."""
+        return int(self._ctrl[C_K])
+
     def advance(self, usetp: np.ndarray | float, n: int | None = None) -> np.ndarray:
         """Take len(usetp) steps (or n steps at a constant setpoint); returns the samples (n, N_OUT)."""
         u = np.full(int(n), float(usetp)) if n is not None else np.ascontiguousarray(usetp, float)
@@ -250,162 +378,181 @@ class Plant:
         return out
 
     def _step_locked(self, u: np.ndarray, out: np.ndarray) -> None:
+        if self.realtime:
+            raise RuntimeError("the plant runs in real time; offline stepping is not possible")
         if u.shape[0] == 0:
             return
-        _advance(self._D, self._X, self._vr_r, self._vr_l, self._ef_h, self._der_r, self._der_l,
-                 self._k, u, self.usetp_pre, self.dt, out)
-        self._k += u.shape[0]
-        self._usetp = float(u[-1])
+        _advance(self._D, self._X, *self._hist, self.step, u, self.usetp_pre, self.dt, out)
+        self._ctrl[C_K] += u.shape[0]
+        self._fst[F_USETP] = float(u[-1])
         self._flags = int(out[-1, O_FLAGS])
         if self._flags & FLAG_FAILED:
-            log.error("plant state left its sane range at step %d; parked at steady state", self._k)
+            log.error("plant state left its sane range at step %d; parked at steady state", self.step)
+
+    def run_offline(self, n: int) -> np.ndarray:
+        """Take n steps using the setpoint changes written so far (no clock); feeds listeners."""
+        with self._lock:
+            k0 = self.step
+            u = np.empty(n)
+            cur = float(self._fst[F_USETP])
+            pos = 0
+            while self._pending and self._pending[0][0] < k0 + n:
+                k, v = self._pending.popleft()
+                idx = max(k - k0, 0)
+                u[pos:idx] = cur
+                pos = max(pos, idx)
+                cur = v
+            u[pos:] = cur
+            out = np.empty((n, N_OUT))
+            self._step_locked(u, out)
+        for fn in list(self._listeners):
+            fn(k0, out)
+        return out
 
     def add_listener(self, fn: Listener) -> None:
-        """fn(first_step, samples) is called (plant thread) after every burst of steps."""
+        """fn(first_step, samples) is called (listener thread) for every new block of samples."""
         self._listeners.append(fn)
 
     def remove_listener(self, fn: Listener) -> None:
         if fn in self._listeners:
             self._listeners.remove(fn)
 
-    @property
-    def step(self) -> int:
-        return self._k
-
     def state(self) -> PlantState:
-        with self._lock:
-            X = self._X
-            a, b = self._sat
-            eqp = float(X[4])
-            ifd = eqp + (b * (eqp - a) ** 2 if eqp > a else 0.0)
-            ref = self.usetp_pre + float(X[6]) - float(self._D[K.D_UREF0, 0])
-            return PlantState(self._k, self._k * self.dt, self._usetp, ref, float(X[5]),
-                              float(X[3]), ifd, self._flags)
+        """The latest state (read without stopping the loop: values may straddle one step)."""
+        X = self._X.copy()
+        k = self.step
+        flags = int(self._ring[(k - 1) % RING, O_FLAGS]) if self.realtime and k else self._flags
+        a, b = self._sat
+        eqp = float(X[4])
+        ifd = eqp + (b * (eqp - a) ** 2 if eqp > a else 0.0)
+        ref = self.usetp_pre + float(X[6]) - float(self._D[K.D_UREF0, 0])
+        return PlantState(k, k * self.dt, float(self._fst[F_USETP]), ref, float(X[5]),
+                          float(X[3]), ifd, flags)
 
     # ------------------------------------------------------------------ real time
     def write_setpoint(self, value: float, at: float | None = None) -> int:
-        """Set the digital setpoint; acts from the next plant step after wall time `at`.
-
-        Returns the plant step index from which the new value acts."""
+        """Set the digital setpoint; acts from the first plant step after wall time `at`
+        (default now; offline: from the next step taken). Returns that step."""
         if not math.isfinite(value):
             raise ValueError(f"plant setpoint {value!r} is not finite")
         with self._lock:
+            if not self.realtime:
+                self._pending.append((self.step, float(value)))
+                return self.step
             now = time.monotonic() if at is None else at
-            if self.t0 is None:        # offline: from the next step taken
-                self._pending.append((self._k, float(value)))
-                return self._k
-            k = max(self._k, math.ceil((now - self.t0) / self.dt - 1e-9))
-            self._pending.append((k, float(value)))
+            k = max(self.step, self._last_sp_step,
+                    math.ceil((now - self.t0) / self.dt - 1e-9))
+            i = int(self._ctrl[C_SPW])
+            if i - int(self._ctrl[C_SPR]) >= SP_RING:
+                raise RuntimeError("plant setpoint queue full (the plant loop is not running)")
+            self._sp_step[i % SP_RING] = k
+            self._sp_val[i % SP_RING] = float(value)
+            self._ctrl[C_SPW] = i + 1
+            self._last_sp_step = k
             return k
 
-    def _inputs(self, k0: int, n: int) -> np.ndarray:
-        """Setpoint per step k0..k0+n-1 from the pending changes (lock held)."""
-        u = np.empty(n)
-        cur = self._usetp
-        pos = 0
-        while self._pending and self._pending[0][0] < k0 + n:
-            k, v = self._pending.popleft()
-            idx = max(k - k0, 0)
-            u[pos:idx] = cur
-            pos = max(pos, idx)
-            cur = v
-        u[pos:] = cur
-        return u
-
-    def run_offline(self, n: int) -> np.ndarray:
-        """Take n steps using the setpoint changes written so far (no clock)."""
-        with self._lock:
-            u = self._inputs(self._k, n)
-            out = np.empty((n, N_OUT))
-            self._step_locked(u, out)
-        for fn in list(self._listeners):
-            fn(self._k - n, out)
-        return out
-
     def start(self) -> float:
-        """Start real-time stepping in a daemon thread; returns t0 (monotonic)."""
-        if self._thread is not None:
+        """Start real-time stepping; returns t0 (monotonic time of plant time 0)."""
+        if self._threads:
             raise RuntimeError("plant already started")
-        # warm the compiled stepper so the first real step is not late by the compile time
         self._warm()
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="plant", daemon=True)
-        self._thread.start()
-        self._running.wait()
-        assert self.t0 is not None
+        with self._lock:
+            self._t0_ns = time.monotonic_ns() - self.step * self._dt_ns
+            self.t0 = self._t0_ns * 1e-9
+            self._ctrl[C_STOP] = 0
+            for k, v in self._pending:          # offline changes not yet stepped
+                i = int(self._ctrl[C_SPW])
+                self._sp_step[i % SP_RING], self._sp_val[i % SP_RING] = k, v
+                self._ctrl[C_SPW] = i + 1
+            self._pending.clear()
+        self._stopping.clear()
+        first = self.step
+        self._threads = [threading.Thread(target=self._loop_thread, name="plant", daemon=True),
+                         threading.Thread(target=self._dispatch, args=(first,),
+                                          name="plant-listeners", daemon=True)]
+        for t in self._threads:
+            t.start()
         return self.t0
 
     def _warm(self) -> None:
+        """Compile (or load from cache) before the clock starts."""
         X = self._X.copy()
-        scratch = [a.copy() for a in (self._vr_r, self._vr_l, self._ef_h, self._der_r, self._der_l)]
+        scratch = [a.copy() for a in self._hist]
         _advance(self._D, X, *scratch, 0, np.full(2, self.usetp_pre), self.usetp_pre, self.dt,
                  np.empty((2, N_OUT)))
+        ctrl = np.zeros(N_CTRL, np.int64)
+        ctrl[C_STOP] = 1
+        _rt_loop(self._D, X, *scratch, ctrl, self._sp_step.copy(), self._sp_val.copy(),
+                 self._fst.copy(), np.zeros((4, N_OUT)), np.zeros(4), np.zeros(4), 0,
+                 self._dt_ns, self.usetp_pre, self.dt, MAX_BURST)
 
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
+    def _raise_priority(self) -> None:
+        """Best effort: SCHED_FIFO for this thread (Linux; needs CAP_SYS_NICE, e.g. root).
 
-    def _run(self) -> None:
-        dt = self.dt
-        with self._lock:
-            self.t0 = time.monotonic() - self._k * dt
-        self._running.set()
-        out_buf = np.empty((1024, N_OUT))
-        while not self._stop.is_set():
-            now = time.monotonic()
-            due = int((now - self.t0) / dt)
-            n = due - self._k
-            if n > 0:
-                behind = now - self.t0 - self._k * dt
-                n = min(n, out_buf.shape[0])
-                with self._lock:
-                    k0 = self._k
-                    u = self._inputs(k0, n)
-                    out = out_buf[:n]
-                    self._step_locked(u, out)
+        On a loaded 2-core machine a normally scheduled thread wakes up to ~10 ms late; with
+        SCHED_FIFO the plant stays within a step. The loop sleeps between steps, so the
+        priority cannot starve the machine."""
+        if self.rt_priority is None or not hasattr(os, "sched_setscheduler"):
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+            self.rt_active = True
+        except (PermissionError, OSError) as exc:
+            log.warning("plant: no real-time priority (%s); timing may suffer under load", exc)
+
+    def _loop_thread(self) -> None:
+        self._raise_priority()
+        _rt_loop(self._D, self._X, *self._hist, self._ctrl, self._sp_step, self._sp_val,
+                 self._fst, self._ring, self._lag, self._behind, self._t0_ns, self._dt_ns,
+                 self.usetp_pre, self.dt, MAX_BURST)
+
+    def _dispatch(self, done: int) -> None:
+        """Hand new samples to the listeners, in order (runs until the loop has stopped)."""
+        while True:
+            k = self.step
+            if k > done:
+                if k - done > RING:
+                    log.error("plant listeners fell %d steps behind; samples %d..%d lost",
+                              k - done, done, k - RING - 1)
+                    done = k - RING
+                a, b = done % RING, k % RING
+                rows = self._ring[a:b].copy() if a < b else \
+                    np.vstack([self._ring[a:], self._ring[:b]])
                 for fn in list(self._listeners):
                     try:
-                        fn(k0, out)
-                    except Exception:  # a listener must never stop the plant
+                        fn(done, rows)
+                    except Exception:  # a listener must never stop the others
                         log.exception("plant listener %r failed", fn)
-                lag = time.monotonic() - self.t0 - self._k * dt
-                self._note_lag(lag, n, behind)
-                continue
-            wait = self.t0 + (self._k + 1) * dt - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+                done = k
+            elif self._stopping.is_set() and not self._threads[0].is_alive():
+                return
+            else:
+                time.sleep(0.001)
 
-    def _note_lag(self, lag: float, n: int, behind: float) -> None:
-        if self._first_lag is None:
-            self._first_lag = lag
-        self._last_lag = lag
-        if len(self._lags) < 2_000_000:
-            self._lags.append(lag)
-            self._behind.append(behind)
-        if n > 1:
-            self._bursts += 1
-            self._max_burst = max(self._max_burst, n)
+    def stop(self) -> None:
+        """Stop real-time stepping (the state is kept; idempotent)."""
+        if not self._threads:
+            return
+        self._ctrl[C_STOP] = 1
+        self._stopping.set()
+        for t in self._threads:
+            t.join(timeout=5.0)
+        self._threads = []
 
     def reset_timing(self) -> None:
-        """Forget the lag statistics (e.g. after warm-up)."""
-        self._lags = []
-        self._behind = []
-        self._bursts = 0
-        self._max_burst = 0
-        self._first_lag = None
+        """Forget the lag statistics (e.g. after warm-up); applied by the loop at its next burst."""
+        self._ctrl[C_RESET] = 1
 
     def timing(self) -> PlantTiming:
-        n = min(len(self._lags), len(self._behind))
-        lags = np.asarray(self._lags[:n]) if n else np.zeros(1)
-        behind = np.asarray(self._behind[:n]) if n else np.zeros(1)
+        n = int(min(self._ctrl[C_NSTAT], STAT_RING))
+        lags = self._lag[:n].copy() if n else np.zeros(1)
+        behind = self._behind[:n].copy() if n else np.zeros(1)
         elapsed = (time.monotonic() - self.t0) if self.t0 is not None else 0.0
-        return PlantTiming(self._k, elapsed, float(lags.mean()), float(lags.max()),
-                           float(np.percentile(lags, 99)), self._bursts, self._max_burst,
-                           float(self._last_lag - (self._first_lag or 0.0)),
-                           float(behind.max()), float(np.percentile(behind, 99)),
-                           int(np.count_nonzero(behind > self.dt + 1e-3)))
+        c, f = self._ctrl, self._fst
+        return PlantTiming(self.step, elapsed, float(lags.mean()), float(f[F_LAGMAX]),
+                           float(np.percentile(lags, 99)), int(c[C_BURSTS]), int(c[C_MAXBURST]),
+                           float(f[F_LASTLAG] - f[F_FIRSTLAG]), float(f[F_BEHINDMAX]),
+                           float(np.percentile(behind, 99)), int(c[C_STALLS]), int(c[C_LATESP]))
 
     def wall_to_step(self, t_wall: float) -> float:
         """Plant step (fractional) at monotonic wall time t_wall (real time only)."""

@@ -1,0 +1,68 @@
+"""A line-based control port for a running `bench-ctl sim` (run-time fault switching).
+
+One command per line, one reply line (``ok ...`` or ``error ...``)::
+
+    fault no_reply device=exciter count=1      arm a fault (keys as simulators.faults.Fault)
+    clear [KIND]                               disarm all faults (or those of one kind)
+    list                                       the armed faults
+    load 12.5                                  set the exciter's active power (MW)
+    state                                      plant step, vt, efd, setpoint, recorder status
+
+e.g. ``printf 'fault late_reply device=recorder delay_s=0.4\\n' | socat - TCP:127.0.0.1:5029``.
+Binds to loopback by default; it is a test aid, not an operator interface.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import TYPE_CHECKING
+
+from .faults import parse_fault
+
+if TYPE_CHECKING:
+    from .bench import SimBench
+
+log = logging.getLogger(__name__)
+
+
+def execute(bench: "SimBench", line: str) -> str:
+    """Run one control command; returns the reply line."""
+    words = line.split()
+    if not words:
+        return "error empty command"
+    cmd, args = words[0], words[1:]
+    try:
+        if cmd == "fault" and args:
+            fault = parse_fault(args[0] + (":" + ",".join(args[1:]) if args[1:] else ""))
+            bench.faults.add(fault)
+            return f"ok {fault}"
+        if cmd == "clear":
+            return f"ok cleared {bench.faults.clear(kind=args[0] if args else None)}"
+        if cmd == "list":
+            return "ok " + "; ".join(str(f) for f in bench.faults.active())
+        if cmd == "load" and len(args) == 1:
+            bench.exciter.set_load_mw(float(args[0]))
+            return f"ok load {float(args[0])} MW"
+        if cmd == "state":
+            st = bench.plant.state()
+            return (f"ok step={st.step} vt={st.vt:.6f} efd={st.efd:.6f} usetp={st.usetp:.6f} "
+                    f"remote={bench.exciter.remote} recorder={bench.recorder.status}")
+    except ValueError as exc:
+        return f"error {exc}"
+    return f"error unknown command {line.strip()!r} (fault, clear, list, load, state)"
+
+
+async def start_control(bench: "SimBench", address: tuple[str, int]) -> asyncio.AbstractServer:
+    async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            while line := await reader.readline():
+                reply = execute(bench, line.decode("utf-8", "replace"))
+                log.info("control: %s -> %s", line.strip(), reply)
+                writer.write(reply.encode() + b"\n")
+                await writer.drain()
+        except ConnectionError:
+            pass
+        finally:
+            writer.close()
+
+    return await asyncio.start_server(handle, *address)

@@ -1,0 +1,176 @@
+"""The simulated excitation system: setpoint, mode, heartbeat watchdog, readings from the plant.
+
+Works on register names (see /work/notes/PROFILES.md); any exciter profile that names the
+registers below can be served. Required: setpoint, active_setpoint, vt, efd, ifd, p, mode,
+status, heartbeat. Optional: watchdog_timeout, device_code, firmware. Other writable registers
+a vendor profile adds are stored and read back as written.
+
+Behaviour:
+- starts in auto + local with setpoint = the plant's initial setpoint (Vt0);
+- setpoint writes need remote mode (when the profile's `require_remote` setting is true,
+  default) -> else exception 01; out of the register's min/max -> exception 03 (register image);
+- local -> remote remembers the pre-remote setpoint and starts the watchdog; while remote the
+  heartbeat must change within `heartbeat_timeout_s`, else the setpoint reverts to the
+  pre-remote value, the mode drops to local and status.watchdog_tripped latches (until the
+  next local -> remote);
+- manual mode is not simulated: a mode write without the auto bit -> exception 03.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Mapping, Sequence
+
+import numpy as np
+from pymodbus.constants import ExcCodes
+
+from bench_ctl.model.plant import FLAG_CEILING, FLAG_RAMP, FLAG_RATE, Plant
+from drivers.profile import Profile, Register
+
+log = logging.getLogger(__name__)
+
+REQUIRED = ("setpoint", "active_setpoint", "vt", "efd", "ifd", "p", "mode", "status", "heartbeat")
+DEFAULT_MODE_BITS = {"auto": 0, "remote": 1}
+DEFAULT_STATUS_BITS = {"ceiling_limit": 0, "rate_limit": 1, "watchdog_tripped": 2,
+                       "setpoint_ramping": 3}
+DEVICE_CODE = 0x4543
+FIRMWARE = 0x0100
+
+
+class ExciterDevice:
+    """Device logic of the excitation system around a shared `Plant`."""
+
+    kind = "exciter"
+
+    def __init__(self, plant: Plant, profile: Profile, *, heartbeat_timeout_s: float | None = None,
+                 load_mw: float = 0.0, require_remote: bool | None = None) -> None:
+        if profile.device != "exciter":
+            raise ValueError(f"profile {profile.name!r} is for a {profile.device}, not an exciter")
+        missing = [n for n in REQUIRED if n not in profile.registers]
+        if missing:
+            raise ValueError(f"exciter profile {profile.name!r} lacks registers {missing}")
+        self.plant = plant
+        self.profile = profile
+        timeout = heartbeat_timeout_s if heartbeat_timeout_s is not None \
+            else float(profile.settings.get("heartbeat_timeout_s", 2.0))
+        if not timeout > 0:
+            raise ValueError(f"heartbeat timeout {timeout!r} s must be > 0")
+        self.heartbeat_timeout_s = float(timeout)
+        self.require_remote = bool(profile.settings.get("require_remote", True)
+                                   if require_remote is None else require_remote)
+        self._mode_bits = dict(profile["mode"].bits) or DEFAULT_MODE_BITS
+        self._status_bits = dict(profile["status"].bits) or DEFAULT_STATUS_BITS
+        for need in ("auto", "remote"):
+            if need not in self._mode_bits:
+                raise ValueError(f"exciter profile {profile.name!r}: mode register lacks bit {need!r}")
+        self._lock = threading.Lock()
+        self.setpoint = plant.usetp_pre
+        self.remote = False
+        self.heartbeat = 0
+        self._hb_changed = time.monotonic()
+        self.pre_remote_setpoint = self.setpoint
+        self.watchdog_tripped = False
+        self.load_mw = float(load_mw)
+        #: plant step from which the last written setpoint acts
+        self.last_setpoint_step: int | None = None
+        self._extra: dict[str, float] = {}
+        #: (monotonic time, event, value) of what happened to the device, for tests and logs
+        self.events: list[tuple[float, str, float]] = []
+        plant.add_listener(self._on_plant)
+
+    # ---------------------------------------------------------------- state for the image
+    def mode_word(self) -> int:
+        word = 1 << self._mode_bits["auto"]
+        if self.remote:
+            word |= 1 << self._mode_bits["remote"]
+        return word
+
+    def snapshot(self) -> Mapping[str, float]:
+        st = self.plant.state()
+        flags = 0
+        sb = self._status_bits
+        for name, on in (("ceiling_limit", st.flags & FLAG_CEILING),
+                         ("rate_limit", st.flags & FLAG_RATE),
+                         ("setpoint_ramping", st.flags & FLAG_RAMP),
+                         ("watchdog_tripped", self.watchdog_tripped)):
+            if on and name in sb:
+                flags |= 1 << sb[name]
+        with self._lock:
+            snap = dict(self._extra)
+            snap.update(setpoint=self.setpoint, heartbeat=self.heartbeat, mode=self.mode_word())
+        snap.update(active_setpoint=st.active_setpoint, vt=st.vt, efd=st.efd, ifd=st.ifd,
+                    p=self.load_mw, status=flags, watchdog_timeout=self.heartbeat_timeout_s,
+                    device_code=DEVICE_CODE, firmware=FIRMWARE)
+        return snap
+
+    def read_window(self, offset: int, count: int) -> list[int] | ExcCodes:
+        return ExcCodes.ILLEGAL_ADDRESS
+
+    # ---------------------------------------------------------------- writes
+    def write(self, items: Sequence[tuple[Register, float]]) -> ExcCodes | None:
+        now = time.monotonic()
+        with self._lock:
+            for reg, value in items:       # validate all before applying any
+                exc = self._check(reg.name, value)
+                if exc is not None:
+                    log.info("exciter refuses %s = %r: exception %s", reg.name, value, exc.name)
+                    return exc
+            for reg, value in items:
+                self._apply(reg.name, value, now)
+        return None
+
+    def _check(self, name: str, value: float) -> ExcCodes | None:
+        if name == "setpoint" and self.require_remote and not self.remote:
+            return ExcCodes.ILLEGAL_FUNCTION
+        if name == "mode":
+            word = int(value)
+            known = (1 << self._mode_bits["auto"]) | (1 << self._mode_bits["remote"])
+            if word != value or word & ~known or not word & (1 << self._mode_bits["auto"]):
+                return ExcCodes.ILLEGAL_VALUE
+        return None
+
+    def _apply(self, name: str, value: float, now: float) -> None:
+        if name == "setpoint":
+            self.setpoint = value
+            # time-stamped by the plant as it queues the change: "from the next plant step"
+            self.last_setpoint_step = self.plant.write_setpoint(value)
+            self.events.append((now, "setpoint", value))
+            log.debug("setpoint %.6f from plant step %d", value, self.last_setpoint_step)
+        elif name == "heartbeat":
+            if int(value) != self.heartbeat:
+                self._hb_changed = now
+            self.heartbeat = int(value)
+        elif name == "mode":
+            remote = bool(int(value) & (1 << self._mode_bits["remote"]))
+            if remote and not self.remote:
+                self.pre_remote_setpoint = self.setpoint
+                self.watchdog_tripped = False
+                self._hb_changed = now
+                self.events.append((now, "remote", self.setpoint))
+            elif not remote and self.remote:
+                self.events.append((now, "local", self.setpoint))
+            self.remote = remote
+        else:
+            self._extra[name] = value
+
+    def set_load_mw(self, p_mw: float) -> None:
+        """Change the simulated active power (e.g. to test a no-load precondition)."""
+        if not np.isfinite(p_mw):
+            raise ValueError(f"load {p_mw!r} MW is not finite")
+        self.load_mw = float(p_mw)
+
+    # ---------------------------------------------------------------- watchdog
+    def _on_plant(self, k0: int, out: np.ndarray) -> None:
+        if not self.remote:
+            return
+        now = time.monotonic()
+        with self._lock:
+            if self.remote and now - self._hb_changed > self.heartbeat_timeout_s:
+                self.remote = False
+                self.watchdog_tripped = True
+                self.setpoint = self.pre_remote_setpoint
+                self.last_setpoint_step = self.plant.write_setpoint(self.setpoint)
+                self.events.append((now, "watchdog", self.setpoint))
+                log.warning("exciter watchdog: heartbeat unchanged for %.3f s; setpoint reverted "
+                            "to %.6f pu, mode local", now - self._hb_changed, self.setpoint)
