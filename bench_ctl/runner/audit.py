@@ -1,0 +1,97 @@
+"""The audit file: one JSON object per line, written and flushed as things happen.
+
+Each line has `t_utc` (ISO 8601), `t_mono_s` (monotonic seconds since the run started),
+`kind` (run_start, config, identity, step_start, step_end, precondition, write, heartbeat,
+safe_state, error, result, run_end, ...), `step` (the current step or null) and the event's own
+fields. A write line carries register, value, raw words, read-back words, its send time and
+whether they matched. The file is opened in exclusive-create mode (an audit is never
+overwritten). Every line is flushed at once (a crashed process loses nothing); lines that
+matter after a power loss too are also fsynced - all but routine ones (heartbeats, download
+block selections), whose fsync (~5 ms here) would slow the download several-fold.
+"""
+from __future__ import annotations
+
+import datetime as dt
+import json
+import logging
+import math
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return repr(obj)
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (str, int, float, bool)) or obj is None:
+        return obj
+    if isinstance(obj, (bytes, bytearray)):
+        return obj.hex()
+    if hasattr(obj, "to_dict"):
+        return _jsonable(obj.to_dict())
+    if hasattr(obj, "item"):  # numpy scalar
+        return _jsonable(obj.item())
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    return repr(obj)
+
+
+class AuditLog:
+    """Append-only JSON-lines audit of one run (thread-safe: the heartbeat writes here too)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._fh = None
+        self._lock = threading.Lock()
+        self._t0 = time.monotonic()
+        self.step: str | None = None
+        self.count = 0
+
+    def open(self) -> "AuditLog":
+        self._fh = open(self.path, "x", encoding="utf-8")  # never overwrite an audit
+        return self
+
+    def event(self, kind: str, *, durable: bool = True, **fields: Any) -> dict[str, Any]:
+        """Append one line, flushed, and fsynced when `durable`; returns the record."""
+        now = time.monotonic()
+        record = {"t_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="microseconds"),
+                  "t_mono_s": round(now - self._t0, 6), "kind": kind, "step": self.step}
+        record.update(_jsonable(fields))
+        line = json.dumps(record, allow_nan=False)
+        with self._lock:
+            if self._fh is None:
+                raise RuntimeError(f"audit {self.path} is not open")
+            self._fh.write(line + "\n")
+            self._fh.flush()
+            if durable:
+                os.fsync(self._fh.fileno())
+            self.count += 1
+        return record
+
+    def close(self) -> None:
+        with self._lock:
+            if self._fh is not None:
+                self._fh.flush()
+                os.fsync(self._fh.fileno())
+                self._fh.close()
+                self._fh = None
+
+    def __enter__(self) -> "AuditLog":
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_audit(path: str | Path) -> list[dict[str, Any]]:
+    """All records of an audit file (tests and reports use it)."""
+    with open(path, encoding="utf-8") as fh:
+        return [json.loads(line) for line in fh if line.strip()]

@@ -1,0 +1,82 @@
+"""The bench a procedure receives: the exciter and recorder drivers built from the bench config.
+
+`Bench.safe_state` makes every device safe in the reverse order the test set them up (the
+recorder is armed before the exciter is taken to remote, so the exciter is restored first).
+"""
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from bench_ctl.runner.config import BenchConfig
+from drivers.device import SafeStateReport, WriteGuard, WriteListener
+from drivers.errors import CommError, DeviceError
+from drivers.exciter import Exciter
+from drivers.link import ModbusLink
+from drivers.profile import load_profile
+from drivers.recorder import Recorder
+
+log = logging.getLogger(__name__)
+
+IDENTITY_REGISTERS = ("device_code", "firmware")
+
+
+class Bench:
+    """Both devices of a bench. No I/O before `connect()`."""
+
+    def __init__(self, config: BenchConfig, *, guard: WriteGuard | None = None,
+                 listener: WriteListener | None = None) -> None:
+        self.config = config
+        exc, rec = config.exciter, config.recorder
+        self.exciter = Exciter(ModbusLink(exc.endpoint(), "exciter"), load_profile(exc.profile),
+                               heartbeat_period_s=exc.heartbeat_period_s,
+                               restore_deadline_s=config.limits.restore_deadline_s,
+                               guard=guard, listener=listener)
+        self.recorder = Recorder(ModbusLink(rec.endpoint(), "recorder"),
+                                 load_profile(rec.profile), attempts=rec.download_attempts,
+                                 guard=guard, listener=listener)
+
+    @property
+    def devices(self) -> tuple[Exciter | Recorder, ...]:
+        return (self.exciter, self.recorder)
+
+    def connect(self) -> None:
+        for dev in self.devices:
+            dev.connect()
+
+    def close(self) -> None:
+        for dev in self.devices:
+            try:
+                dev.close()
+            except Exception:  # closing must not hide the run's own outcome
+                log.exception("%s: close failed", dev.name)
+
+    def identities(self) -> dict[str, dict[str, Any]]:
+        """Profile identity plus the identity registers read from each device."""
+        out = {}
+        for dev in self.devices:
+            ident = dev.identity()
+            for name in IDENTITY_REGISTERS:
+                if name in dev.profile.registers:
+                    ident[f"{name}_read"] = int(dev.read(name))
+            out[dev.name] = ident
+        return out
+
+    def check(self) -> None:
+        """Raise the heartbeat's error when its last beat failed (the link is in trouble)."""
+        hb = self.exciter.heartbeat
+        if hb.running and hb.last_error is not None and hb.failures and hb.last_failed:
+            raise CommError(f"heartbeat failing ({hb.failures} failed beats): "
+                            f"{hb.last_error.message}", device=self.exciter.name,
+                            register="heartbeat", frames=hb.last_error.frames)
+
+    def safe_state(self, reason: str, *, reconnect: bool = False) -> list[SafeStateReport]:
+        """Exciter first (restore the setpoint), then the recorder (disarm). Never raises."""
+        reports = []
+        for dev in (self.exciter, self.recorder):
+            try:
+                reports.append(dev.safe_state(reason, reconnect=reconnect))
+            except DeviceError as exc:  # drivers report failures; this is a last resort
+                reports.append(SafeStateReport(dev.name, False, "SAFE STATE FAILED",
+                                               detail=str(exc), reason=reason))
+        return reports

@@ -1,0 +1,227 @@
+"""The bench config (TOML): where the devices are, their profiles, and the safety limits.
+
+Every key is known; an unknown or mistyped key is an error naming the file and the key (a
+typo in a limit must never fall back to a default). Quantities carry their unit in the name.
+
+    [bench]
+    name = "Unit 3 excitation bench"
+
+    [exciter]                         # Modbus TCP
+    url = "tcp://192.0.2.10:502"
+    unit_id = 1
+    profile = "sim-exciter"           # drivers/profiles/NAME.toml, or a path (relative to this file)
+    timeout_s = 0.5
+    heartbeat_period_s = 0.25
+
+    [recorder]                        # Modbus RTU on a serial port or pyserial URL
+    url = "/dev/ttyUSB0"              # or a pyserial URL, "socket://HOST:PORT" (slow for block
+                                      # downloads: pymodbus 3.16 reads it ~1 byte per ms)
+    unit_id = 1
+    profile = "sim-recorder"
+    timeout_s = 0.5
+    baudrate = 115200
+    parity = "N"                      # N | E | O
+    stopbits = 1
+    download_attempts = 3             # per block; block reads are idempotent
+
+    [limits]                          # checked before the first write; refuse, never clip
+    pulse_amplitude_max_pu = 0.06     # |pulse amplitude| cap
+    pulse_width_max_s = 1.5
+    setpoint_min_pu = 0.95            # absolute band for every setpoint written
+    setpoint_max_pu = 1.08
+    no_load_p_max_mw = 2.0            # no-load precondition: |p| below this
+    restore_deadline_s = 10.0         # reconnect-and-restore budget on a lost link
+
+    [procedures.no_load_pulse]        # optional: keyword parameters of a procedure
+    amplitude_pu = 0.05
+    width_s = 1.0
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Mapping
+
+from drivers.link import Endpoint
+
+
+class ConfigError(ValueError):
+    """A bench config that cannot be used; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    url: str
+    profile: str
+    unit_id: int = 1
+    timeout_s: float = 0.5
+    # exciter
+    heartbeat_period_s: float = 0.25
+    # recorder (serial)
+    baudrate: int = 115200
+    parity: str = "N"
+    stopbits: int = 1
+    download_attempts: int = 3
+
+    def endpoint(self) -> Endpoint:
+        return Endpoint(url=self.url, unit_id=self.unit_id, timeout_s=self.timeout_s,
+                        baudrate=self.baudrate, parity=self.parity, stopbits=self.stopbits)
+
+
+@dataclass(frozen=True)
+class Limits:
+    pulse_amplitude_max_pu: float
+    pulse_width_max_s: float
+    setpoint_min_pu: float
+    setpoint_max_pu: float
+    no_load_p_max_mw: float
+    restore_deadline_s: float = 10.0
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    name: str
+    exciter: DeviceConfig
+    recorder: DeviceConfig
+    limits: Limits
+    procedures: dict[str, dict[str, Any]] = field(default_factory=dict)
+    source: str = "<in memory>"
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (the capture sidecar and the audit log record it)."""
+        return {"name": self.name, "source": self.source, "exciter": asdict(self.exciter),
+                "recorder": asdict(self.recorder), "limits": asdict(self.limits),
+                "procedures": {k: dict(v) for k, v in self.procedures.items()}}
+
+    def with_endpoints(self, *, exciter_url: str | None = None, recorder_url: str | None = None,
+                       exciter_unit_id: int | None = None,
+                       recorder_unit_id: int | None = None) -> "BenchConfig":
+        """The same bench pointed at other addresses (a dry run points it at the simulators)."""
+        exc, rec = self.exciter, self.recorder
+        if exciter_url is not None:
+            exc = replace(exc, url=exciter_url)
+        if exciter_unit_id is not None:
+            exc = replace(exc, unit_id=exciter_unit_id)
+        if recorder_url is not None:
+            rec = replace(rec, url=recorder_url)
+        if recorder_unit_id is not None:
+            rec = replace(rec, unit_id=recorder_unit_id)
+        return replace(self, exciter=exc, recorder=rec)
+
+    def procedure_params(self, name: str) -> dict[str, Any]:
+        return dict(self.procedures.get(name, {}))
+
+
+# key -> (type, required); float accepts int
+_DEVICE_KEYS: dict[str, tuple[type, bool]] = {
+    "url": (str, True), "profile": (str, True), "unit_id": (int, False),
+    "timeout_s": (float, False),
+}
+_EXCITER_KEYS = {**_DEVICE_KEYS, "heartbeat_period_s": (float, False)}
+_RECORDER_KEYS = {**_DEVICE_KEYS, "baudrate": (int, False), "parity": (str, False),
+                  "stopbits": (int, False), "download_attempts": (int, False)}
+_LIMIT_KEYS = {"pulse_amplitude_max_pu": (float, True), "pulse_width_max_s": (float, True),
+               "setpoint_min_pu": (float, True), "setpoint_max_pu": (float, True),
+               "no_load_p_max_mw": (float, True), "restore_deadline_s": (float, False)}
+_BENCH_KEYS = {"name": (str, False)}
+_TOP = {"bench", "exciter", "recorder", "limits", "procedures"}
+
+
+def _section(doc: Mapping[str, Any], name: str, keys: dict[str, tuple[type, bool]],
+             src: str) -> dict[str, Any]:
+    table = doc.get(name)
+    if table is None:
+        table = {}
+        if any(req for _, req in keys.values()):
+            raise ConfigError(f"{src}: missing [{name}] table")
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"{src}: {name} must be a table")
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in keys:
+            raise ConfigError(f"{src}: unknown key {name}.{key} (allowed: "
+                              f"{', '.join(sorted(keys))})")
+        typ, _ = keys[key]
+        ok = (isinstance(value, typ) and not isinstance(value, bool)) or (
+            typ is float and isinstance(value, int) and not isinstance(value, bool))
+        if not ok:
+            raise ConfigError(f"{src}: {name}.{key} = {value!r} must be a {typ.__name__}")
+        if typ is float:
+            value = float(value)
+            if not math.isfinite(value):
+                raise ConfigError(f"{src}: {name}.{key} = {value!r} must be finite")
+        out[key] = value
+    for key, (_, required) in keys.items():
+        if required and key not in out:
+            raise ConfigError(f"{src}: missing key {name}.{key}")
+    return out
+
+
+def _positive(src: str, where: str, values: Mapping[str, Any], names: tuple[str, ...]) -> None:
+    for key in names:
+        if key in values and not values[key] > 0:
+            raise ConfigError(f"{src}: {where}.{key} = {values[key]!r} must be > 0")
+
+
+def _resolve_profile(profile: str, base: Path | None) -> str:
+    """Bare names stay names (drivers/profiles/NAME.toml); paths are made relative to the config."""
+    if base is not None and ("/" in profile or profile.endswith(".toml")):
+        p = Path(profile)
+        return str(p if p.is_absolute() else (base / p).resolve())
+    return profile
+
+
+def config_from_dict(doc: Mapping[str, Any], source: str = "<dict>",
+                     base: Path | None = None) -> BenchConfig:
+    """Validate a parsed bench config (see the module docstring)."""
+    for key in doc:
+        if key not in _TOP:
+            raise ConfigError(f"{source}: unknown table or key {key!r} (allowed: "
+                              f"{', '.join(sorted(_TOP))})")
+    bench = _section(doc, "bench", _BENCH_KEYS, source)
+    devices = {}
+    for name, keys in (("exciter", _EXCITER_KEYS), ("recorder", _RECORDER_KEYS)):
+        vals = _section(doc, name, keys, source)
+        _positive(source, name, vals, ("timeout_s", "heartbeat_period_s", "baudrate",
+                                       "download_attempts"))
+        if not 0 <= vals.get("unit_id", 1) <= 247:
+            raise ConfigError(f"{source}: {name}.unit_id = {vals['unit_id']} outside 0..247")
+        if vals.get("parity", "N") not in ("N", "E", "O"):
+            raise ConfigError(f"{source}: {name}.parity = {vals['parity']!r} must be N, E or O")
+        vals["profile"] = _resolve_profile(vals["profile"], base)
+        devices[name] = DeviceConfig(**vals)
+    if not devices["exciter"].url.startswith("tcp://"):
+        raise ConfigError(f"{source}: exciter.url = {devices['exciter'].url!r}: the exciter is "
+                          "Modbus TCP, expected tcp://HOST:PORT")
+    try:
+        devices["exciter"].endpoint().host_port()
+    except ValueError as exc:
+        raise ConfigError(f"{source}: exciter.url: {exc}") from None
+    lim = _section(doc, "limits", _LIMIT_KEYS, source)
+    _positive(source, "limits", lim, ("pulse_amplitude_max_pu", "pulse_width_max_s",
+                                      "no_load_p_max_mw", "restore_deadline_s",
+                                      "setpoint_min_pu"))
+    if lim["setpoint_min_pu"] >= lim["setpoint_max_pu"]:
+        raise ConfigError(f"{source}: limits.setpoint_min_pu {lim['setpoint_min_pu']} must be "
+                          f"below limits.setpoint_max_pu {lim['setpoint_max_pu']}")
+    procs = doc.get("procedures", {})
+    if not isinstance(procs, Mapping) or not all(isinstance(v, Mapping) for v in procs.values()):
+        raise ConfigError(f"{source}: [procedures.NAME] must be tables of parameters")
+    return BenchConfig(name=bench.get("name", Path(source).stem), exciter=devices["exciter"],
+                       recorder=devices["recorder"], limits=Limits(**lim),
+                       procedures={k: dict(v) for k, v in procs.items()}, source=source)
+
+
+def load_bench_config(path: str | Path) -> BenchConfig:
+    """Read a bench config TOML; ConfigError naming the file and key on anything wrong."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            doc = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such bench config") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    return config_from_dict(doc, source=str(path), base=path.resolve().parent)

@@ -1,0 +1,182 @@
+"""What a procedure receives besides the bench: steps, confirmation, audit, output files.
+
+`RunContext.step(name)` logs the start, end, duration and outcome of a step to the audit;
+`confirm(summary)` asks the operator before the first write (skipped for dry runs and
+`--yes`, and recorded either way) and `guard` refuses any device write before it; `hook(name)`
+calls a test's hook at a named moment (deterministic fault injection); `save_raw` and
+`save_capture` write files that are never overwritten.
+"""
+from __future__ import annotations
+
+import contextlib
+import getpass
+import hashlib
+import logging
+import time
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench_ctl.capture import write_capture
+from bench_ctl.runner.audit import AuditLog
+from bench_ctl.runner.config import BenchConfig, Limits
+from bench_ctl.runner.safety import OperatorDeclined, Refused
+from drivers.device import WriteRecord
+from drivers.recorder import RawRecord
+
+log = logging.getLogger(__name__)
+
+CAPTURE_NAME = "capture.csv"
+RAW_NAME = "recorder_raw.bin"
+ROUTINE_WRITES = ("heartbeat", "download")   # audited, flushed, not fsynced one by one
+
+Hook = Callable[["RunContext"], None]
+Confirm = Callable[[str], bool]
+
+
+class WriteRefused(Refused):
+    """A device write before the operator confirmed (a procedure bug; nothing was sent)."""
+
+
+@dataclass(frozen=True)
+class Criterion:
+    """One pass criterion: measured value against its limit."""
+
+    name: str
+    passed: bool
+    value: Any = None
+    limit: Any = None
+    unit: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "passed": self.passed, "value": self.value,
+                "limit": self.limit, "unit": self.unit}
+
+
+@dataclass(frozen=True)
+class ProcedureResult:
+    """What a procedure returns when it ran to its end."""
+
+    criteria: tuple[Criterion, ...] = ()
+    summary: str = ""
+    data: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        return all(c.passed for c in self.criteria)
+
+
+class RunContext:
+    """The run a procedure is part of (see the module docstring)."""
+
+    def __init__(self, *, procedure: str, config: BenchConfig, out_dir: Path, audit: AuditLog,
+                 dry_run: bool, yes: bool, confirm: Confirm | None = None,
+                 hooks: Mapping[str, Hook] | None = None, progress: bool = False) -> None:
+        self.procedure = procedure
+        self.config = config
+        self.out_dir = out_dir
+        self.audit = audit
+        self.dry_run = dry_run
+        self.yes = yes
+        self.progress = progress
+        self.operator = getpass.getuser()
+        self.confirmed = False
+        self.writes: list[WriteRecord] = []
+        self.identities: dict[str, Any] = {}   # filled by the runner after connecting
+        self.capture_path: Path | None = None
+        self.sidecar_path: Path | None = None
+        self.raw_path: Path | None = None
+        self._confirm = confirm
+        self._hooks = dict(hooks or {})
+
+    @property
+    def limits(self) -> Limits:
+        return self.config.limits
+
+    # -- steps -------------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def step(self, name: str, **info: Any) -> Iterator[None]:
+        outer = self.audit.step
+        self.audit.step = name
+        self.audit.event("step_start", **info)
+        log.info("step %s", name)
+        t0 = time.monotonic()
+        try:
+            yield
+        except BaseException as exc:
+            self.audit.event("step_end", result="failed", duration_s=time.monotonic() - t0,
+                             error=f"{type(exc).__name__}: {exc}")
+            raise
+        else:
+            self.audit.event("step_end", result="ok", duration_s=time.monotonic() - t0)
+        finally:
+            self.audit.step = outer
+
+    def note(self, kind: str, **fields: Any) -> None:
+        """An audit line of the procedure's own (readings, preconditions, measurements)."""
+        self.audit.event(kind, **fields)
+
+    def hook(self, name: str) -> None:
+        """Call a test's hook registered for this moment (no-op otherwise)."""
+        fn = self._hooks.get(name)
+        if fn is not None:
+            self.audit.event("hook", name=name)
+            fn(self)
+
+    # -- confirmation and the write guard ----------------------------------------------------
+    def confirm(self, summary: str) -> None:
+        """Ask before the first write; dry runs and --yes skip the question (recorded)."""
+        if self.dry_run or self.yes:
+            why = "dry run against the simulated bench" if self.dry_run else "--yes given"
+            self.audit.event("confirmation", asked=False, why=why, summary=summary)
+        else:
+            ask = self._confirm or _ask_operator
+            answer = bool(ask(summary))
+            self.audit.event("confirmation", asked=True, answer=answer, summary=summary,
+                             operator=self.operator)
+            if not answer:
+                raise OperatorDeclined("the operator did not confirm; nothing was written")
+        self.confirmed = True
+
+    def guard(self, device: str, register: str, value: float, purpose: str) -> None:
+        """Called by the drivers before every write."""
+        if not self.confirmed:
+            raise WriteRefused(f"{device}: write of {value!r} to {register} ({purpose}) refused: "
+                               "the procedure has not been confirmed (nothing was sent)")
+
+    def on_write(self, record: WriteRecord) -> None:
+        """Called by the drivers after every write and its read-back."""
+        self.writes.append(record)
+        self.audit.event("write", durable=record.purpose not in ROUTINE_WRITES,
+                         **record.to_dict())
+
+    # -- output files ------------------------------------------------------------------------
+    def save_raw(self, raw: RawRecord) -> Path:
+        """The recorder download exactly as received (before any conversion)."""
+        path, head = raw.save(self.out_dir / RAW_NAME)
+        self.raw_path = path
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        self.audit.event("raw_saved", path=str(path), header=str(head), sha256=digest,
+                         bytes=path.stat().st_size)
+        return path
+
+    def save_capture(self, data: Mapping[str, Any], meta: Mapping[str, Any]) -> Path:
+        csv_path, json_path = write_capture(self.out_dir / CAPTURE_NAME, dict(data), dict(meta))
+        self.capture_path, self.sidecar_path = csv_path, json_path
+        self.audit.event("capture_saved", path=str(csv_path), sidecar=str(json_path))
+        return csv_path
+
+    def sidecar_meta(self, **extra: Any) -> dict[str, Any]:
+        """The capture sidecar's common part: bench config, devices, every write so far."""
+        meta = {"procedure": self.procedure, "dry_run": self.dry_run, "operator": self.operator,
+                "bench_config": self.config.to_dict(), "devices": dict(self.identities),
+                "writes": [w.to_dict() for w in self.writes]}
+        meta.update(extra)
+        return meta
+
+
+def _ask_operator(summary: str) -> bool:
+    import click
+
+    return click.confirm(f"{summary}\nThis writes to REAL devices. Proceed?", default=False)

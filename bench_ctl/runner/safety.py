@@ -1,0 +1,120 @@
+"""Safety checks done before the first write (DESIGN.md section 7), and Ctrl-C handling.
+
+Checks refuse, never clip: every violated limit is listed in one `LimitViolation` (or
+`PreconditionFailed` for the state of the unit), raised before anything is written.
+`CtrlC` keeps a Ctrl-C from interrupting the safe-state sequence itself.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import signal
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from bench_ctl.runner.config import Limits
+
+log = logging.getLogger(__name__)
+
+
+class Refused(Exception):
+    """The run was refused before any write (exit 2)."""
+
+
+class LimitViolation(Refused):
+    """A requested test exceeds a configured limit."""
+
+
+class PreconditionFailed(Refused):
+    """The unit is not in the state the procedure needs (e.g. loaded, setpoint outside band)."""
+
+
+class OperatorDeclined(Refused):
+    """The operator did not confirm."""
+
+
+@dataclass(frozen=True)
+class PulsePlan:
+    """A checked pulse: setpoints in pu, width in s."""
+
+    setpoint_pu: float
+    amplitude_pu: float
+    width_s: float
+
+    @property
+    def pulse_setpoint_pu(self) -> float:
+        return self.setpoint_pu + self.amplitude_pu
+
+
+def _finite(name: str, value: float) -> str | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return f"{name} = {value!r} is not a finite number"
+    return None
+
+
+def check_pulse(limits: Limits, *, setpoint_pu: float, amplitude_pu: float,
+                width_s: float) -> PulsePlan:
+    """The pulse `setpoint_pu -> setpoint_pu + amplitude_pu` for `width_s`, or LimitViolation
+    listing every violated limit (amplitude cap, width cap, absolute setpoint band)."""
+    problems = [p for p in (_finite("amplitude_pu", amplitude_pu), _finite("width_s", width_s),
+                            _finite("setpoint_pu", setpoint_pu)) if p]
+    if problems:
+        raise LimitViolation("pulse refused: " + "; ".join(problems))
+    if amplitude_pu == 0:
+        problems.append("amplitude_pu = 0: nothing to test")
+    if abs(amplitude_pu) > limits.pulse_amplitude_max_pu:
+        problems.append(f"|amplitude_pu| = {abs(amplitude_pu):g} pu above the cap "
+                        f"limits.pulse_amplitude_max_pu = {limits.pulse_amplitude_max_pu:g} pu")
+    if not width_s > 0:
+        problems.append(f"width_s = {width_s:g} s must be > 0")
+    elif width_s > limits.pulse_width_max_s:
+        problems.append(f"width_s = {width_s:g} s above the cap limits.pulse_width_max_s = "
+                        f"{limits.pulse_width_max_s:g} s")
+    band = (limits.setpoint_min_pu, limits.setpoint_max_pu)
+    for label, value in (("pre-test setpoint", setpoint_pu),
+                         ("pulse setpoint", setpoint_pu + amplitude_pu)):
+        if not band[0] <= value <= band[1]:
+            problems.append(f"{label} {value:.6g} pu outside the band limits.setpoint_min_pu.."
+                            f"setpoint_max_pu = {band[0]:g}..{band[1]:g} pu")
+    if problems:
+        raise LimitViolation("pulse refused before any write: " + "; ".join(problems))
+    return PulsePlan(setpoint_pu=setpoint_pu, amplitude_pu=amplitude_pu, width_s=width_s)
+
+
+def check_no_load(limits: Limits, p_mw: float) -> None:
+    """No-load precondition: |p| below limits.no_load_p_max_mw."""
+    if not math.isfinite(p_mw) or abs(p_mw) >= limits.no_load_p_max_mw:
+        raise PreconditionFailed(
+            f"no-load precondition failed: active power p = {p_mw:.6g} MW, must be below "
+            f"limits.no_load_p_max_mw = {limits.no_load_p_max_mw:g} MW (open the breaker first)")
+
+
+class CtrlC:
+    """The Ctrl-C policy of a run: the first Ctrl-C while the procedure runs raises
+    KeyboardInterrupt (the runner then restores the safe state); any Ctrl-C after that, or
+    during the safe state, is logged and ignored, so nothing interrupts the restore."""
+
+    def __init__(self) -> None:
+        self.armed = True
+        self.ignored = 0
+
+    def _handler(self, signum: int, frame: object) -> None:
+        if self.armed:
+            self.armed = False
+            raise KeyboardInterrupt
+        self.ignored += 1
+        log.warning("Ctrl-C ignored: the bench is being put in its safe state, please wait")
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator["CtrlC"]:
+        """Install the policy for the block (main thread only; elsewhere a no-op)."""
+        if threading.current_thread() is not threading.main_thread():
+            yield self
+            return
+        previous = signal.signal(signal.SIGINT, self._handler)
+        try:
+            yield self
+        finally:
+            signal.signal(signal.SIGINT, previous)

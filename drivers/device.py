@@ -1,0 +1,193 @@
+"""A Modbus device seen through its profile: read and write registers by name.
+
+Shared by the exciter and recorder drivers. Every write is checked against the register's
+range before anything is sent (`RangeError`), passed to an optional guard (the runner refuses
+writes before the operator confirmed), sent once, then read back and compared word for word
+(`ReadbackMismatch`); the resulting `WriteRecord` goes to an optional listener (the audit log).
+"""
+from __future__ import annotations
+
+import datetime as dt
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from drivers.errors import RangeError, ReadbackMismatch
+from drivers.link import ModbusLink, wait_until
+from drivers.profile import Profile, Register
+
+log = logging.getLogger(__name__)
+
+# A timed write sleeps without the link until this long before its deadline, then takes the
+# link (so a heartbeat request in flight ends and no new one starts) and sleeps to the
+# deadline. Longer than two request round trips of a slow device.
+TIMED_WRITE_GUARD_S = 0.1
+
+
+@dataclass(frozen=True)
+class WriteRecord:
+    """One write and its read-back, as the audit log and the capture sidecar keep it."""
+
+    device: str
+    register: str
+    value: float
+    raw: tuple[int, ...]
+    readback: tuple[int, ...]
+    t_tx_mono: float          # monotonic time the request frame left
+    t_utc: str                # wall-clock time of the same moment
+    purpose: str = ""
+
+    @property
+    def matched(self) -> bool:
+        return self.raw == self.readback
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"device": self.device, "register": self.register, "value": self.value,
+                "raw": list(self.raw), "readback": list(self.readback),
+                "matched": self.matched, "t_tx_mono": self.t_tx_mono, "t_utc": self.t_utc,
+                "purpose": self.purpose}
+
+
+@dataclass(frozen=True)
+class SafeStateReport:
+    """Outcome of one device's safe state. `ok` False means the device was NOT made safe."""
+
+    device: str
+    ok: bool
+    action: str
+    detail: str = ""
+    reason: str = ""
+    attempts: int = 0
+    reconnected: bool = False
+    writes: tuple[WriteRecord, ...] = field(default=())
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"device": self.device, "ok": self.ok, "action": self.action,
+                "detail": self.detail, "reason": self.reason, "attempts": self.attempts,
+                "reconnected": self.reconnected, "writes": [w.to_dict() for w in self.writes]}
+
+
+WriteGuard = Callable[[str, str, float, str], None]      # device, register, value, purpose
+WriteListener = Callable[[WriteRecord], None]
+
+
+def _utc_at(t_mono: float) -> str:
+    wall = time.time() - (time.monotonic() - t_mono)
+    return dt.datetime.fromtimestamp(wall, dt.timezone.utc).isoformat(timespec="microseconds")
+
+
+class RegisterDevice:
+    """Registers of one device by name. No I/O before `connect()`."""
+
+    def __init__(self, link: ModbusLink, profile: Profile, *, guard: WriteGuard | None = None,
+                 listener: WriteListener | None = None) -> None:
+        self.link = link
+        self.profile = profile
+        self.name = link.device
+        self.guard = guard
+        self.listener = listener
+
+    # -- connection --------------------------------------------------------------------------
+    def connect(self) -> None:
+        self.link.connect()
+
+    def close(self) -> None:
+        self.link.close()
+
+    def __enter__(self) -> "RegisterDevice":
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def identity(self) -> dict[str, Any]:
+        """Who this device is: profile identity, profile name and where it was reached."""
+        return {"device": self.name, "profile": self.profile.name, **self.profile.identity,
+                "url": self.link.endpoint.url, "unit_id": self.link.endpoint.unit_id}
+
+    # -- registers ---------------------------------------------------------------------------
+    def register(self, name: str) -> Register:
+        return self.profile[name]
+
+    def read_words(self, name: str) -> list[int]:
+        reg = self.register(name)
+        return self.link.read(reg.table, reg.address, reg.count, register=self._label(reg))
+
+    def read(self, name: str) -> float:
+        """Engineering value of one register."""
+        reg = self.register(name)
+        return reg.decode(self.read_words(name))
+
+    def read_all(self) -> dict[str, float]:
+        """Every register of the profile once, in table and address order."""
+        out: dict[str, float] = {}
+        for table in ("holding", "input"):
+            for reg in self.profile.by_table(table):
+                out[reg.name] = self.read(reg.name)
+        return out
+
+    def encode(self, name: str, value: float) -> list[int]:
+        """Words for `value`, or RangeError (nothing sent)."""
+        reg = self.register(name)
+        if not reg.writable:
+            raise RangeError("register is read-only", device=self.name,
+                             register=self._label(reg), value=value)
+        try:
+            return reg.encode(value)
+        except ValueError as exc:
+            raise RangeError(f"value refused before sending: {exc}", device=self.name,
+                             register=self._label(reg), value=value) from None
+
+    def send(self, name: str, value: float, *, purpose: str = "",
+             at_mono: float | None = None) -> tuple[list[int], float]:
+        """Range check, guard, then send the write once (at `at_mono` when given); returns the
+        words and the monotonic time the request left. No read-back: use `write`, or verify
+        with `confirm` (the recorder checks its block selection against the block echo)."""
+        reg = self.register(name)
+        words = self.encode(name, value)
+        if self.guard is not None:
+            self.guard(self.name, name, value, purpose)
+        label = self._label(reg)
+        if at_mono is not None:
+            wait_until(at_mono - TIMED_WRITE_GUARD_S)
+            with self.link.hold():
+                t_held = time.monotonic()
+                wait_until(at_mono)
+                t_tx = self.link.write(reg.address, words, register=label, value=value)
+            log.debug("%s: timed write of %s: link held %.3f ms before the deadline, request "
+                      "left %.3f ms after it", self.name, name, (at_mono - t_held) * 1e3,
+                      (t_tx - at_mono) * 1e3)
+        else:
+            t_tx = self.link.write(reg.address, words, register=label, value=value)
+        return words, t_tx
+
+    def confirm(self, name: str, value: float, words: list[int], readback: list[int],
+                t_tx: float, purpose: str) -> WriteRecord:
+        """Record a write with its read-back words (listener), ReadbackMismatch when they
+        differ from the words sent."""
+        record = WriteRecord(device=self.name, register=name, value=value, raw=tuple(words),
+                             readback=tuple(readback), t_tx_mono=t_tx, t_utc=_utc_at(t_tx),
+                             purpose=purpose)
+        if self.listener is not None:
+            self.listener(record)
+        if not record.matched:
+            raise ReadbackMismatch(f"read back {list(readback)} after writing {list(words)}",
+                                   device=self.name, register=self._label(self.register(name)),
+                                   value=value, frames=self.link.frames.last())
+        log.debug("%s: wrote %s = %r %s (%s)", self.name, name, value, words, purpose)
+        return record
+
+    def write(self, name: str, value: float, *, purpose: str = "",
+              at_mono: float | None = None) -> WriteRecord:
+        """Write `value` once (at the monotonic time `at_mono` when given), read it back and
+        compare the raw words. Never re-sent: a lost reply raises WriteUncertain."""
+        words, t_tx = self.send(name, value, purpose=purpose, at_mono=at_mono)
+        reg = self.register(name)
+        readback = self.link.read(reg.table, reg.address, reg.count, register=self._label(reg))
+        return self.confirm(name, value, words, readback, t_tx, purpose)
+
+    def _label(self, reg: Register) -> str:
+        return f"{reg.name} ({reg.table} {reg.address})"

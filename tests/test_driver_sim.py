@@ -1,0 +1,160 @@
+"""The drivers against the real-protocol simulators (Modbus TCP exciter, RTU recorder on a pty).
+
+The same driver code serves the simulator's own profile and the vendor-like profile (other
+addresses, CDAB, scaled integers, other bit positions): only the profile file differs.
+"""
+from __future__ import annotations
+
+import time
+import zlib
+
+import numpy as np
+import pytest
+
+from drivers.errors import CommError, IntegrityError
+from drivers.exciter import Exciter
+from drivers.link import Endpoint, ModbusLink
+from drivers.profile import load_profile
+from drivers.recorder import RecordSettings, Recorder
+from simulators.bench import SimBench
+
+
+def wait_for(cond, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.005)
+
+
+def make_exciter(sim: SimBench, profile: str, **kw) -> Exciter:
+    ep = sim.endpoints
+    link = ModbusLink(Endpoint(f"tcp://{ep.exciter_host}:{ep.exciter_port}",
+                               unit_id=ep.exciter_unit_id, timeout_s=0.5), "exciter")
+    ex = Exciter(link, load_profile(profile), **kw)
+    ex.connect()
+    return ex
+
+
+def make_recorder(url: str, **kw) -> Recorder:
+    rec = Recorder(ModbusLink(Endpoint(url, timeout_s=0.2), "recorder"),
+                   load_profile("sim-recorder"), **kw)
+    rec.connect()
+    return rec
+
+
+@pytest.mark.parametrize("profile", ["sim-exciter", "vendor-exciter"])
+def test_exciter_sequence_same_code_two_profiles(profile):
+    with SimBench(exciter_profile=profile, serial=False) as sim:
+        ex = make_exciter(sim, profile, heartbeat_period_s=0.1)
+        values = ex.read_all()
+        assert set(values) == set(load_profile(profile).registers)
+        assert values["vt"] == pytest.approx(1.0, abs=0.01)
+        assert values["p"] == pytest.approx(0.0, abs=0.01)
+        pre = ex.snapshot()
+        assert pre.setpoint_pu == pytest.approx(sim.exciter.setpoint, abs=1e-4)
+        ex.take_remote()
+        assert sim.exciter.remote                      # the profile's remote bit reached it
+        rec = ex.write_setpoint(1.02, purpose="step")
+        assert rec.matched
+        assert sim.exciter.setpoint == pytest.approx(1.02, abs=1e-6)
+        report = ex.safe_state("test end")
+        assert report.ok and report.action == "setpoint restored by host"
+        assert not sim.exciter.remote and not ex.heartbeat.running
+        kinds = [(e[1], round(e[2], 4)) for e in sim.exciter.events]
+        assert kinds == [("remote", 1.0), ("setpoint", 1.02), ("setpoint", 1.0), ("local", 1.0)]
+        ex.close()
+
+
+def test_heartbeat_holds_the_watchdog_off_and_its_absence_trips_it():
+    with SimBench(serial=False, heartbeat_timeout_s=0.3) as sim:
+        ex = make_exciter(sim, "sim-exciter", heartbeat_period_s=0.1)
+        ex.snapshot()
+        ex.take_remote()
+        ex.write_setpoint(1.03, purpose="step")
+        beats = ex.heartbeat.beats
+        wait_for(lambda: ex.heartbeat.beats >= beats + 8, 3.0, "8 heartbeats")  # > 2 timeouts
+        assert sim.exciter.remote and not sim.exciter.watchdog_tripped
+        ex.heartbeat.stop()                             # the host "dies"
+        wait_for(lambda: sim.exciter.watchdog_tripped, 2.0, "the watchdog")
+        assert sim.exciter.setpoint == pytest.approx(1.0)
+        report = ex.safe_state("after watchdog")
+        assert report.ok and report.action == "setpoint restored by the device watchdog"
+        assert report.writes == ()                      # nothing needed writing
+        ex.close()
+
+
+def test_a_dropped_connection_on_a_read_is_retried_once():
+    with SimBench(serial=False) as sim:
+        ex = make_exciter(sim, "sim-exciter")
+        sim.faults.set("drop_connection", device="exciter", op="read", count=1)
+        assert ex.read("vt") == pytest.approx(1.0, abs=0.01)
+        sim.faults.set("drop_connection", device="exciter", op="read", count=2)
+        with pytest.raises(CommError) as err:
+            ex.read("vt")
+        assert "vt (input 2)" in str(err.value) and "tx " in str(err.value)
+        ex.close()
+
+
+@pytest.fixture(scope="module")
+def recorded():
+    """A simulated bench holding a finished 0.3 s record (manual trigger)."""
+    with SimBench() as sim:
+        rec = make_recorder(sim.endpoints.recorder_serial)  # the pseudo-terminal
+        rec.configure(RecordSettings(rate_hz=1000, pre_trigger_s=0.1, length_s=0.3,
+                                     trigger="manual"))
+        rec.arm()
+        rec.wait_status(("armed",), 5.0)
+        rec.trigger()
+        rec.wait_status(("done",), 5.0)
+        yield sim, rec
+        rec.close()
+
+
+def test_download_checks_and_converts(recorded, tmp_path):
+    sim, rec = recorded
+    raw = rec.download()
+    assert raw.sample_count == 300 and raw.blocks == 8 and raw.block_retries == 0
+    assert raw.trigger_sample == 100
+    assert zlib.crc32(raw.payload()) == raw.crc32
+    data = raw.convert()
+    assert data["time"][-1] == pytest.approx(0.299)
+    assert np.all(np.abs(data["usetp"] - 1.0) < 1e-3)
+    assert np.all(np.abs(data["vt"] - 1.0) < 0.1)
+    path, head = raw.save(tmp_path / "raw.bin")
+    assert path.read_bytes() == raw.payload()
+    with pytest.raises(FileExistsError):
+        raw.save(tmp_path / "raw.bin")
+
+
+def test_corrupted_blocks_are_detected_and_read_again(recorded):
+    sim, rec = recorded
+    clean = rec.download()
+    sim.faults.set("corrupt", device="recorder", register="block", skip=2, count=2)
+    try:
+        again = rec.download()
+    finally:
+        sim.faults.clear()
+    assert again.block_retries == 2
+    np.testing.assert_array_equal(again.words, clean.words)
+
+
+def test_crc_mismatch_downloads_the_record_again(recorded, monkeypatch):
+    sim, rec = recorded
+    clean = rec.download()
+    real_read = rec.link.read
+    flips = {"left": 1}
+
+    def flipping_read(table, address, count, **kw):
+        words = real_read(table, address, count, **kw)
+        if count > 100 and flips["left"]:   # a data window: one bit wrong, CRC-16 "passed"
+            flips["left"] -= 1
+            words[5] ^= 0x0001
+        return words
+
+    monkeypatch.setattr(rec.link, "read", flipping_read)
+    raw = rec.download()
+    assert raw.record_attempts == 2
+    np.testing.assert_array_equal(raw.words, clean.words)
+    flips["left"] = 10**6                        # wrong every time: refused, never short
+    with pytest.raises(IntegrityError, match="record rejected after 3 downloads: CRC-32"):
+        rec.download()

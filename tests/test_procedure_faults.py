@@ -1,0 +1,186 @@
+"""Faults during the pulse test, each asserting the end state of the DEVICE (simulator) and of
+the run (exit code, message, audit, files kept).
+
+Faults are injected deterministically: at the `pulse_applied` moment the procedure announces
+right after the pulse write was read back (link cut by the wire proxy, Ctrl-C as a real
+SIGINT), or by the simulator's fault injection (exception reply, corrupted serial bytes).
+What reached the device is read from the wire proxy and the simulator's event log, not from
+the drivers' own records.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import pytest
+
+from bench_ctl.runner.audit import read_audit
+from bench_ctl.runner.runner import run_procedure
+from simulators.bench import SimBench
+from test_procedure_pulse import (MODE_ADDR, SETPOINT_ADDR, SP_1_00, SP_1_05, bench_config,
+                                  device_writes)
+from test_runner_wire import WireProxy
+
+# short but real: 0.3 s pulse inside a 1.5 s record
+FAST = {"pre_trigger_s": 0.2, "record_s": 1.5, "width_s": 0.3, "recovery_timeout_s": 3.0,
+        "width_tolerance_s": 0.02}
+PULSE_AND_RESTORE = [(MODE_ADDR, [3]), (SETPOINT_ADDR, SP_1_05), (SETPOINT_ADDR, SP_1_00),
+                     (MODE_ADDR, [1])]
+
+
+def wait_for(cond, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
+def sim_and_proxy(**sim_kw):
+    sim = SimBench(**sim_kw)
+    sim.start()
+    return sim, WireProxy(sim.endpoints.exciter_tcp)
+
+
+@pytest.fixture
+def bench():
+    sim, proxy = sim_and_proxy()
+    yield sim, proxy
+    proxy.close()
+    sim.stop()
+
+
+@pytest.fixture
+def fast_watchdog_bench():
+    """The exciter's watchdog at 0.5 s (the host beats every 0.1 s)."""
+    sim, proxy = sim_and_proxy(heartbeat_timeout_s=0.5)
+    yield sim, proxy
+    proxy.close()
+    sim.stop()
+
+
+def events(sim: SimBench) -> list[tuple[str, float]]:
+    return [(kind, round(value, 4)) for _, kind, value in sim.exciter.events]
+
+
+def audit_kinds(out) -> list[str]:
+    return [r["kind"] for r in read_audit(out.audit_path)]
+
+
+def test_link_cut_during_pulse_restored_after_reconnect(bench, tmp_path):
+    sim, proxy = bench
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                        params=FAST, hooks={"pulse_applied": lambda run: proxy.cut(0.6)})
+    assert out.exit_code == 3 and out.status == "communication error"
+    assert out.safe_state[0].ok
+    assert out.safe_state[0].action == "setpoint restored by host after reconnect"
+    assert "setpoint restored by host after reconnect" in out.message
+    assert device_writes(proxy) == PULSE_AND_RESTORE
+    assert events(sim) == [("remote", 1.0), ("setpoint", 1.05), ("setpoint", 1.0),
+                           ("local", 1.0)]
+    assert not sim.exciter.watchdog_tripped
+    assert out.audit_path.exists() and "run_end" in audit_kinds(out)
+
+
+def test_link_cut_longer_than_the_watchdog_restored_by_the_device(fast_watchdog_bench,
+                                                                   tmp_path):
+    sim, proxy = fast_watchdog_bench
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                        params=FAST, hooks={"pulse_applied": lambda run: proxy.cut(1.5)})
+    assert out.exit_code == 3
+    assert out.safe_state[0].ok
+    assert out.safe_state[0].action == "setpoint restored by the device watchdog"
+    assert "restored by the device watchdog" in out.message
+    # nothing was written after the pulse: the device reverted by itself and went local
+    assert device_writes(proxy) == PULSE_AND_RESTORE[:2]
+    assert events(sim) == [("remote", 1.0), ("setpoint", 1.05), ("watchdog", 1.0)]
+
+
+def test_restore_that_fails_is_loud_and_the_watchdog_takes_over(fast_watchdog_bench,
+                                                                tmp_path):
+    sim, proxy = fast_watchdog_bench
+    cfg = bench_config(proxy, sim, restore_deadline_s=0.4)
+    out = run_procedure("no_load_pulse", cfg, tmp_path, yes=True, params=FAST,
+                        hooks={"pulse_applied": lambda run: proxy.cut(2.0)})
+    assert out.exit_code == 3 and not out.safe
+    assert out.safe_state[0].action == "SETPOINT NOT RESTORED"
+    assert out.message.startswith("SAFE STATE NOT CONFIRMED")
+    assert "CHECK THE UNIT" in out.message
+    ends = [r for r in read_audit(out.audit_path) if r["kind"] == "run_end"]
+    assert ends[0]["exit_code"] == 3 and ends[0]["safe_state"][0]["ok"] is False
+    # the host stopped its heartbeat, so the device's watchdog reverts the setpoint
+    wait_for(lambda: sim.exciter.watchdog_tripped, 3.0, "the device watchdog")
+    assert sim.exciter.setpoint == pytest.approx(1.0)
+
+
+def test_ctrl_c_during_pulse_restores_and_exits_non_zero(bench, tmp_path):
+    sim, proxy = bench
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                        params=FAST,
+                        hooks={"pulse_applied": lambda run: os.kill(os.getpid(), signal.SIGINT)})
+    assert out.exit_code == 2 and "interrupted by the operator (Ctrl-C)" in out.message
+    assert out.safe and out.safe_state[0].action == "setpoint restored by host after reconnect"
+    assert out.safe_state[1].action == "disarmed (was triggered)"
+    assert device_writes(proxy) == PULSE_AND_RESTORE
+    assert events(sim) == [("remote", 1.0), ("setpoint", 1.05), ("setpoint", 1.0),
+                           ("local", 1.0)]
+    assert sim.recorder.status == "idle"                  # disarmed on the device
+    rows = read_audit(out.audit_path)
+    restore = [r for r in rows if r["kind"] == "write" and r["register"] == "setpoint"][-1]
+    assert restore["step"] == "safe state" and restore["matched"]
+    assert rows[-1]["kind"] == "run_end" and rows[-1]["exit_code"] == 2
+
+
+def test_exception_reply_to_the_pulse_write_leaves_nothing_changed(bench, tmp_path):
+    sim, proxy = bench
+    sim.faults.set("exception", device="exciter", op="write", register="setpoint", code=4)
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                        params=FAST)
+    assert out.exit_code == 2
+    assert "device replied with exception 4 (server device failure)" in out.message
+    assert "register setpoint (holding 0), value 1.05" in out.message
+    assert out.safe_state[0].action == "setpoint unchanged (no setpoint write took effect)"
+    # the refused write changed nothing; remote was given back; the recorder disarmed
+    assert events(sim) == [("remote", 1.0), ("local", 1.0)]
+    assert sim.exciter.setpoint == pytest.approx(1.0) and not sim.exciter.remote
+    assert device_writes(proxy) == [(MODE_ADDR, [3]), (SETPOINT_ADDR, SP_1_05), (MODE_ADDR, [1])]
+    assert out.safe_state[1].action.startswith("disarmed")
+    assert out.capture_path is None and out.audit_path.exists()
+
+
+def test_corrupted_download_is_retried_and_the_capture_complete(bench, tmp_path):
+    sim, proxy = bench
+    sim.faults.set("corrupt", device="recorder", register="block", skip=5, count=2)
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                        params=FAST)
+    assert out.exit_code in (0, 1), out.message
+    assert out.data["block_retries"] == 2
+    side = out.capture_path.with_suffix(".json")
+    assert side.exists() and out.raw_path.exists()
+    assert len(out.capture_path.read_text().splitlines()) == 1 + 1500   # header + every sample
+
+
+def test_download_that_stays_corrupted_fails_loudly_keeping_what_there_is(bench, tmp_path):
+    sim, proxy = bench
+    sim.faults.set("corrupt", device="recorder", register="block", skip=5, count=None)
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                        params=FAST)
+    assert out.exit_code == 3
+    assert "block 5 failed 3 times" in out.message
+    assert out.capture_path is None and out.raw_path is None        # never a short capture
+    assert not (tmp_path / "capture.csv").exists()
+    assert out.safe and out.audit_path.exists() and out.log_path.exists()
+    assert device_writes(proxy) == PULSE_AND_RESTORE                 # the test itself was done
+
+
+def test_pulse_above_the_cap_is_refused_before_any_write(bench, tmp_path):
+    sim, proxy = bench
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                        params={**FAST, "amplitude_pu": 0.08})
+    assert out.exit_code == 2
+    assert "|amplitude_pu| = 0.08 pu above the cap limits.pulse_amplitude_max_pu = 0.06" \
+        in out.message
+    assert proxy.requests                     # it did talk to the device (reads) ...
+    assert proxy.writes() == []               # ... but no write reached it, not even a beat
+    assert sim.exciter.events == []
+    assert "write" not in audit_kinds(out)

@@ -1,0 +1,132 @@
+"""Bench config (strict keys), audit log and the limit checks - no devices needed."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from bench_ctl.runner.audit import AuditLog, read_audit
+from bench_ctl.runner.config import ConfigError, config_from_dict, load_bench_config
+from bench_ctl.runner.safety import (CtrlC, LimitViolation, PreconditionFailed,
+                                     check_no_load, check_pulse)
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "benches" / "example.toml"
+
+
+def example_doc() -> dict:
+    return tomllib.loads(EXAMPLE.read_text())
+
+
+def test_example_configs_load():
+    cfg = load_bench_config(EXAMPLE)
+    assert cfg.exciter.url == "tcp://192.0.2.10:502" and cfg.exciter.profile == "sim-exciter"
+    assert cfg.recorder.url == "/dev/ttyUSB0" and cfg.recorder.download_attempts == 3
+    assert cfg.limits.pulse_amplitude_max_pu == 0.06
+    assert cfg.procedure_params("no_load_pulse")["amplitude_pu"] == 0.05
+    sim = load_bench_config(ROOT / "benches" / "sim.toml")
+    assert sim.exciter.url == "tcp://127.0.0.1:5020"
+    assert json.loads(json.dumps(cfg.to_dict()))["limits"]["setpoint_max_pu"] == 1.08
+
+
+@pytest.mark.parametrize("section, key, value, message", [
+    ("limits", "pulse_amplitude_max", 0.06, "unknown key limits.pulse_amplitude_max"),
+    ("exciter", "adress", "x", "unknown key exciter.adress"),
+    ("limits", "pulse_width_max_s", "1.5", "limits.pulse_width_max_s = '1.5' must be a float"),
+    ("limits", "setpoint_min_pu", 1.2, "setpoint_min_pu 1.2 must be below"),
+    ("exciter", "url", "/dev/ttyS0", "expected tcp://HOST:PORT"),
+    ("exciter", "url", "tcp://host", "expected tcp://HOST:PORT"),
+    ("recorder", "parity", "X", "must be N, E or O"),
+    ("exciter", "heartbeat_period_s", 0, "must be > 0"),
+    ("limits", "no_load_p_max_mw", True, "must be a float"),
+])
+def test_bad_keys_and_values_are_refused_naming_the_key(section, key, value, message):
+    doc = example_doc()
+    doc[section][key] = value
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        config_from_dict(doc, source="bench.toml")
+
+
+def test_missing_required_limit_and_unknown_table():
+    doc = example_doc()
+    del doc["limits"]["no_load_p_max_mw"]
+    with pytest.raises(ConfigError, match="missing key limits.no_load_p_max_mw"):
+        config_from_dict(doc, source="bench.toml")
+    doc = example_doc()
+    doc["limit"] = {}
+    with pytest.raises(ConfigError, match="unknown table or key 'limit'"):
+        config_from_dict(doc, source="bench.toml")
+
+
+def test_profile_paths_are_relative_to_the_config(tmp_path):
+    text = EXAMPLE.read_text().replace('profile = "sim-exciter"',
+                                       'profile = "profiles/mine.toml"')
+    (tmp_path / "b.toml").write_text(text)
+    cfg = load_bench_config(tmp_path / "b.toml")
+    assert cfg.exciter.profile == str(tmp_path / "profiles" / "mine.toml")
+    assert cfg.recorder.profile == "sim-recorder"
+
+
+def test_with_endpoints_changes_addresses_only():
+    cfg = load_bench_config(EXAMPLE)
+    moved = cfg.with_endpoints(exciter_url="tcp://127.0.0.1:1502", recorder_url="/dev/pts/9")
+    assert moved.exciter.url == "tcp://127.0.0.1:1502" and moved.recorder.url == "/dev/pts/9"
+    assert moved.limits == cfg.limits and moved.exciter.profile == cfg.exciter.profile
+
+
+def test_audit_lines_are_durable_json_and_never_overwritten(tmp_path):
+    path = tmp_path / "audit.jsonl"
+    with AuditLog(path) as audit:
+        audit.step = "pulse"
+        audit.event("write", register="setpoint", raw=[1, 2], value=float("inf"))
+        assert len(read_audit(path)) == 1        # on disk before close
+    rows = read_audit(path)
+    assert rows[0]["kind"] == "write" and rows[0]["step"] == "pulse"
+    assert rows[0]["value"] == "inf" and rows[0]["raw"] == [1, 2]
+    assert {"t_utc", "t_mono_s"} <= set(rows[0])
+    with pytest.raises(FileExistsError):
+        AuditLog(path).open()
+
+
+def test_pulse_limits_refuse_and_list_every_violation():
+    lim = load_bench_config(EXAMPLE).limits   # cap 0.06 pu, 1.5 s, band 0.95..1.08
+    plan = check_pulse(lim, setpoint_pu=1.0, amplitude_pu=0.05, width_s=1.0)
+    assert plan.pulse_setpoint_pu == pytest.approx(1.05)
+    with pytest.raises(LimitViolation) as err:
+        check_pulse(lim, setpoint_pu=1.05, amplitude_pu=0.07, width_s=2.0)
+    text = str(err.value)
+    assert "0.07 pu above the cap limits.pulse_amplitude_max_pu = 0.06" in text
+    assert "width_s = 2 s above the cap limits.pulse_width_max_s = 1.5" in text
+    assert "pulse setpoint 1.12 pu outside the band" in text
+    with pytest.raises(LimitViolation, match="pre-test setpoint 0.9 pu outside"):
+        check_pulse(lim, setpoint_pu=0.9, amplitude_pu=0.05, width_s=1.0)
+    with pytest.raises(LimitViolation, match="not a finite number"):
+        check_pulse(lim, setpoint_pu=1.0, amplitude_pu=float("nan"), width_s=1.0)
+    # exactly at the cap is allowed; a negative pulse is checked by magnitude
+    check_pulse(lim, setpoint_pu=1.0, amplitude_pu=-0.04, width_s=1.5)
+
+
+def test_no_load_precondition():
+    lim = load_bench_config(EXAMPLE).limits   # |p| < 2 MW
+    check_no_load(lim, 0.5)
+    check_no_load(lim, -1.9)
+    with pytest.raises(PreconditionFailed, match="p = 2 MW, must be below"):
+        check_no_load(lim, 2.0)
+    with pytest.raises(PreconditionFailed):
+        check_no_load(lim, float("nan"))
+
+
+def test_ctrl_c_policy_first_raises_then_ignored():
+    before = signal.getsignal(signal.SIGINT)
+    policy = CtrlC()
+    with policy.installed():
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)       # during the safe state: ignored
+        os.kill(os.getpid(), signal.SIGINT)
+    assert policy.ignored == 2 and not policy.armed
+    assert signal.getsignal(signal.SIGINT) is before
