@@ -1,0 +1,234 @@
+"""`bench-ctl identify`: fit the unit's AVR parameters to captures (MVMO or a peer method).
+
+Example:
+  bench-ctl identify cap1.csv cap2.csv --unit unit.toml --set TA4.max=30 \\
+      --optimizer mvmo --evals 1000 --seed 0 --json result.json --plot fit.png
+  bench-ctl identify cap.csv --compare          # mvmo, de, local and open-loop side by side
+
+Prints a summary (parameters with bounds, std and whether the capture determines them; MSE;
+constraints; equivalent parameter sets; the comparison when several optimizers ran).
+Exit codes: 0 fitted and every constraint satisfied; 1 a constraint is violated or the fit
+failed; 2 bad input (capture, unit file, --set, option), with the file / key named.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import shlex
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import click
+
+from bench_ctl.capture import CaptureError, read_capture
+from bench_ctl.identification.constraints import ConstraintError
+from bench_ctl.identification.identify import Identification, run_identification
+from bench_ctl.identification.peers import OPTIMIZERS
+from bench_ctl.identification.problem import ProblemError, make_problem
+from bench_ctl.model.unit import UnitError, apply_overrides, load_unit
+
+log = logging.getLogger(__name__)
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def _fmt(v: Any, spec: str = ".4g") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    return format(v, spec)
+
+
+def summary(ident: Identification) -> str:
+    """The human-readable summary table of a result."""
+    r = ident.result
+    idn = r["identifiability"]
+    lines = [f"unit: {r['unit']['name']}   optimizer: {r['optimizer']['name']} "
+             f"(seed {r['optimizer']['seed']})   evaluations: {r['evaluations']}   "
+             f"wall: {r['wall_s']:.2f} s (compile {r['compile_s']:.2f} s)", ""]
+    head = f"{'param':<7}{'value':>12}{'min':>10}{'max':>10}{'std':>11}{'rel std':>9}  determined"
+    lines += [head, "-" * len(head)]
+    for n, v in r["params"].items():
+        lo, hi = r["bounds"][n]
+        rel = idn.get("rel_std", {}).get(n)
+        det = idn.get("determined", {}).get(n)
+        why = "; ".join(idn.get("reasons", {}).get(n, []))
+        lines.append(f"{n:<7}{_fmt(v, '.6g'):>12}{_fmt(lo, '.4g'):>10}{_fmt(hi, '.4g'):>10}"
+                     f"{_fmt(idn.get('std', {}).get(n), '.3g'):>11}"
+                     f"{(_fmt(100 * rel, '.1f') + ' %') if rel is not None else '-':>9}  "
+                     f"{'yes' if det else 'NO'}{('  (' + why + ')') if why else ''}")
+    lines.append("")
+    for c in r["captures"]:
+        lines.append(f"capture {c['path'] or '<memory>'}: n {c['n']}, {c['rate_hz']:g} Hz, "
+                     f"mse {_fmt(c['mse'], '.4g')}, objective {_fmt(c['objective'], '.4g')}")
+    lines.append(f"mse {_fmt(r['mse'], '.4g')}   objective {_fmt(r['objective'], '.4g')}")
+    lines.append("constraints: " + ", ".join(
+        f"{c['expr']} {'ok' if c['satisfied'] else 'VIOLATED'}" for c in r["constraints"]) if r["constraints"]
+        else "constraints: none")
+    for e in idn.get("equivalent_sets", []):
+        vals = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in e["params"].items() if k.startswith("TA"))
+        lines.append(f"equivalent set? {e['note']}: {vals}; mse {_fmt(e['mse'], '.4g')}: {e['verdict']}")
+    for note in idn.get("notes", []):
+        lines.append(f"note: {note}")
+    if "comparison" in r:
+        lines += ["", f"{'optimizer':<11}{'mse':>12}{'objective':>12}{'evals':>7}{'wall s':>8}  violated"]
+        for c in r["comparison"]:
+            lines.append(f"{c['optimizer']:<11}{_fmt(c['mse'], '.5g'):>12}{_fmt(c['objective'], '.5g'):>12}"
+                         f"{c['evaluations']:>7}{c['wall_s']:>8.2f}  {', '.join(c['constraints_violated']) or '-'}")
+    if r.get("failed"):
+        lines.append(f"FIT FAILED: {r.get('message', '')}")
+    return "\n".join(lines)
+
+
+def write_json(path: str | Path, data: dict[str, Any]) -> None:
+    """Write `data` as JSON atomically (temporary file + rename)."""
+    p = Path(path)
+    text = json.dumps(data, indent=1, allow_nan=False)
+    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=p.parent or ".")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text + "\n")
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def plot_fit(ident: Identification, path: str | Path) -> None:
+    """Measured vs simulated efd (and usetp) per capture, PNG via matplotlib's Agg backend."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    prob, x = ident.problem, ident.best.x
+    sims = prob.simulate(x)
+    mses = prob.mse(x)
+    n = len(prob.captures)
+    fig, axes = plt.subplots(n, 1, figsize=(9, 3.2 * n), squeeze=False)
+    for ax, cap, sim, m in zip(axes[:, 0], prob.captures, sims, mses):
+        t = cap.time - cap.time[0]
+        ax.plot(t, cap.efd, color="0.6", lw=0.8, label="efd measured")
+        ax.plot(t, sim["efd"], color="C0", lw=1.2, label=f"efd simulated ({ident.best.name})")
+        ax.set_ylabel("efd (pu)")
+        ax.set_xlabel("time (s)")
+        ax.set_title(f"{Path(cap.source).name if cap.source else 'capture'}: mse {m:.3g}")
+        ax2 = ax.twinx()
+        ax2.plot(t, cap.usetp, color="C3", lw=0.8, label="usetp")
+        ax2.set_ylabel("usetp (pu)", color="C3")
+        h1, l1 = ax.get_legend_handles_labels()
+        h2, l2 = ax2.get_legend_handles_labels()
+        ax.legend(h1 + h2, l1 + l2, loc="upper right", fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+@click.command("identify")
+@click.argument("captures", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--unit", "unit_path", type=click.Path(dir_okay=False), default=None,
+              help="Unit file (TOML); default: the built-in reference unit.")
+@click.option("--set", "overrides", multiple=True, metavar="NAME=VALUE",
+              help="Override a unit value, bound (KAVR.min=20), weight or effect parameter.")
+@click.option("--optimizer", "optimizers", multiple=True, type=click.Choice(OPTIMIZERS),
+              help="Optimizer (repeat to compare several; the first gives the result). Default mvmo.")
+@click.option("--compare", is_flag=True, help="Also run every other optimizer and fill 'comparison'.")
+@click.option("--evals", type=click.IntRange(min=1), default=1000, show_default=True,
+              help="Evaluation budget of each optimizer.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
+              help="Write the result JSON (bench-ctl/result/1) here.")
+@click.option("--plot", "plot_out", type=click.Path(dir_okay=False), default=None,
+              help="Write a PNG of measured vs simulated efd here.")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+def identify(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[str, ...],
+             optimizers: tuple[str, ...], compare: bool, evals: int, seed: int,
+             json_out: str | None, plot_out: str | None, no_progress: bool) -> int:
+    """Identify the AVR parameters from CAPTURE files (CSV + sidecar) by simulation in the loop."""
+    try:
+        unit = apply_overrides(load_unit(unit_path), overrides)
+        caps = [read_capture(p) for p in captures]
+        problem = make_problem(caps, unit)
+    except (CaptureError, UnitError, ProblemError, ConstraintError) as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
+        return EXIT_BAD_INPUT
+    for out in (json_out, plot_out):
+        if out is not None and not Path(out).resolve().parent.is_dir():
+            click.echo(f"error: output folder of {out} does not exist", err=True)
+            return EXIT_BAD_INPUT
+    chosen = list(dict.fromkeys(optimizers or ("mvmo",)))
+    others = chosen[1:] + ([n for n in OPTIMIZERS if n not in chosen] if compare else [])
+
+    bars: list[Any] = []
+
+    def factory(name: str):
+        for b in bars:  # the previous optimizer's bar is done
+            b.close()
+        if no_progress:
+            return None
+        from tqdm import tqdm
+        # disable=None: no bar when stderr is not a terminal (logs, tests)
+        bar = tqdm(total=evals, desc=f"{name:<9}", unit="ev", file=sys.stderr, disable=None,
+                   dynamic_ncols=True)
+        bars.append(bar)
+
+        def cb(nfev: int, best: float) -> None:
+            bar.set_postfix_str(f"best {best:.4g}", refresh=False)
+            bar.update(min(nfev, evals) - bar.n)
+        return cb
+
+    command_line = _command_line(captures, unit_path, overrides, chosen, compare, evals, seed,
+                                 json_out, plot_out)
+    try:
+        ident = run_identification(caps, unit, optimizer=chosen[0], compare=others, max_evals=evals,
+                                   seed=seed, command_line=command_line, problem=problem,
+                                   progress_factory=factory)
+    except ValueError as exc:
+        for b in bars:
+            b.close()
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    for b in bars:
+        b.close()
+    click.echo(summary(ident))
+    if json_out:
+        write_json(json_out, ident.result)
+        click.echo(f"result written to {json_out}")
+    if plot_out:
+        plot_fit(ident, plot_out)
+        click.echo(f"plot written to {plot_out}")
+    if not ident.ok:
+        bad = [c["expr"] for c in ident.result["constraints"] if not c["satisfied"]]
+        click.echo("criteria failed: " + ("fit failed" if ident.best.failed else
+                                          f"constraint(s) violated: {', '.join(bad)}"), err=True)
+        return EXIT_FAILED
+    return EXIT_OK
+
+
+def _command_line(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[str, ...],
+                  chosen: list[str], compare: bool, evals: int, seed: int, json_out: str | None,
+                  plot_out: str | None) -> str:
+    """The command as run, rebuilt from the parsed options (canonical order, shell-quoted)."""
+    args = ["bench-ctl", "identify", *captures]
+    if unit_path:
+        args += ["--unit", unit_path]
+    for o in overrides:
+        args += ["--set", o]
+    for name in chosen:
+        args += ["--optimizer", name]
+    if compare:
+        args.append("--compare")
+    args += ["--evals", str(evals), "--seed", str(seed)]
+    if json_out:
+        args += ["--json", json_out]
+    if plot_out:
+        args += ["--plot", plot_out]
+    return " ".join(shlex.quote(a) for a in args)

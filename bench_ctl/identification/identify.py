@@ -1,0 +1,161 @@
+"""Identify a unit's AVR parameters from captures and assemble the result JSON (SCHEMA.md).
+
+`run_identification` binds the captures and unit into a `Problem`, warms the kernel up (its
+compile / cache-load time is reported as `compile_s`, outside `wall_s`), runs the chosen
+optimizer and any others asked for comparison through `peers.run_optimizer`, analyses what the
+captures determine at the optimum (`identifiability.analyse`) and returns everything;
+`identify` returns only the result dict ("bench-ctl/result/1").
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+import bench_ctl
+from bench_ctl.capture import Capture
+from bench_ctl.capture.capture import sha256_file
+from bench_ctl.model.kernel import run_kernel
+from bench_ctl.model.simulate import param_matrix
+from bench_ctl.model.unit import Unit
+
+from .identifiability import analyse
+from .peers import OPTIMIZERS, OptimResult, Progress, run_optimizer
+from .problem import Problem, make_problem
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Identification", "identify", "run_identification", "warm_up", "RESULT_SCHEMA"]
+
+RESULT_SCHEMA = "bench-ctl/result/1"
+
+
+@dataclass(frozen=True, eq=False)
+class Identification:
+    """Everything one identification produced: the result dict and the objects behind it."""
+    result: dict[str, Any]
+    problem: Problem
+    best: OptimResult
+    runs: tuple[OptimResult, ...]  # every optimizer run, the chosen one first
+
+    @property
+    def ok(self) -> bool:
+        """The fit succeeded and satisfies every constraint (exit code 0 of the CLI)."""
+        return (not self.best.failed) and all(c["satisfied"] for c in self.result["constraints"])
+
+
+def warm_up(unit: Unit) -> float:
+    """Compile (or load from the cache) every kernel variant identification uses; seconds."""
+    t0 = time.perf_counter()
+    P = param_matrix(unit.values())
+    u = np.array([1.0, 1.0, 1.05, 1.05])
+    m = np.ones(4)
+    run_kernel(P, u, 1e-3, 1.0, efd_meas=m, vt_meas=m, w_vt=1.0, store=False)
+    run_kernel(P, u, 1e-3, 1.0, efd_meas=m, store=False)
+    run_kernel(P, u, 1e-3, 1.0)
+    return time.perf_counter() - t0
+
+
+def _none_if_inf(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def _capture_entry(c: Capture, mse: float, obj: float, weight: float) -> dict[str, Any]:
+    sha = c.meta.get("csv_sha256") if isinstance(c.meta, Mapping) else None
+    if sha is None and c.source and Path(c.source).is_file():
+        sha = sha256_file(c.source)
+    return {"path": c.source, "sha256": sha, "n": int(c.n), "rate_hz": float(c.rate_hz),
+            "meta": dict(c.meta), "mse": _none_if_inf(mse), "objective": _none_if_inf(obj),
+            "weight": float(weight)}
+
+
+def _run_summary(problem: Problem, r: OptimResult) -> dict[str, Any]:
+    mses = problem.mse(r.x)
+    return {"optimizer": r.name, "mse": _none_if_inf(float(np.mean(mses))),
+            "objective": _none_if_inf(r.objective), "evaluations": r.nfev, "wall_s": r.wall_s,
+            "constraints_violated": list(r.constraints_violated), "params": problem.params(r.x),
+            "failed": r.failed, "message": r.message}
+
+
+def run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: str = "mvmo",
+                       compare: Sequence[str] = (), max_evals: int = 1000, seed: int | None = 0,
+                       x0: Sequence[float] | None = None, progress: Progress | None = None,
+                       command_line: str = "", options: Mapping[str, Any] | None = None,
+                       problem: Problem | None = None,
+                       progress_factory: Any = None) -> Identification:
+    """Identify `unit` from `captures` with `optimizer`; run `compare` methods on the same problem.
+
+    problem: a ready `Problem` (else `make_problem(captures, unit)`); options: settings of the
+    chosen optimizer (e.g. MVMO options). progress(nfev, best) is called during every run;
+    progress_factory(name) -> progress callable, when given, makes one per optimizer run.
+    """
+    if optimizer not in OPTIMIZERS:
+        raise ValueError(f"unknown optimizer {optimizer!r}; choose one of {', '.join(OPTIMIZERS)}")
+    for name in compare:
+        if name not in OPTIMIZERS:
+            raise ValueError(f"unknown optimizer {name!r}; choose one of {', '.join(OPTIMIZERS)}")
+    prob = problem if problem is not None else make_problem(captures, unit)
+    compile_s = warm_up(prob.unit)
+    names = [optimizer] + [n for n in dict.fromkeys(compare) if n != optimizer]
+    runs = []
+    for name in names:
+        cb = progress_factory(name) if progress_factory is not None else progress
+        runs.append(run_optimizer(name, prob, max_evals=max_evals, seed=seed, x0=x0, progress=cb,
+                                  options=options if name == optimizer else None))
+    best = runs[0]
+    x = best.x
+    mses = prob.mse(x)
+    objs = prob.capture_objectives(x)
+    try:
+        ident = analyse(prob, x) if not best.failed else None
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        logger.warning("identifiability analysis failed: %s", exc)
+        ident = None
+    if ident is None:
+        ident = {"names": list(prob.names), "sensitivity": {}, "std": {}, "rel_std": {},
+                 "correlation": [], "determined": {n: False for n in prob.names},
+                 "equivalent_sets": [], "notes": ["not analysed: the fit failed"]}
+    fixed = {k: _none_if_inf(v) for k, v in prob.base.items() if k not in prob.names}
+    result: dict[str, Any] = {
+        "schema": RESULT_SCHEMA,
+        "software_version": bench_ctl.__version__,
+        "command_line": command_line,
+        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "unit": prob.unit.to_dict(),
+        "captures": [_capture_entry(c, m, o, w) for c, m, o, w
+                     in zip(prob.captures, mses, objs, prob.weights)],
+        "params": prob.params(x),
+        "fixed": fixed,
+        "bounds": {n: [lo, hi] for n, (lo, hi) in zip(prob.names, prob.bounds)},
+        "constraints": prob.constraint_report(x),
+        "objective": _none_if_inf(best.objective),
+        "mse": _none_if_inf(float(np.mean(mses))),
+        "evaluations": best.nfev,
+        "wall_s": best.wall_s,
+        "compile_s": compile_s,
+        "optimizer": {"name": best.name, "settings": best.settings, "seed": seed},
+        "history": [[n, _none_if_inf(v)] for n, v in best.history],
+        "identifiability": ident,
+        "fit_window": list(prob.window) if prob.window is not None else None,
+        "failed": best.failed,
+        "message": best.message,
+    }
+    if len(runs) > 1:
+        result["comparison"] = [_run_summary(prob, r) for r in runs]
+    return Identification(result=result, problem=prob, best=best, runs=tuple(runs))
+
+
+def identify(captures: Sequence[Capture], unit: Unit, *, optimizer: str = "mvmo",
+             max_evals: int = 1000, seed: int | None = 0, x0: Sequence[float] | None = None,
+             progress: Progress | None = None, command_line: str = "",
+             compare: Sequence[str] = (), options: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The result dict ("bench-ctl/result/1") of identifying `unit` from `captures`."""
+    return run_identification(captures, unit, optimizer=optimizer, compare=compare,
+                              max_evals=max_evals, seed=seed, x0=x0, progress=progress,
+                              command_line=command_line, options=options).result

@@ -1,0 +1,421 @@
+"""The identification problem: captures + unit -> the paper's objective over named parameters.
+
+`make_problem` binds one or several captures to a unit and a list of parameter names to fit
+(default: the unit's identified parameters; effect parameters such as VRMAX, TD may be added, so
+the diagnosis can fit "reference model + effect"). The resulting `Problem` evaluates a whole
+population with ONE kernel call per capture:
+
+    OF(x) = sum_k alpha_k * integral sum_n w_n (y_n(x) - y_n,meas)^2 dt   (trapezoidal rule)
+
+over captures k and signals n (efd with the unit's efd weight; vt when the capture has it and
+its weight is > 0), DESIGN.md section 5. Candidates the kernel marks failed (unstable or invalid
+parameters) get a penalty larger than any objective a finite simulation can produce, and larger
+the earlier they fail, so every candidate stays rankable.
+
+A fit window (`fit_window=(t0, t1)` in s, or `segment=slice(i0, i1)` in samples) restricts the
+objective and the MSE to part of each record; the simulation always starts at the record's
+first sample (initial steady state) and stops at the window's end. Without a window the fast
+path runs the kernel with `store=False`; with one the traces are kept and the error is summed
+in numpy.
+
+Constraints are read from the unit's text (and those of any effect whose parameters are fitted)
+over all kernel parameters, then reduced to the fitted names: a term on a parameter that is not
+fitted becomes a constant. A constraint with no fitted parameter left is not handed to the
+optimizer but still checked and reported (`fixed_constraints`).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from bench_ctl.capture import Capture
+from bench_ctl.model.effects import EFFECTS
+from bench_ctl.model.kernel import BLOWUP, run_kernel
+from bench_ctl.model.params import KERNEL_PARAMS, PARAMS
+from bench_ctl.model.simulate import param_matrix, pre_trigger_mean
+from bench_ctl.model.unit import Unit
+
+from .constraints import LinearConstraint, parse_constraints
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Problem", "ProblemError", "make_problem", "default_bounds"]
+
+#: the largest recorded-efd gain the kernel may apply (recorder_gain upper physical limit)
+_MAX_GAIN = PARAMS["GAIN"].hi
+
+
+class ProblemError(ValueError):
+    """Names, bounds, weights or a window that cannot define an identification problem."""
+
+
+def default_bounds(unit: Unit, name: str) -> tuple[float, float]:
+    """Search bounds of `name`: the unit's [identify] bounds, else the bounds of its effect."""
+    if name in unit.identify:
+        b = unit.identify[name]
+        return float(b.min), float(b.max)
+    for eff in EFFECTS.values():
+        if name in eff.bounds:
+            lo, hi = eff.bounds[name]
+            return float(lo), float(hi)
+    raise ProblemError(f"no default bounds for {name!r}: it is neither identified in unit "
+                       f"{unit.name!r} nor an effect parameter; pass bounds={{{name!r}: (lo, hi)}}")
+
+
+@dataclass(frozen=True, eq=False)
+class _Record:
+    """One capture prepared for the kernel (window applied as the index range [i0, i1))."""
+    usetp: np.ndarray
+    efd: np.ndarray
+    vt: np.ndarray | None
+    dt: float
+    usetp_pre: float
+    alpha: float
+    i0: int
+    i1: int
+    source: str
+
+    @property
+    def full(self) -> bool:
+        return self.i0 == 0 and self.i1 == self.efd.size
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """A bound identification problem; build it with `make_problem`.
+
+    Attributes: `names` (fitted parameters, the order of x), `bounds` [(lo, hi)], `constraints`
+    (LinearConstraint over `names`, for the optimizers), `fixed_constraints` (constraints left
+    without a fitted parameter: (text, satisfied)), `weights` (alpha_k per capture), `w_efd`,
+    `w_vt`, `base` (every kernel parameter value before x is applied), `usetp_pre` per capture,
+    `captures`, `unit`, `window` ((t0, t1) or None).
+    """
+
+    captures: tuple[Capture, ...]
+    unit: Unit
+    names: tuple[str, ...]
+    bounds: tuple[tuple[float, float], ...]
+    constraints: tuple[LinearConstraint, ...]
+    constraint_texts: tuple[str, ...]
+    fixed_constraints: tuple[tuple[str, bool], ...]
+    weights: tuple[float, ...]
+    w_efd: float
+    w_vt: float
+    base: dict[str, float]
+    records: tuple[_Record, ...] = field(repr=False)
+    window: tuple[float, float] | None = None
+    penalty_base: float = 1.0e20
+
+    # ------------------------------------------------------------------ basics
+    @property
+    def d(self) -> int:
+        return len(self.names)
+
+    @property
+    def usetp_pre(self) -> tuple[float, ...]:
+        return tuple(r.usetp_pre for r in self.records)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([b[0] for b in self.bounds])
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([b[1] for b in self.bounds])
+
+    def x_start(self) -> np.ndarray:
+        """The start point from the unit: its `value` of each fitted name (else its base value,
+        clipped into the bounds when it is not finite, e.g. VRMAX = inf)."""
+        x = np.array([self.unit.identify[n].value if n in self.unit.identify else self.base[n]
+                      for n in self.names], dtype=float)
+        lo, hi = self.lower, self.upper
+        bad = ~np.isfinite(x)
+        x[bad] = np.where(x[bad] > 0, hi[bad], lo[bad])
+        return x
+
+    def values(self, x: Sequence[float]) -> dict[str, float]:
+        """Every kernel parameter value with `x` applied to `names`."""
+        x = np.asarray(x, dtype=float).reshape(-1)
+        if x.size != self.d:
+            raise ProblemError(f"x has {x.size} values for {self.d} names {list(self.names)}")
+        out = dict(self.base)
+        out.update({n: float(v) for n, v in zip(self.names, x)})
+        return out
+
+    def params(self, x: Sequence[float]) -> dict[str, float]:
+        """The fitted parameters as a name -> value dict."""
+        return {n: float(v) for n, v in zip(self.names, np.asarray(x, dtype=float).reshape(-1))}
+
+    def matrix(self, X: np.ndarray) -> np.ndarray:
+        """Kernel parameter matrix of a population X (n, d)."""
+        return param_matrix(self.base, self.names, np.atleast_2d(np.asarray(X, dtype=float)))
+
+    def with_window(self, window: tuple[float, float] | None) -> "Problem":
+        """The same problem with its objective and MSE over another time window (None = all)."""
+        return replace(self, window=window, records=tuple(
+            _apply_window(r, window, c) for r, c in zip(self.records, self.captures)))
+
+    # ------------------------------------------------------------------ constraints
+    def violations(self, x: Sequence[float]) -> dict[str, float]:
+        """Violation (>= 0, original units) of each optimizer constraint at x."""
+        xa = np.asarray(x, dtype=float).reshape(-1)
+        return {c.expr: c.violation(xa) for c in self.constraints}
+
+    def constraint_report(self, x: Sequence[float], tol: float = 1e-9) -> list[dict[str, Any]]:
+        """[{expr, satisfied, margin}] for every constraint of the unit (margin >= 0 = slack)."""
+        xa = np.asarray(x, dtype=float).reshape(-1)
+        out = [{"expr": c.expr, "satisfied": bool(c.violation(xa) <= tol),
+                "margin": float(c.rhs - c.coef @ xa)} for c in self.constraints]
+        out += [{"expr": t, "satisfied": bool(ok), "margin": None} for t, ok in self.fixed_constraints]
+        return out
+
+    def violated(self, x: Sequence[float], tol: float = 1e-9) -> list[str]:
+        return [c["expr"] for c in self.constraint_report(x, tol) if not c["satisfied"]]
+
+    # ------------------------------------------------------------------ evaluation
+    def objective(self, X: np.ndarray) -> np.ndarray:
+        """The paper's OF for a population X (n, d) -> (n,); failed candidates get a penalty."""
+        parts, fail_frac = self._objective_parts(X)
+        total = parts.sum(axis=0)
+        bad = fail_frac > 0
+        if bad.any():
+            total = np.where(bad, self.penalty_base * (1.0 + fail_frac), total)
+        return total
+
+    def capture_objectives(self, x: Sequence[float]) -> list[float]:
+        """alpha_k * integral of the weighted squared error, per capture (inf when it failed)."""
+        parts, _ = self._objective_parts(np.asarray(x, dtype=float).reshape(1, -1), per_capture_fail=True)
+        return [float(v) for v in parts[:, 0]]
+
+    def _objective_parts(self, X: np.ndarray, per_capture_fail: bool = False
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        P = self.matrix(X)
+        n = P.shape[0]
+        parts = np.zeros((len(self.records), n))
+        fail_frac = np.zeros(n)  # sum over captures of the share of the record lost to a failure
+        for k, r in enumerate(self.records):
+            if r.full:
+                out = run_kernel(P, r.usetp, r.dt, r.usetp_pre, efd_meas=r.efd, vt_meas=r.vt,
+                                 w_efd=self.w_efd, w_vt=self.w_vt if r.vt is not None else 0.0,
+                                 store=False)
+                obj = out["obj"]
+            else:
+                out, res = self._window_residuals(P, r)
+                obj = np.einsum("ij,ij->i", res, res)
+            fs = out["fail_step"]
+            failed = fs >= 0
+            parts[k] = r.alpha * obj
+            if per_capture_fail:
+                parts[k] = np.where(failed, np.inf, parts[k])
+            fail_frac += np.where(failed, (r.i1 - np.minimum(fs, r.i1 - 1)) / max(1, r.i1), 0.0)
+        return parts, fail_frac
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        return self.objective(X)
+
+    def simulate(self, x: Sequence[float]) -> list[dict[str, Any]]:
+        """Full-record traces per capture: [{efd, vt, fail_step}] (efd as recorded)."""
+        P = self.matrix(np.asarray(x, dtype=float).reshape(1, -1))
+        outs = []
+        for r in self.records:
+            o = run_kernel(P, r.usetp, r.dt, r.usetp_pre)
+            outs.append({"efd": o["efd"][0], "vt": o["vt"][0], "fail_step": int(o["fail_step"][0])})
+        return outs
+
+    def mse(self, x: Sequence[float]) -> list[float]:
+        """Per capture, mean squared efd sample error over the window (inf when the run failed)."""
+        return [float(v) for v in self.mse_many(np.asarray(x, dtype=float).reshape(1, -1))[:, 0]]
+
+    def mse_many(self, X: np.ndarray) -> np.ndarray:
+        """Per-capture MSE of efd for a population: shape (n_captures, n)."""
+        P = self.matrix(X)
+        rows = []
+        for r in self.records:
+            if r.full:
+                out = run_kernel(P, r.usetp, r.dt, r.usetp_pre, efd_meas=r.efd, w_efd=1.0, store=False)
+                m = out["sse_efd"] / r.efd.size
+            else:
+                out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre)
+                e = out["efd"][:, r.i0: r.i1] - r.efd[r.i0: r.i1]
+                m = np.mean(e * e, axis=1)
+            rows.append(np.where(out["fail_step"] >= 0, np.inf, m))
+        return np.array(rows)
+
+    def residuals(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted residual vectors of a population whose squared sum is the objective.
+
+        Returns (R (n, m), failed (n,) bool). Sample j of capture k, signal s enters as
+        sqrt(alpha_k w_s c_j dt) (y - y_meas), c_j = 1/2 at the window's ends (trapezoid).
+        Only efd and (when weighted) vt are included, in that order, capture by capture.
+        """
+        P = self.matrix(X)
+        parts, failed = [], np.zeros(P.shape[0], dtype=bool)
+        for r in self.records:
+            out, res = self._window_residuals(P, r)
+            parts.append(np.sqrt(r.alpha) * res)
+            failed |= out["fail_step"] >= 0
+        return np.hstack(parts), failed
+
+    def efd_residual_slices(self) -> list[slice]:
+        """Where each capture's efd residuals sit in the vector of `residuals`."""
+        out, pos = [], 0
+        for r in self.records:
+            n = r.i1 - r.i0
+            out.append(slice(pos, pos + n))
+            pos += n * (2 if (r.vt is not None and self.w_vt > 0) else 1)
+        return out
+
+    def _window_residuals(self, P: np.ndarray, r: _Record) -> tuple[dict, np.ndarray]:
+        out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre)
+        c = np.ones(r.i1 - r.i0)
+        c[0] = c[-1] = 0.5
+        scale = np.sqrt(c * r.dt)
+        res = [math.sqrt(self.w_efd) * scale * (out["efd"][:, r.i0: r.i1] - r.efd[r.i0: r.i1])]
+        if r.vt is not None and self.w_vt > 0:
+            res.append(math.sqrt(self.w_vt) * scale * (out["vt"][:, r.i0: r.i1] - r.vt[r.i0: r.i1]))
+        return out, np.hstack(res)
+
+
+# ---------------------------------------------------------------------- construction
+
+def _apply_window(r: _Record, window: tuple[float, float] | None, cap: Capture) -> _Record:
+    n = cap.efd.size
+    if window is None:
+        return replace(r, i0=0, i1=n)
+    t0, t1 = (float(v) for v in window)
+    t = cap.time - cap.time[0]
+    i0 = int(np.searchsorted(t, t0 - 1e-9 * r.dt, side="left"))
+    i1 = int(np.searchsorted(t, t1 + 1e-9 * r.dt, side="right"))
+    if not (t0 < t1) or i1 - i0 < 2:
+        raise ProblemError(f"{cap.source or 'capture'}: fit window ({t0}, {t1}) s (from the record's "
+                           f"start) holds {max(0, i1 - i0)} samples; need t0 < t1 and at least 2")
+    return replace(r, i0=i0, i1=i1)
+
+
+def _segment_window(seg: slice, cap: Capture) -> tuple[float, float]:
+    i0, i1, step = seg.indices(cap.efd.size)
+    if step != 1 or i1 - i0 < 2:
+        raise ProblemError(f"segment {seg!r}: need a contiguous slice of at least 2 samples")
+    return (float(i0 * cap.dt), float((i1 - 1) * cap.dt))
+
+
+def _reduce_constraints(texts: Sequence[str], names: Sequence[str], base: dict[str, float]
+                        ) -> tuple[list[LinearConstraint], list[tuple[str, bool]]]:
+    """Parse over all kernel parameters, keep fitted names, fold the rest into the bound."""
+    full = parse_constraints(list(texts), KERNEL_PARAMS)
+    idx = [KERNEL_PARAMS.index(n) for n in names]
+    fitted, fixed = [], []
+    for c in full:
+        sub = c.coef[idx]
+        rest = c.coef.copy()
+        rest[idx] = 0.0
+        const = 0.0
+        for j in np.flatnonzero(rest):
+            v = base[KERNEL_PARAMS[j]]
+            if not math.isfinite(v):
+                raise ProblemError(f"constraint {c.expr!r} uses {KERNEL_PARAMS[j]} = {v}, which is "
+                                   "not fitted and not finite (fit it or give it a value)")
+            const += rest[j] * v
+        if np.any(sub != 0.0):
+            fitted.append(LinearConstraint(expr=c.expr, coef=sub, rhs=c.rhs - const, names=tuple(names)))
+        else:
+            fixed.append((c.expr, bool(const <= c.rhs + 1e-9)))
+    return fitted, fixed
+
+
+def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str] | None = None,
+                 bounds: dict[str, tuple[float, float]] | None = None,
+                 constraints: Sequence[str] | None = None, weights: Sequence[float] | None = None,
+                 segment: slice | None = None, fit_window: tuple[float, float] | None = None,
+                 values: dict[str, float] | None = None) -> Problem:
+    """Bind captures and a unit into a `Problem`.
+
+    names: parameters to fit (default `unit.identified_names`; effect parameters allowed).
+    bounds: per-name (lo, hi) overriding `default_bounds`. constraints: texts (default: the
+    unit's, plus those of every effect with a fitted parameter). weights: alpha_k per capture
+    (default 1). segment / fit_window: restrict the objective and MSE (samples / seconds from
+    the record's start). values: kernel parameter values overriding the unit's for the
+    parameters that are not fitted (e.g. a previous fit's result).
+    """
+    caps = tuple(captures)
+    if not caps:
+        raise ProblemError("no capture given")
+    names_t = tuple(unit.identified_names if names is None else names)
+    if not names_t:
+        raise ProblemError("no parameter to fit")
+    for n in names_t:
+        if n not in PARAMS:
+            raise ProblemError(f"unknown parameter {n!r}; known: {', '.join(KERNEL_PARAMS)}")
+    if len(set(names_t)) != len(names_t):
+        raise ProblemError(f"parameter names repeat: {list(names_t)}")
+    bounds = dict(bounds or {})
+    unknown = set(bounds) - set(names_t)
+    if unknown:
+        raise ProblemError(f"bounds given for {sorted(unknown)}, which are not fitted ({list(names_t)})")
+    bnds = []
+    for n in names_t:
+        lo, hi = (float(v) for v in bounds.get(n, default_bounds(unit, n)))
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ProblemError(f"bounds of {n}: need finite lo < hi, got ({lo}, {hi})")
+        bnds.append((lo, hi))
+    base = unit.values()
+    if values:
+        bad = set(values) - set(KERNEL_PARAMS)
+        if bad:
+            raise ProblemError(f"values for unknown parameter(s) {sorted(bad)}")
+        base.update({k: float(v) for k, v in values.items()})
+
+    if constraints is None:
+        texts = list(unit.constraints)
+        for eff in EFFECTS.values():
+            if set(eff.params) & set(names_t):
+                texts += [t for t in eff.constraints if t not in texts]
+    else:
+        texts = list(constraints)
+    fitted, fixed = _reduce_constraints(texts, names_t, base)
+
+    if weights is None:
+        alphas = [1.0] * len(caps)
+    else:
+        alphas = [float(w) for w in weights]
+        if len(alphas) != len(caps) or not all(math.isfinite(a) and a >= 0 for a in alphas):
+            raise ProblemError(f"weights {list(weights)}: need one finite value >= 0 per capture "
+                               f"({len(caps)})")
+    w_efd = float(unit.weights.get("efd", 1.0))
+    w_vt = float(unit.weights.get("vt", 0.0))
+    if w_efd < 0 or w_vt < 0 or (w_efd == 0 and w_vt == 0):
+        raise ProblemError(f"signal weights {unit.weights}: need >= 0 and at least one > 0")
+    if w_efd == 0 and not any(c.vt is not None for c in caps):
+        raise ProblemError("efd weight is 0 and no capture has a vt channel: nothing to fit")
+
+    if segment is not None and fit_window is not None:
+        raise ProblemError("give either segment or fit_window, not both")
+    recs = []
+    bound_total = 0.0
+    for c, a in zip(caps, alphas):
+        owner = c.source or "<capture in memory>"
+        if c.n < 3:
+            raise ProblemError(f"{owner}: {c.n} samples are too few to identify anything")
+        dt = float(c.dt)
+        usetp = np.ascontiguousarray(c.usetp, dtype=float)
+        vt = np.ascontiguousarray(c.vt, dtype=float) if c.vt is not None else None
+        r = _Record(usetp=usetp, efd=np.ascontiguousarray(c.efd, dtype=float), vt=vt, dt=dt,
+                    usetp_pre=pre_trigger_mean(usetp, dt), alpha=a, i0=0, i1=c.n, source=owner)
+        window = _segment_window(segment, c) if segment is not None else fit_window
+        recs.append(_apply_window(r, window, c))
+        # a finite (non-failed) simulation keeps |states| < BLOWUP: bound its objective
+        dur = dt * (c.n - 1)
+        e_max = (_MAX_GAIN * BLOWUP + float(np.max(np.abs(c.efd)))) ** 2 * w_efd
+        v_max = (BLOWUP + float(np.max(np.abs(vt)))) ** 2 * w_vt if vt is not None else 0.0
+        bound_total += a * (e_max + v_max) * dur
+    window_used = fit_window if segment is None else _segment_window(segment, caps[0])
+    return Problem(captures=caps, unit=unit, names=names_t, bounds=tuple(bnds),
+                   constraints=tuple(fitted), constraint_texts=tuple(texts),
+                   fixed_constraints=tuple(fixed), weights=tuple(alphas), w_efd=w_efd, w_vt=w_vt,
+                   base=base, records=tuple(recs), window=window_used,
+                   penalty_base=max(1.0e20, 10.0 * bound_total))

@@ -1,0 +1,176 @@
+"""Accuracy of MVMO against its peers on synthetic captures with random AVR parameters.
+
+For each seed: AVR parameters drawn log-uniformly inside the reference unit's bounds, satisfying
+its constraints (TA2 <= TA1, TA4 >= TA2) and physically plausible (closed-loop damping ratio
+>= 0.05, |efd| <= 10 pu over the pulse; `synthetic.random_parameters`); a 10 s, 1 kHz capture of the
+5 %/1 s pulse recorded with noise 0.01 pu (+ 12-bit quantisation); then each method fits the
+reference unit's model at the same budget (default 1000 evaluations), starting where it starts
+(local and open-loop: the unit's typical values, which the open-loop method also uses for its
+pseudo-measured Vt). Reported per method: MSE / noise variance (noise variance = 0.01^2 +
+lsb^2/12), median and worst over the seeds, the count within 5 % of the noise variance, and the
+number of fits that break a constraint. Targets (issue 3): MVMO within 5 % in >= 19 of 20
+runs, the best median, no violation; the paper's order MVMO <= PowerFactory-like (local) <
+Simulink-like (open-loop).
+
+With --near-boundary the truths have TA2 just below TA1 (within 10 %): the constraint is nearly
+active and the lead-lag (TA1, TA2) nearly cancels, which is where a positivity-only method
+crosses TA2 <= TA1 at no cost in MSE.
+
+Usage: python benchmarks/identify_accuracy.py [--seeds 20] [--evals 1000] [--methods mvmo,de,local,open-loop]
+       [--mvmo-options '{"particles": 16}'] [--near-boundary] [--duration 10] [--rate 1000]
+       [--json OUT] [--csv RUNS.csv]
+Prints a table; `--json` writes a flat object. Exits 0 when it ran (it reports, it does not judge).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+from bench_ctl.identification.identify import warm_up  # noqa: E402
+from bench_ctl.identification.peers import MVMO_OPTIONS, OPTIMIZERS, run_optimizer  # noqa: E402
+from bench_ctl.identification.problem import make_problem  # noqa: E402
+from bench_ctl.identification.synthetic import (noise_variance, random_parameters,  # noqa: E402
+                                                 synthetic_capture, with_values)
+from bench_ctl.model.simulate import RecorderModel  # noqa: E402
+from bench_ctl.model.unit import reference_unit  # noqa: E402
+
+
+def _key(method: str) -> str:
+    return method.replace("-", "_")
+
+
+def draw_truth(unit, seed: int, args: argparse.Namespace) -> dict[str, float]:
+    """Random plausible AVR parameters; with --near-boundary TA2 = TA1 (1 - 0.1 u), so the
+    constraint TA2 <= TA1 is nearly active (the situation where the paper's PowerFactory fit
+    broke it)."""
+    rng = np.random.default_rng([seed, 0xACC])
+    while True:
+        truth = random_parameters(unit, rng, duration=args.duration, rate=args.rate)
+        if not args.near_boundary:
+            return truth
+        lo, hi = unit.identify["TA2"].min, unit.identify["TA2"].max
+        ta2 = truth["TA1"] * (1.0 - 0.1 * rng.random())
+        if lo <= ta2 <= hi and ta2 <= truth["TA4"]:
+            return {**truth, "TA2": ta2}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--evals", type=int, default=1000)
+    ap.add_argument("--methods", default=",".join(OPTIMIZERS))
+    ap.add_argument("--mvmo-options", default="{}", help="JSON dict of MVMO options")
+    ap.add_argument("--duration", type=float, default=10.0)
+    ap.add_argument("--rate", type=float, default=1000.0)
+    ap.add_argument("--near-boundary", action="store_true",
+                    help="truths with TA2 within 10 %% below TA1 (near the constraint, as in the paper)")
+    ap.add_argument("--json", dest="json_out", default=None)
+    ap.add_argument("--csv", dest="csv_out", default=None, help="per-run rows")
+    args = ap.parse_args(argv)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    for m in methods:
+        if m not in OPTIMIZERS:
+            ap.error(f"unknown method {m!r}; known: {', '.join(OPTIMIZERS)}")
+    mvmo_options = json.loads(args.mvmo_options)
+
+    unit = reference_unit()
+    compile_s = warm_up(unit)
+    var = noise_variance(RecorderModel())
+    rows = []
+    t_start = time.perf_counter()
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
+        # the truth's stream is kept apart from the optimizers' (which use `seed` itself: MVMO's
+        # first generation would otherwise draw the truth exactly)
+        truth = draw_truth(unit, seed, args)
+        cap = synthetic_capture(with_values(unit, truth), duration=args.duration, rate=args.rate,
+                                seed=10_000 + seed)
+        prob = make_problem([cap], unit)
+        x_true = np.array([truth[n] for n in prob.names])
+        mse_true = float(np.mean(prob.mse(x_true)))
+        line = [f"seed {seed:2d}"]
+        for m in methods:
+            r = run_optimizer(m, prob, max_evals=args.evals, seed=seed,
+                              options=mvmo_options if m == "mvmo" else None)
+            mse = float(np.mean(prob.mse(r.x)))
+            rows.append({"seed": seed, "method": m, "mse": mse, "ratio": mse / var,
+                         "ratio_truth": mse / mse_true, "objective": r.objective,
+                         "evaluations": r.nfev, "wall_s": r.wall_s,
+                         "violated": ";".join(r.constraints_violated),
+                         **{f"true_{k}": v for k, v in truth.items()},
+                         **{f"fit_{k}": float(v) for k, v in zip(prob.names, r.x)}})
+            line.append(f"{m} {mse / var:8.4f}{'!' if r.constraints_violated else ''}")
+        print("  ".join(line), flush=True)
+    total_s = time.perf_counter() - t_start
+
+    out: dict[str, float | int | str] = {"seeds": args.seeds, "evaluations": args.evals,
+                                         "near_boundary": int(args.near_boundary),
+                                         "noise_variance": var, "compile_s": compile_s,
+                                         "total_s": total_s,
+                                         "mvmo_options": json.dumps({**MVMO_OPTIONS, **mvmo_options})}
+    print()
+    print(f"MSE / noise variance ({var:.4g}) over {args.seeds} random AVR parameter sets, "
+          f"{args.evals} evaluations each, {args.duration:g} s at {args.rate:g} Hz")
+    head = (f"{'method':<10}{'median':>9}{'worst':>10}{'best':>9}{'<=1.05':>8}{'violations':>11}"
+            f"{'vs truth med':>13}{'wall s med':>11}")
+    print(head)
+    print("-" * len(head))
+    for m in methods:
+        rs = [r for r in rows if r["method"] == m]
+        ratios = [r["ratio"] for r in rs]
+        k = _key(m)
+        out[f"median_ratio_{k}"] = statistics.median(ratios)
+        out[f"worst_ratio_{k}"] = max(ratios)
+        out[f"best_ratio_{k}"] = min(ratios)
+        out[f"within_5pct_{k}"] = sum(v <= 1.05 for v in ratios)
+        out[f"violations_{k}"] = sum(bool(r["violated"]) for r in rs)
+        out[f"median_ratio_truth_{k}"] = statistics.median(r["ratio_truth"] for r in rs)
+        out[f"median_wall_s_{k}"] = statistics.median(r["wall_s"] for r in rs)
+        worst_seeds = [r["seed"] for r in sorted(rs, key=lambda r: -r["ratio"]) if r["ratio"] > 1.05]
+        out[f"over_5pct_seeds_{k}"] = ",".join(map(str, worst_seeds))
+        print(f"{m:<10}{out[f'median_ratio_{k}']:>9.5f}{out[f'worst_ratio_{k}']:>10.4g}"
+              f"{out[f'best_ratio_{k}']:>9.4f}{out[f'within_5pct_{k}']:>5}/{len(rs):<2}"
+              f"{out[f'violations_{k}']:>11}{out[f'median_ratio_truth_{k}']:>13.4f}"
+              f"{out[f'median_wall_s_{k}']:>11.2f}")
+    if "mvmo" in methods:
+        out["mvmo_within_5pct"] = out["within_5pct_mvmo"]
+        print(f"\nMVMO within 5 % of the noise variance: {out['mvmo_within_5pct']} of {args.seeds}"
+              + (f" (over: seeds {out['over_5pct_seeds_mvmo']})" if out["over_5pct_seeds_mvmo"] else ""))
+    if "mvmo" in methods:
+        mv = {r["seed"]: r["mse"] for r in rows if r["method"] == "mvmo"}
+        for m in methods:
+            if m == "mvmo":
+                continue
+            other = {r["seed"]: r["mse"] for r in rows if r["method"] == m}
+            rel = [(mv[s] - other[s]) / other[s] for s in mv]
+            k = _key(m)
+            out[f"mvmo_vs_{k}_better"] = sum(v < -1e-4 for v in rel)
+            out[f"mvmo_vs_{k}_tie"] = sum(abs(v) <= 1e-4 for v in rel)
+            out[f"mvmo_vs_{k}_worse"] = sum(v > 1e-4 for v in rel)
+            print(f"mvmo vs {m}: better in {out[f'mvmo_vs_{k}_better']}, tie (MSE within 0.01 %) in "
+                  f"{out[f'mvmo_vs_{k}_tie']}, worse in {out[f'mvmo_vs_{k}_worse']} of {len(rel)}")
+    medians = {m: out[f"median_ratio_{_key(m)}"] for m in methods}
+    out["best_median_method"] = min(medians, key=medians.get)
+    print(f"best median: {out['best_median_method']};  total {total_s:.0f} s")
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps(out, indent=1) + "\n")
+    if args.csv_out:
+        with open(args.csv_out, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

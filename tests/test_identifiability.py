@@ -1,0 +1,119 @@
+"""What a capture determines: uncertainty, flags for undetermined parameters, equivalent sets.
+
+The predicted standard deviations are checked against an independent Monte-Carlo estimate
+(the spread of fits over several noise realisations); the flags against situations whose
+answer is known from the model's structure (a pole-zero cancellation, a record that ends before
+the slow lag shows, the lead-lag symmetry of the reference AVR).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench_ctl.identification.identifiability import analyse
+from bench_ctl.identification.peers import run_optimizer
+from bench_ctl.identification.problem import make_problem
+from bench_ctl.identification.synthetic import synthetic_capture
+from bench_ctl.model.unit import apply_overrides, reference_unit
+
+TRUTH = {"KAVR": 200.0, "TA1": 1.0, "TA2": 0.3, "TA3": 0.1, "TA4": 2.0, "TE": 0.03}
+
+
+@pytest.fixture(scope="module")
+def unit():
+    return reference_unit()
+
+
+def _unit_with(unit, values):
+    return apply_overrides(unit, [f"{k}={v}" for k, v in values.items()])
+
+
+def _x(problem, values):
+    return np.array([values[n] for n in problem.names])
+
+
+def test_well_determined_set_all_flags_true_and_std_matches_monte_carlo(unit):
+    truth = _unit_with(unit, TRUTH)
+    fits = []
+    for seed in range(8):
+        p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=100 + seed)], truth)
+        # start at the truth: the Monte Carlo measures the noise's effect, not the optimizer
+        fits.append(run_optimizer("local", p, max_evals=150, seed=0).x)
+    a = analyse(p, _x(p, TRUTH))
+    assert all(a["determined"].values()), a["reasons"]
+    spread = np.std(np.log(np.array(fits)), axis=0, ddof=1)
+    pred = np.array([a["rel_std"][n] for n in p.names])
+    # 8 samples: the sample std is within a factor ~2 of the true one with high probability
+    ratio = spread / pred
+    assert np.all(ratio > 0.35) and np.all(ratio < 2.2), dict(zip(p.names, ratio.round(2)))
+    corr = np.array(a["correlation"])
+    assert corr.shape == (6, 6) and np.allclose(corr, corr.T) and np.allclose(np.diag(corr), 1.0)
+    assert all(v > 0 for v in a["sensitivity"].values())
+
+
+def test_pole_zero_cancellation_is_flagged_as_a_singular_direction(unit):
+    # TA1 = TA4: (1 + s TA1)/(1 + s TA4) cancels, only TA1 - TA4 = 0 is seen, not their value
+    vals = {**TRUTH, "TA1": 1.5, "TA4": 1.5}
+    truth = _unit_with(unit, vals)
+    p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=1)], unit)
+    a = analyse(p, _x(p, vals))
+    assert a["determined"]["TA1"] is False and a["determined"]["TA4"] is False
+    assert any("singular direction" in r for r in a["reasons"]["TA1"])
+    assert a["determined"]["TE"] and a["determined"]["TA2"]
+    assert any("singular direction" in n and "TA1" in n and "TA4" in n for n in a["notes"])
+
+
+def test_record_too_short_to_see_the_slow_lag(unit):
+    # reference unit (TA4 = 10 s): a step recorded for 0.5 s after the edge cannot fix TA4 or KAVR
+    truth = unit
+    cap = synthetic_capture(truth, duration=1.5, rate=500.0, seed=2, width=None)
+    p = make_problem([cap], unit)
+    a = analyse(p, p.x_start())
+    assert a["determined"]["TA4"] is False and a["determined"]["KAVR"] is False
+    assert a["rel_std"]["TA4"] is None or a["rel_std"]["TA4"] > 0.25
+    assert a["determined"]["TE"]
+    assert "TA4" in a["notes"][-1]
+    # the same unit over a 10 s record does determine the lag better
+    long = make_problem([synthetic_capture(truth, duration=10.0, rate=500.0, seed=2)], unit)
+    b = analyse(long, long.x_start())
+    assert b["rel_std"]["TA4"] < (a["rel_std"]["TA4"] or np.inf)
+
+
+def test_reference_unit_lead_swap_is_equivalent_and_allowed(unit):
+    cap = synthetic_capture(unit, duration=3.0, rate=500.0, seed=3)
+    p = make_problem([cap], unit)
+    a = analyse(p, p.x_start())
+    sets = {e["note"]: e for e in a["equivalent_sets"]}
+    lead = sets["leads TA1 <-> TA3 swapped"]
+    assert lead["params"]["TA1"] == 0.5 and lead["params"]["TA3"] == 1.0
+    assert lead["equivalent"] and lead["allowed"]
+    assert a["determined"]["TA1"] is False and a["determined"]["TA3"] is False
+    assert any("exchangeable" in r for r in a["reasons"]["TA1"])
+    pair = sets["(TA1,TA2) <-> (TA3,TA4) swapped"]
+    assert pair["equivalent"] and not pair["allowed"]
+    assert set(pair["constraints_violated"]) == {"TA2 <= TA1", "TA4 >= TA2"}
+    assert "ruled out" in pair["verdict"]
+    # the MSE of an equivalent set equals the optimum's within the tolerance used
+    assert abs(lead["mse"] - np.mean(p.mse(p.x_start()))) <= a["settings"]["equivalence_tol_mse"]
+
+
+def test_constraints_rule_out_the_lead_swap_when_ta3_is_below_ta2(unit):
+    truth = _unit_with(unit, TRUTH)  # TA3 = 0.1 < TA2 = 0.3: the swap would break TA2 <= TA1
+    p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit)
+    a = analyse(p, _x(p, TRUTH))
+    lead = {e["note"]: e for e in a["equivalent_sets"]}["leads TA1 <-> TA3 swapped"]
+    assert lead["equivalent"] and not lead["allowed"]
+    assert lead["constraints_violated"] == ["TA2 <= TA1"]
+    assert a["determined"]["TA1"] and a["determined"]["TA3"]
+
+
+def test_a_changed_response_is_not_called_equivalent(unit):
+    # swapping TA1 with TA2 (a lead with a lag) is not a symmetry: check the tolerance bites
+    truth = _unit_with(unit, TRUTH)
+    p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit)
+    x = _x(p, TRUTH)
+    y = x.copy()
+    y[1], y[2] = x[2], x[1]
+    a = analyse(p, x)
+    tol = a["settings"]["equivalence_tol_mse"]
+    assert np.mean(p.mse(y)) - np.mean(p.mse(x)) > 10 * tol

@@ -1,0 +1,118 @@
+"""MVMO's peers (de, local, open-loop) and MVMO itself through `run_optimizer`.
+
+The same short synthetic capture for all; checks are on what each method promises: the budget,
+a monotone history, bounds and constraints where the method respects them, and the listing of
+broken constraints where it does not.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bench_ctl.identification.peers import OPTIMIZERS, OpenLoopModel, SearchSpace, run_optimizer
+from bench_ctl.identification.problem import make_problem
+from bench_ctl.identification.synthetic import synthetic_capture
+from bench_ctl.model.unit import apply_overrides, reference_unit
+
+TRUTH = {"KAVR": 200.0, "TA1": 1.0, "TA2": 0.3, "TA3": 0.1, "TA4": 2.0, "TE": 0.03}
+
+
+@pytest.fixture(scope="module")
+def unit():
+    return reference_unit()
+
+
+@pytest.fixture(scope="module")
+def truth_unit(unit):
+    return apply_overrides(unit, [f"{k}={v}" for k, v in TRUTH.items()])
+
+
+@pytest.fixture(scope="module")
+def problem(unit, truth_unit):
+    cap = synthetic_capture(truth_unit, duration=3.0, rate=500.0, seed=5)
+    return make_problem([cap], unit)
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+def test_every_optimizer_keeps_the_budget_and_reports_alike(problem, name):
+    seen = []
+    r = run_optimizer(name, problem, max_evals=120, seed=4, progress=lambda n, f: seen.append((n, f)))
+    assert r.name == name and 0 < r.nfev <= 120
+    assert r.x.shape == (6,) and np.all(r.x > 0)
+    assert math.isfinite(r.objective) and not r.failed
+    assert r.objective == pytest.approx(float(problem.objective(r.x[None])[0]))
+    counts = [n for n, _ in r.history]
+    assert counts == sorted(counts) and counts[-1] == r.nfev
+    best = [f for _, f in r.history]
+    assert all(a >= b for a, b in zip(best, best[1:]))
+    assert seen and seen[-1][0] == r.nfev
+    assert r.wall_s > 0 and isinstance(r.settings, dict)
+    assert r.constraints_violated == problem.violated(r.x)
+
+
+@pytest.mark.parametrize("name", ["mvmo", "de"])
+def test_global_methods_respect_bounds_and_constraints(problem, name):
+    r = run_optimizer(name, problem, max_evals=300, seed=1)
+    assert np.all(r.x >= problem.lower) and np.all(r.x <= problem.upper)
+    assert r.constraints_violated == []
+
+
+def test_mvmo_is_deterministic_for_a_seed(problem):
+    a = run_optimizer("mvmo", problem, max_evals=200, seed=7)
+    b = run_optimizer("mvmo", problem, max_evals=200, seed=7)
+    assert np.array_equal(a.x, b.x) and a.history == b.history
+
+
+def test_mvmo_search_space_is_logarithmic_and_keeps_the_ratio_constraints_linear(problem):
+    s = SearchSpace(problem, "log")
+    assert all(s.log)
+    x = np.array([200.0, 1.0, 0.3, 0.1, 2.0, 0.03])
+    np.testing.assert_allclose(s.to_x(s.to_z(x)), x, rtol=1e-12)
+    # TA2 <= TA1 becomes ln TA2 - ln TA1 <= 0: same verdict as in x
+    for xx in (x, np.array([200.0, 0.2, 0.3, 0.1, 2.0, 0.03])):
+        for c_z, c_x in zip(s.constraints, problem.constraints):
+            assert c_z.satisfied(s.to_z(xx)) == c_x.satisfied(xx)
+
+
+def test_local_may_break_constraints_and_says_which(problem):
+    # started at the lead-swapped set (TA1 <-> TA3), the positivity-only gradient search stays
+    # in that equally good valley, where TA2 <= TA1 does not hold
+    x0 = np.array([200.0, 0.1, 0.3, 1.0, 2.0, 0.03])
+    r = run_optimizer("local", problem, max_evals=200, seed=0, x0=x0)
+    assert r.constraints_violated == ["TA2 <= TA1"]
+    assert r.x[1] < r.x[2]
+    assert problem.mse(r.x)[0] < 1.1e-4  # a good fit, just not an allowed one
+    assert r.settings["bounds"].startswith("positivity only")
+
+
+def test_open_loop_model_matches_the_closed_loop_when_the_pseudo_measurement_is_exact(unit, truth_unit):
+    cap = synthetic_capture(truth_unit, duration=3.0, rate=500.0, seed=5, noise_pu=0.0)
+    p = make_problem([cap], unit)
+    x = np.array([TRUTH[n] for n in p.names])
+    exact = OpenLoopModel(p, truth_unit.values())  # pseudo-Vt from the true parameters
+    sim = p.simulate(x)[0]["efd"]
+    out, bad = exact.simulate(x[None])
+    assert not bad[0]
+    assert np.max(np.abs(out[0][0] - sim)) < 2e-3  # exact discretisation; only RK4's error left
+
+
+def test_open_loop_fit_is_worse_when_the_typical_parameters_are_wrong(problem, unit, truth_unit):
+    # typical = the unit's values (reference AVR), far from the truth: the pseudo-measured Vt is
+    # wrong, so the open-loop fit scores worse in closed loop than a closed-loop fit
+    r_open = run_optimizer("open-loop", problem, max_evals=300, seed=0)
+    r_local = run_optimizer("local", problem, max_evals=300, seed=0)
+    mse_open, mse_local = problem.mse(r_open.x)[0], problem.mse(r_local.x)[0]
+    assert mse_local < 1.1e-4
+    assert mse_open > 2.0 * mse_local
+    assert r_open.settings["typical"]["TA4"] == unit.identify["TA4"].value
+
+
+def test_unknown_optimizer_and_bad_budget_are_refused(problem):
+    with pytest.raises(ValueError, match="unknown optimizer"):
+        run_optimizer("pso", problem, max_evals=10, seed=0)
+    with pytest.raises(ValueError, match="max_evals"):
+        run_optimizer("de", problem, max_evals=0, seed=0)
+    with pytest.raises(ValueError, match="population"):
+        run_optimizer("de", problem, max_evals=10, seed=0)
