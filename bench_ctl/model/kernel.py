@@ -433,8 +433,12 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
     if n:
         any_ramp = bool(np.any(D[:, D_RAMP] < 1.0e300))
         Dt = np.ascontiguousarray(D.T)
-        _run(Dt, usetp, float(usetp_pre), float(dt), L, Ls, em, vm, we, wv, bool(store), int(chunk),
-             td_max > 0, sk_max > 0, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
+        if n <= chunk:  # one chunk: waking the thread pool costs more than it saves (measured)
+            _run_chunk(Dt, 0, n, usetp, float(usetp_pre), float(dt), L, Ls, em, vm, we, wv, bool(store),
+                       td_max > 0, sk_max > 0, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
+        else:
+            _run(Dt, usetp, float(usetp_pre), float(dt), L, Ls, em, vm, we, wv, bool(store), int(chunk),
+                 td_max > 0, sk_max > 0, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
     out = {"fail_step": fail_step}
     if store:
         out["efd"] = efd_out
