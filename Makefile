@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/bench-ctl demo --out demo-out
+	$(BIN)/bench-ctl demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

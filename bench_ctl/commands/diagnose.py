@@ -1,0 +1,214 @@
+"""`bench-ctl diagnose`: where the model misses a capture, which unmodelled effect, how far it shrinks.
+
+Example:
+  bench-ctl diagnose pulse1s.csv --holdout pulse05s.csv --json diag.json --report diag.html
+  bench-ctl diagnose pulse1s.csv --unit unit.toml --set Td0p=6.8 --result result.json
+
+Without --holdout the models are fitted on the record up to one pulse width after the trailing
+edge and checked on the rest (see `bench_ctl.diagnosis.diagnose`). --result warm-starts the base
+fit from an identification result's parameters.
+
+Exit codes: 0 the base model fits the capture to its noise floor (verdict none); 1 an unmodelled
+effect was found (the verdict names it); 2 bad input (capture, unit file, --set, option) or the
+output could not be written.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import shlex
+from pathlib import Path
+from typing import Any, Sequence
+
+import click
+import numpy as np
+
+from bench_ctl.capture import Capture, CaptureError, read_capture
+from bench_ctl.identification.constraints import ConstraintError, parse_constraints
+from bench_ctl.model.params import KERNEL_PARAMS
+from bench_ctl.model.simulate import simulate
+from bench_ctl.model.unit import Unit, UnitError, apply_overrides, load_unit
+
+log = logging.getLogger(__name__)
+
+EXIT_NONE, EXIT_EFFECT, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def _fmt(v: Any, spec: str = ".4g") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    return format(v, spec)
+
+
+def summary(d: dict[str, Any]) -> str:
+    """Human-readable summary of a diagnosis."""
+    b = d["base"]
+    lines = [f"capture: {d['capture']['path']}   holdout: {(d['holdout'] or {}).get('path', 'none')} "
+             f"(check: {d['validation']['kind']})",
+             f"noise floor {_fmt(d['noise_floor'])} pu^2   base model mse {_fmt(b['mse'])}, on the check "
+             f"record {_fmt(b['mse_holdout'])}   at the noise floor: {b['at_noise_floor']}", "",
+             "where the base model misses (share of the residual energy):"]
+    lines.append("  " + "  ".join(f"{s['name']} {s['share']:.2f}" for s in d["localization"]["segments"]))
+    lines.append("  " + "  ".join(f"{s['name']} ({s['f0_hz']:g}-{s['f1_hz']:g} Hz) {s['share']:.2f}"
+                                  for s in d["localization"]["bands"]))
+    lines += ["", "features:"]
+    for f in d["features"]:
+        lines.append(f"  [{'x' if f['detected'] else ' '}] {f['name']}: {f['evidence']}")
+    lines += ["", f"{'effect':<16}{'mse':>11}{'mse check':>11}{'gap closed':>12}{'score':>11}  params"]
+    for e in d["effects"]:
+        params = ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items())
+        lines.append(f"{e['name']:<16}{_fmt(e['mse']):>11}{_fmt(e['mse_holdout']):>11}"
+                     f"{_fmt(e['gap_closed'], '.3f'):>12}{e['score']:>11.1f}  {params}"
+                     + ("" if e["significant"] else "  (not significant)"))
+    for a in d["ambiguous"]:
+        lines.append(f"ambiguous: {' / '.join(a['effects'])}: {a['separating_test']}")
+    if d["sequence"]:
+        lines.append("sequence: " + " -> ".join(f"{s['added']} (check mse {_fmt(s['mse_holdout'])})"
+                                               for s in d["sequence"]))
+    lines += ["", f"verdict: {d['verdict']}   ({d['wall_s']:.1f} s)"]
+    return "\n".join(lines)
+
+
+def write_json(path: str | Path, data: dict[str, Any]) -> None:
+    """Write JSON via a temporary file and rename (no NaN / inf: they become null)."""
+    p = Path(path)
+    text = json.dumps(_clean(data), indent=1, allow_nan=False)
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text(text + "\n", encoding="utf-8")
+    tmp.replace(p)
+
+
+def _clean(x: Any) -> Any:
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, np.generic):
+        return _clean(x.item())
+    return x
+
+
+def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, Any]:
+    """The diagnosis' base fit as an identification result (schema bench-ctl/result/1), so that
+    the report can re-simulate and show it next to the diagnosis."""
+    values = unit.values()
+    values.update(d["base"]["params"])
+    efd, _vt, _fail = simulate(values, capture.usetp, capture.dt)
+    val = d["validation"]
+    t1 = val["fit"]["t1"]
+    k1 = capture.n if val["kind"] == "holdout" else int(round(t1 / capture.dt))
+    r = capture.efd[:k1] - efd[:k1]
+    objective = float(capture.dt * (np.sum(r * r) - 0.5 * (r[0] ** 2 + r[-1] ** 2)))
+    names = list(unit.identified_names)
+    x = np.array([d["base"]["params"][n] for n in names])
+    cons = []
+    for c in parse_constraints(unit.constraints, names):
+        cons.append({"expr": c.expr, "satisfied": c.satisfied(x), "margin": float(c.rhs - c.coef @ x)})
+    return {
+        "schema": "bench-ctl/result/1", "software_version": d["software_version"],
+        "command_line": d["command_line"], "created_utc": d["created_utc"], "unit": unit.to_dict(),
+        "captures": [{"path": d["capture"]["path"], "sha256": d["capture"]["sha256"], "n": capture.n,
+                      "rate_hz": capture.rate_hz, "meta": capture.meta, "mse": d["base"]["mse"],
+                      "objective": objective, "weight": 1.0}],
+        "params": dict(d["base"]["params"]),
+        "fixed": {k: (v if math.isfinite(v) else None) for k, v in values.items()
+                  if k in KERNEL_PARAMS and k not in d["base"]["params"]},
+        "bounds": {n: [b.min, b.max] for n, b in unit.identify.items()},
+        "constraints": cons, "objective": objective, "mse": d["base"]["mse"],
+        "evaluations": d["base"]["evaluations"], "wall_s": d["wall_s"], "compile_s": 0.0,
+        "optimizer": {"name": "mvmo + least squares (diagnosis base fit)", "settings": {}, "seed": None},
+        "history": [], "fit_window": None if val["kind"] == "holdout" else [0.0, t1],
+    }
+
+
+def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str],
+                  result: str | None, seed: int, json_out: str | None, report_out: str | None) -> str:
+    args = ["bench-ctl", "diagnose", capture]
+    if holdout:
+        args += ["--holdout", holdout]
+    if unit_path:
+        args += ["--unit", unit_path]
+    for o in overrides:
+        args += ["--set", o]
+    if result:
+        args += ["--result", result]
+    if seed:
+        args += ["--seed", str(seed)]
+    if json_out:
+        args += ["--json", json_out]
+    if report_out:
+        args += ["--report", report_out]
+    return shlex.join(args)
+
+
+@click.command("diagnose")
+@click.argument("capture_path", metavar="CAPTURE", type=click.Path(dir_okay=False))
+@click.option("--holdout", "holdout_path", metavar="CAPTURE2", type=click.Path(dir_okay=False), default=None,
+              help="A second capture of the same unit (e.g. another pulse width) to check the fits on.")
+@click.option("--unit", "unit_path", type=click.Path(dir_okay=False), default=None,
+              help="Unit file (TOML); default: the built-in reference unit.")
+@click.option("--set", "overrides", multiple=True, metavar="NAME=VALUE",
+              help="Override one unit value: Td0p=6.0, KAVR.min=20 (repeatable).")
+@click.option("--result", "result_path", metavar="RESULT.json", type=click.Path(dir_okay=False), default=None,
+              help="Warm-start the base fit from this identification result's params.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
+              help="Write the diagnosis JSON (bench-ctl/diagnosis/1) here.")
+@click.option("--report", "report_out", type=click.Path(dir_okay=False), default=None,
+              help="Write the HTML report of the base fit with the diagnosis section here.")
+def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None, overrides: tuple[str, ...],
+             result_path: str | None, seed: int, json_out: str | None, report_out: str | None) -> int:
+    """Diagnose the gap between the unit's model and CAPTURE (a pulse or step test)."""
+    from bench_ctl.diagnosis import DiagnosisError, diagnose as run
+
+    try:
+        unit = apply_overrides(load_unit(unit_path), overrides)
+        capture = read_capture(capture_path)
+        holdout = read_capture(holdout_path) if holdout_path else None
+        base_params = None
+        if result_path:
+            data = json.loads(Path(result_path).read_text("utf-8"))
+            base_params = {k: float(v) for k, v in (data.get("params") or {}).items() if k in unit.identify}
+            if not base_params:
+                raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
+    except (CaptureError, UnitError, ConstraintError, json.JSONDecodeError, ValueError) as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
+        return EXIT_BAD_INPUT
+    for out in (json_out, report_out):
+        if out is not None and not Path(out).resolve().parent.is_dir():
+            click.echo(f"error: output folder of {out} does not exist", err=True)
+            return EXIT_BAD_INPUT
+    command_line = _command_line(capture_path, holdout_path, unit_path, overrides, result_path, seed,
+                                 json_out, report_out)
+    try:
+        d = run(capture, unit, holdout=holdout, seed=seed, base_params=base_params, command_line=command_line)
+    except DiagnosisError as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    click.echo(summary(d))
+    try:
+        if json_out:
+            write_json(json_out, d)
+            click.echo(f"diagnosis written to {json_out}")
+        if report_out:
+            from bench_ctl.report import ReportError, render_report
+            try:
+                written = render_report(base_result(d, capture, unit), report_out, diagnosis=_clean(d),
+                                        base_dir=Path(capture_path).resolve().parent,
+                                        report_command=command_line)
+            except ReportError as exc:
+                click.echo(f"error: report not written: {exc}", err=True)
+                return EXIT_BAD_INPUT
+            click.echo(f"report written to {written[0]}")
+    except OSError as exc:
+        click.echo(f"error: cannot write {exc.filename}: {exc.strerror}", err=True)
+        return EXIT_BAD_INPUT
+    return EXIT_NONE if d["verdict"] == "none" else EXIT_EFFECT

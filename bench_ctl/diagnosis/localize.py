@@ -1,0 +1,137 @@
+"""Where the model misses: the noise floor, the test's edges, residual energy per segment and band.
+
+The noise floor is the variance of the recorded efd before the first setpoint change (a straight
+line removed first, so a slow drift of the recorder does not count as noise): the smallest MSE a
+model can reach on that record. The record is cut at the setpoint edges into pre_trigger,
+leading_edge, plateau, trailing_edge and recovery; each segment's share of the residual energy
+(sum of squared residuals) says where the model misses. The residual's spectrum gives the share
+per frequency band (slow: below 1 Hz, loop dynamics: 1-10 Hz, fast: above 10 Hz).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: guard samples left out before the first setpoint change (the response may start there)
+PRE_GUARD = 2
+#: length of the leading/trailing edge segments (s), at most a quarter of the pulse width
+EDGE_S = 0.2
+BANDS_HZ = (("slow", 0.0, 1.0), ("loop", 1.0, 10.0), ("fast", 10.0, math.inf))
+
+
+class DiagnosisError(ValueError):
+    """A capture the diagnosis cannot use; the message names the capture and what is wrong."""
+
+
+@dataclass(frozen=True)
+class NoiseFloor:
+    variance: float      # pu^2
+    n: int               # samples used
+    t0: float
+    t1: float
+    rel_se: float        # relative standard error of the variance estimate, sqrt(2 / (n - 2))
+
+
+@dataclass(frozen=True)
+class Edges:
+    """Sample indices of the setpoint changes: the first (leading) and the last return (trailing)."""
+    k_on: int
+    k_off: int | None    # None for a step test
+    amplitude: float     # usetp change at the leading edge (pu)
+
+
+def find_edges(usetp: np.ndarray, source: str = "capture") -> Edges:
+    u = np.asarray(usetp, float)
+    d = np.diff(u)
+    span = float(np.max(np.abs(u - u[0])))
+    if span <= 0.0:
+        raise DiagnosisError(f"{source}: usetp never changes; the diagnosis needs a step or pulse test")
+    moving = np.flatnonzero(np.abs(d) > 1e-3 * span)
+    k_on = int(moving[0]) + 1
+    # group consecutive changes (a recorded ramp); the trailing edge is the first change back
+    sign_on = np.sign(d[moving[0]])
+    back = moving[np.sign(d[moving]) == -sign_on]
+    k_off = int(back[0]) + 1 if back.size else None
+    ups = moving[moving < (back[0] if back.size else u.size)]
+    amplitude = float(u[ups[-1] + 1] - u[k_on - 1])
+    return Edges(k_on, k_off, amplitude)
+
+
+def noise_floor(efd: np.ndarray, dt: float, edges: Edges, source: str = "capture") -> NoiseFloor:
+    """Variance of the detrended pre-trigger efd samples."""
+    n = edges.k_on - PRE_GUARD
+    if n < 20:
+        raise DiagnosisError(f"{source}: only {max(n, 0)} pre-trigger samples before the first setpoint "
+                             f"change at t = {edges.k_on * dt:.3f} s; at least 20 are needed for the noise floor")
+    y = np.asarray(efd[:n], float)
+    t = np.arange(n) * dt
+    coef = np.polyfit(t, y, 1)
+    res = y - np.polyval(coef, t)
+    var = float(np.sum(res * res) / (n - 2))
+    if var <= 0.0:  # a perfectly flat (noise-free, unquantised) record: floor at one LSB of a float
+        var = float(np.finfo(float).eps * max(1.0, float(np.mean(y * y))))
+    return NoiseFloor(var, n, 0.0, (n - 1) * dt, math.sqrt(2.0 / (n - 2)))
+
+
+@dataclass(frozen=True)
+class Segment:
+    name: str
+    k0: int
+    k1: int  # exclusive
+
+
+def segments(n: int, dt: float, edges: Edges) -> list[Segment]:
+    """pre_trigger, leading_edge, plateau, trailing_edge, recovery (step test: the first three)."""
+    k_on = edges.k_on
+    k_off = edges.k_off if edges.k_off is not None else n
+    w = max(1, int(round(min(EDGE_S, 0.25 * (k_off - k_on) * dt) / dt)))
+    cuts = [("pre_trigger", 0, k_on), ("leading_edge", k_on, min(k_on + w, k_off)),
+            ("plateau", min(k_on + w, k_off), k_off)]
+    if edges.k_off is not None:
+        cuts += [("trailing_edge", k_off, min(k_off + w, n)), ("recovery", min(k_off + w, n), n)]
+    return [Segment(name, a, b) for name, a, b in cuts if b > a]
+
+
+def segment_shares(residual: np.ndarray, dt: float, segs: list[Segment]) -> list[dict]:
+    r2 = np.asarray(residual, float) ** 2
+    total = float(r2.sum())
+    out = []
+    for s in segs:
+        e = float(r2[s.k0:s.k1].sum())
+        out.append({"name": s.name, "t0": s.k0 * dt, "t1": s.k1 * dt,
+                    "share": e / total if total > 0 else 0.0,
+                    "mse": e / (s.k1 - s.k0)})
+    return out
+
+
+def band_shares(residual: np.ndarray, dt: float) -> list[dict]:
+    """Share of the residual energy per band from the one-sided power spectrum (Parseval)."""
+    r = np.asarray(residual, float)
+    n = r.size
+    spec = np.abs(np.fft.rfft(r)) ** 2
+    weight = np.full(spec.size, 2.0)
+    weight[0] = 1.0
+    if n % 2 == 0:
+        weight[-1] = 1.0
+    power = spec * weight
+    f = np.fft.rfftfreq(n, dt)
+    total = float(power.sum())
+    nyq = 0.5 / dt
+    out = []
+    for name, f0, f1 in BANDS_HZ:
+        if f0 >= nyq:
+            continue
+        sel = (f >= f0) & (f < f1)
+        out.append({"name": name, "f0_hz": f0, "f1_hz": min(f1, nyq),
+                    "share": float(power[sel].sum()) / total if total > 0 else 0.0})
+    return out
+
+
+def localization(residual: np.ndarray, dt: float, edges: Edges) -> dict:
+    segs = segments(residual.size, dt, edges)
+    return {"segments": segment_shares(residual, dt, segs), "bands": band_shares(residual, dt)}

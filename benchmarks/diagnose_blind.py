@@ -1,0 +1,117 @@
+"""Blind suite of the gap diagnosis: captures with a withheld effect, diagnosed and scored (issue 7).
+
+Each case: the reference unit with random AVR parameters (log-uniform in the unit's bounds,
+satisfying its constraints, realistic pulse response) and one effect at a random, visible but
+plausible magnitude (`bench_ctl.diagnosis.blind.draw_effect`), or no effect; a main capture of
+the 5 %/1 s pulse and a holdout capture of a 0.5 s or 1.5 s pulse, 10 s at 1 kHz by default,
+recorder noise 0.01 pu + 12-bit quantisation. The diagnosis sees the two captures and the
+reference unit file only.
+
+Reported: the confusion matrix (rows: withheld effect, columns: verdict), `top1` (share of the
+effect cases whose verdict is the withheld effect), `none_correct` (effect-free cases with
+verdict none, out of `none_cases`), `median_gap_closed` (median over the effect cases of the
+withheld effect's holdout gap_closed), `seconds_per_capture` (mean wall time of one diagnosis,
+kernel compilation excluded). Targets: top1 >= 0.9, none on >= 9 of 10, median gap >= 0.8, <= 30 s.
+
+Usage: python benchmarks/diagnose_blind.py [--cases-per-effect 10] [--none-cases 10] [--seed 0]
+       [--rate 1000] [--duration 10] [--no-holdout] [--json OUT] [--csv CASES.csv]
+Prints per-case lines and the table; exits 0 when it ran (it reports, it does not judge).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench_ctl.diagnosis import diagnose  # noqa: E402
+from bench_ctl.diagnosis.blind import NONE, SuiteConfig, make_case, make_suite, run_suite, score  # noqa: E402
+from bench_ctl.model.effects import EFFECT_NAMES  # noqa: E402
+from bench_ctl.model.unit import load_unit  # noqa: E402
+
+
+def confusion_table(conf: dict[str, dict[str, int]]) -> str:
+    labels = list(EFFECT_NAMES) + [NONE]
+    short = {n: n[:8] for n in labels}
+    corner = "truth \\ verdict"
+    head = f"{corner:<16}" + "".join(f"{short[n]:>9}" for n in labels)
+    lines = [head, "-" * len(head)]
+    for t in labels:
+        row = conf[t]
+        if not sum(row.values()):
+            continue
+        lines.append(f"{t:<16}" + "".join(f"{row[p] if row[p] else '.':>9}" for p in labels))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases-per-effect", type=int, default=10)
+    ap.add_argument("--none-cases", type=int, default=None, help="effect-free cases (default: as many as per effect)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--rate", type=float, default=1000.0, help="sample rate of the captures (Hz)")
+    ap.add_argument("--duration", type=float, default=10.0, help="record length (s)")
+    ap.add_argument("--no-holdout", action="store_true", help="diagnose without the holdout capture "
+                    "(fit / check split inside the record)")
+    ap.add_argument("--json", dest="json_out", default=None)
+    ap.add_argument("--csv", dest="csv_out", default=None, help="one row per case")
+    args = ap.parse_args(argv)
+    cfg = SuiteConfig(rate_hz=args.rate, duration_s=args.duration)
+    none_cases = args.cases_per_effect if args.none_cases is None else args.none_cases
+
+    t0 = time.perf_counter()
+    cases = make_suite(args.cases_per_effect, none_cases, seed=args.seed, cfg=cfg)
+    t_gen = time.perf_counter() - t0
+    warm = make_case(NONE, 10**6 + args.seed, cfg)  # compile the kernel outside the timing
+    t0 = time.perf_counter()
+    diagnose(warm.capture, load_unit(None), holdout=warm.holdout)
+    t_warm = time.perf_counter() - t0
+    print(f"{len(cases)} cases generated in {t_gen:.1f} s; warm-up diagnosis {t_warm:.1f} s "
+          f"(includes kernel compilation when not cached)", flush=True)
+
+    def progress(r) -> None:
+        mark = "ok " if r.verdict == r.truth else "BAD"
+        gap = "-" if r.gap_closed_holdout is None else f"{r.gap_closed_holdout:.3f}"
+        print(f"{mark} {r.case_id:<22} verdict {r.verdict:<15} gap {gap:>7}  {r.seconds:5.1f} s  "
+              f"cpu {r.cpu_seconds:5.1f} s  ranking {','.join(r.ranking[:3])}  sequence {'>'.join(r.sequence) or '-'}  "
+              f"ambiguous {r.ambiguous or '-'}", flush=True)
+
+    def diag(capture, unit, holdout=None, seed=0):
+        return diagnose(capture, unit, holdout=None if args.no_holdout else holdout, seed=seed)
+
+    results = run_suite(cases, diag, seed=args.seed, progress=progress)
+    s = score(results)
+    print()
+    print(confusion_table(s["confusion"]))
+    print()
+    print(f"top1                 {s['top1']:.3f}  ({s['top1_correct']}/{s['effect_cases']}; target >= 0.9)")
+    print(f"none_correct         {s['none_correct']}/{s['none_cases']}  (target >= 9 of 10)")
+    print(f"median_gap_closed    {s['median_gap_closed']:.3f}  (holdout; target >= 0.8)")
+    print(f"seconds_per_capture  {s['seconds_per_capture']:.1f}  (max {max(r.seconds for r in results):.1f}; "
+          f"target <= 30; CPU {s['cpu_seconds_per_capture']:.1f} s, both threads counted)")
+    print(f"sequences with more than one effect: {s['extra_effects_in_sequence']} (every case has at most one)")
+    if args.json_out:
+        flat = {k: v for k, v in s.items() if k != "confusion"}
+        flat.update({"confusion": s["confusion"], "seed": args.seed, "cases_per_effect": args.cases_per_effect,
+                     "rate_hz": args.rate, "duration_s": args.duration, "holdout": not args.no_holdout,
+                     "seconds_max": max(r.seconds for r in results)})
+        Path(args.json_out).write_text(json.dumps(flat, indent=1) + "\n", encoding="utf-8")
+    if args.csv_out:
+        with open(args.csv_out, "w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(["case", "truth", "verdict", "gap_closed_holdout", "seconds", "cpu_seconds", "ranking",
+                        "sequence", "ambiguous"])
+            for r in results:
+                w.writerow([r.case_id, r.truth, r.verdict, r.gap_closed_holdout, f"{r.seconds:.2f}",
+                            f"{r.cpu_seconds:.2f}", " ".join(r.ranking), " ".join(r.sequence),
+                            " ".join("/".join(a) for a in r.ambiguous)])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,292 @@
+"""Unit tests of the gap diagnosis: noise floor, edges, localization, feature tests, gap formula,
+lag variants, the JSON contract and the command line."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bench_ctl.capture import Capture, write_capture
+from bench_ctl.diagnosis import SCHEMA, Budget, DiagnosisError, diagnose
+from bench_ctl.diagnosis import features as F
+from bench_ctl.diagnosis.blind import SuiteConfig, make_case
+from bench_ctl.diagnosis.diagnose import _gap
+from bench_ctl.diagnosis.localize import (BANDS_HZ, band_shares, find_edges, localization, noise_floor,
+                                          segments)
+from bench_ctl.diagnosis.which import lag_variants
+from bench_ctl.model.simulate import pulse_usetp, simulate
+from bench_ctl.model.unit import load_unit
+
+DT = 0.001
+
+
+@pytest.fixture(scope="module")
+def unit():
+    return load_unit(None)
+
+
+@pytest.fixture(scope="module")
+def pulse():
+    t, u = pulse_usetp(amplitude=0.05, width=1.0, start=1.0, duration=6.0, rate=1000.0)
+    return t, u
+
+
+# ---------------------------------------------------------------- edges and noise floor
+
+def test_find_edges_pulse_and_step(pulse):
+    _, u = pulse
+    e = find_edges(u)
+    assert (e.k_on, e.k_off) == (1000, 2000)
+    assert e.amplitude == pytest.approx(0.05)
+    step = np.where(np.arange(3000) >= 500, 1.05, 1.0)
+    s = find_edges(step)
+    assert s.k_on == 500 and s.k_off is None
+    with pytest.raises(DiagnosisError, match="never changes"):
+        find_edges(np.ones(100))
+
+
+def test_noise_floor_removes_drift_and_estimates_variance(pulse):
+    _, u = pulse
+    rng = np.random.default_rng(1)
+    sigma = 0.02
+    efd = 1.0 + 0.05 * np.arange(u.size) * DT + rng.normal(0, sigma, u.size)  # drift 0.05 pu/s
+    nf = noise_floor(efd, DT, find_edges(u))
+    assert nf.n == 1000 - 2
+    # within 4 standard errors of the true variance; the drift would add ~0.0002 pu^2 if kept
+    assert abs(nf.variance - sigma ** 2) < 4 * nf.rel_se * sigma ** 2
+    assert nf.rel_se == pytest.approx(math.sqrt(2 / (nf.n - 2)))
+
+
+def test_noise_floor_needs_pre_trigger_samples():
+    u = np.where(np.arange(500) >= 10, 1.05, 1.0)
+    with pytest.raises(DiagnosisError, match="pre-trigger samples"):
+        noise_floor(np.ones(500), DT, find_edges(u))
+
+
+# ---------------------------------------------------------------- localization
+
+def test_segment_shares_sum_to_one_and_locate_the_residual(pulse):
+    _, u = pulse
+    e = find_edges(u)
+    rng = np.random.default_rng(2)
+    r = rng.normal(0, 0.01, u.size)
+    loc = localization(r, DT, e)
+    names = [s["name"] for s in loc["segments"]]
+    assert names == ["pre_trigger", "leading_edge", "plateau", "trailing_edge", "recovery"]
+    assert sum(s["share"] for s in loc["segments"]) == pytest.approx(1.0)
+    assert sum(b["share"] for b in loc["bands"]) == pytest.approx(1.0)
+    # segments tile the record
+    segs = segments(u.size, DT, e)
+    assert segs[0].k0 == 0 and segs[-1].k1 == u.size
+    assert all(a.k1 == b.k0 for a, b in zip(segs, segs[1:]))
+    # a residual only in the trailing edge segment
+    r2 = np.zeros(u.size)
+    r2[2000:2100] = 0.1
+    shares = {s["name"]: s["share"] for s in localization(r2, DT, e)["segments"]}
+    assert shares["trailing_edge"] == pytest.approx(1.0)
+    assert shares["plateau"] == 0.0
+
+
+@pytest.mark.parametrize("freq, band", [(0.3, "slow"), (4.0, "loop"), (40.0, "fast")])
+def test_band_shares_put_a_sine_in_its_band(freq, band):
+    t = np.arange(8000) * DT
+    shares = {b["name"]: b["share"] for b in band_shares(np.sin(2 * np.pi * freq * t), DT)}
+    assert set(shares) == {name for name, _, _ in BANDS_HZ}
+    assert shares[band] > 0.95
+
+
+# ---------------------------------------------------------------- feature tests
+
+@pytest.fixture(scope="module")
+def traces(unit, pulse):
+    t, u = pulse
+    free, _, _ = simulate(unit.values(), u, DT)
+    lim = unit.with_effects({"ceiling_limit": {"VRMAX": 2.6, "VRMIN": -0.5}})
+    clipped, _, _ = simulate(lim.values(), u, DT)
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0, 0.01, u.size)
+    return {"u": u, "free": free, "clipped": clipped, "noise": noise, "edges": find_edges(u)}
+
+
+def test_flat_top_detects_a_clamped_response_only(traces):
+    e, sigma = traces["edges"], 0.01
+    hit = F.flat_top(traces["clipped"] + traces["noise"], traces["free"], DT, e, sigma)
+    assert hit.detected
+    assert hit.values["top_level"] == pytest.approx(2.6, abs=0.02)
+    assert hit.values["bottom_level"] == pytest.approx(-0.5, abs=0.02)
+    miss = F.flat_top(traces["free"] + traces["noise"], traces["free"], DT, e, sigma)
+    assert not miss.detected
+
+
+def test_delay_measures_a_shift(traces):
+    e, free = traces["edges"], traces["free"]
+    shift = 20
+    late = np.concatenate([np.full(shift, free[0]), free[:-shift]]) + traces["noise"]
+    d = F.delay(late, free, DT, e, 0.01)
+    assert d.detected
+    assert d.values["delay_s"] == pytest.approx(shift * DT, abs=2 * DT)
+    same = F.delay(free + traces["noise"], free, DT, e, 0.01)
+    assert not same.detected
+    assert abs(same.values["delay_s"]) <= 2 * DT
+
+
+def test_level_features_against_the_model():
+    se = 0.01 / math.sqrt(998)
+    assert F.pre_trigger_level(1.05, se, 1.0).detected
+    assert F.pre_trigger_level(1.05, se, 1.0).values["ratio"] == pytest.approx(1.05)
+    assert not F.pre_trigger_level(1.0003, se, 1.0).detected
+    assert F.steady_state_ratio(1.08, se, 1.0, 1.0).detected
+    assert not F.steady_state_ratio(1.0, se, None, 1.0).detected
+    assert not F.steady_state_ratio(0.95, se, 1.0, 1.0).detected  # below 1 is no saturation
+
+
+def test_asymmetry_and_edge_shape(unit, traces, pulse):
+    e = traces["edges"]
+    one_sided = unit.with_effects({"ceiling_limit": {"VRMAX": 20.0, "VRMIN": -0.3}})
+    _, u = pulse
+    low, _, _ = simulate(one_sided.values(), u, DT)
+    assert F.asymmetry(low + traces["noise"], traces["free"], DT, e, 0.01).detected
+    assert not F.asymmetry(traces["free"] + traces["noise"], traces["free"], DT, e, 0.01).detected
+    ramped, _, _ = simulate(unit.with_effects({"setpoint_ramp": {"RAMP": 0.25}}).values(), u, DT)
+    shape = F.edge_shape(ramped + traces["noise"], traces["free"], DT, e, 0.01, 0.05)
+    assert shape.detected and shape.values["leading_straightness"] > 0.65
+    assert not F.edge_shape(traces["free"] + traces["noise"], traces["free"], DT, e, 0.01, 0.05).detected
+    slew, _, _ = simulate(unit.with_effects({"rate_limit": {"RATE": 20.0}}).values(), u, DT)
+    capped = F.edge_shape(slew + traces["noise"], traces["free"], DT, e, 0.01, 0.05)
+    assert capped.detected and capped.values["leading_slope"] == pytest.approx(20.0, rel=0.1)
+
+
+# ---------------------------------------------------------------- gap, lag variants
+
+def test_gap_closed_formula():
+    g, raw = _gap(3e-4, 1.5e-4, 1e-4, 0.05)
+    assert g == pytest.approx((3e-4 - 1.5e-4) / (3e-4 - 1e-4)) and raw == pytest.approx(g)
+    # base at the floor: the denominator is kept at one standard error of the floor, raw undefined
+    g, raw = _gap(1e-4, 0.9e-4, 1e-4, 0.05)
+    assert g == pytest.approx(0.1e-4 / (1e-4 * 0.05)) and raw is None
+    assert _gap(None, 1e-4, 1e-4, 0.05) == (None, None)
+
+
+def test_lag_variants_share_the_linear_response(unit, pulse):
+    _, u = pulse
+    avr = {"KAVR": 150.0, "TA1": 1.2, "TA2": 0.08, "TA3": 0.6, "TA4": 8.0, "TE": 0.03}
+    variants = lag_variants(unit, avr)
+    assert len(variants) == 2 and variants[1]["TE"] == 0.08 and variants[1]["TA2"] == 0.03
+    ref = None
+    for v in variants:
+        vals = unit.values()
+        vals.update(v)
+        efd, _, _ = simulate(vals, u, DT)
+        ref = efd if ref is None else ref
+        assert np.max(np.abs(efd - ref)) < 1e-6
+    # with a ceiling the two are different models
+    outs = []
+    for v in variants:
+        vals = unit.values()
+        vals.update(v)
+        vals.update({"VRMAX": 2.0, "VRMIN": -0.5})
+        outs.append(simulate(vals, u, DT)[0])
+    assert np.max(np.abs(outs[0] - outs[1])) > 0.05
+
+
+# ---------------------------------------------------------------- the JSON contract and the CLI
+
+SMALL = SuiteConfig(rate_hz=500.0, duration_s=8.0)
+FAST = Budget(base=600, effect=200)
+
+
+@pytest.fixture(scope="module")
+def ceiling_case():
+    return make_case("ceiling_limit", 11, SMALL)
+
+
+@pytest.fixture(scope="module")
+def diag(unit, ceiling_case):
+    return diagnose(ceiling_case.capture, unit, holdout=ceiling_case.holdout, budget=FAST, command_line="test")
+
+
+def test_diagnosis_json_keys(diag):
+    for key in ("schema", "software_version", "command_line", "created_utc", "capture", "holdout", "base",
+                "noise_floor", "localization", "features", "effects", "ambiguous", "sequence", "verdict"):
+        assert key in diag
+    assert diag["schema"] == SCHEMA
+    assert set(diag["base"]) >= {"params", "mse", "mse_holdout"}
+    assert {s["name"] for s in diag["localization"]["segments"]} == {
+        "pre_trigger", "leading_edge", "plateau", "trailing_edge", "recovery"}
+    for f in diag["features"]:
+        assert set(f) >= {"name", "detected", "evidence"} and f["evidence"]
+    assert len(diag["effects"]) == 8
+    for e in diag["effects"]:
+        assert set(e) >= {"name", "params", "mse", "mse_holdout", "gap_closed", "score", "aic"}
+    scores = [e["score"] for e in diag["effects"]]
+    assert scores == sorted(scores)
+    json.dumps(diag, allow_nan=True)  # serialisable (the command maps inf / nan to null)
+
+
+def test_diagnosis_finds_the_ceiling_and_reports_the_gap(diag, ceiling_case):
+    assert diag["verdict"] == "ceiling_limit"
+    top = diag["effects"][0]
+    assert top["params"]["VRMAX"] == pytest.approx(ceiling_case.effect_params["VRMAX"], abs=0.03)
+    # gap_closed on the holdout, recomputed from the reported figures
+    floor_h = diag["noise_floor_detail"]["holdout"]
+    expect = (diag["base"]["mse_holdout"] - top["mse_holdout"]) / (diag["base"]["mse_holdout"] - floor_h)
+    assert top["gap_closed_holdout"] == pytest.approx(expect)
+    assert top["gap_closed_holdout"] > 0.8
+    assert diag["sequence"][0]["added"] == "ceiling_limit"
+
+
+def test_diagnosis_without_holdout_splits_the_record(unit, ceiling_case):
+    d = diagnose(ceiling_case.capture, unit, budget=FAST)
+    v = d["validation"]
+    assert v["kind"] == "split" and d["holdout"] is None
+    assert v["check"]["t0"] == pytest.approx(v["fit"]["t1"])
+    assert v["fit"]["t1"] == pytest.approx(2.0 + 1.0, abs=0.01)  # trailing edge + one pulse width
+    assert d["verdict"] == "ceiling_limit"
+
+
+def test_effect_free_capture_gives_none(unit):
+    case = make_case("none", 12, SMALL)
+    d = diagnose(case.capture, unit, holdout=case.holdout, budget=FAST)
+    assert d["verdict"] == "none"
+    assert d["sequence"] == [] and d["ambiguous"] == []
+    assert d["base"]["mse"] < 1.2 * d["noise_floor"]
+
+
+def test_cli_writes_the_diagnosis(tmp_path, ceiling_case):
+    from bench_ctl.cli import main
+    main_csv, _ = write_capture(tmp_path / "main.csv", ceiling_case.capture)
+    hold_csv, _ = write_capture(tmp_path / "hold.csv", ceiling_case.holdout)
+    out = tmp_path / "diag.json"
+    html = tmp_path / "diag.html"
+    rc = main(["diagnose", str(main_csv), "--holdout", str(hold_csv), "--json", str(out), "--report", str(html)])
+    assert rc == 1  # an effect was found
+    d = json.loads(out.read_text())
+    assert d["schema"] == SCHEMA and d["verdict"] == "ceiling_limit"
+    page = html.read_text()
+    assert 'id="diagnosis-effects"' in page and "ceiling_limit" in page
+    assert d["capture"]["sha256"] and d["holdout"]["path"].endswith("hold.csv")
+    assert "diagnose" in d["command_line"]
+    assert main(["diagnose", str(tmp_path / "missing.csv")]) == 2
+
+
+def test_capture_without_pre_trigger_is_refused(unit):
+    t = np.arange(2000) * DT
+    u = np.where(t >= 0.005, 1.05, 1.0)
+    cap = Capture(t, u, np.ones_like(t), source="short.csv")
+    with pytest.raises(DiagnosisError, match="short.csv"):
+        diagnose(cap, unit)
+
+
+def test_ambiguous_pairs_name_the_separating_test():
+    from bench_ctl.diagnosis.which import AMBIGUOUS, ambiguous_pairs
+    entries = [{"name": "dead_time", "score": -500.0, "significant": True},
+               {"name": "time_skew", "score": -500.0 + AMBIGUOUS / 2, "significant": True},
+               {"name": "setpoint_ramp", "score": -500.0 + AMBIGUOUS / 3, "significant": False},
+               {"name": "rate_limit", "score": -400.0, "significant": True}]
+    amb = ambiguous_pairs(entries)
+    assert [a["effects"] for a in amb] == [["dead_time", "time_skew"]]
+    assert "second channel" in amb[0]["separating_test"]
+    entries[0]["significant"] = False
+    assert ambiguous_pairs(entries) == []
