@@ -30,17 +30,11 @@ from bench_ctl.model.params import KERNEL_PARAMS
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import Unit, UnitError, apply_overrides, load_unit
 
+from .options import fmt_value as _fmt
+
 log = logging.getLogger(__name__)
 
 EXIT_NONE, EXIT_EFFECT, EXIT_BAD_INPUT = 0, 1, 2
-
-
-def _fmt(v: Any, spec: str = ".4g") -> str:
-    if v is None:
-        return "-"
-    if isinstance(v, float) and not math.isfinite(v):
-        return str(v)
-    return format(v, spec)
 
 
 def summary(d: dict[str, Any]) -> str:

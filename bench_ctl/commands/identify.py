@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import shlex
 import sys
@@ -31,17 +30,11 @@ from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.model.unit import UnitError, apply_overrides, load_unit
 
+from .options import fmt_value as _fmt
+
 log = logging.getLogger(__name__)
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
-
-
-def _fmt(v: Any, spec: str = ".4g") -> str:
-    if v is None:
-        return "-"
-    if isinstance(v, float) and not math.isfinite(v):
-        return str(v)
-    return format(v, spec)
 
 
 def summary(ident: Identification) -> str:

@@ -1,7 +1,8 @@
 """Click options shared by the commands that take a unit: --unit, --set, --effect."""
 from __future__ import annotations
 
-from typing import Sequence
+import math
+from typing import Any, Sequence
 
 import click
 
@@ -45,3 +46,12 @@ def build_unit(unit_path: str | None, overrides: Sequence[str], effects: Sequenc
         return unit.with_effects(parsed) if parsed else unit
     except ValueError as exc:
         raise UnitError(str(exc)) from None
+
+
+def fmt_value(v: Any, spec: str = ".4g") -> str:
+    """A number for a summary table: '-' for missing, 'inf'/'nan' as such."""
+    if v is None:
+        return "-"
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    return format(v, spec)
