@@ -252,6 +252,10 @@ def test_effect_free_capture_gives_none(unit):
     assert d["verdict"] == "none"
     assert d["sequence"] == [] and d["ambiguous"] == []
     assert d["base"]["mse"] < 1.2 * d["noise_floor"]
+    # no gap to close: the headline fraction is withheld, the raw figures stay for the record
+    assert d["base"]["at_noise_floor"] is True
+    assert all(e["gap_closed"] is None and e["gap_closed_on"] is None for e in d["effects"])
+    assert all(e["gap_closed_fit"] is not None for e in d["effects"])
 
 
 def test_cli_writes_the_diagnosis(tmp_path, ceiling_case):

@@ -311,6 +311,26 @@ def test_minimal_result_not_available_and_failed_constraint(bench: dict, tmp_pat
     assert (d / "r_response.png").exists()  # <stem>_<name>.png
 
 
+def test_diagnosis_at_noise_floor_says_gap_not_applicable(bench: dict, tmp_path: Path) -> None:
+    """A base model at the noise floor leaves no gap: no fraction, no bar chart of noise."""
+    diag = json.loads(json.dumps(bench["diagnosis"]))
+    diag["base"]["at_noise_floor"] = True
+    diag["verdict"] = "none"
+    diag["sequence"] = []
+    for e in diag["effects"]:
+        e["gap_closed"] = None
+    (tmp_path / "diag.json").write_text(json.dumps(diag), encoding="utf-8")
+    rc = main(["report", str(bench["dir"] / "result.json"), "--diagnosis", str(tmp_path / "diag.json"),
+               "-o", str(tmp_path / "r.html")])
+    assert rc == 0
+    page = Page((tmp_path / "r.html").read_text(encoding="utf-8"))
+    effects = page.text_of["diagnosis-effects"]
+    assert effects.count("n/a: base model at the noise floor") == 2
+    assert "gap-rate_limit" not in page.by_id
+    assert "fig-diagnosis_effects" not in page.by_id and not (tmp_path / "r_diagnosis_effects.png").exists()
+    assert "no gap to close" in page.text_of["sec-diagnosis"]
+
+
 # --- refusals: exit code 2, clear message, nothing written ---------------------------------
 
 def _write_result(d: Path, result: dict) -> Path:

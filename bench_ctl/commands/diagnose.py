@@ -52,6 +52,8 @@ def summary(d: dict[str, Any]) -> str:
     for f in d["features"]:
         lines.append(f"  [{'x' if f['detected'] else ' '}] {f['name']}: {f['evidence']}")
     lines += ["", f"{'effect':<16}{'mse':>11}{'mse check':>11}{'gap closed':>12}{'score':>11}  params"]
+    if b["at_noise_floor"]:
+        lines.append("  (gap closed: n/a, the base model is already at the noise floor)")
     for e in d["effects"]:
         params = ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items())
         lines.append(f"{e['name']:<16}{_fmt(e['mse']):>11}{_fmt(e['mse_holdout']):>11}"

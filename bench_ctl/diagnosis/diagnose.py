@@ -243,6 +243,9 @@ def _entries(unit: Unit, st: _Setup, base: ModelFit, fits: Mapping[str, ModelFit
     s_base = score(base, n, n_c)
     check, floor = st.check, st.floor
     use_check = base.mse_check is not None and base.mse_check > check.floor * (1 + 3 * st.check_se)
+    # a base model at the noise floor leaves no gap: a fraction of (nearly) nothing would be noise
+    # scaled up (values like -60), so the headline gap_closed is None; the raw figures stay below
+    at_floor = base.mse <= st.floor_tol
     entries = []
     for e, m in fits.items():
         d_bic = bic_base - bic(n, m.mse, m.k)
@@ -255,7 +258,8 @@ def _entries(unit: Unit, st: _Setup, base: ModelFit, fits: Mapping[str, ModelFit
             "name": e, "params": m.effect_params(),
             "avr_params": {p: m.params[p] for p in unit.identified_names},
             "mse": m.mse, "mse_holdout": m.mse_check,
-            "gap_closed": g_check if use_check else g_fit, "gap_closed_on": check.label if use_check else "fit",
+            "gap_closed": None if at_floor else (g_check if use_check else g_fit),
+            "gap_closed_on": None if at_floor else (check.label if use_check else "fit"),
             "gap_closed_fit": g_fit, "gap_closed_fit_raw": g_fit_raw,
             "gap_closed_holdout": g_check, "gap_closed_holdout_raw": g_check_raw,
             "score": score(m, n, n_c) - s_base, "aic": aic(n, m.mse, m.k), "bic": bic(n, m.mse, m.k),

@@ -15,6 +15,8 @@ from bench_ctl.report.blocks import (NOT_AVAILABLE, Block, Fig, Heading, Num, Pa
                                      fmt, num, table)
 from bench_ctl.report.inputs import same_file
 
+NO_GAP = "n/a: base model at the noise floor"
+
 PDF_METHOD = "matplotlib PdfPages (text pages with the tables, then the figures, A4)"
 
 
@@ -48,19 +50,24 @@ def diagnosis(d: ReportData) -> Section | None:
             rows.append((label, fmt(g[key], 5)))
     blocks.append(table(("item", "value"), rows, id="diagnosis-summary", kind="kv"))
     effects = _objs(g.get("effects"))
+    at_floor = base.get("at_noise_floor") is True
     if effects:
         blocks.append(table(
             ("rank", "effect", "parameters", "MSE (pu²)", "MSE hold-out (pu²)", "gap closed",
              "score", "AIC", "significant"),
             [(str(i + 1), str(e.get("name", "?")), fmt(e.get("params") or {}, 4),
               Num(num(e.get("mse"))), Num(num(e.get("mse_holdout"))),
-              Num(num(e.get("gap_closed")), f"gap-{e.get('name')}", 3),
+              (NO_GAP if at_floor else Num(num(e.get("gap_closed")), f"gap-{e.get('name')}", 3)),
               Num(num(e.get("score")), digits=4), Num(num(e.get("aic")), digits=5),
               fmt(e["significant"]) if isinstance(e.get("significant"), bool) else "—")
              for i, e in enumerate(effects)], id="diagnosis-effects",
             caption="Effects ranked, best first (gap closed: fraction of the base model's "
                     "excess MSE over the noise floor that the effect removes)"))
-        if any(num(e.get("gap_closed")) is not None for e in effects):
+        if at_floor:
+            blocks.append(Para("Gap closed is not applicable: the base model already fits to within the "
+                               "noise floor, so there is no gap to close. Effects are ranked by score "
+                               "(likelihood on the fit and check records).", "na"))
+        elif any(num(e.get("gap_closed")) is not None for e in effects):
             blocks.append(Fig("diagnosis_effects", "How much of the gap between the base model "
                               "and the noise floor each effect closes.",
                               partial(F.draw_effects, effects=effects),
