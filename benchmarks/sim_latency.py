@@ -29,17 +29,14 @@ import serial
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient  # noqa: E402
+from pymodbus.framer import FramerRTU  # noqa: E402
 
 from simulators.bench import SimBench  # noqa: E402
 
 
 def crc16(data: bytes) -> bytes:
-    c = 0xFFFF
-    for x in data:
-        c ^= x
-        for _ in range(8):
-            c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
-    return bytes([c & 0xFF, c >> 8])
+    """Modbus RTU CRC, bytes in wire order (pymodbus returns it as a big-endian int)."""
+    return FramerRTU.compute_CRC(data).to_bytes(2, "big")
 
 
 def stats_ms(xs: list[float]) -> tuple[float, float]:

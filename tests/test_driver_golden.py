@@ -18,6 +18,7 @@ from drivers.exciter import Exciter
 from drivers.link import Endpoint, ModbusLink
 from drivers.profile import load_profile
 from drivers.recorder import Recorder
+from wire import crc16, rtu
 
 
 class ScriptedDevice:
@@ -62,21 +63,6 @@ class ScriptedDevice:
     def finish(self) -> None:
         assert self._done.wait(5), "the scripted device did not finish"
         self._srv.close()
-
-
-def crc16(frame: bytes) -> bytes:
-    """Modbus RTU CRC-16 (poly 0xA001 reflected, init 0xFFFF), low byte first."""
-    crc = 0xFFFF
-    for b in frame:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes([crc & 0xFF, crc >> 8])
-
-
-def rtu(hexstr: str) -> bytes:
-    frame = bytes.fromhex(hexstr)
-    return frame + crc16(frame)
 
 
 def h(hexstr: str) -> bytes:

@@ -14,14 +14,9 @@ from bench_ctl.identification.identifiability import analyse
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.synthetic import synthetic_capture
-from bench_ctl.model.unit import apply_overrides, reference_unit
+from bench_ctl.model.unit import apply_overrides
+from truth import TRUTH
 
-TRUTH = {"KAVR": 200.0, "TA1": 1.0, "TA2": 0.3, "TA3": 0.1, "TA4": 2.0, "TE": 0.03}
-
-
-@pytest.fixture(scope="module")
-def unit():
-    return reference_unit()
 
 
 def _unit_with(unit, values):

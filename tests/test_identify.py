@@ -17,24 +17,13 @@ from bench_ctl.cli import main
 from bench_ctl.identification.identify import identify, run_identification
 from bench_ctl.identification.synthetic import noise_variance, synthetic_capture
 from bench_ctl.model.simulate import RecorderModel
-from bench_ctl.model.unit import apply_overrides, reference_unit
+from truth import TRUTH
 
-TRUTH = {"KAVR": 200.0, "TA1": 1.0, "TA2": 0.3, "TA3": 0.1, "TA4": 2.0, "TE": 0.03}
 SCHEMA_KEYS = {"schema", "software_version", "command_line", "created_utc", "unit", "captures",
                "params", "fixed", "bounds", "constraints", "objective", "mse", "evaluations",
                "wall_s", "compile_s", "optimizer", "history", "identifiability"}
 IDENT_KEYS = {"sensitivity", "std", "rel_std", "correlation", "names", "determined",
               "equivalent_sets", "notes"}
-
-
-@pytest.fixture(scope="module")
-def unit():
-    return reference_unit()
-
-
-@pytest.fixture(scope="module")
-def truth_unit(unit):
-    return apply_overrides(unit, [f"{k}={v}" for k, v in TRUTH.items()])
 
 
 @pytest.fixture(scope="module")

@@ -14,12 +14,7 @@ from bench_ctl.capture import Capture
 from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.identification.synthetic import synthetic_capture
 from bench_ctl.model.simulate import simulate
-from bench_ctl.model.unit import apply_overrides, reference_unit
-
-
-@pytest.fixture(scope="module")
-def unit():
-    return reference_unit()
+from bench_ctl.model.unit import apply_overrides
 
 
 @pytest.fixture(scope="module")

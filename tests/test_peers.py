@@ -14,19 +14,8 @@ import pytest
 from bench_ctl.identification.peers import OPTIMIZERS, OpenLoopModel, SearchSpace, run_optimizer
 from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.synthetic import synthetic_capture
-from bench_ctl.model.unit import apply_overrides, reference_unit
+from truth import TRUTH
 
-TRUTH = {"KAVR": 200.0, "TA1": 1.0, "TA2": 0.3, "TA3": 0.1, "TA4": 2.0, "TE": 0.03}
-
-
-@pytest.fixture(scope="module")
-def unit():
-    return reference_unit()
-
-
-@pytest.fixture(scope="module")
-def truth_unit(unit):
-    return apply_overrides(unit, [f"{k}={v}" for k, v in TRUTH.items()])
 
 
 @pytest.fixture(scope="module")

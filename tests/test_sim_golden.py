@@ -11,15 +11,7 @@ import pytest
 import serial
 
 from simulators.bench import SimBench
-
-
-def crc16(data: bytes) -> bytes:
-    c = 0xFFFF
-    for x in data:
-        c ^= x
-        for _ in range(8):
-            c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
-    return bytes([c & 0xFF, c >> 8])
+from wire import crc16
 
 
 def test_crc_helper_matches_the_textbook_frames():
