@@ -121,3 +121,28 @@ def test_loop_catches_up_a_stall_in_one_burst():
     assert plant._ctrl[P.C_MAXBURST] >= 50
     assert plant._behind[0] >= 0.050                       # reported how late it was
     assert 0 <= (stop_ns - start_ns) * 1e-9 - plant.step * plant.dt < 0.03
+
+
+def test_plant_cache_is_flushed_when_the_kernel_source_changes(tmp_path):
+    """numba keys plant.py's cache on plant.py alone; a kernel.py edit must still reach the plant."""
+    from bench_ctl.model.plant import drop_stale_cache
+
+    class FakeCache:
+        cache_path = str(tmp_path / "cache")
+        flushes = 0
+
+        def flush(self):
+            FakeCache.flushes += 1
+
+    class FakeDispatcher:
+        _cache = FakeCache()
+
+    source = tmp_path / "kernel.py"
+    source.write_text("X = 1\n")
+    assert drop_stale_cache((FakeDispatcher(),), str(source)) is True  # no stamp yet
+    assert drop_stale_cache((FakeDispatcher(),), str(source)) is False  # stamp matches
+    assert FakeCache.flushes == 1
+    source.write_text("X = 2\n")
+    assert drop_stale_cache((FakeDispatcher(),), str(source)) is True
+    assert FakeCache.flushes == 2
+    assert drop_stale_cache((object(),), str(source)) is False  # not cached: nothing to do

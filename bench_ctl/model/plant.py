@@ -23,6 +23,7 @@ reports lag statistics.
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import os
@@ -30,6 +31,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 import numba as nb
@@ -277,6 +279,39 @@ def _rt_loop(D, X, vr_r, vr_l, ef_h, der_r, der_l, ctrl, sp_step, sp_val, fst, r
             ctrl[C_MAXBURST] = max(ctrl[C_MAXBURST], n)
         if behind_ns > dt_ns + 1_000_000:
             ctrl[C_STALLS] += 1
+
+
+def drop_stale_cache(dispatchers: tuple, source: str) -> bool:
+    """Flush the disk cache of `dispatchers` (this module's compiled functions) when `source`
+    (kernel.py, whose numerics they inline) changed since the cache was written.
+
+    numba keys a function's disk cache on the stamp of its own file only, so after an edit of
+    kernel.py the plant would keep running the old numerics from its cache. A hash of kernel.py
+    is kept beside the cache; when it differs the cached plant code is flushed and recompiled.
+    Returns True when it flushed."""
+    caches = [c for c in (getattr(d, "_cache", None) for d in dispatchers) if c is not None]
+    paths = {c.cache_path for c in caches if c.cache_path}
+    if not paths:
+        return False
+    digest = hashlib.sha256(Path(source).read_bytes()).hexdigest()
+    stamp = Path(sorted(paths)[0]) / f"{Path(__file__).stem}.kernel-sha256"
+    try:
+        if stamp.read_text(encoding="ascii").strip() == digest:
+            return False
+    except OSError:
+        pass
+    for c in caches:
+        c.flush()
+    try:
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+        stamp.write_text(digest + "\n", encoding="ascii")
+    except OSError as exc:  # a read-only cache folder: the code still runs, compiled afresh
+        log.debug("cannot write %s: %s", stamp, exc)
+    return True
+
+
+_COMPILED = (_rk4_step, _advance, _now_ns, _rt_loop)
+drop_stale_cache(_COMPILED, K.__file__)
 
 
 @dataclass(frozen=True)
