@@ -204,7 +204,7 @@ def _progress_bar(run: RunContext) -> Any:
         return None
     from tqdm import tqdm
 
-    bar = tqdm(unit="block", desc="download", leave=False)
+    bar = tqdm(unit="block", desc="download", leave=False, disable=None)  # None: off unless a terminal
 
     def update(done: int, total: int) -> None:
         bar.total = total
