@@ -146,3 +146,11 @@ def test_plant_cache_is_flushed_when_the_kernel_source_changes(tmp_path):
     assert drop_stale_cache((FakeDispatcher(),), str(source)) is True
     assert FakeCache.flushes == 2
     assert drop_stale_cache((object(),), str(source)) is False  # not cached: nothing to do
+
+
+def test_timer_probe_never_wakes_before_its_deadline():
+    """The machine baseline of benchmarks/sim_latency.py: absolute deadlines, lateness >= 0."""
+    got = P.timer_jitter(0.05, rt_priority=None)
+    assert got["wakeups"] == 50 and got["rt_priority"] is False
+    assert 0.0 <= got["late_median_ms"] <= got["late_p99_ms"] <= got["late_max_ms"]
+    assert got["late_over_5ms"] <= got["late_over_1ms"] <= 50

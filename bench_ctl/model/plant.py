@@ -281,6 +281,46 @@ def _rt_loop(D, X, vr_r, vr_l, ef_h, der_r, der_l, ctrl, sp_step, sp_val, fst, r
             ctrl[C_STALLS] += 1
 
 
+@nb.njit(cache=True, nogil=True)
+def _sleep_probe(ctrl, t0_ns, dt_ns, n, late):
+    """Sleep to n absolute deadlines dt_ns apart, as the plant loop does, and store how late each
+    wake-up came (ns). Nothing else runs: what it measures is the machine's timer jitter."""
+    for k in range(n):
+        deadline = t0_ns + (k + 1) * dt_ns
+        ctrl[C_TS] = deadline // 1_000_000_000
+        ctrl[C_TS1] = deadline % 1_000_000_000
+        _clock_nanosleep(np.int32(CLOCK_MONOTONIC), np.int32(TIMER_ABSTIME), ctrl.ctypes.data + 8 * C_TS)
+        late[k] = _now_ns(ctrl) - deadline
+
+
+def timer_jitter(seconds: float, *, dt: float = 1e-3, rt_priority: int | None = 10) -> dict[str, float]:
+    """The machine's own wake-up lateness for a loop like the plant's (same clock calls, same
+    priority, no model): the floor under the plant's timing figures on this host."""
+    n = max(1, int(round(seconds / dt)))
+    late = np.zeros(n, np.int64)
+    ctrl = np.zeros(N_CTRL, np.int64)
+    dt_ns = int(round(dt * 1e9))
+    _sleep_probe(ctrl, _now_ns(ctrl), dt_ns, 1, late[:1])  # compile / load before timing
+    rt = [False]
+
+    def run() -> None:
+        if rt_priority is not None and hasattr(os, "sched_setscheduler"):
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
+                rt[0] = True
+            except (PermissionError, OSError):
+                pass
+        _sleep_probe(ctrl, _now_ns(ctrl), dt_ns, n, late)
+
+    th = threading.Thread(target=run, name="timer-probe")
+    th.start()
+    th.join()
+    ms = late * 1e-6
+    return {"wakeups": n, "rt_priority": rt[0], "late_median_ms": float(np.median(ms)),
+            "late_p99_ms": float(np.percentile(ms, 99)), "late_max_ms": float(ms.max()),
+            "late_over_1ms": int(np.count_nonzero(ms > 1.0)), "late_over_5ms": int(np.count_nonzero(ms > 5.0))}
+
+
 def drop_stale_cache(dispatchers: tuple, source: str) -> bool:
     """Flush the disk cache of `dispatchers` (this module's compiled functions) when `source`
     (kernel.py, whose numerics they inline) changed since the cache was written.
@@ -310,7 +350,7 @@ def drop_stale_cache(dispatchers: tuple, source: str) -> bool:
     return True
 
 
-_COMPILED = (_rk4_step, _advance, _now_ns, _rt_loop)
+_COMPILED = (_rk4_step, _advance, _now_ns, _rt_loop, _sleep_probe)
 drop_stale_cache(_COMPILED, K.__file__)
 
 
