@@ -184,7 +184,9 @@ def test_sections_in_order_and_verdict(bench: dict) -> None:
     page = bench["page"]
     assert bench["rc"] == 0
     assert page.sections == SECTIONS_FULL
-    assert "PASS" in page.text_of["verdict"]
+    # TA3, TA4 undetermined: nothing fails, the warning is in the headline, not only in the table
+    assert page.text_of["verdict"].startswith("PASS WITH WARNINGS")
+    assert page.by_id["verdict"]["class"] == "verdict WARN"
     checks = page.text_of["checks"]
     assert "reported MSE reproduced" in checks and "not determined by the capture: TA3, TA4" in checks
 

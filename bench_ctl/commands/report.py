@@ -7,7 +7,8 @@ Writes one self-contained HTML page (figures embedded, nothing fetched), each fi
 `<stem>_<name>.png` beside it, and the PDF (matplotlib PdfPages) when asked. Capture paths in
 the result are used as written, else relative to the result file's folder.
 
-Exit codes: 0 report written, every check passed; 1 report written, a check failed (constraint
+Exit codes: 0 report written, no check failed (PASS, or PASS WITH WARNINGS: a fit well above
+the noise floor, undetermined parameters, a value on a bound); 1 report written, a check failed (constraint
 violated, reported MSE not reproduced, model blew up); 2 nothing written: the result, the
 diagnosis or a capture was refused (missing file, SHA-256 mismatch, malformed JSON) or the
 output could not be written.
@@ -21,7 +22,7 @@ from pathlib import Path
 import click
 
 from bench_ctl.report import ReportError, analyse, load_json, write_report
-from bench_ctl.report.checks import DEFAULT_NOISE_RATIO_LIMIT
+from bench_ctl.report.checks import DEFAULT_NOISE_RATIO_LIMIT, FAIL
 from bench_ctl.report.inputs import DIAGNOSIS_SCHEMA, RESULT_SCHEMA
 from bench_ctl.report.metrics import DEFAULT_EDGE_WINDOW_S
 
@@ -84,4 +85,4 @@ def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | No
         if c.status in ("fail", "warn"):
             click.echo(f"{c.status.upper()}: {c.name}: {c.detail}")
     click.echo(f"overall: {data.verdict}")
-    return EXIT_OK if data.verdict == "PASS" else EXIT_FAILED
+    return EXIT_FAILED if data.verdict == FAIL else EXIT_OK

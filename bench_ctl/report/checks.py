@@ -1,7 +1,8 @@
 """The pass / fail summary of a report, and an independent re-check of the constraints.
 
 Each `Check` is `pass`, `fail`, `warn` or `n/a`; the overall verdict is FAIL when any check
-fails, else PASS (warnings are shown but do not fail). What fails: the re-simulation blew up,
+fails, PASS WITH WARNINGS when one warns (the reader of a bare "PASS" would take a fit 30 times
+the noise floor for a validated model), else PASS. What fails: the re-simulation blew up,
 the reported MSE is not reproduced by re-simulating the result's parameters on the capture, a
 constraint is violated (as reported, or as re-evaluated here). What warns: the MSE is more than
 `noise_ratio_limit` times the noise floor, a parameter is not determined by the capture, an
@@ -32,8 +33,18 @@ class Check:
     detail: str
 
 
+PASS, PASS_WARN, FAIL = "PASS", "PASS WITH WARNINGS", "FAIL"
+
+
 def overall(checks: list[Check]) -> str:
-    return "FAIL" if any(c.status == "fail" for c in checks) else "PASS"
+    if any(c.status == "fail" for c in checks):
+        return FAIL
+    return PASS_WARN if any(c.status == "warn" for c in checks) else PASS
+
+
+def verdict_class(verdict: str) -> str:
+    """The one-word style class of a verdict (PASS, WARN, FAIL)."""
+    return "WARN" if verdict == PASS_WARN else verdict
 
 
 def _eval(node: ast.AST, values: Mapping[str, float]) -> float:

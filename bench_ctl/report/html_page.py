@@ -9,6 +9,7 @@ import html
 from collections.abc import Mapping, Sequence
 
 from bench_ctl.report.blocks import Cell, Fig, Heading, Num, Para, Section, Status, Table, Verdict
+from bench_ctl.report.checks import verdict_class
 
 CSS = """
 :root { --pass: #1e7e34; --fail: #c5221f; --warn: #b26a00; --na: #666; }
@@ -27,6 +28,7 @@ p.na { color: var(--na); font-style: italic; }
 .verdict b { font-size: 22px; margin-right: 12px; }
 .verdict.PASS { border-color: var(--pass); background: #e8f5ec; }
 .verdict.FAIL { border-color: var(--fail); background: #fdecea; }
+.verdict.WARN { border-color: var(--warn); background: #fff4e0; }
 .tw { overflow-x: auto; }
 table { border-collapse: collapse; margin: 8px 0 14px 0; font-size: 13px; }
 caption { caption-side: top; text-align: left; font-weight: bold; padding: 2px 0 4px 0; }
@@ -112,7 +114,7 @@ def render_html(title: str, subtitle: str, sections: Sequence[Section],
             elif isinstance(b, Table):
                 parts.append(_table(b))
             elif isinstance(b, Verdict):
-                parts.append(f'<div class="verdict {esc(b.verdict)}" id="verdict"><b>'
+                parts.append(f'<div class="verdict {esc(verdict_class(b.verdict))}" id="verdict"><b>'
                              f"{esc(b.verdict)}</b>{esc(b.text)}</div>")
             elif isinstance(b, Fig):
                 parts.append(_figure(b, pngs[b.name]))
