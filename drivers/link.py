@@ -11,8 +11,11 @@
   write take the link before its deadline so no other request delays it;
 - `connect()` raises instead of returning False; `reconnect(deadline)` retries until a deadline.
 
-Endpoint URLs: `tcp://HOST:PORT` (Modbus TCP), anything else is a serial port for Modbus RTU:
-a device path (`/dev/ttyUSB0`, a pty) or a pyserial URL (`socket://127.0.0.1:PORT`).
+Endpoint URLs: `tcp://HOST:PORT` (Modbus TCP); `rtu+tcp://HOST:PORT` (Modbus RTU frames over a
+TCP socket: a serial device server / gateway in transparent mode, or the simulated recorder);
+anything else is a serial port for Modbus RTU: a device path (`/dev/ttyUSB0`, a pty) or a
+pyserial URL (`socket://HOST:PORT`, which works but is slow: pymodbus' serial client waits on
+pyserial's `in_waiting`, which a socket reports as 0 or 1 byte, ~50 ms a request).
 """
 from __future__ import annotations
 
@@ -102,23 +105,30 @@ class Endpoint:
 
     @property
     def is_tcp(self) -> bool:
+        """Modbus TCP (MBAP framing)."""
         return self.url.startswith("tcp://")
 
+    @property
+    def is_rtu_over_tcp(self) -> bool:
+        """Modbus RTU framing on a TCP socket."""
+        return self.url.startswith("rtu+tcp://")
+
     def host_port(self) -> tuple[str, int]:
-        """(host, port) of a tcp:// URL; ValueError naming the URL otherwise."""
-        rest = self.url[len("tcp://"):] if self.is_tcp else ""
-        host, sep, port = rest.rpartition(":")
-        if not (self.is_tcp and sep and host and port.isdigit() and 0 < int(port) < 65536):
-            raise ValueError(f"endpoint {self.url!r}: expected tcp://HOST:PORT")
+        """(host, port) of a tcp:// or rtu+tcp:// URL; ValueError naming the URL otherwise."""
+        scheme = "tcp://" if self.is_tcp else "rtu+tcp://" if self.is_rtu_over_tcp else ""
+        host, sep, port = self.url[len(scheme):].rpartition(":") if scheme else ("", "", "")
+        if not (sep and host and port.isdigit() and 0 < int(port) < 65536):
+            raise ValueError(f"endpoint {self.url!r}: expected tcp://HOST:PORT or rtu+tcp://HOST:PORT")
         return host.strip("[]"), int(port)
 
 
 def _make_client(ep: Endpoint, frames: FrameLog) -> ModbusTcpClient | ModbusSerialClient:
     common: dict[str, Any] = dict(timeout=ep.timeout_s, retries=0, reconnect_delay=0,
                                   trace_packet=frames.trace_packet)
-    if ep.is_tcp:
+    if ep.is_tcp or ep.is_rtu_over_tcp:
         host, port = ep.host_port()
-        return ModbusTcpClient(host, port=port, **common)
+        framer = FramerType.RTU if ep.is_rtu_over_tcp else FramerType.SOCKET
+        return ModbusTcpClient(host, port=port, framer=framer, **common)
     return ModbusSerialClient(ep.url, framer=FramerType.RTU, baudrate=ep.baudrate,
                               parity=ep.parity, stopbits=ep.stopbits, bytesize=ep.bytesize,
                               **common)

@@ -117,13 +117,14 @@ def test_setpoint_write_vendor_profile_int32_cdab_scaled():
     assert p_mw == pytest.approx(-12.34, abs=1e-9)
 
 
-def test_recorder_arm_rtu_frames():
+@pytest.mark.parametrize("scheme", ["socket://", "rtu+tcp://"])  # pyserial URL, TCP client + RTU framer
+def test_recorder_arm_rtu_frames(scheme):
     # recorder: arm = holding 7, write 1 (function 16), unit 1, RTU framing with CRC
     dev = ScriptedDevice([
         (11, rtu("01 10 0007 0001")),
         (8, rtu("01 03 02 0001")),
     ])
-    link = ModbusLink(Endpoint(f"socket://127.0.0.1:{dev.port}", unit_id=1, timeout_s=1.0),
+    link = ModbusLink(Endpoint(f"{scheme}127.0.0.1:{dev.port}", unit_id=1, timeout_s=1.0),
                       "recorder")
     rec = Recorder(link, load_profile("sim-recorder"))
     rec.connect()

@@ -126,6 +126,17 @@ def test_download_checks_and_converts(recorded, tmp_path):
         raw.save(tmp_path / "raw.bin")
 
 
+def test_rtu_over_tcp_downloads_the_same_record(recorded):
+    """A serial device server (rtu+tcp://) reaches the same recorder: same bytes as the pty."""
+    sim, rec = recorded
+    over_tcp = make_recorder(sim.endpoints.recorder_rtu_tcp)
+    try:
+        a, b = rec.download(), over_tcp.download()
+    finally:
+        over_tcp.close()
+    assert b.payload() == a.payload() and b.block_retries == 0 and b.sample_count == 300
+
+
 def test_corrupted_blocks_are_detected_and_read_again(recorded):
     sim, rec = recorded
     clean = rec.download()

@@ -172,3 +172,22 @@ def test_manual_trigger_on_the_url(bench):
         c.write_register(RATE, 1000, device_id=1)
         c.write_register(MODE, 1, device_id=1)
         c.close()
+
+
+def test_bench_freezes_the_start_up_objects_for_the_collector_and_thaws_them():
+    """A full collection over numba/numpy/pymodbus objects stalls every thread for ~60 ms; a
+    running bench keeps them out of it (gc.freeze); the last bench to stop gives them back."""
+    import gc
+
+    import simulators.bench as B
+
+    others = B._freeze_users  # a module-scoped bench of another test may be running
+    with SimBench(serial=False) as outer:
+        assert outer.endpoints.recorder_rtu_tcp.startswith("rtu+tcp://127.0.0.1:")
+        frozen = gc.get_freeze_count()
+        assert frozen > 10_000
+        with SimBench(serial=False):
+            assert B._freeze_users == others + 2
+        assert gc.get_freeze_count() > frozen // 2  # the inner stop did not thaw the outer bench
+    assert B._freeze_users == others
+    assert (gc.get_freeze_count() == 0) == (others == 0)

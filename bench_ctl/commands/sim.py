@@ -42,7 +42,8 @@ def _hostport(text: str, option: str) -> tuple[str, int]:
 @click.option("--tcp", default="127.0.0.1:5020", show_default=True, metavar="HOST:PORT",
               help="Exciter Modbus TCP address (port 0: any free port).")
 @click.option("--recorder-tcp", default="127.0.0.1:5021", show_default=True, metavar="HOST:PORT",
-              help="Recorder RTU-over-TCP address (serial client URL socket://HOST:PORT).")
+              help="Recorder RTU-over-TCP address (bench config url rtu+tcp://HOST:PORT; "
+                   "pyserial clients: socket://HOST:PORT).")
 @click.option("--serial", "serial_link", default=None, metavar="PATH",
               help="Also make PATH a symlink to the recorder's pseudo-terminal.")
 @click.option("--no-serial", is_flag=True, help="Do not open a pseudo-terminal for the recorder.")

@@ -14,8 +14,9 @@ typo in a limit must never fall back to a default). Quantities carry their unit 
     heartbeat_period_s = 0.25
 
     [recorder]                        # Modbus RTU on a serial port or pyserial URL
-    url = "/dev/ttyUSB0"              # or a pyserial URL, "socket://HOST:PORT" (slow for block
-                                      # downloads: pymodbus 3.16 reads it ~1 byte per ms)
+    url = "/dev/ttyUSB0"              # or "rtu+tcp://HOST:PORT" (a serial device server in
+                                      # transparent mode); a pyserial "socket://HOST:PORT" works
+                                      # but is slow (pymodbus 3.16 reads it ~1 byte per ms)
     unit_id = 1
     profile = "sim-recorder"
     timeout_s = 0.5

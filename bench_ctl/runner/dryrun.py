@@ -71,7 +71,7 @@ def simulated_bench(config: BenchConfig, *, recorder_link: str = "serial",
                     **sim_options: Any) -> Iterator[tuple[BenchConfig, dict[str, Any]]]:
     """Yield (config pointed at a fresh simulated bench, its endpoints as a dict).
 
-    `recorder_link` "serial" uses the pty, "url" the socket:// endpoint; `sim_options` go to
+    `recorder_link` "serial" uses the pty, "url" the RTU-over-TCP socket (rtu+tcp://); `sim_options` go to
     `SimBench` (e.g. `unit=`, `load_mw=`; they must be picklable).
     """
     options = {"exciter_profile": config.exciter.profile,
@@ -88,7 +88,7 @@ def simulated_bench(config: BenchConfig, *, recorder_link: str = "serial",
             raise RuntimeError(f"the simulated bench failed to start:\n{reply['error']}")
         ep = reply
         recorder = (ep["recorder_serial"] if recorder_link == "serial"
-                    else f"socket://{ep['recorder_host']}:{ep['recorder_port']}")
+                    else f"rtu+tcp://{ep['recorder_host']}:{ep['recorder_port']}")
         if recorder is None:
             raise RuntimeError("the simulated bench has no serial line (serial=False)")
         pointed = config.with_endpoints(
