@@ -191,6 +191,10 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
     run.note("criteria", criteria=[c.to_dict() for c in criteria])
     summary = (f"recorded width {pulse.width_s * 1e3:.1f} ms (commanded {width_s * 1e3:.1f} ms), "
                f"amplitude {pulse.amplitude_pu:.5f} pu (commanded {amplitude_pu:.5f} pu)")
+    host_late_s = commanded_width_s - width_s
+    if abs(host_late_s) > width_tolerance_s:  # the width error is the host's, not the device's
+        summary += (f"; this host sent the restore write {host_late_s * 1e3:+.1f} ms off its deadline "
+                    f"(the process or the machine stalled), so the pulse was that much off on the wire")
     return ProcedureResult(criteria=criteria, summary=summary,
                            data={"width_err_s": width_err, "amplitude_err_pu": amp_err,
                                  "recorded": pulse.__dict__, "download_s": raw.download_s,

@@ -173,6 +173,23 @@ def test_download_that_stays_corrupted_fails_loudly_keeping_what_there_is(bench,
     assert device_writes(proxy) == PULSE_AND_RESTORE                 # the test itself was done
 
 
+def test_host_stall_during_the_pulse_fails_the_width_and_says_whose_fault(bench, tmp_path):
+    """The process stalls past the restore deadline (as a loaded VM does for tens of ms): the
+    recorded pulse is too wide, the test fails, and the summary puts it on the host."""
+    sim, proxy = bench
+    stall_s = FAST["width_s"] + 0.08
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                        params=FAST, hooks={"pulse_applied": lambda run: time.sleep(stall_s)})
+    assert out.exit_code == 1, out.message
+    width = [c for c in out.criteria if c.name == "pulse width error"][0]
+    assert not width.passed and width.value > FAST["width_tolerance_s"]
+    late_ms = (out.data["commanded_width_s"] - FAST["width_s"]) * 1e3
+    assert late_ms > 70
+    assert "this host sent the restore write +" in out.message and "stalled" in out.message
+    assert abs(out.data["width_err_s"] * 1e3 - late_ms) < 5  # the wire width is what the host sent
+    assert device_writes(proxy) == PULSE_AND_RESTORE
+
+
 def test_pulse_above_the_cap_is_refused_before_any_write(bench, tmp_path):
     sim, proxy = bench
     out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
