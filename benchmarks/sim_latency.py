@@ -7,7 +7,8 @@ delay from a setpoint write to its appearance in the recorded usetp channel.
 Latency is measured with minimal raw-frame clients (what the simulator itself costs) and with
 pymodbus 3.16 sync clients (what a driver sees; its serial client polls the port every 1 ms and
 waits for a quiet line, and over a socket:// URL pyserial reports only 0/1 bytes waiting, which
-makes it much slower). The timing run keeps a procedure-like load on the bench: a 20 Hz poll of
+makes it much slower; `recorder_rtu_tcp` is the same socket through the TCP client with the RTU
+framer, the drivers' rtu+tcp:// endpoint). The timing run keeps a procedure-like load on the bench: a 20 Hz poll of
 the exciter with heartbeats, and a 10 s recording downloaded over the pseudo-terminal (its
 download time is reported too). Before the bench starts, `machine_timer_*` is the host's own
 wake-up lateness for a bare 1 kHz sleeper with the plant's clock calls and priority
@@ -33,7 +34,7 @@ import serial
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient  # noqa: E402
-from pymodbus.framer import FramerRTU  # noqa: E402
+from pymodbus.framer import FramerRTU, FramerType  # noqa: E402
 
 from bench_ctl.model.plant import timer_jitter  # noqa: E402
 from simulators.bench import SimBench  # noqa: E402
@@ -114,6 +115,12 @@ def latency(bench: SimBench, n: int) -> dict[str, float]:
         r.connect()
         res[name] = pymodbus_latency(lambda: r.read_input_registers(0, count=18, device_id=1), count)
         r.close()
+    # the same socket as drivers reach it (rtu+tcp://): the TCP client with the RTU framer
+    r = ModbusTcpClient(ep.recorder_host, port=ep.recorder_port, framer=FramerType.RTU, timeout=1.0, retries=0)
+    r.connect()
+    res["recorder_rtu_tcp_pymodbus"] = pymodbus_latency(
+        lambda: r.read_input_registers(0, count=18, device_id=1), n)
+    r.close()
     out: dict[str, float] = {}
     for name, xs in res.items():
         med, p99 = stats_ms(xs)
