@@ -8,7 +8,6 @@ the slow lag shows, the lead-lag symmetry of the reference AVR).
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from bench_ctl.identification.identifiability import analyse
 from bench_ctl.identification.peers import run_optimizer

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from bench_ctl.model import plant as P
+from bench_ctl.model import realtime as RT
 from bench_ctl.model.plant import FLAG_CEILING, O_EFD, O_EFD_REC, O_USETP, O_VT, Plant
 from bench_ctl.model.simulate import pulse_usetp, simulate
 from bench_ctl.model.unit import load_unit
@@ -111,21 +111,22 @@ def test_loop_catches_up_a_stall_in_one_burst():
     start_ns = time.monotonic_ns() - 50_000_000
     args = (plant._D, plant._X, *plant._hist, plant._ctrl, plant._sp_step, plant._sp_val,
             plant._fst, plant._ring, plant._lag, plant._behind, start_ns, plant._dt_ns,
-            plant.usetp_pre, plant.dt, P.MAX_BURST)
-    th = threading.Thread(target=P._rt_loop, args=args)
+            plant.usetp_pre, plant.dt, RT.MAX_BURST)
+    th = threading.Thread(target=RT._rt_loop, args=args)
     th.start()
     time.sleep(0.1)
-    plant._ctrl[P.C_STOP] = 1
+    plant._ctrl[RT.C_STOP] = 1
     th.join()
     stop_ns = time.monotonic_ns()
-    assert plant._ctrl[P.C_MAXBURST] >= 50
+    assert plant._ctrl[RT.C_MAXBURST] >= 50
     assert plant._behind[0] >= 0.050                       # reported how late it was
     assert 0 <= (stop_ns - start_ns) * 1e-9 - plant.step * plant.dt < 0.03
 
 
 def test_plant_cache_is_flushed_when_the_kernel_source_changes(tmp_path):
-    """numba keys plant.py's cache on plant.py alone; a kernel.py edit must still reach the plant."""
-    from bench_ctl.model.plant import drop_stale_cache
+    """numba keys a module's cache on its own file alone; a kernel.py edit must still reach the
+    plant code that inlines it."""
+    from bench_ctl.model.plant_step import drop_stale_cache
 
     class FakeCache:
         cache_path = str(tmp_path / "cache")
@@ -137,20 +138,24 @@ def test_plant_cache_is_flushed_when_the_kernel_source_changes(tmp_path):
     class FakeDispatcher:
         _cache = FakeCache()
 
-    source = tmp_path / "kernel.py"
-    source.write_text("X = 1\n")
-    assert drop_stale_cache((FakeDispatcher(),), str(source)) is True  # no stamp yet
-    assert drop_stale_cache((FakeDispatcher(),), str(source)) is False  # stamp matches
+    kernel, step = tmp_path / "kernel.py", tmp_path / "plant_step.py"
+    kernel.write_text("X = 1\n")
+    step.write_text("Y = 1\n")
+    sources = (str(kernel), str(step))
+    assert drop_stale_cache((FakeDispatcher(),), sources, "m") is True  # no stamp yet
+    assert drop_stale_cache((FakeDispatcher(),), sources, "m") is False  # stamp matches
     assert FakeCache.flushes == 1
-    source.write_text("X = 2\n")
-    assert drop_stale_cache((FakeDispatcher(),), str(source)) is True
-    assert FakeCache.flushes == 2
-    assert drop_stale_cache((object(),), str(source)) is False  # not cached: nothing to do
+    kernel.write_text("X = 2\n")
+    assert drop_stale_cache((FakeDispatcher(),), sources, "m") is True
+    step.write_text("Y = 2\n")  # any of the sources
+    assert drop_stale_cache((FakeDispatcher(),), sources, "m") is True
+    assert FakeCache.flushes == 3
+    assert drop_stale_cache((object(),), sources, "m") is False  # not cached: nothing to do
 
 
 def test_timer_probe_never_wakes_before_its_deadline():
     """The machine baseline of benchmarks/sim_latency.py: absolute deadlines, lateness >= 0."""
-    got = P.timer_jitter(0.05, rt_priority=None)
+    got = RT.timer_jitter(0.05, rt_priority=None)
     assert got["wakeups"] == 50 and got["rt_priority"] is False
     assert 0.0 <= got["late_median_ms"] <= got["late_p99_ms"] <= got["late_max_ms"]
     assert got["late_over_5ms"] <= got["late_over_1ms"] <= 50

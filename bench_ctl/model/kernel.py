@@ -232,8 +232,6 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
             vr_r[c, q] = D[D_EFD0, c]; vr_l[c, q] = D[D_EFD0, c]
         for q in range(Ls):
             ef_h[c, q] = D[D_EFD0, c]
-    h2 = 0.5 * dt
-    h6 = dt / 6.0
     for k in range(T):
         # ---- record sample k (states at t_k); failed candidates hold their last output ----
         if any_skew:
