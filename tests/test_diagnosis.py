@@ -12,7 +12,7 @@ from bench_ctl.capture import Capture, write_capture
 from bench_ctl.diagnosis import SCHEMA, Budget, DiagnosisError, diagnose
 from bench_ctl.diagnosis import features as F
 from bench_ctl.diagnosis.blind import SuiteConfig, make_case
-from bench_ctl.diagnosis.diagnose import _gap
+from bench_ctl.diagnosis.diagnose import _gap, choose_verdict
 from bench_ctl.diagnosis.localize import (BANDS_HZ, band_shares, find_edges, localization, noise_floor,
                                           segments)
 from bench_ctl.diagnosis.which import lag_variants
@@ -160,6 +160,21 @@ def test_asymmetry_and_edge_shape(unit, traces, pulse):
 
 # ---------------------------------------------------------------- gap, lag variants
 
+def test_verdict_is_the_best_significant_effect_not_the_best_scored():
+    def e(name, score, d_bic, d_check, significant):
+        return {"name": name, "score": score, "delta_bic": d_bic, "delta_check": d_check,
+                "significant": significant}
+    # A fits the fit record far better but is worse on the check record: not significant
+    entries = [e("A", -195.0, 200.0, -5.0, False), e("B", -80.0, 50.0, 30.0, True),
+               e("C", 3.0, -3.0, 0.0, False)]
+    assert choose_verdict(entries, at_floor=False, has_check=True) == "B"
+    # at the noise floor B is not strong enough (delta BIC 50 < 100); nothing significant: none
+    assert choose_verdict(entries, at_floor=True, has_check=True) == "none"
+    assert choose_verdict([entries[0], entries[2]], at_floor=False, has_check=True) == "none"
+    strong = [e("A", -195.0, 200.0, -5.0, False), e("B", -300.0, 320.0, 40.0, True)]
+    assert choose_verdict(strong, at_floor=True, has_check=True) == "B"
+
+
 def test_gap_closed_formula():
     g, raw = _gap(3e-4, 1.5e-4, 1e-4, 0.05)
     assert g == pytest.approx((3e-4 - 1.5e-4) / (3e-4 - 1e-4)) and raw == pytest.approx(g)
@@ -241,9 +256,20 @@ def test_diagnosis_without_holdout_splits_the_record(unit, ceiling_case):
     d = diagnose(ceiling_case.capture, unit, budget=FAST)
     v = d["validation"]
     assert v["kind"] == "split" and d["holdout"] is None
-    assert v["check"]["t0"] == pytest.approx(v["fit"]["t1"])
+    cap = ceiling_case.capture
+    assert v["check"]["t0"] == pytest.approx(v["fit"]["t1"] + cap.dt)  # adjacent, both ends included
     assert v["fit"]["t1"] == pytest.approx(2.0 + 1.0, abs=0.01)  # trailing edge + one pulse width
     assert d["verdict"] == "ceiling_limit"
+    # the report re-simulates the base fit over the fit window: exactly the samples it was fitted on
+    from bench_ctl.commands.diagnose import base_result
+    from bench_ctl.model.simulate import simulate
+    from bench_ctl.report.metrics import window_slice
+
+    res = base_result(d, cap, unit)
+    sl = window_slice(cap.time, tuple(res["fit_window"]))
+    efd, _, _ = simulate({**unit.values(), **d["base"]["params"]}, cap.usetp, cap.dt)
+    assert sl.stop - sl.start == int(round(v["check"]["t0"] / cap.dt))
+    assert np.mean((cap.efd[sl] - efd[sl]) ** 2) == pytest.approx(d["base"]["mse"], rel=1e-9)
 
 
 def test_effect_free_capture_gives_none(unit):

@@ -97,7 +97,7 @@ def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, An
     efd, _vt, _fail = simulate(values, capture.usetp, capture.dt)
     val = d["validation"]
     t1 = val["fit"]["t1"]
-    k1 = capture.n if val["kind"] == "holdout" else int(round(t1 / capture.dt))
+    k1 = capture.n if val["kind"] == "holdout" else int(round(t1 / capture.dt)) + 1  # t1 included
     r = capture.efd[:k1] - efd[:k1]
     objective = float(capture.dt * (np.sum(r * r) - 0.5 * (r[0] ** 2 + r[-1] ** 2)))
     names = list(unit.identified_names)

@@ -146,7 +146,8 @@ def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: Edges, 
         rec = record_of(capture, n=k, label=src)
         check = Check(record_of(capture), k, floor.variance, "tail")
         check_se = floor.rel_se
-        validation = {"kind": "split", "fit": {"t0": 0.0, "t1": k * capture.dt},
+        # both windows include their ends (as fit windows do): the fit is samples 0 .. k-1
+        validation = {"kind": "split", "fit": {"t0": 0.0, "t1": (k - 1) * capture.dt},
                       "check": {"capture": src, "t0": k * capture.dt, "t1": (capture.n - 1) * capture.dt}}
     q = coarse_factor(unit, capture.dt, budget.coarse_dt)
     n_coarse = rec.n if edges.k_off is None else min(rec.n, edges.k_off + int(round(budget.coarse_tail_s / capture.dt)))
@@ -270,6 +271,19 @@ def _entries(unit: Unit, st: _Setup, base: ModelFit, fits: Mapping[str, ModelFit
     return entries
 
 
+def choose_verdict(entries: list[dict], *, at_floor: bool, has_check: bool) -> str:
+    """The verdict from the ranked `entries` (best score first): the best-scored SIGNIFICANT
+    effect (one scored higher but worse on the check record, or breaking a constraint, must not
+    hide it), or `none`. At the noise floor (within the floor estimate's uncertainty) only a
+    strong improvement counts: the floor comes from ~1000 pre-trigger samples, the likelihood
+    ratio from the whole record."""
+    top = next((e for e in entries if e["significant"]), None)
+    if top is None:
+        return "none"
+    strong = top["delta_bic"] > STRONG and (not has_check or top["delta_check"] > SIGNIFICANT)
+    return top["name"] if (strong or not at_floor) else "none"
+
+
 def _sequence(unit: Unit, st: _Setup, fits: Mapping[str, ModelFit], entries: list[dict], verdict: str,
               budget: Budget, seed: int) -> list[dict]:
     """Add effects greedily to the verdict while both the fit (BIC) and the check error improve."""
@@ -328,12 +342,8 @@ def diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, se
     loc = localization(model - capture.efd, capture.dt, edges)
 
     entries = _entries(unit, st, base, fits)
-    top = entries[0]
     at_floor = base.mse <= st.floor_tol
-    # at the noise floor (within the floor estimate's uncertainty) only a strong improvement counts:
-    # the floor comes from ~1000 pre-trigger samples, the likelihood ratio from the whole record
-    strong = top["delta_bic"] > STRONG and (base.mse_check is None or top["delta_check"] > SIGNIFICANT)
-    verdict = top["name"] if (top["significant"] and (strong or not at_floor)) else "none"
+    verdict = choose_verdict(entries, at_floor=at_floor, has_check=base.mse_check is not None)
     ambiguous = ambiguous_pairs(entries) if verdict != "none" else []
     sequence = _sequence(unit, st, fits, entries, verdict, budget, seed) if verdict != "none" else []
 
