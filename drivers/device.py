@@ -152,7 +152,9 @@ class RegisterDevice:
             self.guard(self.name, name, value, purpose)
         label = self._label(reg)
         if at_mono is not None:
-            wait_until(at_mono - TIMED_WRITE_GUARD_S)
+            # ask for the link one request timeout before the guard: a request in flight (the
+            # heartbeat) to a slow device then ends, answered or timed out, before the deadline
+            wait_until(at_mono - TIMED_WRITE_GUARD_S - self.link.endpoint.timeout_s)
             with self.link.hold():
                 t_held = time.monotonic()
                 wait_until(at_mono)

@@ -21,8 +21,8 @@ import threading
 import time
 from dataclasses import dataclass
 
-from drivers.device import (RegisterDevice, SafeStateReport, WriteGuard, WriteListener,
-                            WriteRecord)
+from drivers.device import (TIMED_WRITE_GUARD_S, RegisterDevice, SafeStateReport, WriteGuard,
+                            WriteListener, WriteRecord)
 from drivers.errors import CommError, DeviceError, ExceptionReply, WriteUncertain
 from drivers.link import ModbusLink
 from drivers.profile import Profile
@@ -118,6 +118,12 @@ class Exciter(RegisterDevice):
         if isinstance(timeout, (int, float)) and heartbeat_period_s > timeout / 2:
             raise ValueError(f"heartbeat_period_s {heartbeat_period_s} s is more than half the "
                              f"device watchdog ({timeout} s, profile {profile.name!r})")
+        # a timed write holds the link (no beats) for up to one request timeout + the guard
+        gap = heartbeat_period_s + link.endpoint.timeout_s + TIMED_WRITE_GUARD_S
+        if isinstance(timeout, (int, float)) and gap >= timeout:
+            raise ValueError(f"the exciter's request timeout {link.endpoint.timeout_s} s is too long "
+                             f"for its watchdog ({timeout} s, profile {profile.name!r}): a timed write "
+                             f"can hold the heartbeat off for {gap:.2f} s")
         super().__init__(link, profile, guard=guard, listener=listener)
         self.heartbeat = Heartbeat(self, heartbeat_period_s)
         self.restore_deadline_s = restore_deadline_s
@@ -126,6 +132,7 @@ class Exciter(RegisterDevice):
         # words and outcome ("confirmed" | "uncertain") of the last setpoint write that may
         # have reached the device; exception replies (refused, nothing changed) do not count
         self._last_setpoint: tuple[tuple[int, ...], str] | None = None
+        self._setpoint_attempted = False  # this run sent (or began to send) a setpoint write
 
     # -- reads -------------------------------------------------------------------------------
     def bit(self, register: str, name: str) -> bool | None:
@@ -142,6 +149,7 @@ class Exciter(RegisterDevice):
         mode = int(self.read(MODE)) if MODE in self.profile.registers else None
         self.pretest = PreTest(setpoint_words=words,
                                setpoint_pu=self.profile[SETPOINT].decode(list(words)), mode=mode)
+        self._setpoint_attempted = False
         return self.pretest
 
     def _remote_mode_value(self) -> int | None:
@@ -158,9 +166,10 @@ class Exciter(RegisterDevice):
         value = self._remote_mode_value()
         if value is None or value == self.pretest.mode:
             return None
-        record = self.write(MODE, value, purpose="take remote")
+        # set before sending: a lost reply or Ctrl-C must not leave remote on unnoticed
+        # (_give_back_remote reads the mode first and writes only when it differs)
         self._took_remote = True
-        return record
+        return self.write(MODE, value, purpose="take remote")
 
     def write_setpoint(self, value_pu: float, *, purpose: str,
                        at_mono: float | None = None) -> WriteRecord:
@@ -175,10 +184,17 @@ class Exciter(RegisterDevice):
 
         Reads first and writes only what differs (so nothing is re-sent blindly); on a link
         error reconnects and starts over until the deadline. `reconnect` forces a fresh
-        connection first (after Ctrl-C the old one may hold a half-read reply).
+        connection first (after Ctrl-C the old one may hold a half-read reply). A setpoint this
+        run never wrote is not written back: if it moved since the snapshot, someone else moved
+        it, and the report says so. The heartbeat is stopped on every way out.
         """
+        try:
+            return self._safe_state(reason, deadline_s, reconnect)
+        finally:
+            self.heartbeat.stop()  # also when something unexpected escapes the restore
+
+    def _safe_state(self, reason: str, deadline_s: float | None, reconnect: bool) -> SafeStateReport:
         if self.pretest is None:
-            self.heartbeat.stop()
             return SafeStateReport(self.name, True, "nothing to restore (no test started)",
                                    reason=reason)
         deadline = time.monotonic() + (self.restore_deadline_s if deadline_s is None
@@ -196,6 +212,16 @@ class Exciter(RegisterDevice):
                         break
                     reconnected, need_reconnect = True, False
                 words = tuple(self.read_words(SETPOINT))
+                if words != pre.setpoint_words and not self._setpoint_attempted:
+                    action = ("setpoint not written by this run; it changed since the pre-test "
+                              "snapshot (by someone else) and was left as found")
+                    self._give_back_remote(writes, reason)
+                    self._took_remote = False
+                    return SafeStateReport(self.name, True, action,
+                                           detail=f"setpoint read {list(words)}, pre-test "
+                                           f"{list(pre.setpoint_words)} = {pre.setpoint_pu:.6g} pu",
+                                           reason=reason, attempts=attempts,
+                                           reconnected=reconnected, writes=tuple(writes))
                 if words != pre.setpoint_words:
                     writes.append(self.write(SETPOINT, pre.setpoint_pu,
                                              purpose=f"restore pre-test setpoint ({reason})"))
@@ -204,7 +230,6 @@ class Exciter(RegisterDevice):
                 elif not action:
                     action = self._how_restored(reconnected)
                 self._give_back_remote(writes, reason)
-                self.heartbeat.stop()
                 self._took_remote = False
                 return SafeStateReport(self.name, True, action,
                                        detail=f"setpoint read {list(words)}, pre-test "
@@ -222,7 +247,8 @@ class Exciter(RegisterDevice):
             if time.monotonic() >= deadline:
                 break
             time.sleep(0.05)
-        self.heartbeat.stop()  # a host that cannot reach the device leaves it to its watchdog
+        # the heartbeat stops on the way out: a host that cannot reach the device leaves it to
+        # its watchdog
         detail = (f"could not restore the pre-test setpoint {pre.setpoint_pu:.6g} pu within "
                   f"the deadline ({attempts} attempts); heartbeat stopped, the device watchdog "
                   "should revert it - CHECK THE UNIT")
@@ -238,6 +264,7 @@ class Exciter(RegisterDevice):
         if name != SETPOINT:
             return super().write(name, value, purpose=purpose, at_mono=at_mono)
         words = tuple(self.encode(name, value))
+        self._setpoint_attempted = True  # before sending: a Ctrl-C inside the write skips the handlers
         try:
             record = super().write(name, value, purpose=purpose, at_mono=at_mono)
         except WriteUncertain:

@@ -11,7 +11,7 @@ import zlib
 import numpy as np
 import pytest
 
-from drivers.errors import CommError, IntegrityError
+from drivers.errors import CommError, IntegrityError, WriteUncertain
 from drivers.exciter import Exciter
 from drivers.link import Endpoint, ModbusLink
 from drivers.profile import load_profile
@@ -169,3 +169,56 @@ def test_crc_mismatch_downloads_the_record_again(recorded, monkeypatch):
     flips["left"] = 10**6                        # wrong every time: refused, never short
     with pytest.raises(IntegrityError, match="record rejected after 3 downloads: CRC-32"):
         rec.download()
+
+
+def test_lost_reply_to_take_remote_still_gives_remote_back():
+    """The device applied the mode write but its reply was lost: the host must still give
+    remote back (reads the mode, writes only because it differs)."""
+    with SimBench(serial=False) as sim:
+        ex = make_exciter(sim, "sim-exciter", heartbeat_period_s=0.1)
+        ex.snapshot()
+        sim.faults.set("no_reply", device="exciter", op="write", register="mode", count=1)
+        with pytest.raises(WriteUncertain):
+            ex.take_remote()
+        assert sim.exciter.remote                      # it reached the device
+        report = ex.safe_state("take remote uncertain")
+        assert report.ok and not sim.exciter.remote and not ex.heartbeat.running
+        assert [w.register for w in report.writes] == ["mode"]
+        ex.close()
+
+
+def test_setpoint_moved_by_someone_else_is_left_as_found():
+    """This run never wrote the setpoint; the local operator moved it after the snapshot. The
+    safe state must not write the old value back onto the unit."""
+    with SimBench(serial=False) as sim:
+        ex = make_exciter(sim, "sim-exciter", heartbeat_period_s=0.1)
+        ex.snapshot()
+        ex.take_remote()
+        other = make_exciter(sim, "sim-exciter")       # another client: the local operator
+        other.snapshot()
+        other.write_setpoint(1.01, purpose="operator")
+        other.close()
+        report = ex.safe_state("operator declined")
+        assert report.ok and "not written by this run" in report.action
+        assert sim.exciter.setpoint == pytest.approx(1.01, abs=1e-6)
+        assert [w.register for w in report.writes] == ["mode"]   # remote given back, nothing else
+        assert not sim.exciter.remote and not ex.heartbeat.running
+        ex.close()
+
+
+def test_timed_write_takes_the_link_before_a_silent_device_can_delay_it():
+    """A beat in flight to a device that does not answer holds the link for one request timeout;
+    the timed write asks for the link that much earlier, so it still leaves on time."""
+    with SimBench(serial=False) as sim:
+        ex = make_exciter(sim, "sim-exciter", heartbeat_period_s=0.05)
+        ex.snapshot()
+        ex.take_remote()
+        timeout = ex.link.endpoint.timeout_s
+        deadline = time.monotonic() + timeout + 0.4
+        # the next beats go unanswered from now on, one of them in flight when the guard opens
+        sim.faults.set("no_reply", device="exciter", op="write", register="heartbeat", count=None)
+        rec = ex.write_setpoint(1.02, purpose="timed", at_mono=deadline)
+        sim.faults.clear()
+        assert rec.t_tx_mono - deadline < 0.005, rec.t_tx_mono - deadline
+        ex.safe_state("end")
+        ex.close()

@@ -130,3 +130,28 @@ def test_ctrl_c_policy_first_raises_then_ignored():
         os.kill(os.getpid(), signal.SIGINT)
     assert policy.ignored == 2 and not policy.armed
     assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_bench_safe_state_never_raises_and_reaches_every_device():
+    """Whatever escapes one device's safe state (here a full disk under the audit log) ends as
+    a failed report, and the next device still gets its safe state."""
+    from bench_ctl.runner.bench import Bench
+    from drivers.device import SafeStateReport
+
+    class Raising:
+        name = "exciter"
+
+        def safe_state(self, reason, *, reconnect=False):
+            raise OSError("No space left on device")
+
+    class Fine:
+        name = "recorder"
+
+        def safe_state(self, reason, *, reconnect=False):
+            return SafeStateReport("recorder", True, "disarmed", reason=reason)
+
+    bench = Bench.__new__(Bench)  # the devices only; no config, no I/O
+    bench.exciter, bench.recorder = Raising(), Fine()
+    reports = bench.safe_state("test")
+    assert [(r.device, r.ok) for r in reports] == [("exciter", False), ("recorder", True)]
+    assert "OSError: No space left on device" in reports[0].detail

@@ -10,7 +10,7 @@ from typing import Any
 
 from bench_ctl.runner.config import BenchConfig
 from drivers.device import SafeStateReport, WriteGuard, WriteListener
-from drivers.errors import CommError, DeviceError
+from drivers.errors import CommError
 from drivers.exciter import Exciter
 from drivers.link import ModbusLink
 from drivers.profile import load_profile
@@ -76,7 +76,10 @@ class Bench:
         for dev in (self.exciter, self.recorder):
             try:
                 reports.append(dev.safe_state(reason, reconnect=reconnect))
-            except DeviceError as exc:  # drivers report failures; this is a last resort
+            except Exception as exc:  # noqa: BLE001 - drivers report failures; this is a last
+                # resort, and whatever escaped (a refused write, a full disk under the audit log)
+                # must end as a failed safe state, not skip the next device
+                log.exception("%s: safe state raised", dev.name)
                 reports.append(SafeStateReport(dev.name, False, "SAFE STATE FAILED",
-                                               detail=str(exc), reason=reason))
+                                               detail=f"{type(exc).__name__}: {exc}", reason=reason))
         return reports
