@@ -8,6 +8,7 @@ the slow lag shows, the lead-lag symmetry of the reference AVR).
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from bench_ctl.identification.identifiability import analyse
 from bench_ctl.identification.peers import run_optimizer
@@ -111,3 +112,17 @@ def test_a_changed_response_is_not_called_equivalent(unit):
     a = analyse(p, x)
     tol = a["settings"]["equivalence_tol_mse"]
     assert np.mean(p.mse(y)) - np.mean(p.mse(x)) > 10 * tol
+
+
+def test_a_capture_of_weight_zero_changes_nothing(unit):
+    """alpha = 0 takes a capture out of the objective: the uncertainty must be that of the other
+    capture alone (no NaN sensitivities, no zero rows counted as degrees of freedom)."""
+    truth = _unit_with(unit, TRUTH)
+    cap = synthetic_capture(truth, duration=3.0, rate=500.0, seed=7)
+    other = synthetic_capture(truth, duration=3.0, rate=500.0, seed=8)
+    alone = analyse(make_problem([cap], truth), _x(make_problem([cap], truth), TRUTH))
+    p = make_problem([cap, other], truth, weights=[1.0, 0.0])
+    both = analyse(p, _x(p, TRUTH))
+    for key in ("sensitivity", "rel_std"):
+        for n in p.names:
+            assert both[key][n] == pytest.approx(alone[key][n], rel=1e-9), (key, n)

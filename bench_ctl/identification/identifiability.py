@@ -58,6 +58,16 @@ def _weights(problem: Problem) -> np.ndarray:
     return np.concatenate(parts)
 
 
+def _active(problem: Problem) -> np.ndarray:
+    """Residual rows that count (a capture of weight alpha = 0 contributes rows of zeros)."""
+    parts = []
+    for r in problem.records:
+        parts.append(np.full(r.i1 - r.i0, r.alpha > 0))
+        if r.vt is not None and problem.w_vt > 0:
+            parts.append(np.full(r.i1 - r.i0, r.alpha > 0))
+    return np.concatenate(parts)
+
+
 def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
             max_rel_std: float = 0.25, max_corr: float = 0.999, note_corr: float = 0.99, cond_limit: float = 1e-8,
             equivalence_tol: float | None = None) -> dict[str, Any]:
@@ -79,14 +89,15 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
         notes.append("some perturbed candidates failed to simulate; their derivatives are unreliable")
     r0 = R[0]
     J = (R[1:d + 1] - R[d + 1:]).T / (2.0 * rel_step)  # d r / d ln x (per unit relative change)
-    n_res = r0.size
+    active = _active(problem)
+    n_res = int(np.count_nonzero(active))
     sse = float(r0 @ r0)
     dof = max(1, n_res - d)
     s2 = sse / dof
 
     # relative sensitivity: RMS change of efd (pu) per unit relative change
     w = _weights(problem)
-    efd_rows = np.isfinite(w)
+    efd_rows = np.isfinite(w) & active
     Je = J[efd_rows] / w[efd_rows, None]
     sens = np.sqrt(np.mean(Je * Je, axis=0))
 
