@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import time
 import zlib
 from collections.abc import Callable
@@ -82,9 +83,13 @@ class RawRecord:
         head = path.with_name(path.name + ".json")
         with open(path, "xb") as fh:
             fh.write(self.payload())
+            fh.flush()
+            os.fsync(fh.fileno())  # on disk before the capture made from it (DESIGN.md 7)
         with open(head, "x", encoding="utf-8") as fh:
             json.dump(self.header(), fh, indent=2)
             fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
         return path, head
 
     def convert(self) -> dict[str, np.ndarray]:

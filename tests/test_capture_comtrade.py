@@ -216,3 +216,37 @@ def test_import_comtrade_without_setpoint_channel(tmp_path: Path) -> None:
     block = cap.meta["import"]
     assert block["source"]["format"] == "comtrade" and block["usetp_synthesised"] is True
     assert block["dropped_columns"] == ["IFD"]
+
+
+def test_padded_missing_value_is_refused_not_read_as_data(tmp_path: Path) -> None:
+    """Fixed-width writers pad fields; ' 99999' is still the 1999 'no data' marker."""
+    sig = _signals()
+    cfg = write_comtrade_1999(tmp_path, "rec", ft="ASCII", analog=[sig["USETP"], sig["EFD"]],
+                              ascii_override={50: f"51,50000, {int(sig['USETP'].raw[50])}, 99999"})
+    with pytest.raises(CaptureError) as info:
+        read_comtrade(cfg, {"usetp": "USETP", "efd": "EFD"})
+    assert "row 51" in str(info.value) and "channel 'EFD'" in str(info.value)
+    assert "missing value" in str(info.value)
+
+
+def test_blank_unit_is_not_taken_for_per_unit(tmp_path: Path) -> None:
+    sig = _signals()
+    efd = Analog("EFD", "", 2e-4, -1.0, sig["EFD"].raw)
+    cfg = write_comtrade_1999(tmp_path, "rec", ft="ASCII", analog=[sig["USETP"], efd])
+    with pytest.raises(CaptureError, match=r"channel 'EFD': unit '' is not per-unit"):
+        read_comtrade(cfg, {"usetp": "USETP", "efd": "EFD"})
+    cap = read_comtrade(cfg, {"usetp": "USETP", "efd": "EFD"}, scale={"efd": 1.0})  # said: it is pu
+    assert cap.n == N
+
+
+def test_jittered_comtrade_imports_when_resampling_is_asked_for(tmp_path: Path) -> None:
+    sig = _signals()
+    ts = np.arange(N, dtype=np.int64) * 1000
+    ts[1:-1] += np.where(np.arange(1, N - 1) % 2 == 0, 30, -30)  # +-30 us around 1 ms
+    cfg = write_comtrade_1999(tmp_path, "jit", ft="BINARY", analog=[sig["USETP"], sig["EFD"]],
+                              timestamps_us=ts)
+    spec = ImportSpec(columns={"usetp": "USETP", "efd": "EFD"}, resample_hz=1000.0)
+    cap = import_export(cfg, spec, tmp_path / "cap.csv")
+    assert cap.n == N and cap.meta["import"]["resampled"]["to_rate_hz"] == 1000.0
+    with pytest.raises(CaptureError, match="non-uniform"):  # not asked: refused, as before
+        import_export(cfg, ImportSpec(columns={"usetp": "USETP", "efd": "EFD"}), tmp_path / "c2.csv")

@@ -283,3 +283,16 @@ def test_preamble_lines_and_tab_delimiter(tmp_path: Path) -> None:
     src.write_text("\n".join(lines) + "\n", encoding="utf-8")
     with pytest.raises(CaptureError, match=r"row 11, column 'USETP': not a number: 'x'"):
         import_export(src, spec, tmp_path / "cap2.csv")
+
+
+def test_decimal_comma_file_refuses_a_dot_as_digit_separator(tmp_path: Path) -> None:
+    """With a decimal comma, '1.234' is 1234 written with a thousands dot, or a mistake: refused,
+    never read as 1.234."""
+    src = tmp_path / "dots.csv"
+    src.write_text("t;EFD;USETP\n0,000;1,5;1,0\n0,001;1.234;1,0\n0,002;2,0;1,0\n", encoding="utf-8")
+    spec = ImportSpec(columns={"efd": "EFD", "usetp": "USETP"}, time_column="t", delimiter=";",
+                      decimal=",")
+    with pytest.raises(CaptureError) as info:
+        import_export(src, spec, tmp_path / "cap.csv")
+    assert "row 3" in str(info.value) and "'EFD'" in str(info.value)
+    assert not (tmp_path / "cap.csv").exists()

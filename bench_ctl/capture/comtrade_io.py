@@ -54,6 +54,9 @@ def _dat_path(cfg: Path) -> Path:
     return cfg.with_suffix(ext)
 
 
+MISSING_ASCII = "99999"  # C37.111-1999: no data for this analog sample (ASCII files)
+
+
 def _number(text: str) -> bool:
     try:
         return math.isfinite(float(text)) and "_" not in text
@@ -77,6 +80,10 @@ def _prescan_ascii(dat: str, text: str, cfg: comtrade.Cfg, total: int) -> None:
             raise CaptureError(dat, f"sample number {fields[0]!r} is not an integer",
                                row=lineno)
         for k, name in enumerate(names):
+            if fields[2 + k] == MISSING_ASCII and cfg.rev_year and int(cfg.rev_year) >= 1999:
+                # the package compares the unstripped field: a padded 99999 would become data
+                raise CaptureError(dat, "missing value (99999)", row=lineno, column=name,
+                                   column_kind="channel")
             if not _number(fields[2 + k]):
                 raise CaptureError(dat, f"not a number: {fields[2 + k]!r}", row=lineno,
                                    column=name, column_kind="channel")
@@ -99,8 +106,9 @@ def _key(name: str, n: int, taken: set[str]) -> str:
     return key
 
 
-def load_comtrade_table(cfg_path: str | os.PathLike[str]) -> ComtradeTable:
-    """Parse and check a .cfg and its .dat (same name); no mapping, no unit checks yet."""
+def load_comtrade_table(cfg_path: str | os.PathLike[str], *, uniform: bool = True) -> ComtradeTable:
+    """Parse and check a .cfg and its .dat (same name); no mapping, no unit checks yet.
+    `uniform` False accepts a jittered time base (an import that resamples checks it itself)."""
     cfg_file = Path(cfg_path)
     file = str(cfg_file)
     if cfg_file.suffix.lower() != ".cfg":
@@ -138,7 +146,7 @@ def load_comtrade_table(cfg_path: str | os.PathLike[str]) -> ComtradeTable:
     row_kind = "row" if ft == "ASCII" else "sample"
     time = np.asarray(rec.time, dtype=np.float64)
     check_time(time, file=dat, rows=np.arange(1, time.size + 1), row_kind=row_kind,
-               column="timestamp" if cfg.timestamp_critical else "time")
+               column="timestamp" if cfg.timestamp_critical else "time", uniform=uniform)
     taken: set[str] = set()
     analog: dict[str, np.ndarray] = {}
     info: dict[str, dict[str, Any]] = {}
@@ -187,7 +195,7 @@ def channel_values(table: ComtradeTable, our: str, channel: str, scaled: bool) -
                            "shifted in time here; align the record first",
                            column=channel, column_kind="channel")
     unit = str(info["unit"]).strip()
-    if not scaled and unit and unit.lower() not in PER_UNIT_SPELLINGS:
+    if not scaled and unit.lower() not in PER_UNIT_SPELLINGS:  # a blank unit is not pu either
         raise CaptureError(table.file, f"unit {unit!r} is not per-unit; give a scale factor "
                            f"for {our!r} to convert it to pu", column=channel,
                            column_kind="channel")

@@ -149,7 +149,7 @@ def _read_source(src: Path, spec: ImportSpec) -> tuple[RawRecord, dict[str, Any]
     if src.suffix.lower() == ".cfg":
         if spec.time_column or spec.date_column or spec.clock_column:
             raise ValueError("a COMTRADE record brings its own time: no time/date/clock column")
-        table = comtrade_io.load_comtrade_table(src)
+        table = comtrade_io.load_comtrade_table(src, uniform=False)  # checked below, or resampled
         scaled = {"efd"} if spec.efd_base_scale != 1.0 else set()
         cols = {ch: comtrade_io.channel_values(table, our, ch, our in scaled | set(spec.scale))
                 for our, ch in spec.columns.items()}
@@ -160,7 +160,8 @@ def _read_source(src: Path, spec: ImportSpec) -> tuple[RawRecord, dict[str, Any]
         rec = RawRecord(file=table.dat_file, time=table.time, columns=cols,
                         rows=np.arange(1, table.time.size + 1), row_kind=table.row_kind,
                         time_info={"method": "comtrade sample rate / timestamps",
-                                   "origin": "t = 0 s at the first sample"},
+                                   "origin": f"as in the record: the first sample at "
+                                             f"{float(table.time[0])!r} s"},
                         unused_columns=unused)
         return rec, block
     rec = read_vendor_csv(src, columns=[*spec.columns.values(), *spec.keep_columns],

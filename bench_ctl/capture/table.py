@@ -132,6 +132,8 @@ def read_text_table(
 
 
 def _parse_cell(cell: str, decimal: str) -> float | None:
+    if decimal == "," and "." in cell:  # with a decimal comma a dot is a digit separator (1.234 = 1234)
+        return None
     text = cell.replace(",", ".") if decimal == "," else cell
     if _NUMBER.fullmatch(text):
         return float(text)
