@@ -243,6 +243,16 @@ def test_x0_warm_start_and_validation() -> None:
         minimize(rosenbrock, bounds, max_evals=50, seed=3, x0=[1.0, 1.0])
 
 
+def test_x0_on_the_upper_bound_is_inside() -> None:
+    """lo + (hi - lo) rounds one step below hi for these bounds: a start on hi must still be
+    taken (a restart from a fit that ended on its bound)."""
+    lo, hi = -3.171692894172072, 0.8336003288379776
+    assert lo + (hi - lo) < hi
+    r = minimize(lambda x: float((x[0] - hi) ** 2), [(lo, hi)], max_evals=40, seed=0, x0=[hi],
+                 options={"particles": 4})
+    assert r.history[0][1] < 1e-30 and lo <= r.x[0] <= hi  # x0 itself (to the last bit: lo + span)
+
+
 def test_option_and_argument_errors() -> None:
     b = [(-1.0, 1.0)] * 2
     with pytest.raises(ValueError, match="unknown MVMO option.*'particle'"):

@@ -105,3 +105,22 @@ def test_unknown_optimizer_and_bad_budget_are_refused(problem):
         run_optimizer("de", problem, max_evals=0, seed=0)
     with pytest.raises(ValueError, match="population"):
         run_optimizer("de", problem, max_evals=10, seed=0)
+
+
+@pytest.mark.parametrize("name", ["mvmo", "de", "local"])
+def test_no_simulation_beyond_the_budget(problem, name, monkeypatch):
+    """max_evals counts every candidate simulated, the final score included (one capture here:
+    one kernel row per candidate)."""
+    import bench_ctl.identification.problem as problem_module
+
+    rows = [0]
+    real = problem_module.run_kernel
+
+    def counting(P, *args, **kwargs):
+        rows[0] += np.atleast_2d(P).shape[0]
+        return real(P, *args, **kwargs)
+
+    monkeypatch.setattr(problem_module, "run_kernel", counting)
+    r = run_optimizer(name, problem, max_evals=120, seed=0)
+    assert r.nfev <= 120 and rows[0] == r.nfev, (r.nfev, rows[0])
+    assert r.objective == pytest.approx(float(problem.objective(r.x[None])[0]), rel=1e-9)

@@ -140,7 +140,8 @@ class _Problem:
         for i, (lo, hi) in enumerate(b):
             if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
                 raise ValueError(f"bounds[{i}] = ({lo}, {hi}): need finite lo < hi")
-        self.lo, self.span, self.d = b[:, 0], b[:, 1] - b[:, 0], b.shape[0]
+        self.lo, self.hi = b[:, 0], b[:, 1]
+        self.span, self.d = self.hi - self.lo, b.shape[0]
         self.fun, self.vectorized = fun, vectorized
         self.tol, self.penalty = 0.0, 0.0  # set from the options by minimize()
         self.linear: list[LinearConstraint] = []
@@ -474,12 +475,12 @@ def minimize(fun: Callable[[np.ndarray], Any], bounds: Sequence[Sequence[float]]
         x0a = np.asarray(x0, dtype=float)
         if x0a.shape != (d,):
             raise ValueError(f"x0 has shape {x0a.shape}, expected ({d},)")
-        out = np.flatnonzero(~((x0a >= prob.lo) & (x0a <= prob.lo + prob.span)))
+        # against the given bounds: lo + (hi - lo) can round one step below hi
+        out = np.flatnonzero(~((x0a >= prob.lo) & (x0a <= prob.hi)))
         if out.size:
             i = int(out[0])
-            raise ValueError(f"x0[{i}] = {x0a[i]} outside bounds ({prob.lo[i]}, "
-                             f"{prob.lo[i] + prob.span[i]})")
-        Z[0] = (x0a - prob.lo) / prob.span
+            raise ValueError(f"x0[{i}] = {x0a[i]} outside bounds ({prob.lo[i]}, {prob.hi[i]})")
+        Z[0] = np.clip((x0a - prob.lo) / prob.span, 0.0, 1.0)
     _, inf, mer = run.batch(Z)
     swarm = _Swarm(Z, inf, mer, opts["archive_size"], rng)
 

@@ -252,8 +252,9 @@ def _run_de(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray |
                 "popsize": popsize, "population": npop, "maxiter": maxiter, "mutation": mutation,
                 "recombination": recombination, "polish": False, "updating": "deferred",
                 "max_evals": max_evals, "seed": seed}
-    x = np.asarray(res.x, float)
-    f = float(problem.objective(x[None])[0])
+    # the best candidate evaluated (no extra, uncounted simulation to score it again)
+    x = tr.best_x if tr.best_x is not None else np.asarray(res.x, float)
+    f = tr.best_f if tr.best_x is not None else float(problem.objective(x[None])[0])
     return x, f, tr.nfev, tr.history, settings, str(res.message)
 
 
@@ -318,7 +319,8 @@ def _run_local(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarra
 
     msg = _least_squares(problem.residuals, x_start, lb, ub, tr, score, fd_step)
     x = tr.best_x if tr.best_x is not None else x_start
-    f = float(problem.objective(x[None])[0])
+    # its score is the sum of squared residuals = the objective: no extra, uncounted simulation
+    f = tr.best_f if tr.best_x is not None else float(problem.objective(x[None])[0])
     settings = {"algorithm": "scipy.optimize.least_squares (trf), batched forward differences",
                 "bounds": "positivity only (x > 0)", "start": problem.params(x_start),
                 "fd_step": fd_step, "max_evals": max_evals}
