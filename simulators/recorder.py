@@ -148,9 +148,8 @@ class RecorderDevice:
         elif name == "arm":
             if value == 1:
                 rate = self.config["sample_rate"]
-                if not self.config["pre_trigger"] < self.config["record_length"]:
-                    return ExcCodes.ILLEGAL_VALUE
-                if round(self.config["record_length"] * rate) < 1:
+                # in samples, as the record is stored: at least one sample after the trigger
+                if not round(self.config["pre_trigger"] * rate) < round(self.config["record_length"] * rate):
                     return ExcCodes.ILLEGAL_VALUE
         elif name == "trigger":
             if value == 1 and self.status != "armed":

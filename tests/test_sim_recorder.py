@@ -174,6 +174,25 @@ def test_manual_trigger_on_the_url(bench):
         c.close()
 
 
+def test_arm_refuses_a_pre_trigger_that_fills_the_whole_record(bench):
+    """0.95 s of 0.99 s at 10 Hz is 10 of 10 samples: nothing left after the trigger."""
+    c = rtu(bench.endpoints.recorder_url)
+    try:
+        for reg, val in ((RATE, 10), (PRE, 950), (MODE, 0)):
+            assert not c.write_register(reg, val, device_id=1).isError()
+        assert not c.write_registers(LENGTH, [0, 990], device_id=1).isError()
+        r = c.write_register(ARM, 1, device_id=1)
+        assert r.isError() and r.exception_code == 3
+        assert not c.write_register(PRE, 850, device_id=1).isError()   # 8 + 2 samples: fine
+        assert not c.write_register(ARM, 1, device_id=1).isError()
+        assert not c.write_register(ARM, 0, device_id=1).isError()
+    finally:
+        for reg, val in ((RATE, 1000), (PRE, 1000), (MODE, 1)):
+            c.write_register(reg, val, device_id=1)
+        c.write_registers(LENGTH, [0, 10000], device_id=1)
+        c.close()
+
+
 def test_bench_freezes_the_start_up_objects_for_the_collector_and_thaws_them():
     """A full collection over numba/numpy/pymodbus objects stalls every thread for ~60 ms; a
     running bench keeps them out of it (gc.freeze); the last bench to stop gives them back."""
