@@ -262,7 +262,7 @@ def test_cli_import_ok_and_refused(tmp_path: Path, capsys: pytest.CaptureFixture
     cap = read_capture(out)
     assert cap.meta["import"]["usetp_synthesised"] is True
     assert cap.meta["test"]["width_s"] == 1.0 and cap.rate_hz == pytest.approx(1000.0)
-    assert main(base + ["-o", str(tmp_path / "cli2.csv")]) == 1  # jitter, no --resample
+    assert main(base + ["-o", str(tmp_path / "cli2.csv")]) == 2  # jitter, no --resample: bad input
     err = capsys.readouterr().err
     assert err.startswith("error: " + str(src)) and "non-uniform time step" in err
     assert not (tmp_path / "cli2.csv").exists()

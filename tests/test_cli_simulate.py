@@ -44,3 +44,27 @@ def test_simulate_refuses_overwrite_and_bad_effect(tmp_path, capsys):
     assert "unknown effect 'backlash'" in capsys.readouterr().err
     assert main(["simulate", "--effect", "dead_time:TD=5", "-o", str(tmp_path / "y.csv")]) == 2
     assert "outside its physical range" in capsys.readouterr().err
+
+
+def test_simulate_partly_given_effect_and_repeated_effect_options(tmp_path):
+    """--set VRMAX=2.8 leaves VRMIN neutral (-inf, written as null); two --effect options for
+    one effect add up."""
+    out = tmp_path / "a.csv"
+    assert main(["simulate", "--set", "VRMAX=2.8", "--duration", "3", "-o", str(out)]) == 0
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["effects"]["ceiling_limit"] == {"VRMAX": 2.8, "VRMIN": None}
+    out2 = tmp_path / "b.csv"
+    assert main(["simulate", "--effect", "ceiling_limit:VRMAX=2.8", "--effect", "ceiling_limit:VRMIN=-1.0",
+                 "--duration", "3", "-o", str(out2)]) == 0
+    meta = json.loads(out2.with_suffix(".json").read_text())
+    assert meta["effects"]["ceiling_limit"] == {"VRMAX": 2.8, "VRMIN": -1.0}
+
+
+def test_simulate_refuses_non_finite_options_and_a_saturation_that_would_be_off(tmp_path, capsys):
+    for args, msg in ((["--noise", "nan"], "--noise nan must be a finite number"),
+                      (["--rate", "0.001"], "fewer than 2 samples"),
+                      (["--effect", "saturation:S10=0.3,S12=0.1"], "breaks S12 >= 1.44*S10")):
+        out = tmp_path / "x.csv"
+        assert main(["simulate", *args, "--duration", "3", "-o", str(out)]) == 2, args
+        assert msg in capsys.readouterr().err
+        assert not out.exists()

@@ -41,6 +41,7 @@ def test_example_configs_load():
     ("exciter", "url", "/dev/ttyS0", "expected tcp://HOST:PORT"),
     ("exciter", "url", "tcp://host", "expected tcp://HOST:PORT"),
     ("recorder", "parity", "X", "must be N, E or O"),
+    ("recorder", "stopbits", 3, "recorder.stopbits = 3 must be 1 or 2"),
     ("exciter", "heartbeat_period_s", 0, "must be > 0"),
     ("limits", "no_load_p_max_mw", True, "must be a float"),
 ])
@@ -49,6 +50,14 @@ def test_bad_keys_and_values_are_refused_naming_the_key(section, key, value, mes
     doc[section][key] = value
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
         config_from_dict(doc, source="bench.toml")
+
+
+def test_a_bench_config_that_is_not_text_is_refused_with_its_name(tmp_path):
+    f = tmp_path / "bench.toml"
+    f.write_bytes(b"[bench]\nname = '\xff'\n")
+    with pytest.raises(ConfigError, match="not a UTF-8 text file") as info:
+        load_bench_config(f)
+    assert str(f) in str(info.value)
 
 
 def test_missing_required_limit_and_unknown_table():

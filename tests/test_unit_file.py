@@ -48,11 +48,59 @@ def test_unit_file_with_effects(tmp_path):
     f = tmp_path / "u.toml"
     f.write_text('constraints = ["TA2 <= TA1"]\n[generator]\nTd0p = 6.0\nTd0pp = 0.04\nVt0 = 1.0\n'
                  '[identify.KAVR]\nmin = 50\nmax = 500\nvalue = 150\n[fixed]\nTA1 = 1.0\n'
+                 'TA2 = 0.2\nTA3 = 0.5\nTA4 = 10.0\nTE = 0.02\n'
                  '[effects.ceiling_limit]\nVRMAX = 2.8\nVRMIN = -1.0\n')
     u = load_unit(f)
     v = u.values()
     assert v["VRMAX"] == 2.8 and v["Td0p"] == 6.0 and v["KAVR"] == 150 and v["TA1"] == 1.0
     assert math.isinf(v["RATE"])
+
+
+GEN = '[generator]\nTd0p = 6.0\nTd0pp = 0.04\nVt0 = 1.0\n'
+AVR_FIXED = 'TA1 = 1.0\nTA2 = 0.2\nTA3 = 0.5\nTA4 = 10.0\nTE = 0.02\n'
+
+
+@pytest.mark.parametrize("text, msg", [
+    (GEN + '[identify.KAVR]\nmin = 50\nmax = 500\n[fixed]\nTA1 = 1.0\n',
+     "AVR parameter TA2 is neither under"),
+    (GEN + '[identify.KAVR]\nmin = 50\nmax = 500\nvalue = 900\n[fixed]\n' + AVR_FIXED,
+     r"identify.KAVR.value = 900.0 is outside its bounds \[50.0, 500.0\]"),
+    (GEN + '[identify.KAVR]\nmin = -inf\nmax = 500\n[fixed]\n' + AVR_FIXED,
+     "identify.KAVR.min = -inf must be finite"),
+    (GEN + '[fixed]\nKAVR = 200\n' + AVR_FIXED + 'TR = 5.0\n', "TR = 5.0 s is outside its physical range"),
+    (GEN + '[fixed]\nKAVR = 200\nTd0p = 0.0\n' + AVR_FIXED, "fixed.Td0p: a generator constant"),
+    ('generator = 3\n', r"generator must be a table \(\[generator\]\)"),
+    (GEN + '[fixed]\nKAVR = 200\n' + AVR_FIXED + '[effects]\nceiling_limit = 3\n',
+     "effects.ceiling_limit must be a table"),
+    (GEN + '[fixed]\nKAVR = 200\n' + AVR_FIXED + '[effects.saturation]\nS10 = 0.3\nS12 = 0.1\n',
+     r"S12 = 0.1 breaks S12 >= 1.44\*S10"),
+])
+def test_unit_file_refusals_name_the_file_and_key(tmp_path, text, msg):
+    f = tmp_path / "u.toml"
+    f.write_text(text)
+    with pytest.raises(UnitError, match=msg) as info:
+        load_unit(f)
+    assert str(f) in str(info.value)
+
+
+def test_unit_file_not_utf8_is_refused_with_its_name(tmp_path):
+    f = tmp_path / "u.toml"
+    f.write_bytes(b"name = '\xff\xfe'\n")
+    with pytest.raises(UnitError, match="not a UTF-8 text file"):
+        load_unit(f)
+
+
+def test_overrides_are_checked_once_all_are_in():
+    u = apply_overrides(reference_unit(), ["KAVR.max=100", "KAVR=80"])   # fine in that order
+    assert u.identify["KAVR"].value == 80
+    with pytest.raises(UnitError, match=r"KAVR.value = 200.0 is outside its bounds \[50.0, 100.0\]"):
+        apply_overrides(reference_unit(), ["KAVR.max=100"])
+    with pytest.raises(UnitError, match="must be finite"):
+        apply_overrides(reference_unit(), ["KAVR=inf"])
+    with pytest.raises(UnitError, match=r"breaks S12 >= 1.44\*S10"):
+        apply_overrides(reference_unit(), ["S10=0.1"])
+    u = apply_overrides(reference_unit(), ["S10=0.1", "S12=0.3"])  # one at a time, then checked
+    assert u.effects["saturation"] == {"S10": 0.1, "S12": 0.3}
 
 
 def test_set_overrides():

@@ -169,7 +169,15 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
         base_params = None
         if result_path:
             data = json.loads(Path(result_path).read_text("utf-8"))
-            base_params = {k: float(v) for k, v in (data.get("params") or {}).items() if k in unit.identify}
+            params = data.get("params") if isinstance(data, dict) else None
+            if not isinstance(params, dict):
+                raise UnitError(f"{result_path}: not an identification result (no 'params' table)")
+            base_params = {}
+            for k, v in params.items():
+                if k in unit.identify:
+                    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                        raise UnitError(f"{result_path}: params.{k} = {v!r} is not a finite number")
+                    base_params[k] = float(v)
             if not base_params:
                 raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
     except (CaptureError, UnitError, ConstraintError, json.JSONDecodeError, ValueError) as exc:

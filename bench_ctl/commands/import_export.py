@@ -6,8 +6,8 @@ Example:
   bench-ctl import rec.csv -o cap.csv --map efd=EFD_V --time-column t \\
       --test pulse:start=1.0,amplitude=0.05,width=1.0
 
-Exit codes: 0 written; 1 the input was refused (message on stderr: file, row, column) or the
-output exists; click usage errors (bad option syntax) keep click's code 2.
+Exit codes: 0 written; 2 the input was refused (message on stderr: file, row, column), the
+output exists, or the options are malformed (as every command: 2 is bad input).
 """
 from __future__ import annotations
 
@@ -107,6 +107,6 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
         capture = run_import(src, spec, out)
     except (CaptureError, FileExistsError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
-        return 1
+        return 2
     click.echo(f"wrote {capture.source} ({capture.n} samples at {capture.rate_hz:g} Hz)")
     return 0

@@ -41,7 +41,9 @@ def parse_effect(text: str) -> tuple[str, dict[str, float]]:
 
 def build_unit(unit_path: str | None, overrides: Sequence[str], effects: Sequence[str] = ()) -> Unit:
     unit = apply_overrides(load_unit(unit_path), overrides)
-    parsed = dict(parse_effect(e) for e in effects)
+    parsed: dict[str, dict[str, float]] = {}
+    for name, params in (parse_effect(e) for e in effects):  # repeated: the values add up
+        parsed.setdefault(name, {}).update(params)
     try:
         return unit.with_effects(parsed) if parsed else unit
     except ValueError as exc:

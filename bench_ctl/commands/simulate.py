@@ -1,6 +1,8 @@
 """`bench-ctl simulate`: a synthetic pulse capture of a unit, with effects, noise and quantisation."""
 from __future__ import annotations
 
+import math
+
 import sys
 from pathlib import Path
 
@@ -30,8 +32,14 @@ def simulate(unit_path, overrides, effects, amplitude, width, start, duration, r
     """Write a synthetic pulse capture (CSV + JSON sidecar) of the unit."""
     try:
         unit = build_unit(unit_path, overrides, effects)
+        for opt, v in (("--amplitude", amplitude), ("--width", width), ("--start", start),
+                       ("--duration", duration), ("--rate", rate), ("--noise", noise), ("--lsb", lsb)):
+            if not math.isfinite(v):
+                raise UnitError(f"{opt} {v!r} must be a finite number")
         if noise < 0 or lsb < 0:
             raise UnitError("--noise and --lsb must not be negative")
+        if rate * duration < 2:
+            raise UnitError(f"--rate {rate:g} Hz over --duration {duration:g} s gives fewer than 2 samples")
         if start < 0 or width <= 0 or start + width >= duration:
             raise UnitError(f"pulse start {start} s + width {width} s must lie inside the record of {duration} s")
         t, usetp = pulse_usetp(amplitude=amplitude, width=width, start=start, duration=duration, rate=rate,
@@ -47,7 +55,7 @@ def simulate(unit_path, overrides, effects, amplitude, width, start, duration, r
         "recorder": {"noise_pu": noise, "lsb_pu": lsb, "seed": seed,
                      "usetp": "the AVR's digital setpoint, recorded exactly",
                      "efd": "measured: noise + quantisation", "vt": "measured: noise + quantisation"},
-        "effects": unit.effects,
+        "effects": unit.to_dict()["effects"],  # JSON has no infinity: neutral limits as null
         "software_version": __version__,
         "command_line": " ".join(["bench-ctl"] + sys.argv[1:]),
     }

@@ -6,9 +6,12 @@ unit), and any constraint between them. Names are fixed by DESIGN.md section 3.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from .params import PARAMS
+
+_SCALED = re.compile(r"^\s*(\w+)\s*(>=|<=)\s*([0-9.]+)\s*\*\s*(\w+)\s*$")  # "S12 >= 1.44*S10"
 
 
 @dataclass(frozen=True)
@@ -31,6 +34,18 @@ class Effect:
             )
         for name, value in values.items():
             PARAMS[name].check(float(value), where=f"effect {self.name}: ")
+
+    def check_constraints(self, values: dict[str, float]) -> None:
+        """The constraints between the effect's parameters, all of them given (`values`)."""
+        for text in self.constraints:
+            m = _SCALED.match(text)
+            if m is None:  # only the "A >= k*B" form exists; a new form must be taught here
+                raise ValueError(f"effect {self.name}: cannot read its constraint {text!r}")
+            a, op, k, b = m.group(1), m.group(2), float(m.group(3)), m.group(4)
+            lhs, rhs = float(values[a]), k * float(values[b])
+            if not (lhs >= rhs if op == ">=" else lhs <= rhs):
+                raise ValueError(f"effect {self.name}: {a} = {lhs:g} breaks {text} "
+                                 f"({k:g}*{b} = {rhs:g}); give both parameters")
 
 
 EFFECTS: dict[str, Effect] = {

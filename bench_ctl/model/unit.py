@@ -59,7 +59,8 @@ class Unit:
             out.update(params)
         return out
 
-    def with_effects(self, effects: Mapping[str, Mapping[str, float]]) -> "Unit":
+    def with_effects(self, effects: Mapping[str, Mapping[str, float]], *,
+                     check_constraints: bool = True) -> "Unit":
         merged = {k: dict(v) for k, v in self.effects.items()}
         for name, params in effects.items():
             eff = effect(name)
@@ -69,6 +70,8 @@ class Unit:
             if missing:
                 # a partly given effect keeps the other parameters neutral
                 merged[name].update({p: eff.neutral()[p] for p in missing})
+            if check_constraints:  # e.g. saturation: S12 >= 1.44*S10, else the kernel has it off
+                eff.check_constraints(merged[name])
         return replace(self, effects=merged)
 
     def to_dict(self) -> dict:
@@ -90,6 +93,42 @@ def _finite_or_none(v: float) -> float | None:
 
 
 _TOP_KEYS = {"name", "constraints", "generator", "identify", "fixed", "weights", "effects"}
+_TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects")
+
+
+def check_unit(unit: Unit, source: str) -> Unit:
+    """What a whole unit must satisfy, once every override is in: every AVR parameter given,
+    identified values finite and inside their bounds, bounds and fixed values inside the
+    physical ranges, fixed names apart from the generator's."""
+    from .params import AVR_PARAMS
+
+    for name in AVR_PARAMS:
+        if name not in unit.identify and name not in unit.fixed:
+            raise UnitError(f"{source}: AVR parameter {name} is neither under [identify] nor [fixed]")
+    for name, b in unit.identify.items():
+        for what, v in (("min", b.min), ("max", b.max), ("value", b.value)):
+            if not math.isfinite(v):
+                raise UnitError(f"{source}: identify.{name}.{what} = {v!r} must be finite")
+            try:
+                PARAMS[name].check(v, where=f"{source}: identify.{name}.{what}: ")
+            except ValueError as exc:
+                raise UnitError(str(exc)) from None
+        if not b.min <= b.value <= b.max:
+            raise UnitError(f"{source}: identify.{name}.value = {b.value!r} is outside its bounds "
+                            f"[{b.min!r}, {b.max!r}]")
+    for name, params in unit.effects.items():
+        try:
+            EFFECTS[name].check_constraints(params)
+        except ValueError as exc:
+            raise UnitError(f"{source}: {exc}") from None
+    for name, v in unit.fixed.items():
+        if name in unit.generator:
+            raise UnitError(f"{source}: fixed.{name}: a generator constant; set it under [generator]")
+        try:
+            PARAMS[name].check(v, where=f"{source}: fixed.")
+        except ValueError as exc:
+            raise UnitError(str(exc)) from None
+    return unit
 _WEIGHT_KEYS = {"efd", "vt"}
 
 
@@ -106,6 +145,12 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise UnitError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_TOP_KEYS)}")
+    for key in _TABLE_KEYS:
+        if key in data and not isinstance(data[key], Mapping):
+            raise UnitError(f"{source}: {key} must be a table ([{key}]), got {data[key]!r}")
+    for name, ps in data.get("effects", {}).items():
+        if not isinstance(ps, Mapping):
+            raise UnitError(f"{source}: effects.{name} must be a table of its parameters, got {ps!r}")
     gen_raw = data.get("generator", {})
     bad = set(gen_raw) - set(GENERATOR_PARAMS)
     if bad:
@@ -161,10 +206,13 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
         if name not in EFFECTS:
             raise UnitError(f"{source}: effects.{name}: unknown effect; known: {', '.join(EFFECTS)}")
     try:
-        return unit.with_effects({k: {p: _num(v, f"{source}: effects.{k}.{p}") for p, v in ps.items()}
+        unit = unit.with_effects({k: {p: _num(v, f"{source}: effects.{k}.{p}") for p, v in ps.items()}
                                   for k, ps in effects_raw.items()})
+    except UnitError:
+        raise
     except ValueError as exc:
         raise UnitError(f"{source}: {exc}") from None
+    return check_unit(unit, source)
 
 
 def load_unit(path: str | Path | None = None) -> Unit:
@@ -178,6 +226,8 @@ def load_unit(path: str | Path | None = None) -> Unit:
             text = p.read_text("utf-8")
         except OSError as exc:
             raise UnitError(f"{p}: cannot read unit file: {exc.strerror}") from None
+        except UnicodeDecodeError as exc:
+            raise UnitError(f"{p}: not a UTF-8 text file (byte {exc.start}): {exc.reason}") from None
         source = str(p)
     try:
         data = tomllib.loads(text)
@@ -191,7 +241,9 @@ def reference_unit() -> Unit:
 
 
 def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
-    """Apply `--set NAME=VALUE` overrides (see the module docstring); unknown names are errors."""
+    """Apply `--set NAME=VALUE` overrides (see the module docstring); unknown names are errors.
+    The whole unit is checked once all are in (`KAVR.max=100 KAVR=80` is fine in that order)."""
+    overrides = list(overrides)
     for item in overrides:
         if "=" not in item:
             raise UnitError(f"--set {item!r}: expected NAME=VALUE")
@@ -208,7 +260,7 @@ def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
             raise
         except ValueError as exc:
             raise UnitError(str(exc)) from None
-    return unit
+    return check_unit(unit, f"{unit.source} with --set {' '.join(overrides)}") if overrides else unit
 
 
 def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
@@ -236,8 +288,8 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
         return replace(unit, fixed={**unit.fixed, key: value})
     for eff in EFFECTS.values():
         if key in eff.params:
-            try:
-                return unit.with_effects({eff.name: {key: value}})
+            try:  # constraints between effect parameters: once all overrides are in
+                return unit.with_effects({eff.name: {key: value}}, check_constraints=False)
             except ValueError as exc:
                 raise UnitError(f"--set {item!r}: {exc}") from None
     if key in PARAMS:

@@ -191,6 +191,8 @@ def config_from_dict(doc: Mapping[str, Any], source: str = "<dict>",
             raise ConfigError(f"{source}: {name}.unit_id = {vals['unit_id']} outside 0..247")
         if vals.get("parity", "N") not in ("N", "E", "O"):
             raise ConfigError(f"{source}: {name}.parity = {vals['parity']!r} must be N, E or O")
+        if vals.get("stopbits", 1) not in (1, 2):
+            raise ConfigError(f"{source}: {name}.stopbits = {vals['stopbits']!r} must be 1 or 2")
         vals["profile"] = _resolve_profile(vals["profile"], base)
         devices[name] = DeviceConfig(**vals)
     if not devices["exciter"].url.startswith("tcp://"):
@@ -223,6 +225,10 @@ def load_bench_config(path: str | Path) -> BenchConfig:
             doc = tomllib.load(fh)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such bench config") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the bench config: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}): {exc.reason}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     return config_from_dict(doc, source=str(path), base=path.resolve().parent)
