@@ -175,6 +175,18 @@ def test_verdict_is_the_best_significant_effect_not_the_best_scored():
     assert choose_verdict(strong, at_floor=True, has_check=True) == "B"
 
 
+def test_ambiguity_is_judged_around_the_verdict_not_the_best_score():
+    from bench_ctl.diagnosis.which import ambiguous_pairs
+
+    entries = [{"name": "time_skew", "score": -195.0, "significant": False},
+               {"name": "dead_time", "score": -80.0, "significant": True},
+               {"name": "transducer_lag", "score": -78.0, "significant": True},
+               {"name": "saturation", "score": -20.0, "significant": True}]
+    pairs = ambiguous_pairs(entries)
+    assert [p["effects"] for p in pairs] == [["dead_time", "transducer_lag"]]
+    assert pairs[0]["score_difference"] == 2.0
+
+
 def test_gap_closed_formula():
     g, raw = _gap(3e-4, 1.5e-4, 1e-4, 0.05)
     assert g == pytest.approx((3e-4 - 1.5e-4) / (3e-4 - 1e-4)) and raw == pytest.approx(g)
@@ -299,6 +311,11 @@ def test_cli_writes_the_diagnosis(tmp_path, ceiling_case):
     assert d["capture"]["sha256"] and d["holdout"]["path"].endswith("hold.csv")
     assert "diagnose" in d["command_line"]
     assert main(["diagnose", str(tmp_path / "missing.csv")]) == 2
+    # a --result that is not an identification result: refused before any work, naming it
+    for i, bad in enumerate(("[1, 2]", '{"params": {"KAVR": null}}')):
+        res = tmp_path / f"bad{i}.json"
+        res.write_text(bad)
+        assert main(["diagnose", str(main_csv), "--result", str(res)]) == 2
 
 
 def test_capture_without_pre_trigger_is_refused(unit):

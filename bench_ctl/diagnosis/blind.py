@@ -233,7 +233,12 @@ def run_suite(cases: Sequence[Case], diagnose_fn: Callable[..., dict], *, seed: 
             for e in diag["effects"]:
                 if e["name"] == case.effect:
                     gap = e.get("gap_closed_holdout")
+                    mse_h = e.get("mse_holdout")
+                    if gap is None and mse_h is not None and not math.isfinite(mse_h):
+                        gap = -math.inf  # the true effect's fit failed on the holdout: it closed nothing
                     gap = e.get("gap_closed") if gap is None else gap
+                    if gap is not None and math.isnan(gap):
+                        gap = -math.inf  # the base model failed there: no gap measured, a failure
                     break
         r = CaseResult(case.case_id, case.effect, diag["verdict"], gap, dt, cpu,
                        [e["name"] for e in diag["effects"]],

@@ -150,6 +150,8 @@ def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: Edges, 
         validation = {"kind": "split", "fit": {"t0": 0.0, "t1": (k - 1) * capture.dt},
                       "check": {"capture": src, "t0": k * capture.dt, "t1": (capture.n - 1) * capture.dt}}
     q = coarse_factor(unit, capture.dt, budget.coarse_dt)
+    if edges.k_off is not None:  # both setpoint edges on the coarse grid, or the trailing one moves
+        q = math.gcd(q, edges.k_off - edges.k_on) or 1
     n_coarse = rec.n if edges.k_off is None else min(rec.n, edges.k_off + int(round(budget.coarse_tail_s / capture.dt)))
     coarse = coarse_record(rec, q=q, n_max=n_coarse, offset=edges.k_on)
     floor_tol = floor.variance * (1.0 + budget.floor_sigmas * math.sqrt(floor.rel_se ** 2 + 2.0 / rec.n))
@@ -176,8 +178,13 @@ def _as_model(unit: Unit, res: FitResult, st: _Setup) -> ModelFit:
 
 
 def _features(capture: Capture, model: np.ndarray, edges: Edges, floor: NoiseFloor,
-              values: Mapping[str, float]) -> tuple[list[F.Feature], dict[str, float]]:
-    """The feature tests, and the hints they give the effect fits' starting values."""
+              values: Mapping[str, float], n_fit: int) -> tuple[list[F.Feature], dict[str, float]]:
+    """The feature tests, and the hints they give the effect fits' starting values; they read
+    only the fit record (`n_fit` samples: without a holdout the rest is the check record)."""
+    capture = replace(capture, time=capture.time[:n_fit], usetp=capture.usetp[:n_fit],
+                      efd=capture.efd[:n_fit], vt=None if capture.vt is None else capture.vt[:n_fit],
+                      extra={})
+    model = model[:n_fit]
     sigma = math.sqrt(floor.variance)
     efd_pre = float(np.mean(capture.efd[:floor.n]))
     efd_se = sigma / math.sqrt(floor.n)
@@ -328,7 +335,7 @@ def diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, se
     base_fit, base = _fit_base(unit, st, budget, seed, base_params)
     log.info("base fit: mse %.4g (%d evaluations, %.1f s)", base.mse, base.evaluations, time.perf_counter() - t0)
     model = simulate_efd(base_space, base_fit.x, st.full)[0][0]
-    feats, hints = _features(capture, model, edges, floor, unit.values())
+    feats, hints = _features(capture, model, edges, floor, unit.values(), st.rec.n)
 
     fits = _fit_effects(unit, st, base, hints, budget, seed)
     # the base fit may sit in a worse basin than the AVR parameters an effect fit reached

@@ -77,12 +77,12 @@ def separating_test(a: str, b: str) -> str:
 def ambiguous_pairs(entries: Sequence[Mapping], tol: float = AMBIGUOUS) -> list[dict]:
     """The significant effects whose score is within `tol` of the best one's (entries ranked best
     first), each paired with the best one and the test that would separate the two."""
-    if not entries or not entries[0].get("significant"):
+    top = next((e for e in entries if e.get("significant")), None)  # the verdict's entry
+    if top is None:
         return []
-    top = entries[0]
     return [{"effects": [top["name"], e["name"]], "score_difference": e["score"] - top["score"],
              "separating_test": separating_test(top["name"], e["name"])}
-            for e in entries[1:] if e.get("significant") and e["score"] - top["score"] < tol]
+            for e in entries if e is not top and e.get("significant") and e["score"] - top["score"] < tol]
 
 
 @dataclass(frozen=True, eq=False)
