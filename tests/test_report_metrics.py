@@ -154,3 +154,18 @@ def test_fit_window_failed_flag_and_null_history(tmp_path: Path) -> None:
     assert "failed fit: max_evals reached" in failed.checks[1].detail
     with pytest.raises(ReportError, match=r"fit_window must be null or \[t0, t1\]"):
         analyse({**result, "fit_window": [2.0, 0.5]})
+
+
+def test_a_value_outside_its_bounds_fails_the_report() -> None:
+    """The `local` peer ignores bounds by design: such a result must not pass as validated."""
+    from bench_ctl.report import checks as chk
+
+    bounds = {"KAVR": [50, 100], "TE": [0.002, 0.2]}
+    assert chk.params_outside_bounds({"KAVR": 100.0, "TE": 0.2}, bounds) == []   # on a bound: inside
+    out = chk.params_outside_bounds({"KAVR": 193.6, "TE": 0.02}, bounds)
+    assert out == ["KAVR = 193.6 [50, 100]"]
+    checks = chk.summary_checks(sim_failures=[], mse_recomputed=1e-4, mse_reported=1e-4, constraints=[],
+                                noise_floor=None, noise_source="", noise_ratio_limit=2.0, determined=None,
+                                at_bounds=[], n_captures=1, outside_bounds=out)
+    assert chk.overall(checks) == "FAIL"
+    assert [c.detail for c in checks if c.status == "fail"] == ["outside its bounds: KAVR = 193.6 [50, 100]"]

@@ -112,6 +112,8 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
         noise_ratio_limit=noise_ratio_limit, determined=ident.get("determined"),
         at_bounds=chk.params_at_bounds(dict(result.get("params") or {}),
                                        dict(result.get("bounds") or {})),
+        outside_bounds=chk.params_outside_bounds(dict(result.get("params") or {}),
+                                                 dict(result.get("bounds") or {})),
         n_captures=len(analyses))
     return ReportData(result=result, diagnosis=diagnosis, values=values,
                       captures=tuple(analyses), mse=mse, objective=objective, fit_window=window,

@@ -4,7 +4,8 @@ Each `Check` is `pass`, `fail`, `warn` or `n/a`; the overall verdict is FAIL whe
 fails, PASS WITH WARNINGS when one warns (the reader of a bare "PASS" would take a fit 30 times
 the noise floor for a validated model), else PASS. What fails: the re-simulation blew up,
 the reported MSE is not reproduced by re-simulating the result's parameters on the capture, a
-constraint is violated (as reported, or as re-evaluated here). What warns: the MSE is more than
+constraint is violated (as reported, or as re-evaluated here), an identified value lies outside
+its bounds (the `local` peer ignores them by design). What warns: the MSE is more than
 `noise_ratio_limit` times the noise floor, a parameter is not determined by the capture, an
 identified value sits on a bound.
 """
@@ -95,7 +96,8 @@ def summary_checks(*, sim_failures: list[str], mse_recomputed: float,
                    mse_reported: Any, constraints: list[Mapping[str, Any]],
                    noise_floor: float | None, noise_source: str,
                    noise_ratio_limit: float, determined: Mapping[str, Any] | None,
-                   at_bounds: list[str], n_captures: int) -> list[Check]:
+                   at_bounds: list[str], n_captures: int,
+                   outside_bounds: list[str] = ()) -> list[Check]:
     checks = [Check("capture integrity", "pass",
                     f"SHA-256 of {n_captures} capture file(s) matches the result")]
     if sim_failures:
@@ -134,10 +136,28 @@ def summary_checks(*, sim_failures: list[str], mse_recomputed: float,
         checks.append(Check("parameters determined", "warn" if und else "pass",
                             f"not determined by the capture: {', '.join(und)}" if und else
                             f"all {len(determined)} determined by the capture"))
-    checks.append(Check("parameters inside bounds", "warn" if at_bounds else "pass",
-                        f"at a bound: {', '.join(at_bounds)}" if at_bounds else
-                        "no identified value sits on a bound"))
+    if outside_bounds:
+        checks.append(Check("parameters inside bounds", "fail",
+                            f"outside its bounds: {', '.join(outside_bounds)}"))
+    else:
+        checks.append(Check("parameters inside bounds", "warn" if at_bounds else "pass",
+                            f"at a bound: {', '.join(at_bounds)}" if at_bounds else
+                            "no identified value sits on a bound"))
     return checks
+
+
+def params_outside_bounds(params: Mapping[str, Any], bounds: Mapping[str, Any]) -> list[str]:
+    """'NAME = value [lo, hi]' for each value beyond its bounds (by more than rounding)."""
+    out = []
+    for name, value in params.items():
+        b = bounds.get(name)
+        if not (isinstance(b, (list, tuple)) and len(b) == 2) or not isinstance(value, (int, float)):
+            continue
+        lo, hi = float(b[0]), float(b[1])
+        slack = 1e-9 * (hi - lo)
+        if value < lo - slack or value > hi + slack:
+            out.append(f"{name} = {value:.6g} [{lo:g}, {hi:g}]")
+    return out
 
 
 def params_at_bounds(params: Mapping[str, Any], bounds: Mapping[str, Any]) -> list[str]:
