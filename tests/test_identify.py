@@ -105,6 +105,18 @@ def test_cli_exit_1_when_the_fit_breaks_a_constraint(tmp_path, cap, capsys):
     assert [c["expr"] for c in r["constraints"] if not c["satisfied"]] == ["TA2 <= TA1"]
 
 
+def test_cli_exit_1_when_the_fit_leaves_its_bounds(tmp_path, cap, capsys):
+    # the truth has KAVR 200; bounded to 150, the local method (positivity only, as PowerFactory)
+    # goes past the bound to the truth: the result is written but not accepted
+    csv, _ = write_capture(tmp_path / "pulse.csv", cap)
+    rc = main(["identify", str(csv), "--optimizer", "local", "--evals", "200", "--no-progress",
+               "--set", "KAVR.max=150", "--set", "KAVR=100", "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "outside its bounds: KAVR = " in err and "[50, 150]" in err
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["params"]["KAVR"] > 150
+
+
 @pytest.mark.parametrize("args, message", [
     (["--set", "FOO=1"], "FOO"),
     (["--set", "KAVR.min=900"], "min"),

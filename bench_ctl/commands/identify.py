@@ -7,7 +7,8 @@ Example:
 
 Prints a summary (parameters with bounds, std and whether the capture determines them; MSE;
 constraints; equivalent parameter sets; the comparison when several optimizers ran).
-Exit codes: 0 fitted and every constraint satisfied; 1 a constraint is violated or the fit
+Exit codes: 0 fitted, every constraint satisfied and every value inside its bounds; 1 a
+constraint is violated, a value lies outside its bounds (`local` ignores them) or the fit
 failed; 2 bad input (capture, unit file, --set, option), with the file / key named.
 """
 from __future__ import annotations
@@ -200,8 +201,11 @@ def identify(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[
         click.echo(f"plot written to {plot_out}")
     if not ident.ok:
         bad = [c["expr"] for c in ident.result["constraints"] if not c["satisfied"]]
-        click.echo("criteria failed: " + ("fit failed" if ident.best.failed else
-                                          f"constraint(s) violated: {', '.join(bad)}"), err=True)
+        why = [f"constraint(s) violated: {', '.join(bad)}"] if bad else []
+        if ident.outside_bounds:
+            why.append(f"outside its bounds: {', '.join(ident.outside_bounds)}")
+        click.echo("criteria failed: " + ("fit failed" if ident.best.failed else "; ".join(why)),
+                   err=True)
         return EXIT_FAILED
     return EXIT_OK
 

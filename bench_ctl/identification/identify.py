@@ -46,8 +46,21 @@ class Identification:
 
     @property
     def ok(self) -> bool:
-        """The fit succeeded and satisfies every constraint (exit code 0 of the CLI)."""
-        return (not self.best.failed) and all(c["satisfied"] for c in self.result["constraints"])
+        """The fit succeeded, satisfies every constraint and lies inside the bounds (exit code 0
+        of the CLI; the `local` peer ignores bounds by design)."""
+        return ((not self.best.failed) and all(c["satisfied"] for c in self.result["constraints"])
+                and not self.outside_bounds)
+
+    @property
+    def outside_bounds(self) -> list[str]:
+        """'NAME = value [lo, hi]' for each identified value beyond its bounds."""
+        out = []
+        for name, value in self.result["params"].items():
+            lo, hi = self.result["bounds"][name]
+            slack = 1e-9 * (hi - lo)
+            if value < lo - slack or value > hi + slack:
+                out.append(f"{name} = {value:.6g} [{lo:g}, {hi:g}]")
+        return out
 
 
 def warm_up(unit: Unit) -> float:
