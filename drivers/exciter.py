@@ -215,14 +215,7 @@ class Exciter(RegisterDevice):
                 if words != pre.setpoint_words and not self._setpoint_attempted:
                     action = ("setpoint not written by this run; it changed since the pre-test "
                               "snapshot (by someone else) and was left as found")
-                    self._give_back_remote(writes, reason)
-                    self._took_remote = False
-                    return SafeStateReport(self.name, True, action,
-                                           detail=f"setpoint read {list(words)}, pre-test "
-                                           f"{list(pre.setpoint_words)} = {pre.setpoint_pu:.6g} pu",
-                                           reason=reason, attempts=attempts,
-                                           reconnected=reconnected, writes=tuple(writes))
-                if words != pre.setpoint_words:
+                elif words != pre.setpoint_words:
                     writes.append(self.write(SETPOINT, pre.setpoint_pu,
                                              purpose=f"restore pre-test setpoint ({reason})"))
                     action = "setpoint restored by host" + (" after reconnect" if reconnected

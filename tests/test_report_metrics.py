@@ -158,11 +158,12 @@ def test_fit_window_failed_flag_and_null_history(tmp_path: Path) -> None:
 
 def test_a_value_outside_its_bounds_fails_the_report() -> None:
     """The `local` peer ignores bounds by design: such a result must not pass as validated."""
+    from bench_ctl.model.unit import outside_bounds
     from bench_ctl.report import checks as chk
 
     bounds = {"KAVR": [50, 100], "TE": [0.002, 0.2]}
-    assert chk.params_outside_bounds({"KAVR": 100.0, "TE": 0.2}, bounds) == []   # on a bound: inside
-    out = chk.params_outside_bounds({"KAVR": 193.6, "TE": 0.02}, bounds)
+    assert outside_bounds({"KAVR": 100.0, "TE": 0.2}, bounds) == []   # on a bound: inside
+    out = outside_bounds({"KAVR": 193.6, "TE": 0.02}, bounds)
     assert out == ["KAVR = 193.6 [50, 100]"]
     checks = chk.summary_checks(sim_failures=[], mse_recomputed=1e-4, mse_reported=1e-4, constraints=[],
                                 noise_floor=None, noise_source="", noise_ratio_limit=2.0, determined=None,

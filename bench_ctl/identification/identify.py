@@ -24,6 +24,7 @@ from bench_ctl.capture.capture import sha256_file
 from bench_ctl.model.kernel import run_kernel
 from bench_ctl.model.simulate import param_matrix
 from bench_ctl.model.unit import Unit
+from bench_ctl.model.unit import outside_bounds as values_outside_bounds
 
 from .identifiability import analyse
 from .peers import OPTIMIZERS, OptimResult, Progress, run_optimizer
@@ -54,13 +55,7 @@ class Identification:
     @property
     def outside_bounds(self) -> list[str]:
         """'NAME = value [lo, hi]' for each identified value beyond its bounds."""
-        out = []
-        for name, value in self.result["params"].items():
-            lo, hi = self.result["bounds"][name]
-            slack = 1e-9 * (hi - lo)
-            if value < lo - slack or value > hi + slack:
-                out.append(f"{name} = {value:.6g} [{lo:g}, {hi:g}]")
-        return out
+        return values_outside_bounds(self.result["params"], self.result["bounds"])
 
 
 def warm_up(unit: Unit) -> float:

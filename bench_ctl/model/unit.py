@@ -13,10 +13,10 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Iterable, Mapping
+from typing import Iterable, Iterator, Mapping
 
 from .effects import EFFECTS, effect
-from .params import GENERATOR_PARAMS, PARAMS, neutral_values
+from .params import AVR_PARAMS, GENERATOR_PARAMS, PARAMS, neutral_values
 
 
 class UnitError(ValueError):
@@ -87,6 +87,22 @@ class Unit:
         }
 
 
+def bounded_values(values: Mapping[str, object], bounds: Mapping[str, object]) -> Iterator[tuple[str, float, float, float]]:
+    """(name, value, min, max) for each numeric value with a [min, max] pair in `bounds` (as a
+    result JSON writes them; anything else is skipped)."""
+    for name, value in values.items():
+        b = bounds.get(name)
+        if isinstance(b, (list, tuple)) and len(b) == 2 and isinstance(value, (int, float)) \
+                and not isinstance(value, bool):
+            yield name, float(value), float(b[0]), float(b[1])
+
+
+def outside_bounds(values: Mapping[str, object], bounds: Mapping[str, object]) -> list[str]:
+    """'NAME = value [min, max]' for each value beyond its bounds (by more than rounding)."""
+    return [f"{name} = {v:.6g} [{lo:g}, {hi:g}]" for name, v, lo, hi in bounded_values(values, bounds)
+            if v < lo - 1e-9 * (hi - lo) or v > hi + 1e-9 * (hi - lo)]
+
+
 def _finite_or_none(v: float) -> float | None:
     """JSON has no infinity: a neutral limit (+-inf) is written as null."""
     return v if math.isfinite(v) else None
@@ -100,8 +116,6 @@ def check_unit(unit: Unit, source: str) -> Unit:
     """What a whole unit must satisfy, once every override is in: every AVR parameter given,
     identified values finite and inside their bounds, bounds and fixed values inside the
     physical ranges, fixed names apart from the generator's."""
-    from .params import AVR_PARAMS
-
     for name in AVR_PARAMS:
         if name not in unit.identify and name not in unit.fixed:
             raise UnitError(f"{source}: AVR parameter {name} is neither under [identify] nor [fixed]")

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.model.simulate import simulate
+from bench_ctl.model.unit import outside_bounds
 from bench_ctl.report import checks as chk
 from bench_ctl.report.inputs import (DIAGNOSIS_SCHEMA, LoadedCapture, ReportError, check_result,
                                      check_schema, load_captures, model_values)
@@ -112,8 +113,7 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
         noise_ratio_limit=noise_ratio_limit, determined=ident.get("determined"),
         at_bounds=chk.params_at_bounds(dict(result.get("params") or {}),
                                        dict(result.get("bounds") or {})),
-        outside_bounds=chk.params_outside_bounds(dict(result.get("params") or {}),
-                                                 dict(result.get("bounds") or {})),
+        outside_bounds=outside_bounds(dict(result.get("params") or {}), dict(result.get("bounds") or {})),
         n_captures=len(analyses))
     return ReportData(result=result, diagnosis=diagnosis, values=values,
                       captures=tuple(analyses), mse=mse, objective=objective, fit_window=window,

@@ -18,6 +18,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from bench_ctl.model.unit import bounded_values
+
 MSE_REL_TOL = 1e-3
 DEFAULT_NOISE_RATIO_LIMIT = 2.0
 AT_BOUND_FRACTION = 1e-3
@@ -146,27 +148,9 @@ def summary_checks(*, sim_failures: list[str], mse_recomputed: float,
     return checks
 
 
-def params_outside_bounds(params: Mapping[str, Any], bounds: Mapping[str, Any]) -> list[str]:
-    """'NAME = value [lo, hi]' for each value beyond its bounds (by more than rounding)."""
-    out = []
-    for name, value in params.items():
-        b = bounds.get(name)
-        if not (isinstance(b, (list, tuple)) and len(b) == 2) or not isinstance(value, (int, float)):
-            continue
-        lo, hi = float(b[0]), float(b[1])
-        slack = 1e-9 * (hi - lo)
-        if value < lo - slack or value > hi + slack:
-            out.append(f"{name} = {value:.6g} [{lo:g}, {hi:g}]")
-    return out
-
-
 def params_at_bounds(params: Mapping[str, Any], bounds: Mapping[str, Any]) -> list[str]:
     out = []
-    for name, value in params.items():
-        b = bounds.get(name)
-        if not (isinstance(b, (list, tuple)) and len(b) == 2) or not isinstance(value, (int, float)):
-            continue
-        lo, hi = float(b[0]), float(b[1])
+    for name, value, lo, hi in bounded_values(params, bounds):
         tol = AT_BOUND_FRACTION * (hi - lo)
         if math.isfinite(tol) and (value - lo <= tol or hi - value <= tol):
             out.append(name)
