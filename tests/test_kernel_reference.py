@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from bench_ctl.model.edges import EdgeSpec, find_setpoint_edges
 from bench_ctl.model.simulate import param_matrix, pulse_usetp
 from bench_ctl.model.kernel import run_kernel
 from bench_ctl.model.unit import reference_unit
@@ -24,8 +25,9 @@ NEUTRAL = dict(VRMAX=math.inf, VRMIN=-math.inf, TD=0.0, TR=0.0, S10=0.0, S12=0.0
 START, WIDTH, AMP, DURATION, RATE_HZ = 1.0, 1.0, 0.05, 4.0, 1000.0
 
 
-def reference_efd(p: dict, t_eval: np.ndarray) -> np.ndarray:
-    """efd as recorded, by solve_ivp (Radau, rtol 1e-10) on the continuous-time equations."""
+def reference_efd(p: dict, t_eval: np.ndarray, on: float = START, off: float = START + WIDTH) -> np.ndarray:
+    """efd as recorded, by solve_ivp (Radau, rtol 1e-10) on the continuous-time equations, for a
+    setpoint pulse of AMP from `on` to `off` (s, any instant, not only sample instants)."""
     if p["S10"] > 0:
         r = math.sqrt(p["S12"] / p["S10"])
         A = (r - 1.2) / (r - 1.0)
@@ -42,20 +44,20 @@ def reference_efd(p: dict, t_eval: np.ndarray) -> np.ndarray:
     uref0 = vt0 + e0
 
     def target(t):
-        return uref0 + (AMP if START <= t < START + WIDTH else 0.0)
+        return uref0 + (AMP if on <= t < off else 0.0)
 
     ramp = p["RAMP"]
 
     def uref(t):
         if not math.isfinite(ramp):
             return target(t)
-        if t < START:
+        if t < on:
             return uref0
-        rise = min(AMP, ramp * (t - START))
-        if t < START + WIDTH:
+        rise = min(AMP, ramp * (t - on))
+        if t < off:
             return uref0 + rise
-        top = min(AMP, ramp * WIDTH)
-        return uref0 + max(0.0, top - ramp * (t - START - WIDTH))
+        top = min(AMP, ramp * (off - on))
+        return uref0 + max(0.0, top - ramp * (t - off))
 
     def avr_out(t, x):
         xm, x1, x2 = x[0], x[1], x[2]
@@ -95,9 +97,9 @@ def reference_efd(p: dict, t_eval: np.ndarray) -> np.ndarray:
         ]
 
     # breakpoints: input edges, ramp ends, and their images through the dead time
-    edges = {START, START + WIDTH}
+    edges = {on, off}
     if math.isfinite(ramp):
-        edges |= {START + min(WIDTH, AMP / ramp), START + WIDTH + min(AMP, ramp * WIDTH) / ramp}
+        edges |= {on + min(off - on, AMP / ramp), off + min(AMP, ramp * (off - on)) / ramp}
     if p["TD"] > 0:
         edges |= {e + j * p["TD"] for e in list(edges) for j in range(1, 4)}
         edges |= set(np.arange(p["TD"], t_eval[-1], p["TD"]))
@@ -153,6 +155,46 @@ def test_kernel_matches_solve_ivp(case):
     if case != "none":
         base = reference_efd({**REF, **NEUTRAL}, t)
         assert np.max(np.abs(ref - base)) > 0.01
+
+
+#: fitted edge offsets (s) of the off-grid cases: the pulse starts 0.37 ms and ends 0.81 ms before
+#: the samples that first show it
+OFF_GRID = (-0.00037, -0.00081)
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_kernel_edges_between_samples_match_solve_ivp(case):
+    """A setpoint edge inside a sample interval (DESIGN.md section 4): the kernel, told the
+    edge's offset, integrates the change at that instant as exactly as at a sample."""
+    p = {**REF, **NEUTRAL, **CASES[case], "EDGE1": OFF_GRID[0], "EDGE2": OFF_GRID[1]}
+    t, u = pulse_usetp(amplitude=AMP, width=WIDTH, start=START, duration=DURATION, rate=RATE_HZ)
+    k = find_setpoint_edges(u)
+    spec = EdgeSpec(k, np.diff(u)[k - 1], t[k], np.arange(k.size))
+    out = run_kernel(param_matrix(p), u, 1.0 / RATE_HZ, 1.0, edges=spec)
+    assert out["fail_step"][0] == -1
+    ref = reference_efd(p, t, on=START + OFF_GRID[0], off=START + WIDTH + OFF_GRID[1])
+    err = np.max(np.abs(out["efd"][0] - ref))
+    assert err < 1e-3, f"{case}: max |efd error| = {err:.2e} pu"
+    # the zero-order hold (edges on the samples) misses the same record by far more
+    zoh = run_kernel(param_matrix({**p, "EDGE1": 0.0, "EDGE2": 0.0}), u, 1.0 / RATE_HZ, 1.0, edges=spec)
+    assert np.max(np.abs(zoh["efd"][0] - ref)) > 20 * max(err, 1e-4)
+
+
+def test_kernel_edge_offsets_batch_like_other_parameters():
+    """Candidates with different edge offsets in one call each get their own edge instant."""
+    t, u = pulse_usetp(amplitude=AMP, width=WIDTH, start=START, duration=2.5, rate=RATE_HZ)
+    k = find_setpoint_edges(u)
+    spec = EdgeSpec(k, np.diff(u)[k - 1], t[k], np.arange(k.size))
+    offs = np.array([[0.0, 0.0], [-0.0002, -0.0009], [-0.0007, 0.0], [-0.001, -0.001]])
+    base = {**REF, **NEUTRAL, "TD": 0.0123}
+    P = np.vstack([param_matrix({**base, "EDGE1": a, "EDGE2": b}) for a, b in offs])
+    batch = run_kernel(P, u, 1e-3, 1.0, edges=spec)["efd"]
+    for row, (a, b) in zip(batch, offs):
+        alone = run_kernel(param_matrix({**base, "EDGE1": a, "EDGE2": b}), u, 1e-3, 1.0, edges=spec)["efd"][0]
+        np.testing.assert_allclose(row, alone, rtol=0, atol=1e-12)
+    # a whole step early is the zero-order hold of the setpoint shifted by one sample
+    early = run_kernel(P[:1], np.roll(u, -1), 1e-3, 1.0)["efd"][0]
+    np.testing.assert_allclose(batch[3][:-2], early[:-2], rtol=0, atol=1e-9)
 
 
 def test_reference_pulse_shape():

@@ -26,7 +26,8 @@ import llvmlite.binding as _llvm
 import numba as nb
 import numpy as np
 
-from .params import COL, KERNEL_PARAMS
+from .edges import EdgeSpec
+from .params import COL, KERNEL_PARAMS, RECORD_PARAMS
 
 # The RK4 loop over candidates reads ~40 rows of 2-D arrays; LLVM's loop vectoriser needs a
 # runtime alias check per pair and gives up past its default of 8 checks ("too many memory
@@ -38,8 +39,10 @@ _llvm.set_option("", "-vectorize-memory-check-threshold=512")
 # derived-column indices
 (D_KAVR, D_R1, D_IT2, D_R2, D_IT4, D_ITE, D_ITR, D_ITD0P, D_ITD0PP, D_SATA, D_SATB,
  D_VRMAX, D_VRMIN, D_TD, D_RATE, D_RAMP, D_GAIN, D_SKEW, D_VT0, D_EFD0, D_E0, D_UREF0,
- D_VALID, D_TRON, D_TDON) = range(25)
-N_DERIVED = 25
+ D_VALID, D_TRON, D_TDON, D_EDGE0) = range(26)
+N_DERIVED = 25 + len(RECORD_PARAMS)   # D_EDGE0 + slot: offset of setpoint edge `slot` (s)
+#: an edge instant within this many steps of a sample instant is taken to fall on it
+EDGE_EPS = 1.0e-9
 
 #: a state magnitude beyond this marks the candidate failed (pu; physical values are < 20)
 BLOWUP = 1.0e5
@@ -72,6 +75,8 @@ def derive(P: np.ndarray) -> np.ndarray:
             valid &= np.isfinite(g[name]) & (g[name] >= 0.0)
         valid &= (g["RATE"] > 0.0) & (g["RAMP"] > 0.0) & np.isfinite(g["GAIN"])
         valid &= g["VRMAX"] > g["VRMIN"]
+        for name in RECORD_PARAMS:
+            valid &= np.isfinite(g[name])
         safe = lambda x: np.where(valid, x, 1.0)  # noqa: E731
         a, b = saturation_ab(g["S10"], g["S12"])
         vt0 = safe(g["Vt0"])
@@ -102,6 +107,8 @@ def derive(P: np.ndarray) -> np.ndarray:
         D[:, D_VALID] = valid.astype(np.float64)
         D[:, D_TRON] = (D[:, D_ITR] > 0.0).astype(np.float64)
         D[:, D_TDON] = (D[:, D_TD] > 0.0).astype(np.float64)
+        for slot, name in enumerate(RECORD_PARAMS):
+            D[:, D_EDGE0 + slot] = np.where(valid, g[name], 0.0)
     return D
 
 
@@ -145,18 +152,29 @@ def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
-def _delayed(vr_r, vr_l, c, L, tau_steps, k, vr0, left):
-    """VR at time tau_steps * dt from the per-step right/left limits kept in a ring of length L.
+def _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, tau_steps, k, vr0, left):
+    """VR at time tau_steps * dt from the per-step history kept in rings of length L.
 
-    `left` reads the left limit at an integer time (the end of an RK step sees the delayed
-    signal just before a delayed jump, the start of a step just after it)."""
+    Step j keeps the right limit at t_j (`vr_r`), the left limit at t_j+1 (`vr_l`) and, when the
+    setpoint jumped inside it at fraction `jf` > 0, the left and right limits there (`vjl`,
+    `vjr`); VR is linear between. `left` reads the left limit at a jump (the end of an RK
+    (sub-)step sees the delayed signal just before a delayed jump, the start just after it)."""
+    r = math.floor(tau_steps + 0.5)
+    if abs(tau_steps - r) < EDGE_EPS:
+        tau_steps = r
     if tau_steps < 0.0 or (left and tau_steps <= 0.0):
         return vr0
     j = int(math.ceil(tau_steps)) - 1 if left else int(math.floor(tau_steps))
     if j >= k:  # inside the current step (TD shorter than a step): hold the right limit
         return vr_r[c, k % L]
     s = tau_steps - j
-    return vr_r[c, j % L] * (1.0 - s) + vr_l[c, (j + 1) % L] * s
+    q = j % L
+    f = jf[c, q]
+    if f > 0.0:
+        if s < f - EDGE_EPS or (left and s <= f + EDGE_EPS):
+            return vr_r[c, q] + (vjl[c, q] - vr_r[c, q]) * (s / f)
+        return vjr[c, q] + (vr_l[c, (j + 1) % L] - vjr[c, q]) * ((s - f) / (1.0 - f))
+    return vr_r[c, q] * (1.0 - s) + vr_l[c, (j + 1) % L] * s
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
@@ -201,8 +219,77 @@ def _rk4_all(D, S, U, V, dt, m):
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _split_step(D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, vr_r, vr_l, jf, vjl, vjr,
+                skew_on, Ls, kf, kef, kdl, kdr):
+    """Step k of candidate c from the state S0 at t_k, in RK4 sub-steps between the break points
+    bs[:nbrk] (sorted fractions of the step in (0, 1)): where the setpoint jumps inside the step
+    (a fitted edge instant, the target jumps by bj there) and where the delayed VR jumps (the
+    delayed sample boundary, a delayed setpoint jump). Writes the state at t_k+1 into S; returns
+    (setpoint reference at t_k+1, efd' at t_k, efd' at t_k+1). With `skew_on` the efd kink at
+    the (first) setpoint jump is kept for the recorder-skew readout (`kf`, `kef`, `kdl`, `kdr`)."""
+    x0, x1, x2, x3, x4, x5 = S0[0, c], S0[1, c], S0[2, c], S0[3, c], S0[4, c], S0[5, c]
+    ramp = D[D_RAMP, c]
+    ramp_on = ramp < 1.0e300
+    e0 = D[D_EFD0, c]
+    tg = target
+    ur = uref
+    sa = 0.0
+    d_start = 0.0
+    d_end = 0.0
+    first = True
+    pending = False
+    for q in range(nbrk + 1):
+        sb = bs[q] if q < nbrk else 1.0
+        h = (sb - sa) * dt
+        if h > 1.0e-12 * dt:
+            if ramp_on:
+                ua = ur
+                st = tg - ur
+                lim = ramp * h
+                st = st if st < lim else lim
+                st = st if st > -lim else -lim
+                ub = ur + st
+            else:
+                ua = tg
+                ub = tg
+            va = 0.0
+            vm = 0.0
+            vb = 0.0
+            if td_on:
+                va = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base + sa, k, e0, False)
+                vm = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base + 0.5 * (sa + sb), k, e0, False)
+                vb = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base + sb, k, e0, True)
+            r = _rk4(D, c, ua, ub, va, vm, vb, x0, x1, x2, x3, x4, x5, h)
+            x0, x1, x2, x3, x4, x5 = r[0], r[1], r[2], r[3], r[4], r[5]
+            if first:
+                d_start = r[6]
+                first = False
+            if pending:
+                kdr[c, k % Ls] = r[6]
+                pending = False
+            d_end = r[7]
+            ur = ub
+        if q < nbrk and bj[q] != 0.0:
+            if td_on and not ramp_on:  # VR jumps here: keep both limits for the delayed reads
+                vmeas = x0 if D[D_ITR, c] > 0.0 else x5
+                vjl[c, k % L] = _avr(D, c, tg, vmeas, x1, x2)[0]
+                vjr[c, k % L] = _avr(D, c, tg + bj[q], vmeas, x1, x2)[0]
+                jf[c, k % L] = sb
+            if skew_on and kf[c, k % Ls] == 0.0 and not first:
+                kf[c, k % Ls] = sb
+                kef[c, k % Ls] = x3
+                kdl[c, k % Ls] = d_end
+                pending = True
+            tg += bj[q]
+        sa = sb
+    S[0, c] = x0; S[1, c] = x1; S[2, c] = x2; S[3, c] = x3; S[4, c] = x4; S[5, c] = x5
+    return (ur if ramp_on else tg), d_start, d_end
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt,
-               store, any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step):
+               store, any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step,
+               eidx, ejump, etn, eslot, ewin):
     T = usetp.shape[0]
     m = hi - lo
     S = np.zeros((8, m))            # states xm, x1, x2, efd, E'q, E''q; efd' at step start, end
@@ -216,7 +303,14 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
     e_first = np.zeros(m); e_last = np.zeros(m)
     out_e = np.zeros(m)
     vr_r = np.zeros((m, L)); vr_l = np.zeros((m, L))  # VR right/left limits per step (dead time)
+    jf = np.zeros((m, L)); vjl = np.zeros((m, L)); vjr = np.zeros((m, L))  # a jump inside a step
+    ne = eidx.shape[0]
+    tg0 = np.empty(m)
+    cross = np.zeros(m, np.bool_)
+    bs = np.empty(ne + 3)
+    bj = np.empty(ne + 3)
     ef_h = np.zeros((m, Ls)); der_r = np.zeros((m, Ls)); der_l = np.zeros((m, Ls))  # efd history (skew)
+    kf = np.zeros((m, Ls)); kef = np.zeros((m, Ls)); kdl = np.zeros((m, Ls)); kdr = np.zeros((m, Ls))
     for c in range(m):
         i = lo + c
         vt0 = D[D_VT0, c]
@@ -246,8 +340,17 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                     else:
                         j = int(math.floor(tau))
                         if j < k:
-                            y = _hermite(ef_h[c, j % Ls], der_r[c, j % Ls], ef_h[c, (j + 1) % Ls],
-                                         der_l[c, (j + 1) % Ls], tau - j, dt)
+                            q = j % Ls
+                            s = tau - j
+                            f = kf[c, q]
+                            if f <= 0.0:
+                                y = _hermite(ef_h[c, q], der_r[c, q], ef_h[c, (j + 1) % Ls],
+                                             der_l[c, (j + 1) % Ls], s, dt)
+                            elif s < f:  # a setpoint jump inside that step: the efd kink kept
+                                y = _hermite(ef_h[c, q], der_r[c, q], kef[c, q], kdl[c, q], s / f, f * dt)
+                            else:
+                                y = _hermite(kef[c, q], kdr[c, q], ef_h[c, (j + 1) % Ls],
+                                             der_l[c, (j + 1) % Ls], (s - f) / (1.0 - f), (1.0 - f) * dt)
                 if not failed[c]:
                     out_e[c] = D[D_GAIN, c] * y
         else:
@@ -283,13 +386,28 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                         e_last[c] += w_vt * d * d
         if k == T - 1:
             break
-        # ---- setpoint over [t_k, t_k+1): ZOH target, or a ramp towards it ----
+        # ---- setpoint over [t_k, t_k+1): ZOH target (each edge moved to its fitted instant),
+        # or a ramp towards it ----
         base_u = usetp[k] - usetp_pre
         for c in range(m):
-            i = lo + c
-            target = D[D_UREF0, c] + base_u
-            ua[c] = target
-            ub[c] = target
+            tg0[c] = D[D_UREF0, c] + base_u
+        inwin = ne > 0 and ewin[k] != 0
+        if inwin:
+            for c in range(m):
+                corr = 0.0
+                cr = False
+                for j in range(ne):
+                    ke = (etn[j] + D[D_EDGE0 + eslot[j], c]) / dt
+                    fit_on = 1.0 if ke <= k + EDGE_EPS else 0.0
+                    nom_on = 1.0 if k >= eidx[j] else 0.0
+                    corr += ejump[j] * (fit_on - nom_on)
+                    if k + EDGE_EPS < ke < k + 1.0 - EDGE_EPS:
+                        cr = True
+                tg0[c] += corr
+                cross[c] = cr
+        for c in range(m):
+            ua[c] = tg0[c]
+            ub[c] = tg0[c]
         if any_ramp:
             for c in range(m):
                 i = lo + c
@@ -306,21 +424,80 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                 if td > 0.0:
                     vm0 = S[0, c] if D[D_ITR, c] > 0.0 else S[5, c]
                     vr_r[c, k % L] = _avr(D, c, ua[c], vm0, S[1, c], S[2, c])[0]
+                    jf[c, k % L] = 0.0
                     base = k - td / dt
-                    V[0, c] = _delayed(vr_r, vr_l, c, L, base, k, D[D_EFD0, c], False)
-                    V[1, c] = _delayed(vr_r, vr_l, c, L, base + 0.5, k, D[D_EFD0, c], False)
-                    V[2, c] = _delayed(vr_r, vr_l, c, L, base + 1.0, k, D[D_EFD0, c], True)
+                    V[0, c] = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base, k, D[D_EFD0, c], False)
+                    V[1, c] = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base + 0.5, k, D[D_EFD0, c], False)
+                    V[2, c] = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base + 1.0, k, D[D_EFD0, c], True)
         # ---- RK4 step, one fused straight-line body per candidate (vectorises across c) ----
         if any_skew:
             for c in range(m):
                 ef_h[c, k % Ls] = S[3, c]
-        if any_delay:
+                kf[c, k % Ls] = 0.0
+        if any_delay or inwin:
             for c in range(m):
                 for q in range(6):
                     S0[q, c] = S[q, c]
         _rk4_all(D, S, U, V, dt, m)
         for c in range(m):
             uref[c] = ub[c]
+        # ---- steps with a jump inside: the setpoint at a fitted edge instant, the delayed VR at
+        # a delay that is not a whole number of steps; such a step is redone from t_k in
+        # sub-steps between the jumps ----
+        if any_delay or inwin:
+            for c in range(m):
+                if failed[c]:
+                    continue
+                nbrk = 0
+                if inwin and cross[c]:
+                    for j in range(ne):
+                        ke = (etn[j] + D[D_EDGE0 + eslot[j], c]) / dt
+                        if k + EDGE_EPS < ke < k + 1.0 - EDGE_EPS:
+                            bs[nbrk] = ke - k
+                            bj[nbrk] = ejump[j]
+                            nbrk += 1
+                td = D[D_TD, c]
+                base = 0.0
+                td_on = any_delay and td > 0.0
+                if td_on:
+                    base = k - td / dt
+                    j0 = int(math.floor(base))
+                    frac = base - j0
+                    if j0 + 1 < k:
+                        if frac >= EDGE_EPS:
+                            bs[nbrk] = 1.0 - frac
+                            bj[nbrk] = 0.0
+                            nbrk += 1
+                        if j0 >= 0:
+                            f = jf[c, j0 % L]
+                            if f > frac + EDGE_EPS:
+                                bs[nbrk] = f - frac
+                                bj[nbrk] = 0.0
+                                nbrk += 1
+                        if j0 + 1 >= 0:
+                            f = jf[c, (j0 + 1) % L]
+                            if f > 0.0 and f < frac - EDGE_EPS:
+                                bs[nbrk] = 1.0 - frac + f
+                                bj[nbrk] = 0.0
+                                nbrk += 1
+                if nbrk == 0:
+                    continue
+                for a in range(1, nbrk):  # insertion sort of the few break points
+                    sv = bs[a]
+                    jv = bj[a]
+                    b = a - 1
+                    while b >= 0 and bs[b] > sv:
+                        bs[b + 1] = bs[b]
+                        bj[b + 1] = bj[b]
+                        b -= 1
+                    bs[b + 1] = sv
+                    bj[b + 1] = jv
+                r = _split_step(D, c, k, dt, S, S0, nbrk, bs, bj, tg0[c], ua[c], base, td_on, L,
+                                vr_r, vr_l, jf, vjl, vjr, any_skew, Ls, kf, kef, kdl, kdr)
+                uref[c] = r[0]
+                ub[c] = r[0]
+                S[6, c] = r[1]
+                S[7, c] = r[2]
         if any_skew:
             for c in range(m):
                 der_r[c, k % Ls] = S[6, c]
@@ -335,35 +512,6 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                 # park the state at the steady state so the arithmetic stays finite
                 S[0, c] = D[D_VT0, c]; S[4, c] = D[D_VT0, c]; S[5, c] = D[D_VT0, c]
                 S[3, c] = D[D_EFD0, c]; S[1, c] = D[D_E0, c]; S[2, c] = D[D_E0, c]
-        # ---- dead time not a whole number of steps: the delayed signal jumps inside the step,
-        # so such a step is split at that instant into two RK4 sub-steps ----
-        if any_delay:
-            for c in range(m):
-                i = lo + c
-                td = D[D_TD, c]
-                if td <= 0.0 or failed[c]:
-                    continue
-                base = k - td / dt
-                j0 = math.floor(base)
-                frac = base - j0
-                if frac < 1e-9 or j0 + 1 >= k:
-                    continue
-                th = 1.0 - frac
-                e0 = D[D_EFD0, c]
-                uth = ua[c] + th * (ub[c] - ua[c])
-                va = _delayed(vr_r, vr_l, c, L, base, k, e0, False)
-                vam = _delayed(vr_r, vr_l, c, L, base + 0.5 * th, k, e0, False)
-                vae = _delayed(vr_r, vr_l, c, L, j0 + 1.0, k, e0, True)
-                vb = _delayed(vr_r, vr_l, c, L, j0 + 1.0, k, e0, False)
-                vbm = _delayed(vr_r, vr_l, c, L, j0 + 1.0 + 0.5 * frac, k, e0, False)
-                vbe = _delayed(vr_r, vr_l, c, L, base + 1.0, k, e0, True)
-                x0, x1, x2, x3, x4, x5 = S0[0, c], S0[1, c], S0[2, c], S0[3, c], S0[4, c], S0[5, c]
-                ra = _rk4(D, c, ua[c], uth, va, vam, vae, x0, x1, x2, x3, x4, x5, th * dt)
-                rb = _rk4(D, c, uth, ub[c], vb, vbm, vbe, ra[0], ra[1], ra[2], ra[3], ra[4], ra[5], frac * dt)
-                S[0, c] = rb[0]; S[1, c] = rb[1]; S[2, c] = rb[2]; S[3, c] = rb[3]; S[4, c] = rb[4]; S[5, c] = rb[5]
-                if any_skew:
-                    der_r[c, k % Ls] = ra[6]
-                    der_l[c, (k + 1) % Ls] = rb[7]
         if any_skew:
             for c in range(m):
                 ef_h[c, (k + 1) % Ls] = S[3, c]
@@ -380,20 +528,39 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
 
 @nb.njit(cache=True, parallel=True, error_model="numpy")
 def _run(D, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt, store, chunk,
-         any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step):
+         any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step,
+         eidx, ejump, etn, eslot, ewin):
     n = D.shape[1]
     nchunks = (n + chunk - 1) // chunk
     for b in nb.prange(nchunks):
         lo = b * chunk
         hi = min(n, lo + chunk)
         _run_chunk(np.ascontiguousarray(D[:, lo:hi]), lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd, w_vt,
-                   store, any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
+                   store, any_delay, any_skew, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step,
+                   eidx, ejump, etn, eslot, ewin)
+
+
+def _edge_window(D: np.ndarray, edges: EdgeSpec, dt: float, T: int) -> np.ndarray:
+    """1 for every step where some candidate's setpoint differs from the zero-order hold of the
+    record (between an edge's nominal and fitted instants) or jumps inside the step."""
+    win = np.zeros(T, dtype=np.uint8)
+    for j in range(edges.n):
+        ke = (edges.nominal_s[j] + D[:, D_EDGE0 + edges.slot[j]]) / dt
+        lo = int(math.floor(min(float(ke.min()), float(edges.index[j])))) - 1
+        hi = int(math.ceil(max(float(ke.max()), float(edges.index[j])))) + 1
+        win[max(0, lo): max(0, min(T, hi + 1))] = 1
+    return win
 
 
 def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
                efd_meas: np.ndarray | None = None, vt_meas: np.ndarray | None = None,
-               w_efd: float = 1.0, w_vt: float = 0.0, store: bool = True, chunk: int | None = None):
+               w_efd: float = 1.0, w_vt: float = 0.0, store: bool = True, chunk: int | None = None,
+               edges: EdgeSpec | None = None):
     """Run the kernel on a parameter matrix P (n, len(KERNEL_PARAMS)).
+
+    `edges`: the record's setpoint edges; each moves to its nominal instant plus the candidate's
+    offset in column EDGE1.. (slot) of P, the step it falls in split there. None: every change
+    of usetp acts at the sample that shows it (zero-order hold).
 
     Returns a dict with `efd`, `vt` (n, T) traces when `store`, and when measurements are given
     `obj` (trapezoidal integral of the weighted squared error), `sse_efd`, `sse_vt` (sums of
@@ -428,15 +595,22 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
     fail_step = np.full(n, -1, dtype=np.int64)
     if chunk is None:
         chunk = max(1, min(64, -(-n // nb.get_num_threads())))
+    edges = EdgeSpec.none() if edges is None else edges
+    if edges.n and int(edges.index.max()) >= T:
+        raise ValueError(f"edge at sample {int(edges.index.max())} lies beyond the record ({T} samples)")
+    earr = (edges.index, edges.jump, edges.nominal_s, edges.slot)
     if n:
         any_ramp = bool(np.any(D[:, D_RAMP] < 1.0e300))
         Dt = np.ascontiguousarray(D.T)
+        ewin = _edge_window(D, edges, float(dt), T) if edges.n else np.zeros(T, dtype=np.uint8)
         if n <= chunk:  # one chunk: waking the thread pool costs more than it saves (measured)
             _run_chunk(Dt, 0, n, usetp, float(usetp_pre), float(dt), L, Ls, em, vm, we, wv, bool(store),
-                       td_max > 0, sk_max > 0, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
+                       td_max > 0, sk_max > 0, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step,
+                       *earr, ewin)
         else:
             _run(Dt, usetp, float(usetp_pre), float(dt), L, Ls, em, vm, we, wv, bool(store), int(chunk),
-                 td_max > 0, sk_max > 0, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
+                 td_max > 0, sk_max > 0, any_ramp, efd_out, vt_out, sse_efd, sse_vt, obj, fail_step,
+                 *earr, ewin)
     out = {"fail_step": fail_step}
     if store:
         out["efd"] = efd_out

@@ -52,6 +52,10 @@ _CATALOGUE = [
     ParamInfo("RAMP", "pu/s", "setpoint ramp rate of the device (setpoint_ramp)", 0.005, 100.0, INF),
     ParamInfo("GAIN", "1", "efd recorder channel gain (recorder_gain)", 0.5, 1.5, 1.0),
     ParamInfo("SKEW", "s", "efd channel recorded late vs usetp (time_skew)", 0.0, 0.2, 0.0),
+    # record timing, not the model: fitted instant of setpoint edge N minus the sample where the
+    # record first shows it (bench_ctl.model.edges); 0 = the kernel's zero-order hold
+    *(ParamInfo(f"EDGE{i}", "s", f"setpoint edge {i}: fitted instant minus its nominal sample (record timing)",
+                -1.0, 1.0, 0.0) for i in range(1, 5)),
 ]
 
 PARAMS: dict[str, ParamInfo] = {p.name: p for p in _CATALOGUE}
@@ -62,6 +66,8 @@ COL: dict[str, int] = {name: i for i, name in enumerate(KERNEL_PARAMS)}
 
 AVR_PARAMS = ("KAVR", "TA1", "TA2", "TA3", "TA4", "TE")
 GENERATOR_PARAMS = ("Td0p", "Td0pp", "Vt0")
+#: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
+RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")
 
 #: Reference values of the simulated unit (DESIGN.md section 3).
 REFERENCE_VALUES: dict[str, float] = {

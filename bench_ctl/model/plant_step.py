@@ -14,6 +14,7 @@ import math
 from pathlib import Path
 
 import numba as nb
+import numpy as np
 
 from . import kernel as K
 
@@ -47,6 +48,7 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
     skew = D[K.D_SKEW, 0]
     ramp = D[K.D_RAMP, 0]
     e0 = D[K.D_EFD0, 0]
+    jz = np.zeros((1, L))  # the plant's setpoint changes on its own steps: no jump inside a step
     for s in range(u.shape[0]):
         k = k0 + s
         # ---- sample k (states at t_k) ----
@@ -84,9 +86,9 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
             vm0 = X[0] if D[K.D_ITR, 0] > 0.0 else X[5]
             vr_r[0, k % L] = K._avr(D, 0, ua, vm0, X[1], X[2])[0]
             base = k - td / dt
-            v0 = K._delayed(vr_r, vr_l, 0, L, base, k, e0, False)
-            v1 = K._delayed(vr_r, vr_l, 0, L, base + 0.5, k, e0, False)
-            v2 = K._delayed(vr_r, vr_l, 0, L, base + 1.0, k, e0, True)
+            v0 = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base, k, e0, False)
+            v1 = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base + 0.5, k, e0, False)
+            v2 = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base + 1.0, k, e0, True)
         x0, x1, x2, x3, x4, x5 = X[0], X[1], X[2], X[3], X[4], X[5]
         r = _rk4_step(D, ua, ub, v0, v1, v2, x0, x1, x2, x3, x4, x5, dt)
         if skew > 0.0:
@@ -108,12 +110,12 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
             if frac >= 1e-9 and j0 + 1 < k:
                 th = 1.0 - frac
                 uth = ua + th * (ub - ua)
-                va = K._delayed(vr_r, vr_l, 0, L, base, k, e0, False)
-                vam = K._delayed(vr_r, vr_l, 0, L, base + 0.5 * th, k, e0, False)
-                vae = K._delayed(vr_r, vr_l, 0, L, j0 + 1.0, k, e0, True)
-                vb = K._delayed(vr_r, vr_l, 0, L, j0 + 1.0, k, e0, False)
-                vbm = K._delayed(vr_r, vr_l, 0, L, j0 + 1.0 + 0.5 * frac, k, e0, False)
-                vbe = K._delayed(vr_r, vr_l, 0, L, base + 1.0, k, e0, True)
+                va = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base, k, e0, False)
+                vam = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base + 0.5 * th, k, e0, False)
+                vae = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, j0 + 1.0, k, e0, True)
+                vb = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, j0 + 1.0, k, e0, False)
+                vbm = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, j0 + 1.0 + 0.5 * frac, k, e0, False)
+                vbe = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base + 1.0, k, e0, True)
                 ra = _rk4_step(D, ua, uth, va, vam, vae, x0, x1, x2, x3, x4, x5, th * dt)
                 rb = _rk4_step(D, uth, ub, vb, vbm, vbe, ra[0], ra[1], ra[2], ra[3], ra[4], ra[5],
                                frac * dt)

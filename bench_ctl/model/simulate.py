@@ -12,17 +12,21 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .kernel import run_kernel
-from .params import COL, KERNEL_PARAMS
+from .params import COL, KERNEL_PARAMS, RECORD_PARAMS
 from .unit import Unit
 
 
 def param_matrix(base: Mapping[str, float], names: Sequence[str] = (), X: np.ndarray | None = None) -> np.ndarray:
-    """Kernel parameter matrix: every row starts from `base`; columns `names` take the rows of X."""
+    """Kernel parameter matrix: every row starts from `base`; columns `names` take the rows of X.
+    The record's edge offsets (EDGE1..) default to 0, the zero-order hold."""
     row = np.empty(len(KERNEL_PARAMS))
     for i, name in enumerate(KERNEL_PARAMS):
-        if name not in base:
+        if name in base:
+            row[i] = base[name]
+        elif name in RECORD_PARAMS:
+            row[i] = 0.0
+        else:
             raise KeyError(f"no value for model parameter {name!r}")
-        row[i] = base[name]
     if X is None:
         return row[None, :].copy()
     X = np.atleast_2d(np.asarray(X, dtype=np.float64))
