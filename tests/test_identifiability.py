@@ -31,7 +31,7 @@ def test_well_determined_set_all_flags_true_and_std_matches_monte_carlo(unit):
     truth = _unit_with(unit, TRUTH)
     fits = []
     for seed in range(8):
-        p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=100 + seed)], truth)
+        p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=100 + seed)], truth, fit_edges=False)
         # start at the truth: the Monte Carlo measures the noise's effect, not the optimizer
         fits.append(run_optimizer("local", p, max_evals=150, seed=0).x)
     a = analyse(p, _x(p, TRUTH))
@@ -50,7 +50,7 @@ def test_pole_zero_cancellation_is_flagged_as_a_singular_direction(unit):
     # TA1 = TA4: (1 + s TA1)/(1 + s TA4) cancels, only TA1 - TA4 = 0 is seen, not their value
     vals = {**TRUTH, "TA1": 1.5, "TA4": 1.5}
     truth = _unit_with(unit, vals)
-    p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=1)], unit)
+    p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=1)], unit, fit_edges=False)
     a = analyse(p, _x(p, vals))
     assert a["determined"]["TA1"] is False and a["determined"]["TA4"] is False
     assert any("singular direction" in r for r in a["reasons"]["TA1"])
@@ -62,21 +62,21 @@ def test_record_too_short_to_see_the_slow_lag(unit):
     # reference unit (TA4 = 10 s): a step recorded for 0.5 s after the edge cannot fix TA4 or KAVR
     truth = unit
     cap = synthetic_capture(truth, duration=1.5, rate=500.0, seed=2, width=None)
-    p = make_problem([cap], unit)
+    p = make_problem([cap], unit, fit_edges=False)
     a = analyse(p, p.x_start())
     assert a["determined"]["TA4"] is False and a["determined"]["KAVR"] is False
     assert a["rel_std"]["TA4"] is None or a["rel_std"]["TA4"] > 0.25
     assert a["determined"]["TE"]
     assert "TA4" in a["notes"][-1]
     # the same unit over a 10 s record does determine the lag better
-    long = make_problem([synthetic_capture(truth, duration=10.0, rate=500.0, seed=2)], unit)
+    long = make_problem([synthetic_capture(truth, duration=10.0, rate=500.0, seed=2)], unit, fit_edges=False)
     b = analyse(long, long.x_start())
     assert b["rel_std"]["TA4"] < (a["rel_std"]["TA4"] or np.inf)
 
 
 def test_reference_unit_lead_swap_is_equivalent_and_allowed(unit):
     cap = synthetic_capture(unit, duration=3.0, rate=500.0, seed=3)
-    p = make_problem([cap], unit)
+    p = make_problem([cap], unit, fit_edges=False)
     a = analyse(p, p.x_start())
     sets = {e["note"]: e for e in a["equivalent_sets"]}
     lead = sets["leads TA1 <-> TA3 swapped"]
@@ -94,7 +94,7 @@ def test_reference_unit_lead_swap_is_equivalent_and_allowed(unit):
 
 def test_constraints_rule_out_the_lead_swap_when_ta3_is_below_ta2(unit):
     truth = _unit_with(unit, TRUTH)  # TA3 = 0.1 < TA2 = 0.3: the swap would break TA2 <= TA1
-    p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit)
+    p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit, fit_edges=False)
     a = analyse(p, _x(p, TRUTH))
     lead = {e["note"]: e for e in a["equivalent_sets"]}["leads TA1 <-> TA3 swapped"]
     assert lead["equivalent"] and not lead["allowed"]
@@ -105,7 +105,7 @@ def test_constraints_rule_out_the_lead_swap_when_ta3_is_below_ta2(unit):
 def test_a_changed_response_is_not_called_equivalent(unit):
     # swapping TA1 with TA2 (a lead with a lag) is not a symmetry: check the tolerance bites
     truth = _unit_with(unit, TRUTH)
-    p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit)
+    p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit, fit_edges=False)
     x = _x(p, TRUTH)
     y = x.copy()
     y[1], y[2] = x[2], x[1]
@@ -120,8 +120,8 @@ def test_a_capture_of_weight_zero_changes_nothing(unit):
     truth = _unit_with(unit, TRUTH)
     cap = synthetic_capture(truth, duration=3.0, rate=500.0, seed=7)
     other = synthetic_capture(truth, duration=3.0, rate=500.0, seed=8)
-    alone = analyse(make_problem([cap], truth), _x(make_problem([cap], truth), TRUTH))
-    p = make_problem([cap, other], truth, weights=[1.0, 0.0])
+    alone = analyse(make_problem([cap], truth, fit_edges=False), _x(make_problem([cap], truth, fit_edges=False), TRUTH))
+    p = make_problem([cap, other], truth, weights=[1.0, 0.0], fit_edges=False)
     both = analyse(p, _x(p, TRUTH))
     for key in ("sensitivity", "rel_std"):
         for n in p.names:

@@ -27,7 +27,7 @@ def _trapz(e2: np.ndarray, dt: float) -> float:
 
 
 def test_objective_is_trapezoid_of_squared_efd_error(unit, cap):
-    p = make_problem([cap], unit)
+    p = make_problem([cap], unit, fit_edges=False)
     x = p.x_start() * np.array([1.1, 0.9, 1.0, 1.2, 0.8, 1.0])
     efd, vt, fail = simulate(p.values(x), cap.usetp, cap.dt)
     assert fail < 0
@@ -42,7 +42,7 @@ def test_objective_is_trapezoid_of_squared_efd_error(unit, cap):
 def test_vt_weight_and_capture_weights_enter_the_sum(unit, cap):
     u2 = apply_overrides(unit, ["weights.vt=0.5"])
     cap2 = synthetic_capture(unit, duration=2.0, rate=500.0, seed=12)
-    p = make_problem([cap, cap2], u2, weights=[1.0, 3.0])
+    p = make_problem([cap, cap2], u2, weights=[1.0, 3.0], fit_edges=False)
     x = p.x_start() * 1.05
     want = 0.0
     for c, a in ((cap, 1.0), (cap2, 3.0)):
@@ -56,7 +56,7 @@ def test_vt_weight_and_capture_weights_enter_the_sum(unit, cap):
 
 
 def test_failed_candidates_rank_below_every_finite_one_and_earlier_is_worse(unit, cap):
-    p = make_problem([cap], unit)
+    p = make_problem([cap], unit, fit_edges=False)
     good = p.x_start()
     invalid = good.copy()
     invalid[2] = -0.1  # TA2 < 0: refused before the first step
@@ -74,7 +74,7 @@ def test_failed_candidates_rank_below_every_finite_one_and_earlier_is_worse(unit
 
 
 def test_fit_window_restricts_objective_and_mse(unit, cap):
-    p = make_problem([cap], unit, fit_window=(0.8, 2.2))
+    p = make_problem([cap], unit, fit_window=(0.8, 2.2), fit_edges=False)
     x = p.x_start() * 1.1
     efd, _, _ = simulate(p.values(x), cap.usetp, cap.dt)
     t = cap.time - cap.time[0]
@@ -82,17 +82,17 @@ def test_fit_window_restricts_objective_and_mse(unit, cap):
     e2 = (efd[m] - cap.efd[m]) ** 2
     assert p.objective(x[None])[0] == pytest.approx(_trapz(e2, cap.dt), rel=1e-9)
     assert p.mse(x)[0] == pytest.approx(float(np.mean(e2)), rel=1e-9)
-    seg = make_problem([cap], unit, segment=slice(400, 1101))
+    seg = make_problem([cap], unit, segment=slice(400, 1101), fit_edges=False)
     assert seg.objective(x[None])[0] == pytest.approx(p.objective(x[None])[0], rel=1e-9)
     full = p.with_window(None)
     assert full.mse(x)[0] == pytest.approx(float(np.mean((efd - cap.efd) ** 2)), rel=1e-9)
     with pytest.raises(ProblemError, match="fit window"):
-        make_problem([cap], unit, fit_window=(2.0, 1.0))
+        make_problem([cap], unit, fit_window=(2.0, 1.0), fit_edges=False)
 
 
 def test_effect_parameters_bounds_and_constraints(unit, cap):
     names = list(unit.identified_names) + ["VRMAX", "VRMIN", "S10", "S12"]
-    p = make_problem([cap], unit, names=names)
+    p = make_problem([cap], unit, names=names, fit_edges=False)
     assert p.bounds[names.index("VRMAX")] == (1.5, 10.0)
     exprs = [c.expr for c in p.constraints]
     assert "S12 >= 1.44*S10" in exprs and "TA2 <= TA1" in exprs
@@ -102,11 +102,11 @@ def test_effect_parameters_bounds_and_constraints(unit, cap):
 
 
 def test_constraint_on_a_fixed_parameter_is_folded_into_the_bound(unit, cap):
-    p = make_problem([cap], unit, names=["KAVR", "TA2"])
+    p = make_problem([cap], unit, names=["KAVR", "TA2"], fit_edges=False)
     (c,) = [c for c in p.constraints if c.expr == "TA2 <= TA1"]
     assert c.satisfied([200.0, 0.9]) and not c.satisfied([200.0, 1.1])  # TA1 fixed at 1.0
     # "TA4 >= TA2" still involves TA2; with only KAVR fitted both are reported as fixed facts
-    p2 = make_problem([cap], unit, names=["KAVR"])
+    p2 = make_problem([cap], unit, names=["KAVR"], fit_edges=False)
     assert p2.constraints == ()
     assert {e for e, ok in p2.fixed_constraints} == {"TA2 <= TA1", "TA4 >= TA2"}
     assert all(c["satisfied"] for c in p2.constraint_report([200.0]))
@@ -114,16 +114,16 @@ def test_constraint_on_a_fixed_parameter_is_folded_into_the_bound(unit, cap):
 
 def test_bad_input_is_refused_with_the_name(unit, cap):
     with pytest.raises(ProblemError, match="FOO"):
-        make_problem([cap], unit, names=["KAVR", "FOO"])
+        make_problem([cap], unit, names=["KAVR", "FOO"], fit_edges=False)
     with pytest.raises(ProblemError, match="TA9|unknown"):
-        make_problem([cap], unit, bounds={"TA9": (0, 1)})
+        make_problem([cap], unit, bounds={"TA9": (0, 1)}, fit_edges=False)
     with pytest.raises(ProblemError, match="Td0p"):
-        make_problem([cap], unit, names=["Td0p"])  # no default bounds
+        make_problem([cap], unit, names=["Td0p"], fit_edges=False)  # no default bounds
     from bench_ctl.identification.constraints import ConstraintError
     with pytest.raises(ConstraintError, match="TAX"):
-        make_problem([cap], unit, constraints=["TAX <= TA1"])
+        make_problem([cap], unit, constraints=["TAX <= TA1"], fit_edges=False)
     with pytest.raises(ProblemError, match="weights"):
-        make_problem([cap], unit, weights=[1.0, 2.0])
+        make_problem([cap], unit, weights=[1.0, 2.0], fit_edges=False)
     tiny = Capture(time=[0.0, 0.001], usetp=[1.0, 1.0], efd=[1.0, 1.0])
     with pytest.raises(ProblemError, match="too few"):
-        make_problem([tiny], unit)
+        make_problem([tiny], unit, fit_edges=False)

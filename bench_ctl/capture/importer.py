@@ -46,6 +46,7 @@ class TestDescription:
 
     usetp = usetp0_pu, + amplitude_pu from start_s (capture time) on; for a pulse, back to
     usetp0_pu at start_s + width_s. A sample within 1e-6 steps of an edge counts as after it.
+    The stated instants are nominal: fits search each edge within `edge_tolerance_s`.
     """
 
     __test__ = False  # not a pytest test class
@@ -55,6 +56,9 @@ class TestDescription:
     amplitude_pu: float
     width_s: float | None = None
     usetp0_pu: float = 1.0
+    #: how far each edge may lie from the stated instant (s); None: one source sample. Every fit
+    #: searches the edge instants within it (bench_ctl.identification.timing).
+    edge_tolerance_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("step", "pulse"):
@@ -68,6 +72,8 @@ class TestDescription:
             _finite(self.width_s, "test width_s", positive=True)
         elif self.width_s is not None:
             raise ValueError("a step test has no width_s")
+        if self.edge_tolerance_s is not None:
+            _finite(self.edge_tolerance_s, "test edge_tolerance_s", positive=True)
 
     def usetp(self, time: np.ndarray, *, file: str = "<test description>") -> np.ndarray:
         """The setpoint on `time` (uniform). Refuses edges outside the record."""

@@ -21,7 +21,7 @@ from bench_ctl.capture.importer import ImportSpec, TestDescription, import_expor
 log = logging.getLogger(__name__)
 
 _TEST_KEYS = {"start": "start_s", "amplitude": "amplitude_pu", "width": "width_s",
-              "usetp0": "usetp0_pu"}
+              "usetp0": "usetp0_pu", "tolerance": "edge_tolerance_s"}
 
 
 def _pairs(values: tuple[str, ...], option: str) -> dict[str, str]:
@@ -44,7 +44,9 @@ def _floats(pairs: dict[str, str], option: str) -> dict[str, float]:
 
 
 def parse_test(text: str) -> TestDescription:
-    """`pulse:start=1.0,amplitude=0.05,width=1.0[,usetp0=1.0]` or `step:start=..,amplitude=..`."""
+    """`pulse:start=1.0,amplitude=0.05,width=1.0[,usetp0=1.0][,tolerance=0.01]` or
+    `step:start=..,amplitude=..`; `tolerance` (s): how far the real edges may lie from the stated
+    instants (default one source sample); every fit searches them within it."""
     kind, sep, rest = text.partition(":")
     if not sep:
         raise click.BadParameter("expected KIND:key=value,...", param_hint="--test")

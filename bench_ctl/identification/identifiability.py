@@ -31,6 +31,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bench_ctl.model.params import RECORD_PARAMS
+
 from .problem import Problem
 
 logger = logging.getLogger(__name__)
@@ -77,7 +79,8 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
     d = len(names)
     notes: list[str] = []
     reasons: dict[str, list[str]] = {n: [] for n in names}
-    positive = x > 0
+    # log steps for positive model parameters; additive (s) for the edge offsets, whose sign is free
+    positive = (x > 0) & np.array([n not in RECORD_PARAMS for n in names])
     # central differences in log x (additive for a parameter at 0, which has no log)
     h = np.where(positive, x * (math.exp(rel_step) - 1.0), rel_step)
     hm = np.where(positive, x * (1.0 - math.exp(-rel_step)), rel_step)

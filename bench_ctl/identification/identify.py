@@ -22,6 +22,7 @@ import bench_ctl
 from bench_ctl.capture import Capture
 from bench_ctl.capture.capture import sha256_file
 from bench_ctl.model.kernel import run_kernel
+from bench_ctl.model.params import RECORD_PARAMS
 from bench_ctl.model.simulate import param_matrix
 from bench_ctl.model.unit import Unit
 from bench_ctl.model.unit import outside_bounds as values_outside_bounds
@@ -75,20 +76,42 @@ def _none_if_inf(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-def _capture_entry(c: Capture, mse: float, obj: float, weight: float) -> dict[str, Any]:
+def _capture_entry(c: Capture, mse: float, obj: float, weight: float,
+                   edges: list[dict[str, Any]]) -> dict[str, Any]:
     sha = c.meta.get("csv_sha256") if isinstance(c.meta, Mapping) else None
     if sha is None and c.source and Path(c.source).is_file():
         sha = sha256_file(c.source)
     return {"path": c.source, "sha256": sha, "n": int(c.n), "rate_hz": float(c.rate_hz),
             "meta": dict(c.meta), "mse": _none_if_inf(mse), "objective": _none_if_inf(obj),
-            "weight": float(weight)}
+            "weight": float(weight), "edges": edges}
+
+
+def _model_only(ident: dict[str, Any]) -> dict[str, Any]:
+    """The identifiability block over the model parameters: the edge offsets were analysed with
+    them (their std goes to `edges`) but are the record's timing, not parameters of the unit."""
+    names = list(ident.get("names", []))
+    keep = [i for i, n in enumerate(names) if n not in RECORD_PARAMS]
+    if len(keep) == len(names):
+        return ident
+    out = dict(ident)
+    out["names"] = [names[i] for i in keep]
+    for key in ("sensitivity", "std", "rel_std", "determined", "reasons"):
+        if isinstance(out.get(key), Mapping):
+            out[key] = {n: v for n, v in out[key].items() if n not in RECORD_PARAMS}
+    corr = out.get("correlation")
+    if isinstance(corr, list) and len(corr) == len(names):
+        out["correlation"] = [[corr[i][j] for j in keep] for i in keep]
+    out["equivalent_sets"] = [{**e, "params": {n: v for n, v in e.get("params", {}).items()
+                                               if n not in RECORD_PARAMS}}
+                              for e in out.get("equivalent_sets", []) if isinstance(e, Mapping)]
+    return out
 
 
 def _run_summary(problem: Problem, r: OptimResult) -> dict[str, Any]:
     mses = problem.mse(r.x)
     return {"optimizer": r.name, "mse": _none_if_inf(float(np.mean(mses))),
             "objective": _none_if_inf(r.objective), "evaluations": r.nfev, "wall_s": r.wall_s,
-            "constraints_violated": list(r.constraints_violated), "params": problem.params(r.x),
+            "constraints_violated": list(r.constraints_violated), "params": problem.model_params(r.x),
             "failed": r.failed, "message": r.message}
 
 
@@ -130,18 +153,22 @@ def run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: st
         ident = {"names": list(prob.names), "sensitivity": {}, "std": {}, "rel_std": {},
                  "correlation": [], "determined": {n: False for n in prob.names},
                  "equivalent_sets": [], "notes": ["not analysed: the fit failed"]}
-    fixed = {k: _none_if_inf(v) for k, v in prob.base.items() if k not in prob.names}
+    fixed = {k: _none_if_inf(v) for k, v in prob.base.items()
+             if k not in prob.names and k not in RECORD_PARAMS}
+    edges = prob.edges(x, ident.get("std"))
+    ident = _model_only(ident)
     result: dict[str, Any] = {
         "schema": RESULT_SCHEMA,
         "software_version": bench_ctl.__version__,
         "command_line": command_line,
         "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "unit": prob.unit.to_dict(),
-        "captures": [_capture_entry(c, m, o, w) for c, m, o, w
-                     in zip(prob.captures, mses, objs, prob.weights)],
-        "params": prob.params(x),
+        "captures": [_capture_entry(c, m, o, w, e) for c, m, o, w, e
+                     in zip(prob.captures, mses, objs, prob.weights, edges)],
+        "params": prob.model_params(x),
         "fixed": fixed,
-        "bounds": {n: [lo, hi] for n, (lo, hi) in zip(prob.names, prob.bounds)},
+        "bounds": {n: [lo, hi] for n, (lo, hi) in zip(prob.names, prob.bounds) if n not in RECORD_PARAMS},
+        "edges": [{"capture": i, **e} for i, es in enumerate(edges) for e in es],
         "constraints": prob.constraint_report(x),
         "objective": _none_if_inf(best.objective),
         "mse": _none_if_inf(float(np.mean(mses))),

@@ -37,7 +37,7 @@ import numpy as np
 from scipy import optimize as sopt
 from scipy import signal
 
-from bench_ctl.model.params import AVR_PARAMS
+from bench_ctl.model.params import AVR_PARAMS, RECORD_PARAMS
 
 from . import mvmo
 from .constraints import LinearConstraint
@@ -311,7 +311,9 @@ def _run_local(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarra
     x_start = problem.x_start() if x0 is None else np.asarray(x0, float)
     d = problem.d
     lb, ub = np.full(d, 1e-9), np.full(d, np.inf)  # positivity only, as PowerFactory
-    x_start = np.maximum(x_start, 2e-9)
+    edge = np.array([n in RECORD_PARAMS for n in problem.names])  # edge offsets: their interval
+    lb[edge], ub[edge] = problem.lower[edge], problem.upper[edge]
+    x_start = np.where(edge, np.clip(x_start, lb, ub), np.maximum(x_start, 2e-9))
 
     def score(X: np.ndarray, R: np.ndarray, failed: np.ndarray) -> np.ndarray:
         f = np.einsum("ij,ij->i", R, R)
@@ -341,7 +343,8 @@ class OpenLoopModel:
     """
 
     def __init__(self, problem: Problem, typical: Mapping[str, float]):
-        missing = [n for n in problem.names if n not in AVR_PARAMS]
+        # the method works on the recorded setpoint as sampled: edge offsets stay at their start (0)
+        missing = [n for n in problem.names if n not in AVR_PARAMS and n not in RECORD_PARAMS]
         if missing:
             raise ValueError(f"the open-loop method fits the AVR only; it cannot fit {missing}")
         self.problem = problem

@@ -39,7 +39,10 @@ from bench_ctl.model.params import KERNEL_PARAMS, PARAMS
 from bench_ctl.model.simulate import param_matrix, pre_trigger_mean
 from bench_ctl.model.unit import Unit
 
+from bench_ctl.model.edges import EdgeSpec
+
 from .constraints import LinearConstraint, parse_constraints
+from .timing import EDGE_PARAMS, Edge, edge_spec, edges_entry, record_edges
 
 logger = logging.getLogger(__name__)
 
@@ -78,10 +81,21 @@ class _Record:
     i0: int
     i1: int
     source: str
+    edges: EdgeSpec = field(default_factory=EdgeSpec.none)
+    edge_list: tuple[Edge, ...] = ()
+    edge_slots: tuple[int | None, ...] = ()
 
     @property
     def full(self) -> bool:
         return self.i0 == 0 and self.i1 == self.efd.size
+
+    def edges_upto(self, n: int) -> EdgeSpec:
+        """The edges inside the first n samples (a run that stops at a window's end)."""
+        keep = self.edges.index < n
+        if keep.all():
+            return self.edges
+        e = self.edges
+        return EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,6 +164,15 @@ class Problem:
         """The fitted parameters as a name -> value dict."""
         return {n: float(v) for n, v in zip(self.names, np.asarray(x, dtype=float).reshape(-1))}
 
+    def model_params(self, x: Sequence[float]) -> dict[str, float]:
+        """The fitted model parameters (without the record's edge offsets)."""
+        return {n: v for n, v in self.params(x).items() if n not in EDGE_PARAMS}
+
+    def edges(self, x: Sequence[float], std: dict[str, Any] | None = None) -> list[list[dict[str, Any]]]:
+        """Per capture, its setpoint edges with the fitted instants at x (`timing.edges_entry`)."""
+        values = self.params(x)
+        return [edges_entry(r.edge_list, r.edge_slots, values, std) for r in self.records]
+
     def matrix(self, X: np.ndarray) -> np.ndarray:
         """Kernel parameter matrix of a population X (n, d)."""
         return param_matrix(self.base, self.names, np.atleast_2d(np.asarray(X, dtype=float)))
@@ -202,7 +225,7 @@ class Problem:
             if r.full:
                 out = run_kernel(P, r.usetp, r.dt, r.usetp_pre, efd_meas=r.efd, vt_meas=r.vt,
                                  w_efd=self.w_efd, w_vt=self.w_vt if r.vt is not None else 0.0,
-                                 store=False)
+                                 store=False, edges=r.edges)
                 obj = out["obj"]
             else:
                 out, res = self._window_residuals(P, r)
@@ -223,7 +246,7 @@ class Problem:
         P = self.matrix(np.asarray(x, dtype=float).reshape(1, -1))
         outs = []
         for r in self.records:
-            o = run_kernel(P, r.usetp, r.dt, r.usetp_pre)
+            o = run_kernel(P, r.usetp, r.dt, r.usetp_pre, edges=r.edges)
             outs.append({"efd": o["efd"][0], "vt": o["vt"][0], "fail_step": int(o["fail_step"][0])})
         return outs
 
@@ -237,10 +260,11 @@ class Problem:
         rows = []
         for r in self.records:
             if r.full:
-                out = run_kernel(P, r.usetp, r.dt, r.usetp_pre, efd_meas=r.efd, w_efd=1.0, store=False)
+                out = run_kernel(P, r.usetp, r.dt, r.usetp_pre, efd_meas=r.efd, w_efd=1.0, store=False,
+                                 edges=r.edges)
                 m = out["sse_efd"] / r.efd.size
             else:
-                out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre)
+                out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
                 e = out["efd"][:, r.i0: r.i1] - r.efd[r.i0: r.i1]
                 m = np.mean(e * e, axis=1)
             rows.append(np.where(out["fail_step"] >= 0, np.inf, m))
@@ -271,7 +295,7 @@ class Problem:
         return out
 
     def _window_residuals(self, P: np.ndarray, r: _Record) -> tuple[dict, np.ndarray]:
-        out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre)
+        out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
         c = np.ones(r.i1 - r.i0)
         c[0] = c[-1] = 0.5
         scale = np.sqrt(c * r.dt)
@@ -332,7 +356,7 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
                  bounds: dict[str, tuple[float, float]] | None = None,
                  constraints: Sequence[str] | None = None, weights: Sequence[float] | None = None,
                  segment: slice | None = None, fit_window: tuple[float, float] | None = None,
-                 values: dict[str, float] | None = None) -> Problem:
+                 values: dict[str, float] | None = None, fit_edges: bool = True) -> Problem:
     """Bind captures and a unit into a `Problem`.
 
     names: parameters to fit (default `unit.identified_names`; effect parameters allowed).
@@ -340,7 +364,9 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
     unit's, plus those of every effect with a fitted parameter). weights: alpha_k per capture
     (default 1). segment / fit_window: restrict the objective and MSE (samples / seconds from
     the record's start). values: kernel parameter values overriding the unit's for the
-    parameters that are not fitted (e.g. a previous fit's result).
+    parameters that are not fitted (e.g. a previous fit's result). fit_edges: fit the instant
+    of every setpoint edge (`EDGE1`.. appended to the names, bounds from `timing.record_edges`);
+    at most four edges over all captures are fitted, the others stay at their nominal sample.
     """
     caps = tuple(captures)
     if not caps:
@@ -348,6 +374,25 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
     names_t = tuple(unit.identified_names if names is None else names)
     if not names_t:
         raise ProblemError("no parameter to fit")
+    if set(names_t) & set(EDGE_PARAMS):
+        raise ProblemError(f"{sorted(set(names_t) & set(EDGE_PARAMS))}: edge offsets are set from the "
+                           "captures (fit_edges), not named")
+    caps_edges: list[list[Edge]] = [record_edges(c) for c in caps] if fit_edges else [[] for _ in caps]
+    caps_slots: list[list[int | None]] = []
+    edge_bounds: dict[str, tuple[float, float]] = {}
+    for edges in caps_edges:
+        slots: list[int | None] = []
+        for e in edges:
+            if len(edge_bounds) < len(EDGE_PARAMS):
+                slot = len(edge_bounds)
+                edge_bounds[EDGE_PARAMS[slot]] = (e.lo_s, e.hi_s)
+                slots.append(slot)
+            else:
+                slots.append(None)
+        caps_slots.append(slots)
+    if any(s is None for slots in caps_slots for s in slots):
+        logger.warning("more than %d setpoint edges over the captures: the later ones stay at their "
+                       "nominal sample", len(EDGE_PARAMS))
     for n in names_t:
         if n not in PARAMS:
             raise ProblemError(f"unknown parameter {n!r}; known: {', '.join(KERNEL_PARAMS)}")
@@ -360,6 +405,12 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
     bnds = []
     for n in names_t:
         lo, hi = (float(v) for v in bounds.get(n, default_bounds(unit, n)))
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ProblemError(f"bounds of {n}: need finite lo < hi, got ({lo}, {hi})")
+        bnds.append((lo, hi))
+    names_t = names_t + tuple(edge_bounds)
+    for n in edge_bounds:
+        lo, hi = edge_bounds[n]
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise ProblemError(f"bounds of {n}: need finite lo < hi, got ({lo}, {hi})")
         bnds.append((lo, hi))
@@ -397,15 +448,18 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         raise ProblemError("give either segment or fit_window, not both")
     recs = []
     bound_total = 0.0
-    for c, a in zip(caps, alphas):
+    for c, a, edges, slots in zip(caps, alphas, caps_edges, caps_slots):
         owner = c.source or "<capture in memory>"
         if c.n < 3:
             raise ProblemError(f"{owner}: {c.n} samples are too few to identify anything")
         dt = float(c.dt)
         usetp = np.ascontiguousarray(c.usetp, dtype=float)
         vt = np.ascontiguousarray(c.vt, dtype=float) if c.vt is not None else None
+        moved = [(e, s) for e, s in zip(edges, slots) if s is not None]
+        spec = edge_spec([e for e, _ in moved], [s for _, s in moved])
         r = _Record(usetp=usetp, efd=np.ascontiguousarray(c.efd, dtype=float), vt=vt, dt=dt,
-                    usetp_pre=pre_trigger_mean(usetp, dt), alpha=a, i0=0, i1=c.n, source=owner)
+                    usetp_pre=pre_trigger_mean(usetp, dt), alpha=a, i0=0, i1=c.n, source=owner,
+                    edges=spec, edge_list=tuple(edges), edge_slots=tuple(slots))
         window = _segment_window(segment, c) if segment is not None else fit_window
         recs.append(_apply_window(r, window, c))
         # a finite (non-failed) simulation keeps |states| < BLOWUP: bound its objective
