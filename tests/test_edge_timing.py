@@ -95,3 +95,19 @@ def test_an_edge_given_two_source_samples_off_is_found_within_a_tenth_of_a_sampl
     r = identify([cap], reference_unit(), max_evals=1000, seed=0)
     fitted = [e["fitted_s"] for e in r["edges"]]
     np.testing.assert_allclose(fitted, [on, off], atol=0.1 * step)
+
+
+def test_report_re_simulates_with_the_fitted_edges(tmp_path):
+    """identify -> report on a record with edges between samples: the report's re-simulation
+    uses the fitted instants (its MSE matches the result's) and lists them."""
+    from bench_ctl.capture import write_capture
+    from bench_ctl.cli import main
+
+    t, u, efd = _fine_record(0.99962, 1.99931, 1000.0, 4.0, seed=8)
+    csv, _ = write_capture(tmp_path / "cap.csv", {"time": t, "usetp": u, "efd": efd}, {})
+    assert main(["identify", str(csv), "--json", str(tmp_path / "r.json"), "--evals", "600"]) == 0
+    rc = main(["report", str(tmp_path / "r.json"), "-o", str(tmp_path / "report.html")])
+    html = (tmp_path / "report.html").read_text(encoding="utf-8")
+    assert rc == 0
+    assert 'id="edge-timing"' in html
+    assert "MSE reproduced" in html and "re-simulated" in html

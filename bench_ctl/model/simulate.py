@@ -11,6 +11,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from .edges import EdgeSpec
 from .kernel import run_kernel
 from .params import COL, KERNEL_PARAMS, RECORD_PARAMS
 from .unit import Unit
@@ -50,10 +51,11 @@ def pre_trigger_mean(usetp: np.ndarray, dt: float, start_s: float | None = None)
 
 
 def simulate(values: Mapping[str, float], usetp: np.ndarray, dt: float,
-             usetp_pre: float | None = None) -> tuple[np.ndarray, np.ndarray, int]:
-    """Simulate one parameter set; returns (efd as recorded, vt, fail_step or -1)."""
+             usetp_pre: float | None = None, edges: EdgeSpec | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """Simulate one parameter set; returns (efd as recorded, vt, fail_step or -1). `edges`: the
+    record's setpoint edges, moved by the EDGE offsets in `values`."""
     pre = pre_trigger_mean(usetp, dt) if usetp_pre is None else usetp_pre
-    out = run_kernel(param_matrix(values), usetp, dt, pre)
+    out = run_kernel(param_matrix(values), usetp, dt, pre, edges=edges)
     return out["efd"][0], out["vt"][0], int(out["fail_step"][0])
 
 

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import outside_bounds
 from bench_ctl.report import checks as chk
@@ -127,7 +128,13 @@ def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
                      window: tuple[float, float] | None, where: str, *, window_s: float,
                      w_efd: float, w_vt: float, single: bool) -> CaptureAnalysis:
     cap = lc.capture
-    efd, vt, fail = simulate(values, cap.usetp, cap.dt)
+    # the setpoint edges at the instants the fit found (none recorded: the zero-order hold)
+    try:
+        spec, offsets = edge_spec_of(lc.entry.get("edges") if isinstance(lc.entry.get("edges"), list) else None,
+                                     cap.n)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ReportError(f"{where}: captures[{lc.index}].edges: unreadable edge entry ({exc})") from None
+    efd, vt, fail = simulate({**values, **offsets}, cap.usetp, cap.dt, edges=spec)
     edges = find_edges(cap.time, cap.usetp)
     figs = error_figures(cap.time, cap.efd, efd, edges, window_s=window_s, w_efd=w_efd,
                          vt_meas=cap.vt, vt_sim=vt, w_vt=w_vt)

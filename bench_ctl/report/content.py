@@ -14,7 +14,7 @@ from bench_ctl.model.params import PARAMS
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
 from bench_ctl.report.blocks import (NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section,
-                                     Status, Verdict, fmt, num, table)
+                                     Status, Table, Verdict, fmt, num, table)
 
 STRONG_CORRELATION = 0.9
 
@@ -74,6 +74,27 @@ def _edge_text(a: CaptureAnalysis) -> str:
             "excursion from the pre-trigger mean.")
 
 
+def _edge_timing_table(a: CaptureAnalysis) -> Table | None:
+    """The setpoint edge instants the fit estimated (result `captures[i].edges`), in ms."""
+    entries = a.loaded.entry.get("edges")
+    if not isinstance(entries, list) or not entries:
+        return None
+    rows = []
+    for i, e in enumerate(entries, 1):
+        if not isinstance(e, Mapping):
+            continue
+        nominal, fitted, std = num(e.get("nominal_s")), num(e.get("fitted_s")), num(e.get("std_s"))
+        rows.append((str(i), Num(nominal, digits=7), Num(fitted, digits=7),
+                     Num(None if fitted is None or nominal is None else 1e3 * (fitted - nominal), digits=3),
+                     Num(None if std is None else 1e3 * std, digits=2),
+                     str(e.get("how", "")) + ("" if e.get("fitted", True) else " (not fitted)")))
+    return table(("edge", "nominal (s)", "fitted (s)", "offset (ms)", "std (ms)", "setpoint"), rows,
+                 id=f"edge-timing{a.suffix}",
+                 caption="Setpoint edge instants: nominal = the first sample showing the change; fitted = "
+                         "the instant the fit estimated inside its interval (the sample interval before a "
+                         "recorded edge, +- the stated tolerance for a described test).")
+
+
 def response(d: ReportData) -> Section:
     blocks: list[Block] = []
     for a in d.captures:
@@ -97,6 +118,9 @@ def response(d: ReportData) -> Section:
                               partial(F.draw_edges, time=cap.time, usetp=cap.usetp, meas=cap.efd,
                                       sim=a.efd_sim, edges=a.edges)))
         blocks.append(Para(_edge_text(a), "note"))
+        timing = _edge_timing_table(a)
+        if timing is not None:
+            blocks.append(timing)
     return Section("response", "Measured vs simulated response", tuple(blocks))
 
 
