@@ -279,7 +279,12 @@ def test_diagnosis_without_holdout_splits_the_record(unit, ceiling_case):
 
     res = base_result(d, cap, unit)
     sl = window_slice(cap.time, tuple(res["fit_window"]))
-    efd, _, _ = simulate({**unit.values(), **d["base"]["params"]}, cap.usetp, cap.dt)
+    from bench_ctl.identification.timing import edge_spec_of
+
+    # with the setpoint edges at the instants the diagnosis fitted (as the report does)
+    spec, offsets = edge_spec_of(res["captures"][0]["edges"], cap.n)
+    assert set(offsets) == {"EDGE1", "EDGE2"} and all(-cap.dt <= v <= 0 for v in offsets.values())
+    efd, _, _ = simulate({**unit.values(), **d["base"]["params"], **offsets}, cap.usetp, cap.dt, edges=spec)
     assert sl.stop - sl.start == int(round(v["check"]["t0"] / cap.dt))
     assert np.mean((cap.efd[sl] - efd[sl]) ** 2) == pytest.approx(d["base"]["mse"], rel=1e-9)
 

@@ -26,7 +26,8 @@ import numpy as np
 
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
-from bench_ctl.model.params import KERNEL_PARAMS
+from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import Unit, UnitError, apply_overrides, load_unit
 
@@ -94,7 +95,10 @@ def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, An
     the report can re-simulate and show it next to the diagnosis."""
     values = unit.values()
     values.update(d["base"]["params"])
-    efd, _vt, _fail = simulate(values, capture.usetp, capture.dt)
+    edges = [{k: v for k, v in e.items() if k != "capture"} for e in d.get("edges", [])
+             if e.get("capture") == "capture"]
+    spec, offsets = edge_spec_of(edges, capture.n)
+    efd, _vt, _fail = simulate({**values, **offsets}, capture.usetp, capture.dt, edges=spec)
     val = d["validation"]
     t1 = val["fit"]["t1"]
     k1 = capture.n if val["kind"] == "holdout" else int(round(t1 / capture.dt)) + 1  # t1 included
@@ -110,10 +114,10 @@ def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, An
         "command_line": d["command_line"], "created_utc": d["created_utc"], "unit": unit.to_dict(),
         "captures": [{"path": d["capture"]["path"], "sha256": d["capture"]["sha256"], "n": capture.n,
                       "rate_hz": capture.rate_hz, "meta": capture.meta, "mse": d["base"]["mse"],
-                      "objective": objective, "weight": 1.0}],
+                      "objective": objective, "weight": 1.0, "edges": edges}],
         "params": dict(d["base"]["params"]),
         "fixed": {k: (v if math.isfinite(v) else None) for k, v in values.items()
-                  if k in KERNEL_PARAMS and k not in d["base"]["params"]},
+                  if k in KERNEL_PARAMS and k not in d["base"]["params"] and k not in RECORD_PARAMS},
         "bounds": {n: [b.min, b.max] for n, b in unit.identify.items()},
         "constraints": cons, "objective": objective, "mse": d["base"]["mse"],
         "evaluations": d["base"]["evaluations"], "wall_s": d["wall_s"], "compile_s": 0.0,

@@ -38,8 +38,11 @@ from bench_ctl.model.effects import EFFECTS, EFFECT_NAMES
 from bench_ctl.model.kernel import saturation_ab
 from bench_ctl.model.unit import Unit
 
+from bench_ctl.identification.timing import edges_entry
+
 from . import features as F
-from .fit import FitResult, Record, coarse_factor, coarse_record, fit, mse_of, polish, record_of, simulate_efd
+from .fit import (FitResult, Record, Space, coarse_factor, coarse_record, fit, mse_of, polish, record_of,
+                  simulate_efd)
 from .localize import DiagnosisError, Edges, NoiseFloor, find_edges, localization, noise_floor
 from .which import (AMBIGUOUS, SIGNIFICANT, STRONG, Check, ModelFit, aic, all_starts, ambiguous_pairs, bic,
                     check_mse, fit_model, global_search, lag_variants, model_space, refine, refine_base, score)
@@ -136,7 +139,8 @@ def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: Edges, 
         h_src = holdout.source or "holdout"
         h_floor = noise_floor(holdout.efd, holdout.dt, find_edges(holdout.usetp, h_src), h_src)
         rec = record_of(capture, label=src)
-        check = Check(record_of(holdout), 0, h_floor.variance, "holdout")
+        # the holdout's own edges take the EDGE columns after the capture's
+        check = Check(record_of(holdout, slot0=len(rec.edge_list)), 0, h_floor.variance, "holdout")
         check_se = h_floor.rel_se
         validation = {"kind": "holdout", "fit": {"t0": 0.0, "t1": float(capture.time[-1] - capture.time[0])},
                       "check": {"capture": holdout.source or None, "t0": 0.0,
@@ -170,6 +174,46 @@ def _fit_base(unit: Unit, st: _Setup, budget: Budget, seed: int,
         x, f = res.x, float(mse_of(space, res.x, st.rec)[0])
     res = FitResult(space.names, x, f, res.evaluations + calls, bool(space.violation(x)[0] <= 1e-9), "")
     return res, _as_model(unit, res, st)
+
+
+def _fit_edge_instants(unit: Unit, st: _Setup, base_fit: FitResult, budget: Budget
+                       ) -> tuple[Unit, FitResult, list[dict[str, Any]]]:
+    """The instant of every setpoint edge (DESIGN.md section 4), fitted with the base model: on the
+    fit record jointly with the AVR parameters (a least-squares polish from the base fit), on a
+    holdout with the model held (its edges are the holdout's own timing). Returns the unit with
+    the offsets as fixed values (EDGE1..; every later fit and check holds them), the base fit
+    after the polish, and the JSON `edges` list."""
+    fixed: dict[str, float] = {}
+    out: list[dict[str, Any]] = []
+    names_e = st.full.edge_names()
+    model = base_fit
+    if names_e:
+        space = Space(tuple(base_fit.names) + names_e,
+                      np.concatenate([model_space(unit, (), unit.values()).lo, [e.lo_s for e in st.full.edge_list]]),
+                      np.concatenate([model_space(unit, (), unit.values()).hi, [e.hi_s for e in st.full.edge_list]]),
+                      unit.values(), tuple(unit.constraints))
+        x0 = np.concatenate([base_fit.x, np.zeros(len(names_e))])
+        u, f, calls = polish(space, st.rec, space.to_u(x0), max_calls=budget.base_polish)
+        x = space.to_x(u)
+        if not math.isfinite(f):
+            x, f = x0, float(mse_of(space, x0, st.rec)[0])
+        d = len(base_fit.names)
+        fixed.update(zip(names_e, (float(v) for v in x[d:])))
+        model = FitResult(base_fit.names, x[:d], f, base_fit.evaluations + calls,
+                          bool(space.violation(x)[0] <= 1e-9), "")
+        out += [{"capture": "capture", **e} for e in edges_entry(st.full.edge_list, list(range(len(names_e))), fixed)]
+    if st.check.label == "holdout" and st.check.record.edge_list:
+        rec_h = st.check.record
+        names_h = rec_h.edge_names()
+        space = Space(names_h, np.array([e.lo_s for e in rec_h.edge_list]), np.array([e.hi_s for e in rec_h.edge_list]),
+                      {**unit.values(), **model.params(), **fixed})
+        u, f, _calls = polish(space, rec_h, space.to_u(np.zeros(len(names_h))), max_calls=budget.base_polish)
+        xh = space.to_x(u) if math.isfinite(f) else np.zeros(len(names_h))
+        fixed.update(zip(names_h, (float(v) for v in xh)))
+        out += [{"capture": "holdout", **e} for e in edges_entry(rec_h.edge_list, rec_h.edges.slot.tolist(), fixed)]
+    if not fixed:
+        return unit, base_fit, out
+    return replace(unit, fixed={**unit.fixed, **fixed}), model, out
 
 
 def _as_model(unit: Unit, res: FitResult, st: _Setup) -> ModelFit:
@@ -329,10 +373,13 @@ def diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, se
     edges = find_edges(capture.usetp, src)
     floor = noise_floor(capture.efd, capture.dt, edges, src)
     st = _setup(capture, holdout, unit, edges, floor, budget)
-    base_space = model_space(unit, (), unit.values())
+    unit_in = unit
 
     t0 = time.perf_counter()
     base_fit, base = _fit_base(unit, st, budget, seed, base_params)
+    unit, base_fit, edge_entries = _fit_edge_instants(unit, st, base_fit, budget)
+    base = _as_model(unit, base_fit, st)
+    base_space = model_space(unit, (), unit.values())
     log.info("base fit: mse %.4g (%d evaluations, %.1f s)", base.mse, base.evaluations, time.perf_counter() - t0)
     model = simulate_efd(base_space, base_fit.x, st.full)[0][0]
     feats, hints = _features(capture, model, edges, floor, unit.values(), st.rec.n)
@@ -361,8 +408,9 @@ def diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, se
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "capture": _capture_ref(capture),
         "holdout": _capture_ref(holdout),
-        "unit": unit.to_dict(),
+        "unit": unit_in.to_dict(),
         "validation": st.validation,
+        "edges": edge_entries,
         "base": {"params": base.params, "mse": base.mse, "mse_holdout": base.mse_check,
                  "evaluations": base.evaluations, "at_noise_floor": bool(at_floor)},
         "noise_floor": floor.variance,

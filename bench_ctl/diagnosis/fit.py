@@ -29,6 +29,8 @@ from scipy.optimize import least_squares
 from bench_ctl.capture import Capture
 from bench_ctl.identification import mvmo
 from bench_ctl.identification.constraints import parse_constraints
+from bench_ctl.identification.timing import EDGE_PARAMS, Edge, edge_spec, record_edges
+from bench_ctl.model.edges import EdgeSpec
 from bench_ctl.model.kernel import run_kernel
 from bench_ctl.model.params import KERNEL_PARAMS
 from bench_ctl.model.simulate import param_matrix, pre_trigger_mean
@@ -54,20 +56,29 @@ class Record:
     dt: float
     usetp_pre: float
     label: str = ""
+    edges: EdgeSpec = field(default_factory=EdgeSpec.none)  # moved by the EDGE offsets in use
+    edge_list: tuple[Edge, ...] = ()                         # the same edges with their intervals
 
     @property
     def n(self) -> int:
         return int(self.efd.size)
 
+    def edge_names(self) -> tuple[str, ...]:
+        return tuple(EDGE_PARAMS[s] for s in self.edges.slot.tolist())
 
-def record_of(capture: Capture, *, n: int | None = None, label: str = "") -> Record:
-    """The first `n` samples of a capture (all when None); usetp_pre from its pre-trigger part."""
+
+def record_of(capture: Capture, *, n: int | None = None, label: str = "", slot0: int = 0) -> Record:
+    """The first `n` samples of a capture (all when None); usetp_pre from its pre-trigger part.
+    Its setpoint edges get the EDGE columns from `slot0` on (those beyond the last stay nominal)."""
     pre = pre_trigger_mean(capture.usetp, capture.dt)
     m = capture.n if n is None else int(n)
     if not 2 <= m <= capture.n:
         raise ValueError(f"{capture.source or 'capture'}: window of {m} samples out of 2..{capture.n}")
+    edges = [e for e in record_edges(capture)][: max(0, len(EDGE_PARAMS) - slot0)]
+    inside = [(e, slot0 + i) for i, e in enumerate(edges) if e.index < m]
     return Record(np.ascontiguousarray(capture.usetp[:m]), np.ascontiguousarray(capture.efd[:m]),
-                  capture.dt, pre, label or capture.source)
+                  capture.dt, pre, label or capture.source,
+                  edge_spec([e for e, _ in inside], [s for _, s in inside]), tuple(e for e, _ in inside))
 
 
 def coarse_record(rec: Record, *, q: int, n_max: int, offset: int = 0) -> Record:
@@ -80,8 +91,11 @@ def coarse_record(rec: Record, *, q: int, n_max: int, offset: int = 0) -> Record
     idx = np.arange(offset % q, n_max, q)
     if idx.size < 2:
         return rec
+    e = rec.edges.decimated(q, offset, rec.dt)
+    keep = e.index < idx.size
+    edges = EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
     return Record(np.ascontiguousarray(rec.usetp[idx]), np.ascontiguousarray(rec.efd[idx]), rec.dt * q,
-                  rec.usetp_pre, rec.label + f" (every {q}th sample)")
+                  rec.usetp_pre, rec.label + f" (every {q}th sample)", edges, rec.edge_list)
 
 
 LAGS = ("TA2", "TA4", "TE", "TR", "Td0pp")
@@ -199,7 +213,7 @@ def _threads_for(n_cand: int, n_steps: int) -> Iterator[None]:
 def kernel(P: np.ndarray, rec: Record, **kwargs) -> dict:
     """`run_kernel` on the record, on one thread for small batches (see SMALL_CALL)."""
     with _threads_for(P.shape[0], rec.n):
-        return run_kernel(P, rec.usetp, rec.dt, rec.usetp_pre, **kwargs)
+        return run_kernel(P, rec.usetp, rec.dt, rec.usetp_pre, edges=rec.edges, **kwargs)
 
 
 def simulate_efd(space: Space, X: np.ndarray, rec: Record) -> tuple[np.ndarray, np.ndarray]:
