@@ -148,7 +148,7 @@ def test_pulse_test_description_synthesises_usetp(tmp_path: Path) -> None:
     assert np.array_equal(cap.usetp, np.where((k >= 1000) & (k < 2000), 1.05, 1.0))
     assert cap.meta["import"]["usetp_synthesised"] is True
     expected = {"kind": "pulse", "start_s": 1.0, "amplitude_pu": 0.05, "width_s": 1.0,
-                "usetp0_pu": 1.0, "source": "user description"}
+                "usetp0_pu": 1.0, "edge_tolerance_s": None, "source": "user description"}
     assert cap.meta["test"] == expected and cap.meta["import"]["test"] == expected
 
 
