@@ -21,7 +21,7 @@ from bench_ctl.model.unit import reference_unit
 
 REF = dict(KAVR=200.0, TA1=1.0, TA2=0.2, TA3=0.5, TA4=10.0, TE=0.02, Td0p=7.5, Td0pp=0.05, Vt0=1.0)
 NEUTRAL = dict(VRMAX=math.inf, VRMIN=-math.inf, TD=0.0, TR=0.0, S10=0.0, S12=0.0, RATE=math.inf,
-               RAMP=math.inf, GAIN=1.0, SKEW=0.0)
+               RAMP=math.inf, GAIN=1.0, SKEW=0.0, VRVT=0.0, KC=0.0)
 START, WIDTH, AMP, DURATION, RATE_HZ = 1.0, 1.0, 0.05, 4.0, 1000.0
 
 
@@ -37,6 +37,10 @@ def reference_efd(p: dict, t_eval: np.ndarray, on: float = START, off: float = S
 
     def sat(x):
         return B * (x - A) ** 2 if x > A else 0.0
+
+    def limits(eqp, eqpp):  # bus-fed: x Vt; the upper one less KC * Ifd, Ifd = E'q + Sat(E'q)
+        sc = 1.0 + p["VRVT"] * (eqpp - 1.0)
+        return p["VRMAX"] * sc - p["KC"] * (eqp + sat(eqp)), p["VRMIN"] * sc
 
     vt0 = p["Vt0"]
     efd0 = vt0 + sat(vt0)
@@ -68,6 +72,26 @@ def reference_efd(p: dict, t_eval: np.ndarray, on: float = START, off: float = S
         return p["KAVR"] * y2, e, y1
 
     history = []  # dense solutions, for the dead time
+    mode = [0]    # moving limits: 0 free, +1 / -1 efd held at the upper / lower limit
+
+    def limit_rate(eqp, eqpp, deqp, deqpp, h=1e-7):
+        hi, lo = limits(eqp, eqpp)
+        hi2, lo2 = limits(eqp + h * deqp, eqpp + h * deqpp)
+        return (hi2 - hi) / h, (lo2 - lo) / h
+
+    def free_rate(t, x):
+        vr = avr_out(t, x)[0]
+        drive = vr_at(t - p["TD"]) if p["TD"] > 0 else vr
+        return min(max((drive - x[3]) / p["TE"], -p["RATE"]), p["RATE"])
+
+    def moving(t, x):  # the event that changes the mode of the moving limits
+        if mode[0] == 0:
+            hi, lo = limits(x[4], x[5])
+            return min(hi - x[3], x[3] - lo)
+        rates = limit_rate(x[4], x[5], (x[3] - x[4] - sat(x[4])) / p["Td0p"], (x[4] - x[5]) / p["Td0pp"])
+        return mode[0] * (rates[0 if mode[0] > 0 else 1] - free_rate(t, x))
+    moving.terminal = True
+    moving.direction = -1
 
     def vr_at(t):
         if t <= 0:
@@ -83,17 +107,21 @@ def reference_efd(p: dict, t_eval: np.ndarray, on: float = START, off: float = S
         drive = vr_at(t - p["TD"]) if p["TD"] > 0 else vr
         de = (drive - ef) / p["TE"]
         de = min(max(de, -p["RATE"]), p["RATE"])
-        if ef >= p["VRMAX"] and de > 0:
-            de = 0.0
-        if ef <= p["VRMIN"] and de < 0:
-            de = 0.0
+        deqp = (ef - eqp - sat(eqp)) / p["Td0p"]
+        deqpp = (eqp - eqpp) / p["Td0pp"]
+        # non-windup limits that move with Vt and Ifd: while clamped (mode[0]) efd follows the limit
+        if mode[0]:
+            de = limit_rate(eqp, eqpp, deqp, deqpp)[0 if mode[0] > 0 else 1]
+        elif p["VRVT"] == 0 and p["KC"] == 0:  # fixed limits: the plain non-windup clamp
+            if (ef >= p["VRMAX"] and de > 0) or (ef <= p["VRMIN"] and de < 0):
+                de = 0.0
         return [
             (eqpp - xm) / p["TR"] if p["TR"] > 0 else 0.0,
             (e - x1) / p["TA2"],
             (y1 - x2) / p["TA4"],
             de,
-            (ef - eqp - sat(eqp)) / p["Td0p"],
-            (eqp - eqpp) / p["Td0pp"],
+            deqp,
+            deqpp,
         ]
 
     # breakpoints: input edges, ramp ends, and their images through the dead time
@@ -106,22 +134,35 @@ def reference_efd(p: dict, t_eval: np.ndarray, on: float = START, off: float = S
     bps = sorted(b for b in edges if 0 < b < t_eval[-1]) + [float(t_eval[-1])]
     x = np.array([vt0, e0, e0, efd0, vt0, vt0])
     t0 = 0.0
+    events = moving if (p["VRVT"] or p["KC"]) else None
     for t1 in bps:
-        if t1 - t0 < 1e-12:
-            continue
-        sol = solve_ivp(f, (t0, t1), x, method="Radau", rtol=1e-10, atol=1e-12, dense_output=True)
-        assert sol.success, sol.message
-        history.append(sol)
-        x = sol.y[:, -1].copy()
-        x[3] = min(max(x[3], p["VRMIN"]), p["VRMAX"])
-        t0 = t1
+        while t1 - t0 >= 1e-12:
+            moving.direction = -1 if mode[0] == 0 else 1  # reaching a limit / leaving it
+            sol = solve_ivp(f, (t0, t1), x, method="Radau", rtol=1e-10, atol=1e-12, dense_output=True,
+                            events=events)
+            assert sol.success, sol.message
+            history.append(sol)
+            x = sol.y[:, -1].copy()
+            hi, lo = limits(x[4], x[5])
+            x[3] = min(max(x[3], lo), hi)
+            if sol.status == 1:  # a limit reached, or left: switch the mode and go on
+                mode[0] = (1 if x[3] >= hi - 1e-9 else -1) if mode[0] == 0 else 0
+                t0 = float(sol.t[-1]) + 1e-12
+            else:
+                t0 = t1
+        if events is not None and mode[0] == 0:  # an input edge may leave efd at a limit
+            hi, lo = limits(x[4], x[5])
+            mode[0] = 1 if x[3] >= hi - 1e-12 and free_rate(t0, x) > 0 else (
+                -1 if x[3] <= lo + 1e-12 and free_rate(t0, x) < 0 else 0)
 
     def efd_true(t):
         if t <= 0:
             return efd0
         for sol in history:
             if sol.t[0] - 1e-12 <= t <= sol.t[-1] + 1e-12:
-                return min(max(sol.sol(t)[3], p["VRMIN"]), p["VRMAX"])
+                y = sol.sol(t)
+                hi, lo = limits(y[4], y[5])
+                return min(max(y[3], lo), hi)
         return history[-1].y[3, -1]
 
     return np.array([p["GAIN"] * efd_true(t - p["SKEW"]) for t in t_eval])
@@ -130,6 +171,7 @@ def reference_efd(p: dict, t_eval: np.ndarray, on: float = START, off: float = S
 CASES = {
     "none": {},
     "ceiling_limit": dict(VRMAX=2.8, VRMIN=-0.8),
+    "ceiling_limit_bus_fed": dict(VRMAX=2.7, VRMIN=-0.75, VRVT=1.0, KC=0.08),
     "dead_time": dict(TD=0.015),
     "dead_time_fractional": dict(TD=0.0153),
     "transducer_lag": dict(TR=0.02),

@@ -22,15 +22,19 @@ class Effect:
     description: str
     constraints: tuple[str, ...] = ()
     in_loop: bool = True  # False: acts on the record only (recorder_gain, time_skew)
+    #: parameters of a variant: may be set (unit file, --effect), held by a fit unless it tries
+    #: that variant (ceiling_limit: VRVT, the bus-fed ceilings; KC, the commutation drop)
+    options: tuple[str, ...] = ()
 
     def neutral(self) -> dict[str, float]:
         return {p: PARAMS[p].neutral for p in self.params}  # type: ignore[misc]
 
     def check(self, values: dict[str, float]) -> None:
-        unknown = set(values) - set(self.params)
+        unknown = set(values) - set(self.params) - set(self.options)
         if unknown:
             raise ValueError(
-                f"effect {self.name!r} has no parameter {sorted(unknown)}; it has {list(self.params)}"
+                f"effect {self.name!r} has no parameter {sorted(unknown)}; it has "
+                f"{list(self.params + self.options)}"
             )
         for name, value in values.items():
             PARAMS[name].check(float(value), where=f"effect {self.name}: ")
@@ -51,8 +55,11 @@ class Effect:
 EFFECTS: dict[str, Effect] = {
     e.name: e
     for e in [
-        Effect("ceiling_limit", ("VRMAX", "VRMIN"), {"VRMAX": (1.5, 10.0), "VRMIN": (-10.0, 0.5)},
-               "exciter output clamped by a non-windup limit"),
+        Effect("ceiling_limit", ("VRMAX", "VRMIN"),
+               {"VRMAX": (1.5, 10.0), "VRMIN": (-10.0, 0.5), "VRVT": (0.0, 1.0), "KC": (0.0, 0.5)},
+               "exciter output clamped by a non-windup limit; variants: the limits scale with Vt "
+               "(VRVT = 1, a bus-fed static exciter), the upper one less KC*Ifd (commutation)",
+               options=("VRVT", "KC")),
         Effect("dead_time", ("TD",), {"TD": (0.0, 0.1)},
                "pure delay in the control path (digital AVR + thyristor firing)"),
         Effect("transducer_lag", ("TR",), {"TR": (0.0, 0.2)},

@@ -39,8 +39,8 @@ _llvm.set_option("", "-vectorize-memory-check-threshold=512")
 # derived-column indices
 (D_KAVR, D_R1, D_IT2, D_R2, D_IT4, D_ITE, D_ITR, D_ITD0P, D_ITD0PP, D_SATA, D_SATB,
  D_VRMAX, D_VRMIN, D_TD, D_RATE, D_RAMP, D_GAIN, D_SKEW, D_VT0, D_EFD0, D_E0, D_UREF0,
- D_VALID, D_TRON, D_TDON, D_EDGE0) = range(26)
-N_DERIVED = 25 + len(RECORD_PARAMS)   # D_EDGE0 + slot: offset of setpoint edge `slot` (s)
+ D_VALID, D_TRON, D_TDON, D_VRVT, D_KC, D_EDGE0) = range(28)
+N_DERIVED = 27 + len(RECORD_PARAMS)   # D_EDGE0 + slot: offset of setpoint edge `slot` (s)
 #: an edge instant within this many steps of a sample instant is taken to fall on it
 EDGE_EPS = 1.0e-9
 
@@ -75,6 +75,7 @@ def derive(P: np.ndarray) -> np.ndarray:
             valid &= np.isfinite(g[name]) & (g[name] >= 0.0)
         valid &= (g["RATE"] > 0.0) & (g["RAMP"] > 0.0) & np.isfinite(g["GAIN"])
         valid &= g["VRMAX"] > g["VRMIN"]
+        valid &= (g["VRVT"] >= 0.0) & (g["VRVT"] <= 1.0) & (g["KC"] >= 0.0) & np.isfinite(g["KC"])
         for name in RECORD_PARAMS:
             valid &= np.isfinite(g[name])
         safe = lambda x: np.where(valid, x, 1.0)  # noqa: E731
@@ -101,7 +102,13 @@ def derive(P: np.ndarray) -> np.ndarray:
         D[:, D_GAIN] = np.where(valid, g["GAIN"], 1.0)
         D[:, D_SKEW] = np.where(valid, g["SKEW"], 0.0)
         D[:, D_VT0] = vt0
-        D[:, D_EFD0] = np.clip(efd0, g["VRMIN"], g["VRMAX"])
+        # steady state: Ifd = E'q + Sat(E'q) = efd0, the limits at Vt0
+        scale0 = 1.0 + np.where(valid, g["VRVT"], 0.0) * (vt0 - 1.0)
+        hi0 = g["VRMAX"] * scale0 - np.where(valid, g["KC"], 0.0) * efd0
+        lo0 = g["VRMIN"] * scale0
+        D[:, D_EFD0] = np.clip(efd0, lo0, np.maximum(hi0, lo0))
+        D[:, D_VRVT] = np.where(valid, g["VRVT"], 0.0)
+        D[:, D_KC] = np.where(valid, g["KC"], 0.0)
         D[:, D_E0] = D[:, D_EFD0] / D[:, D_KAVR]
         D[:, D_UREF0] = vt0 + D[:, D_E0]
         D[:, D_VALID] = valid.astype(np.float64)
@@ -119,6 +126,18 @@ def _avr(D, i, uref, vm, x1, x2):
     y1 = x1 + D[D_R1, i] * (e - x1)
     y2 = x2 + D[D_R2, i] * (y1 - x2)
     return D[D_KAVR, i] * y2, e, y1
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _limits(D, i, eqp, eqpp):
+    """Exciter ceilings (hi, lo): VRMAX, VRMIN, scaled by Vt = E''q when VRVT = 1 (bus-fed), the
+    upper one less KC*Ifd, Ifd = E'q + Sat(E'q) (the no-load field current on the air-gap base)."""
+    d = eqp - D[D_SATA, i]
+    d = d if d > 0.0 else 0.0
+    ifd = eqp + D[D_SATB, i] * d * d
+    sc = 1.0 + D[D_VRVT, i] * (eqpp - 1.0)
+    sc = sc if sc > 1.0e-3 else 1.0e-3
+    return D[D_VRMAX, i] * sc - D[D_KC, i] * ifd, D[D_VRMIN, i] * sc
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
@@ -142,12 +161,20 @@ def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
     de = (drive - ef) * D[D_ITE, i]
     de = de if de < rate else rate
     de = de if de > -rate else -rate
-    de = (de if de < 0.0 else 0.0) if ef >= D[D_VRMAX, i] else de   # non-windup ceiling
-    de = (de if de > 0.0 else 0.0) if ef <= D[D_VRMIN, i] else de
     d = eqp - D[D_SATA, i]
     d = d if d > 0.0 else 0.0
     deqp = (ef - eqp - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
     deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
+    # non-windup ceiling: at a limit efd may not pass it, and follows it where it moves (with Vt
+    # for a bus-fed exciter, with Ifd through the commutation drop); fixed limits do not move
+    hi, lo = _limits(D, i, eqp, eqpp)
+    dsc = D[D_VRVT, i] * deqpp
+    dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (1.0 + 2.0 * D[D_SATB, i] * d) * deqp
+    dlo = D[D_VRMIN, i] * dsc
+    dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
+    dlo = dlo if dlo == dlo else 0.0
+    de = (de if de < dhi else dhi) if ef >= hi else de
+    de = (de if de > dlo else dlo) if ef <= lo else de
     return dxm, dx1, dx2, de, deqp, deqpp
 
 
@@ -196,11 +223,13 @@ def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
     d = _rhs(D, i, u1, v1, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3], x4 + h * c[4], x5 + h * c[5])
     h6 = h / 6.0
     y3 = x3 + h6 * (a[3] + 2 * b[3] + 2 * c[3] + d[3])
-    y3 = y3 if y3 > D[D_VRMIN, i] else D[D_VRMIN, i]
-    y3 = y3 if y3 < D[D_VRMAX, i] else D[D_VRMAX, i]
+    y4 = x4 + h6 * (a[4] + 2 * b[4] + 2 * c[4] + d[4])
+    y5 = x5 + h6 * (a[5] + 2 * b[5] + 2 * c[5] + d[5])
+    hi, lo = _limits(D, i, y4, y5)
+    y3 = y3 if y3 > lo else lo
+    y3 = y3 if y3 < hi else hi
     return (x0 + h6 * (a[0] + 2 * b[0] + 2 * c[0] + d[0]), x1 + h6 * (a[1] + 2 * b[1] + 2 * c[1] + d[1]),
-            x2 + h6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2]), y3, x4 + h6 * (a[4] + 2 * b[4] + 2 * c[4] + d[4]),
-            x5 + h6 * (a[5] + 2 * b[5] + 2 * c[5] + d[5]), a[3], d[3])
+            x2 + h6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2]), y3, y4, y5, a[3], d[3])
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})

@@ -44,6 +44,10 @@ _CATALOGUE = [
     # effects (neutral value = effect off)
     ParamInfo("VRMAX", "pu", "exciter ceiling, upper (ceiling_limit)", 1.05, 20.0, INF),
     ParamInfo("VRMIN", "pu", "exciter ceiling, lower (ceiling_limit)", -20.0, 0.95, -INF),
+    ParamInfo("VRVT", "1", "ceilings scale with terminal voltage, VRMAX*Vt and VRMIN*Vt (bus-fed static "
+                           "exciter; ceiling_limit variant): 1 on, 0 off", 0.0, 1.0, 0.0),
+    ParamInfo("KC", "pu", "rectifier loading factor: the upper ceiling drops by KC*Ifd (commutation; "
+                          "ceiling_limit variant)", 0.0, 1.0, 0.0),
     ParamInfo("TD", "s", "dead time in the control path (dead_time)", 0.0, 0.2, 0.0),
     ParamInfo("TR", "s", "terminal-voltage transducer lag (transducer_lag)", 0.0, 0.5, 0.0),
     ParamInfo("S10", "pu", "open-circuit saturation at 1.0 pu (saturation)", 0.0, 0.5, 0.0),

@@ -131,7 +131,8 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
             vr_l[0, (k + 1) % L] = vr
         # ---- limiter flags after the step ----
         flags = 0.0
-        if X[3] >= D[K.D_VRMAX, 0] or X[3] <= D[K.D_VRMIN, 0]:
+        hi, lo = K._limits(D, 0, X[4], X[5])
+        if X[3] >= hi or X[3] <= lo:
             flags += 1.0
         if abs((vr - X[3]) * D[K.D_ITE, 0]) > D[K.D_RATE, 0]:
             flags += 2.0
