@@ -75,7 +75,7 @@ def random_parameters(unit: Unit, rng: np.random.Generator, *, names: Sequence[s
     names = tuple(unit.identified_names if names is None else names)
     t, u = pulse_usetp(duration=duration, rate=rate)
     cap = Capture(time=t, usetp=u, efd=np.zeros_like(t))
-    prob = make_problem([cap], unit, names=names)
+    prob = make_problem([cap], unit, names=names, fit_edges=False)  # model parameters only
     lo, hi = prob.lower, prob.upper
     for _ in range(max_tries):
         r = rng.random(len(names))
