@@ -13,7 +13,13 @@ verdict none, out of `none_cases`), `median_gap_closed` (median over the effect 
 withheld effect's holdout gap_closed), `seconds_per_capture` (mean wall time of one diagnosis,
 kernel compilation excluded). Targets: top1 >= 0.9, none on >= 9 of 10, median gap >= 0.8, <= 30 s.
 
+Sources (issue 11): `--source independent` (default) draws the cases from the plant in
+tests/independent_plant.py, written apart from the kernel, each setpoint edge at a random instant
+inside its sample interval (`--edges early`: a whole sample early); `--source kernel` from
+bench_ctl's own model (edges on the samples).
+
 Usage: python benchmarks/diagnose_blind.py [--cases-per-effect 10] [--none-cases 10] [--seed 0]
+       [--source independent|kernel] [--edges inside|early|on] [--effects a,b,c+d]
        [--rate 1000] [--duration 10] [--no-holdout] [--json OUT] [--csv CASES.csv]
 Prints per-case lines and the table; exits 0 when it ran (it reports, it does not judge).
 """
@@ -28,6 +34,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # the independent plant lives with the tests
 
 from bench_ctl.diagnosis import diagnose  # noqa: E402
 from bench_ctl.diagnosis.blind import NONE, SuiteConfig, make_case, make_suite, run_suite, score  # noqa: E402
@@ -58,6 +65,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=10.0, help="record length (s)")
     ap.add_argument("--no-holdout", action="store_true", help="diagnose without the holdout capture "
                     "(fit / check split inside the record)")
+    ap.add_argument("--source", default="independent", choices=("independent", "kernel"),
+                    help="independent: cases from tests/independent_plant.py (not the kernel); kernel: "
+                         "bench_ctl's own synthetic captures")
+    ap.add_argument("--edges", default="inside", choices=("inside", "early", "on"),
+                    help="independent source: each setpoint edge inside its sample interval, a whole sample "
+                         "early, or on the sample")
+    ap.add_argument("--effects", default=None, help="comma-separated effects (default all eight); "
+                    "a+b withholds two at once")
     ap.add_argument("--json", dest="json_out", default=None)
     ap.add_argument("--csv", dest="csv_out", default=None, help="one row per case")
     args = ap.parse_args(argv)
@@ -65,7 +80,13 @@ def main(argv: list[str] | None = None) -> int:
     none_cases = args.cases_per_effect if args.none_cases is None else args.none_cases
 
     t0 = time.perf_counter()
-    cases = make_suite(args.cases_per_effect, none_cases, seed=args.seed, cfg=cfg)
+    effects = [e.strip() for e in args.effects.split(",")] if args.effects else list(EFFECT_NAMES)
+    if args.source == "independent":
+        from independent_cases import independent_suite
+        cases = independent_suite(args.cases_per_effect, none_cases, seed=args.seed, effects=effects, cfg=cfg,
+                                  edges=args.edges)
+    else:
+        cases = make_suite(args.cases_per_effect, none_cases, seed=args.seed, effects=effects, cfg=cfg)
     t_gen = time.perf_counter() - t0
     warm = make_case(NONE, 10**6 + args.seed, cfg)  # compile the kernel outside the timing
     t0 = time.perf_counter()
@@ -98,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json_out:
         flat = {k: v for k, v in s.items() if k != "confusion"}
         flat.update({"confusion": s["confusion"], "seed": args.seed, "cases_per_effect": args.cases_per_effect,
+                     "source": args.source, "edges": args.edges if args.source == "independent" else "on",
                      "rate_hz": args.rate, "duration_s": args.duration, "holdout": not args.no_holdout,
                      "seconds_max": max(r.seconds for r in results)})
         Path(args.json_out).write_text(json.dumps(flat, indent=1) + "\n", encoding="utf-8")

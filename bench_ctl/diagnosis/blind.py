@@ -134,7 +134,14 @@ def visibility(unit: Unit, effect_unit: Unit, avr: Mapping[str, float], cfg: Sui
                        duration=cfg.duration_s, rate=cfg.rate_hz)
     dt = 1.0 / cfg.rate_hz
     efd, _vt, _fail = simulate(effect_unit.values(), u, dt)
-    cap = Capture(t, u, efd)
+    return record_visibility(unit, Capture(t, u, efd), avr, cfg, seed)
+
+
+def record_visibility(unit: Unit, cap: Capture, avr: Mapping[str, float], cfg: SuiteConfig, seed: int) -> float:
+    """Excess MSE of the base model refitted to a noise-free record `cap` (its setpoint edges on
+    the samples), over the noise variance; the record may come from any plant."""
+    u = cap.usetp
+    dt = float(cap.dt)
     rec = record_of(cap)
     edges = find_edges(u)
     q = coarse_factor(unit, dt, 0.004)

@@ -178,8 +178,61 @@ class SearchSpace:
         return np.where(self.log, np.log(np.where(self.log, X, 1.0)), X)
 
 
+#: share of the budget (at most EDGE_POLISH_MAX evaluations) of the joint least-squares polish
+#: that follows an MVMO search with the edge instants held at mid-interval
+EDGE_POLISH_SHARE = 0.15
+EDGE_POLISH_MAX = 200
+
+
 def _run_mvmo(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray | None,
               progress: Progress | None, options: dict[str, Any]):
+    """MVMO; with setpoint edge instants among the names (and the option `edges` = "polish", the
+    default), MVMO searches the model parameters with each edge held at the middle of its
+    interval, then one least-squares polish moves everything, edges included. The edge offsets
+    barely shape the objective's landscape; searched by MVMO they only thin its budget (measured
+    on the independent plant: 1 in 20 fits of 1000 evaluations stalled at 1.2x the noise floor
+    with them in the search, against none held and polished)."""
+    opts = dict(options)
+    mode = str(opts.pop("edges", "polish"))
+    if mode not in ("polish", "search"):
+        raise ValueError(f"MVMO option edges={mode!r}: choose 'polish' or 'search'")
+    edge = [i for i, n in enumerate(problem.names) if n in RECORD_PARAMS]
+    n_pol = min(EDGE_POLISH_MAX, int(EDGE_POLISH_SHARE * max_evals))
+    if mode == "search" or not edge or n_pol < 3 * (problem.d + 1):
+        return _run_mvmo_plain(problem, max_evals, seed, x0, progress, opts)
+    mid = {problem.names[i]: 0.5 * (problem.lower[i] + problem.upper[i]) for i in edge}
+    sub = problem.held(mid)
+    model = [i for i in range(problem.d) if i not in edge]
+    x0s = None if x0 is None else np.asarray(x0, float)[model]
+    xs, fs, nfev, history, settings, msg = _run_mvmo_plain(sub, max_evals - n_pol, seed, x0s, progress, opts)
+    x = np.empty(problem.d)
+    x[model] = xs
+    x[edge] = [mid[problem.names[i]] for i in edge]
+    f = fs
+    offset = nfev
+
+    def shifted(n: int, best: float) -> None:
+        if progress is not None:
+            progress(offset + n, min(best, fs))
+
+    tr = _Tracker(n_pol, shifted)
+
+    def score(X: np.ndarray, R: np.ndarray, failed: np.ndarray) -> np.ndarray:
+        return np.where(failed, problem.penalty_base, np.einsum("ij,ij->i", R, R))
+
+    # lsmr: the exact solver's SVD of the (samples x parameters) Jacobian cost 17 ms an iteration
+    pol_msg = _least_squares(problem.residuals, x, problem.lower, problem.upper, tr, score, 1e-6, "lsmr")
+    if tr.best_x is not None and tr.best_f < f and not problem.violated(tr.best_x):
+        x, f = np.clip(tr.best_x, problem.lower, problem.upper), tr.best_f
+    history = list(history) + [(offset + n, min(v, fs)) for n, v in tr.history]
+    settings = {**settings, "edges": {"search": "held at mid-interval", "polish": "joint least squares "
+                                      "(trf) of every parameter, edges included", "polish_evals": tr.nfev,
+                                      "polish_message": pol_msg}}
+    return x, f, nfev + tr.nfev, history, settings, msg
+
+
+def _run_mvmo_plain(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray | None,
+                    progress: Progress | None, options: dict[str, Any]):
     opts = {**MVMO_OPTIONS, **options}
     space = SearchSpace(problem, str(opts.pop("space", "log")))
     cb = None
@@ -263,7 +316,7 @@ def _run_de(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray |
 def _least_squares(resid: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], x_start: np.ndarray,
                    lb: np.ndarray, ub: np.ndarray, tr: _Tracker,
                    score: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
-                   fd_step: float) -> str:
+                   fd_step: float, tr_solver: str = "exact") -> str:
     """Trust-region reflective least squares with batched forward-difference Jacobians.
 
     `resid(X)` -> (R (n, m), failed (n,)) evaluates a population at once; `score(X)` gives the
@@ -296,7 +349,7 @@ def _least_squares(resid: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     try:
         res = sopt.least_squares(fun, x_start, jac=jac, bounds=(lb, ub), method="trf",
                                  x_scale="jac", max_nfev=10 * tr.max_evals, ftol=1e-10,
-                                 xtol=1e-10, gtol=1e-10)
+                                 xtol=1e-10, gtol=1e-10, tr_solver=tr_solver)
         return str(res.message)
     except _Budget:
         return "evaluation budget used up"

@@ -177,6 +177,20 @@ class Problem:
         """Kernel parameter matrix of a population X (n, d)."""
         return param_matrix(self.base, self.names, np.atleast_2d(np.asarray(X, dtype=float)))
 
+    def held(self, values: dict[str, float]) -> "Problem":
+        """The same problem with the parameters in `values` no longer fitted but held there (they
+        must not appear in a constraint with a fitted parameter)."""
+        keep = [i for i, n in enumerate(self.names) if n not in values]
+        drop = [i for i, n in enumerate(self.names) if n in values]
+        for c in self.constraints:
+            if np.any(c.coef[drop] != 0.0):
+                raise ProblemError(f"cannot hold {sorted(values)}: constraint {c.expr!r} links them")
+        names = tuple(self.names[i] for i in keep)
+        cons = tuple(LinearConstraint(expr=c.expr, coef=c.coef[keep], rhs=c.rhs, names=names)
+                     for c in self.constraints)
+        return replace(self, names=names, bounds=tuple(self.bounds[i] for i in keep), constraints=cons,
+                       base={**self.base, **{k: float(v) for k, v in values.items()}})
+
     def with_window(self, window: tuple[float, float] | None) -> "Problem":
         """The same problem with its objective and MSE over another time window (None = all)."""
         return replace(self, window=window, records=tuple(
