@@ -22,7 +22,7 @@ import logging
 
 from bench_ctl.runner.bench import Bench
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
-from drivers.errors import CommError, DeviceError
+from bench_ctl.runner.devices import CommError, DeviceError
 
 log = logging.getLogger(__name__)
 

@@ -47,9 +47,7 @@ import numpy as np
 from bench_ctl.runner.bench import Bench
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
 from bench_ctl.runner.safety import PreconditionFailed, check_no_load, check_pulse
-from drivers.errors import DeviceError
-from drivers.link import gc_paused
-from drivers.recorder import RecordSettings
+from bench_ctl.runner.devices import DeviceError, RecordSettings, hold_gc
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +128,7 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
     with run.step("take remote"):
         ex.take_remote()
 
-    with run.step("pulse", amplitude_pu=amplitude_pu, width_s=width_s), gc_paused():
+    with run.step("pulse", amplitude_pu=amplitude_pu, width_s=width_s), hold_gc():
         on = ex.write_setpoint(plan.pulse_setpoint_pu, purpose="pulse on")
         run.hook("pulse_applied")
         off = ex.write_setpoint(plan.setpoint_pu, purpose="pulse off (restore pre-test setpoint)",

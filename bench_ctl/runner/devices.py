@@ -1,0 +1,15 @@
+"""What a procedure needs of the devices, through the runner (DESIGN.md section 2: procedures
+reach devices only through the runner, never `drivers/` directly).
+
+- `CommError`, `DeviceError`: what a device step may raise (a lost link, a refused request).
+- `RecordSettings`: how the recorder is armed (rate, pre-trigger, length, trigger).
+- `hold_gc()`: keep the garbage collector out of a short timed sequence (the pulse): a full
+  collection stops every thread for tens of ms, which would land on the pulse's deadlines.
+"""
+from __future__ import annotations
+
+from drivers.errors import CommError, DeviceError
+from drivers.link import gc_paused as hold_gc
+from drivers.recorder import RecordSettings
+
+__all__ = ["CommError", "DeviceError", "RecordSettings", "hold_gc"]
