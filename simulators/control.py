@@ -15,17 +15,25 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
-from .faults import parse_fault
-
-if TYPE_CHECKING:
-    from .bench import SimBench
+from .faults import FaultSet, parse_fault
 
 log = logging.getLogger(__name__)
 
 
-def execute(bench: "SimBench", line: str) -> str:
+class Controllable(Protocol):
+    """What the control port needs of a running simulated bench (simulators.bench.SimBench has it):
+    its armed faults, the exciter (`set_load_mw`, `remote`), the plant (`state()`: step, vt, efd,
+    usetp) and the recorder (`status`)."""
+
+    faults: FaultSet
+    exciter: Any
+    plant: Any
+    recorder: Any
+
+
+def execute(bench: Controllable, line: str) -> str:
     """Run one control command; returns the reply line."""
     words = line.split()
     if not words:
@@ -52,7 +60,7 @@ def execute(bench: "SimBench", line: str) -> str:
     return f"error unknown command {line.strip()!r} (fault, clear, list, load, state)"
 
 
-async def start_control(bench: "SimBench", address: tuple[str, int]) -> asyncio.AbstractServer:
+async def start_control(bench: Controllable, address: tuple[str, int]) -> asyncio.AbstractServer:
     async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
             while line := await reader.readline():

@@ -85,3 +85,39 @@ def test_the_checker_catches_each_rule(tmp_path):
     assert any("procedures.p imports drivers.errors" in f for f in found)
     assert any("drivers.d imports simulators.bench" in f for f in found)
     assert any("bench_ctl.report.r imports bench_ctl.runner" in f for f in found)
+
+
+def import_cycles(root: Path) -> list[list[str]]:
+    """Cycles among the tree's modules (a package's __init__ importing its own modules is not one)."""
+    mods = {module_name(root, p): p for p in root.rglob("*.py")
+            if not any(part.startswith(".") or part in ("tests", "benchmarks") for part in p.relative_to(root).parts)}
+    graph: dict[str, set[str]] = {}
+    for mod, path in mods.items():
+        deps = set()
+        for _line, name in imports(root, path):
+            while name and name not in mods:
+                name = name.rpartition(".")[0]
+            if name and name != mod and not mod.startswith(name + ".") and not name.startswith(mod + "."):
+                deps.add(name)
+        graph[mod] = deps
+    cycles, state = [], {}
+
+    def visit(m: str, stack: list[str]) -> None:
+        state[m] = 1
+        stack.append(m)
+        for d in sorted(graph.get(m, ())):
+            if state.get(d) == 1:
+                cycles.append(stack[stack.index(d):] + [d])
+            elif d not in state:
+                visit(d, stack)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [])
+    return cycles
+
+
+def test_no_module_imports_itself_round_a_circle():
+    assert import_cycles(ROOT) == []
