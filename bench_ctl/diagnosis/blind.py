@@ -29,7 +29,7 @@ from bench_ctl.model.unit import Bound, Unit, load_unit
 
 from .fit import coarse_factor, coarse_record, fit, mse_of, polish, record_of
 from .localize import find_edges
-from .which import model_space
+from .effect_fits import model_space
 
 log = logging.getLogger(__name__)
 

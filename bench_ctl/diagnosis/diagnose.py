@@ -44,7 +44,7 @@ from . import features as F
 from .fit import (FitResult, Record, Space, coarse_factor, coarse_record, fit, mse_of, polish, record_of,
                   simulate_efd)
 from .localize import DiagnosisError, Edges, NoiseFloor, find_edges, localization, noise_floor
-from .which import (AMBIGUOUS, SIGNIFICANT, STRONG, Check, ModelFit, aic, all_starts, ambiguous_pairs, bic,
+from .effect_fits import (AMBIGUOUS, SIGNIFICANT, STRONG, Check, ModelFit, aic, all_starts, ambiguous_pairs, bic,
                     check_mse, fit_model, global_search, lag_variants, model_space, refine, refine_base, score)
 
 log = logging.getLogger(__name__)

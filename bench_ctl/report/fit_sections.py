@@ -1,6 +1,6 @@
-"""What the report says, section by section, as blocks (see `blocks`): summary, response figures,
+"""The report's sections about the fit, as blocks (see `blocks`): summary, response figures,
 error figures, parameters, constraints, convergence, optimizer comparison. The diagnosis,
-metadata and provenance sections are in `content_more`.
+metadata and provenance sections are in `record_sections`; `outline` orders them all.
 """
 from __future__ import annotations
 

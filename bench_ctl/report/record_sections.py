@@ -1,5 +1,6 @@
-"""Report sections after the fit itself: diagnosis (when given), unit / test / capture metadata,
-provenance; and `sections`, the whole report in order.
+"""The report's sections about the record and the run rather than the fit: the gap diagnosis
+(when one is given), unit / test / capture metadata, and provenance (software, command lines).
+The fit's own sections are in `fit_sections`; `outline.sections` puts them all in order.
 """
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ from functools import partial
 from typing import Any
 
 import bench_ctl
-from bench_ctl.report import content
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import ReportData
 from bench_ctl.report.blocks import (NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section, flatten,
@@ -165,13 +165,3 @@ def provenance(d: ReportData, pdf: bool) -> Section:
              ("PDF", PDF_METHOD if pdf else "not requested")]
     return Section("provenance", "Software and command lines",
                    (table(("item", "value"), rows, id="provenance", kind="kv"),))
-
-
-def sections(d: ReportData, *, pdf: bool = False) -> list[Section]:
-    out = [content.summary(d), content.response(d), content.errors(d), content.parameters(d),
-           content.constraints(d), content.convergence(d), content.comparison(d)]
-    diag = diagnosis(d)
-    if diag is not None:
-        out.append(diag)
-    out += [metadata(d), provenance(d, pdf)]
-    return out

@@ -1,0 +1,18 @@
+"""The whole report in order: the fit's sections (`fit_sections`), then the diagnosis when given,
+the metadata and the provenance (`record_sections`)."""
+from __future__ import annotations
+
+from bench_ctl.report import fit_sections as fit
+from bench_ctl.report.analysis import ReportData
+from bench_ctl.report.blocks import Section
+from bench_ctl.report.record_sections import diagnosis, metadata, provenance
+
+
+def sections(d: ReportData, *, pdf: bool = False) -> list[Section]:
+    out = [fit.summary(d), fit.response(d), fit.errors(d), fit.parameters(d),
+           fit.constraints(d), fit.convergence(d), fit.comparison(d)]
+    diag = diagnosis(d)
+    if diag is not None:
+        out.append(diag)
+    out += [metadata(d), provenance(d, pdf)]
+    return out
