@@ -186,3 +186,24 @@ def test_vendor_profile_pulse_same_code_other_bytes(tmp_path):
     assert writes == [(1011, [0b101]), (1000, [0x2904, 0x0000]), (1000, [0x2710, 0x0000]),
                       (1011, [0b100])]
     assert out.data["recorded"]["width_s"] == pytest.approx(0.3, abs=0.02)
+
+
+def test_unattended_run_without_yes_is_refused_in_one_line(bench, tmp_path, monkeypatch, capsys):
+    """`bench-ctl run no_load_pulse --bench B.toml < /dev/null` on a real bench: nobody can be
+    asked, so nothing is written, exit 2, one line saying why, and the audit says so."""
+    import io
+
+    from bench_ctl.commands.run import print_outcome
+
+    sim, proxy = bench
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))  # end of input at the question
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, params=SHORT)
+    assert out.exit_code == 2
+    assert out.message.startswith("no operator confirmed") and "--yes" in out.message
+    assert proxy.writes() == [] and sim.exciter.events == []
+    conf = [r for r in read_audit(out.audit_path) if r["kind"] == "confirmation"]
+    assert conf[0]["refused"] == "no operator" and conf[0]["answer"] is None
+    capsys.readouterr()
+    print_outcome(out)
+    printed = capsys.readouterr()
+    assert "Traceback" not in printed.out + printed.err and "Abort" not in printed.out + printed.err

@@ -21,7 +21,7 @@ from typing import Any
 from bench_ctl.capture import write_capture
 from bench_ctl.runner.audit import AuditLog
 from bench_ctl.runner.config import BenchConfig, Limits
-from bench_ctl.runner.safety import OperatorDeclined, Refused
+from bench_ctl.runner.safety import NoOperator, OperatorDeclined, Refused
 from drivers.device import WriteRecord
 from drivers.recorder import RawRecord
 
@@ -132,7 +132,12 @@ class RunContext:
             self.audit.event("confirmation", asked=False, why=why, summary=summary)
         else:
             ask = self._confirm or _ask_operator
-            answer = bool(ask(summary))
+            try:
+                answer = bool(ask(summary))
+            except NoOperator as exc:
+                self.audit.event("confirmation", asked=True, answer=None, refused="no operator",
+                                 detail=str(exc), summary=summary, operator=self.operator)
+                raise
             self.audit.event("confirmation", asked=True, answer=answer, summary=summary,
                              operator=self.operator)
             if not answer:
@@ -177,6 +182,15 @@ class RunContext:
 
 
 def _ask_operator(summary: str) -> bool:
-    import click
+    """Ask on the terminal. End of input (stdin closed or redirected from /dev/null) is no
+    operator at all, refused as such; Ctrl-C at the question stays an interrupt."""
+    import sys
 
-    return click.confirm(f"{summary}\nThis writes to REAL devices. Proceed?", default=False)
+    sys.stdout.write(f"{summary}\nThis writes to REAL devices. Proceed? [y/N]: ")
+    sys.stdout.flush()
+    line = sys.stdin.readline() if sys.stdin is not None else ""
+    if not line:
+        sys.stdout.write("\n")
+        raise NoOperator("no operator confirmed (standard input is closed); an unattended run "
+                         "needs --yes")
+    return line.strip().lower() in ("y", "yes")

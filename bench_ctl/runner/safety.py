@@ -31,6 +31,10 @@ class PreconditionFailed(Refused):
     """The unit is not in the state the procedure needs (e.g. loaded, setpoint outside band)."""
 
 
+class NoOperator(Refused):
+    """Nobody could be asked: standard input is closed (an unattended run without --yes)."""
+
+
 class OperatorDeclined(Refused):
     """The operator did not confirm."""
 
