@@ -179,21 +179,26 @@ class Exciter(RegisterDevice):
         return self.write(SETPOINT, value_pu, purpose=purpose, at_mono=at_mono)
 
     def safe_state(self, reason: str, *, deadline_s: float | None = None,
-                   reconnect: bool = False) -> SafeStateReport:
+                   reconnect: bool = False, cancel: threading.Event | None = None) -> SafeStateReport:
         """Restore the pre-test setpoint, give remote back, stop the heartbeat.
 
         Reads first and writes only what differs (so nothing is re-sent blindly); on a link
         error reconnects and starts over until the deadline. `reconnect` forces a fresh
         connection first (after Ctrl-C the old one may hold a half-read reply). A setpoint this
         run never wrote is not written back: if it moved since the snapshot, someone else moved
-        it, and the report says so. The heartbeat is stopped on every way out.
+        it, and the report says so. The heartbeat is stopped on every way out, and at once when
+        the device refuses the restore write (its watchdog must then revert the setpoint, which a
+        running heartbeat would prevent); the host then only reads, watching for the revert.
+        `cancel` (set by a Ctrl-C during the safe state) stops the retries: the heartbeat stops
+        and the device is left to its watchdog.
         """
         try:
-            return self._safe_state(reason, deadline_s, reconnect)
+            return self._safe_state(reason, deadline_s, reconnect, cancel)
         finally:
             self.heartbeat.stop()  # also when something unexpected escapes the restore
 
-    def _safe_state(self, reason: str, deadline_s: float | None, reconnect: bool) -> SafeStateReport:
+    def _safe_state(self, reason: str, deadline_s: float | None, reconnect: bool,
+                    cancel: threading.Event | None) -> SafeStateReport:
         if self.pretest is None:
             return SafeStateReport(self.name, True, "nothing to restore (no test started)",
                                    reason=reason)
@@ -204,22 +209,46 @@ class Exciter(RegisterDevice):
         attempts, reconnected, need_reconnect = 0, False, reconnect or not self.link.connected
         last_error: DeviceError | None = None
         action = ""
+        refused: ExceptionReply | None = None  # the device refused the restore write
         while True:
+            if cancel is not None and cancel.is_set() and attempts > 0:  # the first try always runs
+                self.heartbeat.stop()
+                detail = (f"the operator stopped the host's restore (Ctrl-C) after {attempts} attempts; "
+                          "heartbeat stopped, the device watchdog should revert the setpoint to "
+                          f"{pre.setpoint_pu:.6g} pu - CHECK THE UNIT")
+                return SafeStateReport(self.name, False, "SETPOINT NOT RESTORED", detail=detail,
+                                       reason=reason, attempts=attempts, reconnected=reconnected,
+                                       writes=tuple(writes))
             attempts += 1
             try:
                 if need_reconnect:
-                    if not self.link.reconnect(deadline):
+                    if not self.link.reconnect(deadline, cancel=cancel):
+                        if cancel is not None and cancel.is_set():
+                            continue  # the top of the loop reports the operator's stop
                         break
                     reconnected, need_reconnect = True, False
                 words = tuple(self.read_words(SETPOINT))
                 if words != pre.setpoint_words and not self._setpoint_attempted:
                     action = ("setpoint not written by this run; it changed since the pre-test "
                               "snapshot (by someone else) and was left as found")
-                elif words != pre.setpoint_words:
-                    writes.append(self.write(SETPOINT, pre.setpoint_pu,
-                                             purpose=f"restore pre-test setpoint ({reason})"))
+                elif words != pre.setpoint_words and refused is None:
+                    try:
+                        writes.append(self.write(SETPOINT, pre.setpoint_pu,
+                                                 purpose=f"restore pre-test setpoint ({reason})"))
+                    except ExceptionReply as exc:
+                        refused = exc
+                        self.heartbeat.stop()
+                        log.error("%s: the device refused the restore write (%s); heartbeat stopped "
+                                  "so that its watchdog reverts the setpoint", self.name, exc.message)
+                        raise
                     action = "setpoint restored by host" + (" after reconnect" if reconnected
                                                             else "")
+                elif words != pre.setpoint_words:
+                    raise DeviceError(f"setpoint still {list(words)} after the refused restore; "
+                                      "waiting for the device watchdog", device=self.name)
+                elif refused is not None:
+                    action = ("setpoint reverted by the device watchdog after the device refused the "
+                              f"host's restore ({refused.message})")
                 elif not action:
                     action = self._how_restored(reconnected)
                 self._give_back_remote(writes, reason)
@@ -245,6 +274,8 @@ class Exciter(RegisterDevice):
         detail = (f"could not restore the pre-test setpoint {pre.setpoint_pu:.6g} pu within "
                   f"the deadline ({attempts} attempts); heartbeat stopped, the device watchdog "
                   "should revert it - CHECK THE UNIT")
+        if refused is not None:
+            detail += f"; the device refused the restore write ({refused.message})"
         if last_error is not None:
             detail += f"; last error: {last_error}"
         return SafeStateReport(self.name, False, "SETPOINT NOT RESTORED", detail=detail,

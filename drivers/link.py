@@ -162,10 +162,15 @@ class ModbusLink:
     def connected(self) -> bool:
         return bool(self._client.connected)
 
-    def reconnect(self, deadline_mono: float, *, backoff_s: float = 0.05) -> bool:
-        """Close and reopen until it works or the monotonic deadline passes; True when open."""
+    def reconnect(self, deadline_mono: float, *, backoff_s: float = 0.05,
+                  cancel: threading.Event | None = None) -> bool:
+        """Close and reopen until it works, the monotonic deadline passes or `cancel` is set
+        (checked between attempts); True when open."""
         attempt = 0
         while True:
+            if attempt and cancel is not None and cancel.is_set():
+                log.error("%s: reconnecting to %s stopped by the operator", self.device, self.endpoint.url)
+                return False
             attempt += 1
             with self._lock:
                 self._client.close()

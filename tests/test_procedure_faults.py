@@ -113,6 +113,61 @@ def test_restore_that_fails_is_loud_and_the_watchdog_takes_over(fast_watchdog_be
     assert sim.exciter.setpoint == pytest.approx(1.0)
 
 
+def test_refused_restore_stops_the_heartbeat_so_the_watchdog_reverts_at_once(fast_watchdog_bench,
+                                                                           tmp_path):
+    """The exciter answers exception 6 to every setpoint write after the pulse-on: the host must
+    stop its heartbeat at the first refused restore, so the device's watchdog (0.5 s) reverts
+    the setpoint, instead of holding the pulse for the restore deadline (3 s) plus the watchdog."""
+    sim, proxy = fast_watchdog_bench
+
+    def refuse(run) -> None:
+        sim.faults.set("exception", device="exciter", op="write", register="setpoint", code=6,
+                       count=None)
+
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True, params=FAST,
+                        hooks={"pulse_applied": refuse})
+    assert out.exit_code == 2 and "exception 6" in out.message
+    assert out.safe_state[0].ok
+    assert out.safe_state[0].action.startswith("setpoint reverted by the device watchdog after the "
+                                                "device refused the host's restore")
+    ev = sim.exciter.events
+    on = next(t for t, kind, v in ev if kind == "setpoint" and v > 1.01)
+    back = next(t for t, kind, _ in ev if kind == "watchdog")
+    # pulse (0.3 s) + watchdog (0.5 s) + a few request timeouts, far below deadline + watchdog
+    assert back - on < FAST["width_s"] + 0.5 + 1.0, f"held {back - on:.2f} s"
+    assert sim.exciter.setpoint == pytest.approx(1.0)
+
+
+def test_ctrl_c_during_the_safe_state_retries_leaves_it_to_the_watchdog(fast_watchdog_bench, tmp_path):
+    """A link cut longer than the deadline: the host retries its restore; a Ctrl-C meanwhile
+    stops the retries (not the first attempt) and the heartbeat, and says so."""
+    sim, proxy = fast_watchdog_bench
+    cfg = bench_config(proxy, sim, restore_deadline_s=3.0)
+
+    def cut_then_ctrl_c(run) -> None:
+        proxy.cut(3.0)
+        os.kill(os.getpid(), signal.SIGINT)  # the first: interrupts the procedure
+
+    import threading
+
+    def second_ctrl_c() -> None:  # the operator presses again once the safe state retries
+        audit = tmp_path / "audit.jsonl"
+        wait_for(lambda: audit.exists() and any(r["kind"] == "error" for r in read_audit(audit)),
+                 10.0, "the interrupted procedure")
+        time.sleep(0.3)  # the operator's second key press comes later: a stimulus, not a wait
+        os.kill(os.getpid(), signal.SIGINT)
+
+    t0 = time.monotonic()
+    threading.Thread(target=second_ctrl_c, daemon=True).start()
+    out = run_procedure("no_load_pulse", cfg, tmp_path, yes=True, params=FAST,
+                        hooks={"pulse_applied": cut_then_ctrl_c})
+    took = time.monotonic() - t0
+    assert out.exit_code == 3 and not out.safe
+    assert "stopped the host's restore (Ctrl-C)" in out.safe_state[0].detail
+    assert took < 3.0, f"the run went on for {took:.1f} s after the second Ctrl-C"
+    wait_for(lambda: sim.exciter.watchdog_tripped, 3.0, "the device watchdog")
+
+
 def test_ctrl_c_during_pulse_restores_and_exits_non_zero(bench, tmp_path):
     sim, proxy = bench
     out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,

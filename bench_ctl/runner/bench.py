@@ -6,6 +6,7 @@ recorder is armed before the exciter is taken to remote, so the exciter is resto
 from __future__ import annotations
 
 import logging
+import threading
 from typing import Any
 
 from bench_ctl.runner.config import BenchConfig
@@ -70,12 +71,15 @@ class Bench:
                             f"{hb.last_error.message}", device=self.exciter.name,
                             register="heartbeat", frames=hb.last_error.frames)
 
-    def safe_state(self, reason: str, *, reconnect: bool = False) -> list[SafeStateReport]:
-        """Exciter first (restore the setpoint), then the recorder (disarm). Never raises."""
+    def safe_state(self, reason: str, *, reconnect: bool = False,
+                   cancel: threading.Event | None = None) -> list[SafeStateReport]:
+        """Exciter first (restore the setpoint), then the recorder (disarm). Never raises.
+        `cancel` (a Ctrl-C during the safe state) stops the exciter's restore retries."""
         reports = []
         for dev in (self.exciter, self.recorder):
             try:
-                reports.append(dev.safe_state(reason, reconnect=reconnect))
+                extra = {"cancel": cancel} if dev is self.exciter else {}
+                reports.append(dev.safe_state(reason, reconnect=reconnect, **extra))
             except Exception as exc:  # noqa: BLE001 - drivers report failures; this is a last
                 # resort, and whatever escaped (a refused write, a full disk under the audit log)
                 # must end as a failed safe state, not skip the next device

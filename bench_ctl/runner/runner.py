@@ -248,7 +248,7 @@ def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig,
         finally:
             ctrl_c.armed = False
             ctx.audit.step = "safe state"
-            reports = bench.safe_state(reason, reconnect=reconnect)
+            reports = bench.safe_state(reason, reconnect=reconnect, cancel=ctrl_c.abandon)
             for r in reports:
                 ctx.note("safe_state", **r.to_dict())
             bench.close()

@@ -97,19 +97,24 @@ def check_no_load(limits: Limits, p_mw: float) -> None:
 
 class CtrlC:
     """The Ctrl-C policy of a run: the first Ctrl-C while the procedure runs raises
-    KeyboardInterrupt (the runner then restores the safe state); any Ctrl-C after that, or
-    during the safe state, is logged and ignored, so nothing interrupts the restore."""
+    KeyboardInterrupt (the runner then restores the safe state). A Ctrl-C after that never
+    interrupts a request in flight: it sets `abandon`, which stops the exciter's restore
+    *retries* (after the first attempt): the heartbeat stops and the device watchdog reverts
+    the setpoint, instead of the host holding the pulse while it retries."""
 
     def __init__(self) -> None:
         self.armed = True
         self.ignored = 0
+        self.abandon = threading.Event()
 
     def _handler(self, signum: int, frame: object) -> None:
         if self.armed:
             self.armed = False
             raise KeyboardInterrupt
         self.ignored += 1
-        log.warning("Ctrl-C ignored: the bench is being put in its safe state, please wait")
+        self.abandon.set()
+        log.warning("Ctrl-C during the safe state: the host stops retrying the restore once the "
+                    "current attempt ends; the heartbeat stops and the device watchdog reverts the setpoint")
 
     @contextlib.contextmanager
     def installed(self) -> Iterator["CtrlC"]:
