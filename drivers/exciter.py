@@ -103,6 +103,29 @@ class Heartbeat:
             self._stop.wait(self.period_s)
 
 
+def watchdog_s(profile: Profile) -> float | None:
+    """The device's heartbeat watchdog period from its profile (None when it does not say)."""
+    timeout = profile.settings.get("heartbeat_timeout_s")
+    return float(timeout) if isinstance(timeout, (int, float)) and not isinstance(timeout, bool) else None
+
+
+def check_heartbeat_timing(profile: Profile, heartbeat_period_s: float, request_timeout_s: float) -> None:
+    """Refuse (ValueError) a heartbeat too slow for the device watchdog: beats at least twice per
+    watchdog period, and a timed write (which holds the link for up to one request timeout plus
+    the guard) must not hold the beats off for a whole period."""
+    timeout = watchdog_s(profile)
+    if timeout is None:
+        return
+    if heartbeat_period_s > timeout / 2:
+        raise ValueError(f"heartbeat_period_s {heartbeat_period_s} s is more than half the "
+                         f"device watchdog ({timeout} s, profile {profile.name!r})")
+    gap = heartbeat_period_s + request_timeout_s + TIMED_WRITE_GUARD_S
+    if gap >= timeout:
+        raise ValueError(f"the exciter's request timeout {request_timeout_s} s is too long "
+                         f"for its watchdog ({timeout} s, profile {profile.name!r}): a timed write "
+                         f"can hold the heartbeat off for {gap:.2f} s")
+
+
 class Exciter(RegisterDevice):
     """Excitation system over Modbus TCP. No I/O before `connect()`."""
 
@@ -114,16 +137,7 @@ class Exciter(RegisterDevice):
                              "not an exciter")
         for name in (SETPOINT, HEARTBEAT):
             profile[name]  # KeyError naming the profile when missing
-        timeout = profile.settings.get("heartbeat_timeout_s")
-        if isinstance(timeout, (int, float)) and heartbeat_period_s > timeout / 2:
-            raise ValueError(f"heartbeat_period_s {heartbeat_period_s} s is more than half the "
-                             f"device watchdog ({timeout} s, profile {profile.name!r})")
-        # a timed write holds the link (no beats) for up to one request timeout + the guard
-        gap = heartbeat_period_s + link.endpoint.timeout_s + TIMED_WRITE_GUARD_S
-        if isinstance(timeout, (int, float)) and gap >= timeout:
-            raise ValueError(f"the exciter's request timeout {link.endpoint.timeout_s} s is too long "
-                             f"for its watchdog ({timeout} s, profile {profile.name!r}): a timed write "
-                             f"can hold the heartbeat off for {gap:.2f} s")
+        check_heartbeat_timing(profile, heartbeat_period_s, link.endpoint.timeout_s)
         super().__init__(link, profile, guard=guard, listener=listener)
         self.heartbeat = Heartbeat(self, heartbeat_period_s)
         self.restore_deadline_s = restore_deadline_s

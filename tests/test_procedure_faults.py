@@ -186,6 +186,20 @@ def test_ctrl_c_during_pulse_restores_and_exits_non_zero(bench, tmp_path):
     assert rows[-1]["kind"] == "run_end" and rows[-1]["exit_code"] == 2
 
 
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_sigterm_and_sighup_during_pulse_end_in_the_safe_state(bench, tmp_path, sig):
+    """A kill or a closed terminal is handled like Ctrl-C: restore, disarm, audit closed."""
+    sim, proxy = bench
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True, params=FAST,
+                        hooks={"pulse_applied": lambda run: os.kill(os.getpid(), sig)})
+    assert out.exit_code == 2 and f"terminated by {signal.Signals(sig).name}" in out.message
+    assert out.safe and out.safe_state[0].action.startswith("setpoint restored by host")
+    assert device_writes(proxy) == PULSE_AND_RESTORE
+    assert sim.recorder.status == "idle"
+    rows = read_audit(out.audit_path)
+    assert rows[-1]["kind"] == "run_end" and rows[-1]["exit_code"] == 2
+
+
 def test_exception_reply_to_the_pulse_write_leaves_nothing_changed(bench, tmp_path):
     sim, proxy = bench
     sim.faults.set("exception", device="exciter", op="write", register="setpoint", code=4)

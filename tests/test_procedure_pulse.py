@@ -207,3 +207,29 @@ def test_unattended_run_without_yes_is_refused_in_one_line(bench, tmp_path, monk
     print_outcome(out)
     printed = capsys.readouterr()
     assert "Traceback" not in printed.out + printed.err and "Abort" not in printed.out + printed.err
+
+
+def test_heartbeat_too_slow_for_the_watchdog_is_refused_before_anything_opens(bench, tmp_path):
+    from bench_ctl.runner.config import ConfigError, config_from_dict
+
+    sim, proxy = bench
+    doc = config_doc()
+    doc["exciter"]["url"] = proxy.url
+    doc["recorder"]["url"] = sim.endpoints.recorder_serial
+    doc["exciter"]["heartbeat_period_s"] = 1.5  # the simulated device's watchdog is 2 s
+    with pytest.raises(ConfigError, match="heartbeat_period_s.*more than half the device watchdog"):
+        run_procedure("comms_check", config_from_dict(doc, source="slow.toml"), tmp_path / "run")
+    assert not (tmp_path / "run" / "audit.jsonl").exists()
+
+
+def test_a_watchdog_longer_than_the_width_cap_is_said_before_the_first_write(bench, tmp_path):
+    """The simulated exciter's watchdog (2 s) exceeds a 1.2 s width cap: the operator is told in
+    the question before the first write, and the audit keeps it."""
+    sim, proxy = bench
+    asked = []
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim, pulse_width_max_s=1.2), tmp_path,
+                        params=SHORT, confirm=lambda summary: asked.append(summary) or False)
+    assert out.exit_code == 2
+    assert "WARNING: the exciter's watchdog (2 s" in asked[0] and "pulse width cap (1.2 s)" in asked[0]
+    warns = [r for r in read_audit(out.audit_path) if r["kind"] == "warning"]
+    assert len(warns) == 1 and "up to 2 s" in warns[0]["message"]

@@ -78,7 +78,7 @@ class Bench:
         reports = []
         for dev in (self.exciter, self.recorder):
             try:
-                extra = {"cancel": cancel} if dev is self.exciter else {}
+                extra = {"cancel": cancel} if dev is self.exciter and cancel is not None else {}
                 reports.append(dev.safe_state(reason, reconnect=reconnect, **extra))
             except Exception as exc:  # noqa: BLE001 - drivers report failures; this is a last
                 # resort, and whatever escaped (a refused write, a full disk under the audit log)

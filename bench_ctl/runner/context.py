@@ -72,8 +72,10 @@ class RunContext:
 
     def __init__(self, *, procedure: str, config: BenchConfig, out_dir: Path, audit: AuditLog,
                  dry_run: bool, yes: bool, confirm: Confirm | None = None,
-                 hooks: Mapping[str, Hook] | None = None, progress: bool = False) -> None:
+                 hooks: Mapping[str, Hook] | None = None, progress: bool = False,
+                 warnings: tuple[str, ...] = ()) -> None:
         self.procedure = procedure
+        self.warnings = warnings  # said loudly, and in the question before the first write
         self.config = config
         self.out_dir = out_dir
         self.audit = audit
@@ -126,7 +128,10 @@ class RunContext:
 
     # -- confirmation and the write guard ----------------------------------------------------
     def confirm(self, summary: str) -> None:
-        """Ask before the first write; dry runs and --yes skip the question (recorded)."""
+        """Ask before the first write; dry runs and --yes skip the question (recorded). The
+        bench's warnings are part of what the operator confirms."""
+        if self.warnings:
+            summary = summary + "".join(f"\nWARNING: {w}" for w in self.warnings)
         if self.dry_run or self.yes:
             why = "dry run against the simulated bench" if self.dry_run else "--yes given"
             self.audit.event("confirmation", asked=False, why=why, summary=summary)

@@ -28,9 +28,10 @@ from bench_ctl.runner.bench import Bench
 from bench_ctl.runner.config import BenchConfig, ConfigError, load_bench_config
 from bench_ctl.runner.context import (CAPTURE_NAME, RAW_NAME, Confirm, Criterion, Hook,
                                       ProcedureResult, RunContext)
-from bench_ctl.runner.safety import CtrlC, Refused
+from bench_ctl.runner.safety import CtrlC, Refused, Terminated
 from drivers.device import SafeStateReport
 from drivers.errors import CommError, DeviceError, IntegrityError
+from drivers.exciter import check_heartbeat_timing, watchdog_s
 from drivers.profile import load_profile
 
 log = logging.getLogger(__name__)
@@ -108,15 +109,32 @@ def procedure_params(fn: Any, config: BenchConfig, name: str,
     return params
 
 
-def _check_config(config: BenchConfig) -> None:
-    """Everything the config names must exist before a file is opened: procedures, profiles."""
+def _check_config(config: BenchConfig) -> list[str]:
+    """Everything the config names must exist before a file is opened: procedures, profiles;
+    the heartbeat must be fast enough for the device watchdog. Returns warnings to say loudly:
+    a device watchdog longer than the pulse width cap (a host that dies mid-pulse leaves the
+    pulse on until the watchdog, beyond the cap; see docs/decisions/0007)."""
     for other in config.procedures:
         load_procedure(other)
+    profiles = {}
     for device in ("exciter", "recorder"):
         try:
-            load_profile(getattr(config, device).profile)
+            profiles[device] = load_profile(getattr(config, device).profile)
         except (OSError, ValueError) as exc:
             raise ConfigError(f"{config.source}: {device}.profile: {exc}") from None
+    ex = config.exciter
+    try:
+        check_heartbeat_timing(profiles["exciter"], ex.heartbeat_period_s, ex.timeout_s)
+    except ValueError as exc:
+        raise ConfigError(f"{config.source}: exciter.heartbeat_period_s: {exc}") from None
+    warnings = []
+    wd = watchdog_s(profiles["exciter"])
+    if wd is not None and wd > config.limits.pulse_width_max_s:
+        warnings.append(f"the exciter's watchdog ({wd:g} s, profile {profiles['exciter'].name!r}) is longer "
+                        f"than the pulse width cap ({config.limits.pulse_width_max_s:g} s): if this host "
+                        f"dies during the pulse, the pulse lasts until the watchdog reverts it, up to "
+                        f"{wd:g} s")
+    return warnings
 
 
 @contextlib.contextmanager
@@ -150,6 +168,8 @@ def _debug_log(path: Path) -> Iterator[None]:
 
 def _classify(exc: BaseException) -> tuple[int, str, bool]:
     """(exit code, message, reconnect before the safe state) for what ended a run."""
+    if isinstance(exc, Terminated):
+        return EXIT_ABORTED, f"terminated by {exc.signal_name}", True
     if isinstance(exc, KeyboardInterrupt):
         return EXIT_ABORTED, "interrupted by the operator (Ctrl-C)", True
     if isinstance(exc, Refused):
@@ -179,7 +199,7 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
               else load_bench_config(bench_config))
     fn = load_procedure(name)
     kwargs = procedure_params(fn, config, name, params)
-    _check_config(config)
+    warnings = _check_config(config)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     existing = [n for n in OUTPUT_NAMES if (out / n).exists()]
@@ -197,9 +217,12 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
 
             config, _sim = stack.enter_context(simulated_bench(config, **dict(sim_options or {})))
         audit.event("config", bench_config=config.to_dict())
+        for w in warnings:
+            log.warning("WARNING: %s", w)
+            audit.event("warning", message=w)
         ctx = RunContext(procedure=name, config=config, out_dir=out, audit=audit,
                          dry_run=dry_run, yes=yes, confirm=confirm, hooks=hooks,
-                         progress=progress)
+                         progress=progress, warnings=tuple(warnings))
         code, message, result, reports = _run(fn, kwargs, config, ctx)
         if not all(r.ok for r in reports):
             failed = "; ".join(f"{r.device}: {r.action} - {r.detail}" for r in reports if not r.ok)

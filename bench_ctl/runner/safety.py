@@ -95,9 +95,22 @@ def check_no_load(limits: Limits, p_mw: float) -> None:
             f"limits.no_load_p_max_mw = {limits.no_load_p_max_mw:g} MW (open the breaker first)")
 
 
+#: signals that end a run through the safe state: Ctrl-C, a kill (SIGTERM), a closed terminal (SIGHUP)
+HANDLED_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class Terminated(KeyboardInterrupt):
+    """The run was ended by SIGTERM or SIGHUP (handled like Ctrl-C: through the safe state)."""
+
+    def __init__(self, signal_name: str) -> None:
+        super().__init__(signal_name)
+        self.signal_name = signal_name
+
+
 class CtrlC:
-    """The Ctrl-C policy of a run: the first Ctrl-C while the procedure runs raises
-    KeyboardInterrupt (the runner then restores the safe state). A Ctrl-C after that never
+    """The Ctrl-C policy of a run (SIGTERM and SIGHUP alike): the first one while the procedure
+    runs raises KeyboardInterrupt (`Terminated` for the other two; the runner then restores the
+    safe state). A Ctrl-C after that never
     interrupts a request in flight: it sets `abandon`, which stops the exciter's restore
     *retries* (after the first attempt): the heartbeat stops and the device watchdog reverts
     the setpoint, instead of the host holding the pulse while it retries."""
@@ -110,6 +123,8 @@ class CtrlC:
     def _handler(self, signum: int, frame: object) -> None:
         if self.armed:
             self.armed = False
+            if signum != signal.SIGINT:
+                raise Terminated(signal.Signals(signum).name)
             raise KeyboardInterrupt
         self.ignored += 1
         self.abandon.set()
@@ -122,8 +137,9 @@ class CtrlC:
         if threading.current_thread() is not threading.main_thread():
             yield self
             return
-        previous = signal.signal(signal.SIGINT, self._handler)
+        previous = {sig: signal.signal(sig, self._handler) for sig in HANDLED_SIGNALS}
         try:
             yield self
         finally:
-            signal.signal(signal.SIGINT, previous)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
