@@ -24,6 +24,7 @@ from typing import Any, Sequence
 import click
 import numpy as np
 
+from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.timing import edge_spec_of
@@ -71,11 +72,7 @@ def summary(d: dict[str, Any]) -> str:
 
 def write_json(path: str | Path, data: dict[str, Any]) -> None:
     """Write JSON via a temporary file and rename (no NaN / inf: they become null)."""
-    p = Path(path)
-    text = json.dumps(_clean(data), indent=1, allow_nan=False)
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(text + "\n", encoding="utf-8")
-    tmp.replace(p)
+    outputs.write_json(path, _clean(data))
 
 
 def _clean(x: Any) -> Any:
@@ -159,10 +156,12 @@ def _command_line(capture: str, holdout: str | None, unit_path: str | None, over
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
               help="Write the diagnosis JSON (bench-ctl/diagnosis/1) here.")
+@click.option("--force", is_flag=True, help="Replace an existing --json / --report output (never an input).")
 @click.option("--report", "report_out", type=click.Path(dir_okay=False), default=None,
               help="Write the HTML report of the base fit with the diagnosis section here.")
 def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None, overrides: tuple[str, ...],
-             result_path: str | None, seed: int, json_out: str | None, report_out: str | None) -> int:
+             result_path: str | None, seed: int, json_out: str | None, report_out: str | None,
+             force: bool = False) -> int:
     """Diagnose the gap between the unit's model and CAPTURE (a pulse or step test)."""
     from bench_ctl.diagnosis import DiagnosisError, diagnose as run
 
@@ -190,10 +189,12 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     except OSError as exc:
         click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
         return EXIT_BAD_INPUT
-    for out in (json_out, report_out):
-        if out is not None and not Path(out).resolve().parent.is_dir():
-            click.echo(f"error: output folder of {out} does not exist", err=True)
-            return EXIT_BAD_INPUT
+    try:
+        outputs.guard_outputs({"--json": json_out, "--report": report_out},
+                              [capture_path, holdout_path, unit_path, result_path], force=force)
+    except outputs.OutputRefused as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
     command_line = _command_line(capture_path, holdout_path, unit_path, overrides, result_path, seed,
                                  json_out, report_out)
     try:

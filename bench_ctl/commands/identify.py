@@ -15,15 +15,14 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import shlex
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import click
 
+from bench_ctl import outputs
 from bench_ctl.capture import CaptureError, read_capture
 from bench_ctl.identification.constraints import ConstraintError
 from bench_ctl.identification.identify import Identification, run_identification
@@ -81,16 +80,7 @@ def summary(ident: Identification) -> str:
 
 def write_json(path: str | Path, data: dict[str, Any]) -> None:
     """Write `data` as JSON atomically (temporary file + rename)."""
-    p = Path(path)
-    text = json.dumps(data, indent=1, allow_nan=False)
-    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=p.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text + "\n")
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    outputs.write_json(path, data)
 
 
 def plot_fit(ident: Identification, path: str | Path) -> None:
@@ -137,12 +127,13 @@ def plot_fit(ident: Identification, path: str | Path) -> None:
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
               help="Write the result JSON (bench-ctl/result/1) here.")
+@click.option("--force", is_flag=True, help="Replace an existing --json / --plot output (never an input).")
 @click.option("--plot", "plot_out", type=click.Path(dir_okay=False), default=None,
               help="Write a PNG of measured vs simulated efd here.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def identify(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[str, ...],
              optimizers: tuple[str, ...], compare: bool, evals: int, seed: int,
-             json_out: str | None, plot_out: str | None, no_progress: bool) -> int:
+             json_out: str | None, plot_out: str | None, no_progress: bool, force: bool = False) -> int:
     """Identify the AVR parameters from CAPTURE files (CSV + sidecar) by simulation in the loop."""
     try:
         unit = apply_overrides(load_unit(unit_path), overrides)
@@ -154,10 +145,11 @@ def identify(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[
     except OSError as exc:
         click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
         return EXIT_BAD_INPUT
-    for out in (json_out, plot_out):
-        if out is not None and not Path(out).resolve().parent.is_dir():
-            click.echo(f"error: output folder of {out} does not exist", err=True)
-            return EXIT_BAD_INPUT
+    try:
+        outputs.guard_outputs({"--json": json_out, "--plot": plot_out}, [*captures, unit_path], force=force)
+    except outputs.OutputRefused as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
     chosen = list(dict.fromkeys(optimizers or ("mvmo",)))
     others = chosen[1:] + ([n for n in OPTIMIZERS if n not in chosen] if compare else [])
 

@@ -21,9 +21,10 @@ from pathlib import Path
 
 import click
 
+from bench_ctl import outputs
 from bench_ctl.report import ReportError, analyse, load_json, write_report
 from bench_ctl.report.checks import DEFAULT_NOISE_RATIO_LIMIT, FAIL
-from bench_ctl.report.inputs import DIAGNOSIS_SCHEMA, RESULT_SCHEMA
+from bench_ctl.report.inputs import DIAGNOSIS_SCHEMA, RESULT_SCHEMA, resolve_capture_path
 from bench_ctl.report.metrics import DEFAULT_EDGE_WINDOW_S
 
 log = logging.getLogger(__name__)
@@ -51,9 +52,10 @@ def _command_line(result_json: str, diagnosis_json: str | None, out: str, pdf: s
 @click.option("--diagnosis", "diagnosis_json", metavar="DIAG.json", default=None,
               type=click.Path(dir_okay=False), help="Diagnosis JSON to include.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
-              help="HTML file to write (replaced when it exists); PNGs go beside it.")
+              help="HTML file to write (an existing one only with --force); PNGs go beside it.")
 @click.option("--pdf", default=None, type=click.Path(dir_okay=False),
               help="Also write a PDF (matplotlib PdfPages, A4).")
+@click.option("--force", is_flag=True, help="Replace an existing report (never an input).")
 @click.option("--edge-window", type=click.FloatRange(min=0.0, min_open=True),
               default=DEFAULT_EDGE_WINDOW_S, show_default=True,
               help="Length (s) of the leading / trailing edge segments.")
@@ -61,17 +63,23 @@ def _command_line(result_json: str, diagnosis_json: str | None, out: str, pdf: s
               default=DEFAULT_NOISE_RATIO_LIMIT, show_default=True,
               help="Warn when MSE exceeds this multiple of the noise floor.")
 def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | None,
-           edge_window: float, noise_ratio_limit: float) -> int:
+           edge_window: float, noise_ratio_limit: float, force: bool = False) -> int:
     """Write the validation report for RESULT.json (from `bench-ctl identify --json`)."""
     try:
         result = load_json(result_json, RESULT_SCHEMA)
+        # the captures the result names (and their sidecars) are inputs too
+        named = [c.get("path") for c in result.get("captures", []) if isinstance(c, dict)]
+        base = Path(result_json).resolve().parent
+        caps = [str(resolve_capture_path(p, base)) for p in named if isinstance(p, str)]
+        outputs.guard_outputs({"-o": out, "--pdf": pdf}, [result_json, diagnosis_json, *caps], force=force,
+                              make_folders=True)
         diagnosis = load_json(diagnosis_json, DIAGNOSIS_SCHEMA) if diagnosis_json else None
         data = analyse(result, diagnosis=diagnosis, base_dir=Path(result_json).resolve().parent,
                        where=result_json, window_s=edge_window,
                        noise_ratio_limit=noise_ratio_limit,
                        report_command=_command_line(result_json, diagnosis_json, out, pdf,
                                                     edge_window, noise_ratio_limit))
-    except ReportError as exc:
+    except (ReportError, outputs.OutputRefused) as exc:
         click.echo(f"error: {exc}", err=True)
         return EXIT_REFUSED
     try:
