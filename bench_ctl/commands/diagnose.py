@@ -26,6 +26,7 @@ import numpy as np
 
 from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
+from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
@@ -169,6 +170,9 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
         unit = apply_overrides(load_unit(unit_path), overrides)
         capture = read_capture(capture_path)
         holdout = read_capture(holdout_path) if holdout_path else None
+        for c in (capture, holdout):
+            if c is not None:
+                check_plausible(c)
         base_params = None
         if result_path:
             data = json.loads(Path(result_path).read_text("utf-8"))

@@ -24,6 +24,7 @@ import click
 
 from bench_ctl import outputs
 from bench_ctl.capture import CaptureError, read_capture
+from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.identification.constraints import ConstraintError
 from bench_ctl.identification.identify import Identification, run_identification
 from bench_ctl.identification.peers import OPTIMIZERS
@@ -138,6 +139,8 @@ def identify(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[
     try:
         unit = apply_overrides(load_unit(unit_path), overrides)
         caps = [read_capture(p) for p in captures]
+        for c in caps:
+            check_plausible(c)
         problem = make_problem(caps, unit)
     except (CaptureError, UnitError, ProblemError, ConstraintError) as exc:
         click.echo(f"error: {exc}", err=True)

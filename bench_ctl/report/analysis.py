@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from bench_ctl.capture.plausible import implausible
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import outside_bounds
@@ -102,8 +103,20 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
     mse = float(np.mean([a.fit_mse for a in analyses]))
     objective = float(sum(_num(a.loaded.entry.get("weight"), 1.0) * a.fit_objective
                           for a in analyses))
-    constraints = chk.recheck_constraints(
-        [c for c in (result.get("constraints") or []) if isinstance(c, Mapping)], values)
+    raw_cons = result.get("constraints")
+    cons_ok = raw_cons is None or (isinstance(raw_cons, list) and all(isinstance(c, Mapping) for c in raw_cons))
+    constraints = chk.recheck_constraints(raw_cons if cons_ok and raw_cons else [], values)
+    if not cons_ok:
+        failures.append(f"the result's 'constraints' is {type(raw_cons).__name__} {str(raw_cons)[:60]!r}, "
+                        "not a list of objects: the constraints cannot be checked")
+    unit_cons = (result.get("unit") or {}).get("constraints") if isinstance(result.get("unit"), Mapping) else None
+    if cons_ok and not constraints and isinstance(unit_cons, list) and unit_cons:
+        failures.append(f"the unit has constraints ({', '.join(map(str, unit_cons))}) but the result "
+                        "reports none: they cannot be checked")
+    for a in analyses:
+        err = implausible(a.loaded.capture)
+        if err is not None:
+            failures.append(f"{a.loaded.path.name}: {err.reason}")
     noise_floor, noise_source = _noise_floor(diagnosis, analyses)
     ident = result.get("identifiability") if isinstance(result.get("identifiability"), Mapping) else {}
     if result.get("failed") is True:
