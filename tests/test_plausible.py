@@ -63,3 +63,17 @@ def test_report_fails_a_flat_record_and_unreadable_constraints(tmp_path, cap):
     (tmp_path / "forged.json").write_text(json.dumps(forged))
     assert main(["report", str(tmp_path / "forged.json"), "-o", str(tmp_path / "flat.html")]) == 1
     assert "does not respond" in (tmp_path / "flat.html").read_text(encoding="utf-8")
+
+
+@pytest.mark.timeout(30)
+def test_a_capture_linked_to_a_device_is_refused_at_once(tmp_path, capsys):
+    """A capture symlinked to /dev/zero used to eat memory at 0.6 GB/s; import hung."""
+    link = tmp_path / "zero.csv"
+    link.symlink_to("/dev/zero")
+    assert main(["identify", str(link), "--evals", "64", "--no-progress"]) == 2
+    assert "not a regular file" in capsys.readouterr().err
+    assert main(["import", str(link), "-o", str(tmp_path / "out.csv"), "--map", "efd=EFD",
+                 "--map", "usetp=U", "--time-column", "t"]) == 2
+    assert "not a regular file" in capsys.readouterr().err
+    (tmp_path / "unit.toml").symlink_to("/dev/zero")
+    assert main(["diagnose", str(link), "--unit", str(tmp_path / "unit.toml")]) == 2

@@ -16,6 +16,7 @@ import io
 import json
 import logging
 import os
+import stat
 import secrets
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -26,7 +27,7 @@ import numpy as np
 
 import bench_ctl
 from bench_ctl.capture.errors import CaptureError
-from bench_ctl.capture.table import decode_utf8, parse_numeric, read_text_table, try_numeric
+from bench_ctl.capture.table import decode_utf8, parse_numeric, read_limited, read_text_table, try_numeric
 from bench_ctl.capture.timebase import check_time, step_tolerance
 
 log = logging.getLogger(__name__)
@@ -119,9 +120,13 @@ def sha256_bytes(data: bytes) -> str:
 
 
 def sha256_file(path: str | os.PathLike[str]) -> str:
-    """Hex SHA-256 of a file's bytes."""
+    """Hex SHA-256 of a regular file's bytes (a device such as /dev/zero is refused, never read
+    without end)."""
+    file = os.fspath(path)
+    if not stat.S_ISREG(os.stat(file).st_mode):
+        raise CaptureError(file, "not a regular file (a device, pipe or folder): inputs are read from files")
     h = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open(file, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
@@ -134,7 +139,7 @@ def sidecar_path(csv_path: str | os.PathLike[str]) -> Path:
 
 def _read_sidecar(path: Path) -> dict[str, Any]:
     file = str(path)
-    text = decode_utf8(file, path.read_bytes())
+    text = decode_utf8(file, read_limited(path))
     try:
         meta = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -178,7 +183,7 @@ def read_capture(path: str | os.PathLike[str]) -> Capture:
     """Read `NAME.csv` and, when present, its `NAME.json` sidecar. See the module docstring."""
     path = Path(path)
     file = str(path)
-    data = path.read_bytes()
+    data = read_limited(path)
     meta: dict[str, Any] = {}
     side = sidecar_path(path)
     if side != path and side.exists():

@@ -21,7 +21,7 @@ import numpy as np
 
 from bench_ctl.capture.capture import PER_UNIT_SPELLINGS, Capture, sha256_bytes
 from bench_ctl.capture.errors import CaptureError
-from bench_ctl.capture.table import decode_utf8
+from bench_ctl.capture.table import decode_utf8, read_limited
 from bench_ctl.capture.timebase import check_time
 
 log = logging.getLogger(__name__)
@@ -116,7 +116,7 @@ def load_comtrade_table(cfg_path: str | os.PathLike[str], *, uniform: bool = Tru
     dat_file = _dat_path(cfg_file)
     if not dat_file.exists():
         raise CaptureError(str(dat_file), "data file missing (the .dat beside the .cfg)")
-    cfg_bytes, dat_bytes = cfg_file.read_bytes(), dat_file.read_bytes()
+    cfg_bytes, dat_bytes = read_limited(cfg_file), read_limited(dat_file)
     cfg_text = decode_utf8(file, cfg_bytes)
     cfg = comtrade.Cfg(ignore_warnings=True)
     try:

@@ -10,7 +10,9 @@ from __future__ import annotations
 import csv
 import io
 import logging
+import os
 import re
+import stat
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +25,29 @@ _DELIMITER_NAMES = {",": "comma", ";": "semicolon", "\t": "tab", "|": "pipe"}
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _NONFINITE = {"nan", "+nan", "-nan", "inf", "+inf", "-inf", "infinity", "+infinity", "-infinity"}
 
+
+#: the largest input file read (bytes): a 10 s record at 1 kHz is about 0.5 MB, a 10 min record of
+#: eight channels at 10 kHz about 400 MB; beyond, a wrong file (or a link to a device) is likelier
+MAX_INPUT_BYTES = 1 << 29
+
+
+def read_limited(path: "str | os.PathLike[str]", limit: int = MAX_INPUT_BYTES) -> bytes:
+    """The bytes of a regular file of at most `limit` bytes; anything else (a device such as
+    /dev/zero, a pipe, a folder, a larger file) is refused naming the file, before it is read."""
+    file = os.fspath(path)
+    try:
+        st = os.stat(file)
+    except OSError as exc:
+        raise CaptureError(file, f"cannot read: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise CaptureError(file, "not a regular file (a device, pipe or folder): inputs are read from files")
+    if st.st_size > limit:
+        raise CaptureError(file, f"{st.st_size} bytes, more than the {limit} bytes an input may have")
+    with open(file, "rb") as f:
+        data = f.read(limit + 1)
+    if len(data) > limit:
+        raise CaptureError(file, f"more than the {limit} bytes an input may have (it grew while read)")
+    return data
 
 def delimiter_name(delimiter: str) -> str:
     """'comma' for ',' and so on; the character itself (quoted) for anything else."""

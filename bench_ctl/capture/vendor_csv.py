@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.capture.errors import CaptureError
-from bench_ctl.capture.table import TextTable, decode_utf8, parse_numeric, read_text_table
+from bench_ctl.capture.table import TextTable, decode_utf8, parse_numeric, read_limited, read_text_table
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +130,7 @@ def read_vendor_csv(
         raise ValueError("give either a time column or date/clock columns, not both")
     if date_column is not None and clock_column is None:
         raise ValueError("a date column needs a clock column")
-    table = read_text_table(file, decode_utf8(file, Path(path).read_bytes()),
+    table = read_text_table(file, decode_utf8(file, read_limited(path)),
                             delimiter=delimiter, header_line=header_line)
     for name in columns:
         _require(table, name, "mapped column")

@@ -229,6 +229,10 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     return check_unit(unit, source)
 
 
+#: a unit file is a page of TOML; anything much larger is the wrong file
+UNIT_FILE_MAX_BYTES = 1 << 20
+
+
 def load_unit(path: str | Path | None = None) -> Unit:
     """Load a unit file, or the built-in reference unit when `path` is None."""
     if path is None:
@@ -237,6 +241,9 @@ def load_unit(path: str | Path | None = None) -> Unit:
     else:
         p = Path(path)
         try:
+            if not p.is_file() or p.stat().st_size > UNIT_FILE_MAX_BYTES:  # not /dev/zero, not a capture
+                raise UnitError(f"{p}: not a unit file (a regular file of at most "
+                                f"{UNIT_FILE_MAX_BYTES} bytes)")
             text = p.read_text("utf-8")
         except OSError as exc:
             raise UnitError(f"{p}: cannot read unit file: {exc.strerror}") from None

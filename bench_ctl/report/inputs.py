@@ -19,6 +19,7 @@ from typing import Any
 
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.capture import sha256_file
+from bench_ctl.capture.table import read_limited
 from bench_ctl.model.params import KERNEL_PARAMS, PARAMS, neutral_values
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,9 @@ def load_json(path: str | os.PathLike[str], schema: str) -> dict[str, Any]:
     """Read a result or diagnosis JSON file and check its `schema` tag."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_limited(path).decode("utf-8")
+    except CaptureError as exc:
+        raise ReportError(str(exc)) from None
     except OSError as exc:
         raise ReportError(f"{path}: cannot read: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
