@@ -164,7 +164,11 @@ async def start_server(device: DeviceModel, unit_id: int, faults: FaultSet,
     server = FaultTcpServer(devices,
                             framer=FramerType.RTU if rtu else FramerType.SOCKET,
                             identity=identity_of(device), address=address)
-    await server.serve_forever(background=True)
+    try:
+        await server.serve_forever(background=True)
+    except RuntimeError as exc:  # pymodbus 3.16: "Could not start listen, please check address."
+        raise OSError(f"cannot listen on {address[0]}:{address[1]} for the simulated {device.kind} "
+                      f"(port in use, or not an address of this host): {exc}") from None
     host, port = server.bound_address()
     log.info("%s listening on %s:%d (%s)", device.kind, host, port, "RTU" if rtu else "TCP")
     return server

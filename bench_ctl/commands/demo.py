@@ -22,6 +22,10 @@ from bench_ctl.runner.runner import EXIT_ABORTED, OutputExists, run_procedure
 from .run import print_outcome
 
 
+#: what the demo writes after the pulse test (the runner guards its own files)
+DEMO_OUTPUTS = ("result.json", "diagnosis.json", "report.html")
+
+
 def _write_json(path: Path, data: dict) -> None:
     with path.open("x", encoding="utf-8") as fh:  # never overwrite
         json.dump(data, fh, indent=2)
@@ -30,7 +34,8 @@ def _write_json(path: Path, data: dict) -> None:
 @click.command("demo")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Output folder (default demo-out/YYYYmmddTHHMMSS); never overwritten.")
-@click.option("--evals", type=int, default=1000, show_default=True, help="Identification budget.")
+@click.option("--evals", type=click.IntRange(min=100), default=1000, show_default=True,
+              help="Identification budget (at least 100: the swarm and its peers need a few generations).")
 @click.option("--seed", type=int, default=0, show_default=True)
 def demo(out_dir: str | None, evals: int, seed: int) -> int:
     """Run pulse test, identification, diagnosis and report on the embedded simulated bench."""
@@ -44,6 +49,10 @@ def demo(out_dir: str | None, evals: int, seed: int) -> int:
         out_dir = str(Path("demo-out") / dt.datetime.now().strftime("%Y%m%dT%H%M%S"))
     out = Path(out_dir)
     command_line = " ".join(["bench-ctl"] + sys.argv[1:])
+    taken = [n for n in DEMO_OUTPUTS if (out / n).exists()]
+    if taken:  # before the pulse: the demo never ends half-written for want of a free name
+        click.secho(f"refused: {out} already holds {', '.join(taken)}; choose another --out", fg="red", err=True)
+        return EXIT_ABORTED
     bench = resources.files("bench_ctl.data").joinpath("demo_bench.toml")
     click.echo(f"1/4 pulse test on the embedded simulated bench -> {out}")
     try:

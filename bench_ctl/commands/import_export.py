@@ -15,6 +15,8 @@ import logging
 
 import click
 
+from bench_ctl import outputs
+
 from bench_ctl.capture.errors import CaptureError
 from bench_ctl.capture.importer import ImportSpec, TestDescription, import_export as run_import
 
@@ -106,9 +108,13 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     try:
+        outputs.guard_outputs({"-o": out}, [src])
         capture = run_import(src, spec, out)
     except (CaptureError, FileExistsError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
+        return 2
+    except OSError as exc:
+        click.echo(f"error: cannot write {exc.filename or out}: {exc.strerror}", err=True)
         return 2
     click.echo(f"wrote {capture.source} ({capture.n} samples at {capture.rate_hz:g} Hz)")
     return 0

@@ -16,6 +16,10 @@ from bench_ctl.model.unit import UnitError
 from .options import build_unit, unit_options
 
 
+#: the longest simulated capture (samples): an hour at 1 kHz is 3.6e6
+MAX_SAMPLES = 1.0e7
+
+
 @click.command()
 @unit_options
 @click.option("--amplitude", type=float, default=0.05, show_default=True, help="Pulse height (pu).")
@@ -38,6 +42,11 @@ def simulate(unit_path, overrides, effects, amplitude, width, start, duration, r
                 raise UnitError(f"{opt} {v!r} must be a finite number")
         if noise < 0 or lsb < 0:
             raise UnitError("--noise and --lsb must not be negative")
+        if not str(output).lower().endswith(".csv"):
+            raise UnitError(f"-o {output}: a capture file name must end in .csv")
+        if rate * duration > MAX_SAMPLES:
+            raise UnitError(f"--rate {rate:g} Hz over --duration {duration:g} s is {rate * duration:.3g} samples, "
+                            f"more than the {MAX_SAMPLES:.0e} a simulated capture may have")
         if rate * duration < 2:
             raise UnitError(f"--rate {rate:g} Hz over --duration {duration:g} s gives fewer than 2 samples")
         if start < 0 or width <= 0 or start + width >= duration:

@@ -366,6 +366,27 @@ def _reduce_constraints(texts: Sequence[str], names: Sequence[str], base: dict[s
     return fitted, fixed
 
 
+def _check_feasible(fitted: Sequence[LinearConstraint], fixed: Sequence[tuple[str, bool]],
+                    names: Sequence[str], bounds: Sequence[tuple[float, float]]) -> None:
+    """Refuse, before any fit, constraints that no parameter set inside the bounds satisfies
+    (a linear feasibility problem), or that the fixed values already break."""
+    broken = [expr for expr, ok in fixed if not ok]
+    if broken:
+        raise ProblemError(f"constraint(s) {broken} are broken by the fixed parameter values; nothing "
+                           "the fit can change satisfies them")
+    if not fitted:
+        return
+    from scipy.optimize import linprog
+
+    A = np.array([c.coef for c in fitted])
+    b = np.array([c.rhs for c in fitted])
+    res = linprog(np.zeros(len(names)), A_ub=A, b_ub=b, bounds=list(bounds), method="highs")
+    if res.status == 2:
+        box = ", ".join(f"{n} in [{lo:g}, {hi:g}]" for n, (lo, hi) in zip(names, bounds))
+        raise ProblemError(f"the constraints {[c.expr for c in fitted]} contradict each other inside the "
+                           f"bounds ({box}): no parameter set satisfies them all")
+
+
 def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str] | None = None,
                  bounds: dict[str, tuple[float, float]] | None = None,
                  constraints: Sequence[str] | None = None, weights: Sequence[float] | None = None,
@@ -443,6 +464,7 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
     else:
         texts = list(constraints)
     fitted, fixed = _reduce_constraints(texts, names_t, base)
+    _check_feasible(fitted, fixed, names_t, bnds)
 
     if weights is None:
         alphas = [1.0] * len(caps)

@@ -1,0 +1,67 @@
+"""Bad requests end in one line and exit 2 (bad input) or 3 (a port that cannot be opened),
+never a traceback (issue 15 item 6)."""
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from bench_ctl.cli import main
+
+
+def _run(argv, capsys):
+    rc = main(argv)
+    out = capsys.readouterr()
+    assert "Traceback" not in out.err + out.out
+    return rc, out.err
+
+
+@pytest.fixture(scope="module")
+def cap(tmp_path_factory):
+    d = tmp_path_factory.mktemp("refusals")
+    assert main(["simulate", "-o", str(d / "cap.csv"), "--duration", "3"]) == 0
+    return d / "cap.csv"
+
+
+def test_simulate_refuses_a_non_csv_name_and_an_absurd_duration(tmp_path, capsys):
+    rc, err = _run(["simulate", "-o", str(tmp_path / "x.txt"), "--duration", "4"], capsys)
+    assert rc == 2 and "must end in .csv" in err
+    rc, err = _run(["simulate", "-o", str(tmp_path / "x.csv"), "--duration", "1e9"], capsys)
+    assert rc == 2 and "samples, more than" in err
+
+
+def test_import_into_a_missing_folder(cap, tmp_path, capsys):
+    rc, err = _run(["import", str(cap), "-o", str(tmp_path / "nope" / "out.csv"), "--map", "efd=efd",
+                    "--map", "usetp=usetp", "--time-column", "time"], capsys)
+    assert rc == 2 and "does not exist" in err
+
+
+def test_demo_refuses_before_the_pulse(tmp_path, capsys):
+    (tmp_path / "result.json").write_text("{}")
+    rc, err = _run(["demo", "--out", str(tmp_path)], capsys)
+    assert rc == 2 and "already holds result.json" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json"]  # no pulse was run
+    rc, err = _run(["demo", "--out", str(tmp_path / "d"), "--evals", "0"], capsys)
+    assert rc == 2 and "--evals" in err and not (tmp_path / "d").exists()
+
+
+def test_sim_on_a_busy_port_exits_3_naming_it(capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        rc, err = _run(["sim", "--tcp", f"127.0.0.1:{port}", "--no-serial"], capsys)
+    assert rc == 3 and f"cannot listen on 127.0.0.1:{port}" in err
+
+
+def test_contradictory_constraints_are_refused_before_the_fit(cap, tmp_path, capsys):
+    from importlib import resources
+
+    text = resources.files("bench_ctl.data").joinpath("reference_unit.toml").read_text("utf-8")
+    bad = text.replace('constraints = ["TA2 <= TA1", "TA4 >= TA2"]',
+                       'constraints = ["TA2 <= TA1", "TA4 >= TA2", "TA1 <= 0.5*TA2"]')
+    assert bad != text
+    (tmp_path / "u.toml").write_text(bad)
+    rc, err = _run(["identify", str(cap), "--unit", str(tmp_path / "u.toml"), "--evals", "64",
+                    "--no-progress"], capsys)
+    assert rc == 2 and "contradict each other" in err
