@@ -139,13 +139,14 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
         run.hook("pulse_restored")
 
     with run.step("recovery"):
-        rec.wait_status(("done",), record_s + 5.0, check=bench.check)
+        rec.wait_status(("done",), record_s + 5.0, check=_watching(run, bench, ex, vt0))
         deadline = time.monotonic() + recovery_timeout_s
         vt_end = ex.read("vt")
         while abs(vt_end - vt0) > recovery_tolerance_pu and time.monotonic() < deadline:
             bench.check()
             time.sleep(0.1)
             vt_end = ex.read("vt")
+            run.status(f"vt {vt_end:.4f} pu (pre-test {vt0:.4f} pu){_efd_text(ex)}")
         sp_words = tuple(ex.read_words("setpoint"))
         run.note("recovered", vt_pu=vt_end, setpoint_words=list(sp_words))
 
@@ -184,7 +185,10 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
         Criterion("vt recovered", abs(vt_end - vt0) <= recovery_tolerance_pu, vt_end - vt0,
                   recovery_tolerance_pu, "pu"),
         Criterion("setpoint restored (raw)", sp_words == pre.setpoint_words, list(sp_words),
-                  list(pre.setpoint_words)),
+                  list(pre.setpoint_words),
+                  shown=(f"{ex.register('setpoint').decode(list(sp_words)):.4f} pu, pre-test "
+                         f"{pre.setpoint_pu:.4f} pu (register words "
+                         f"{'identical' if sp_words == pre.setpoint_words else 'DIFFER'})")),
     )
     run.note("criteria", criteria=[c.to_dict() for c in criteria])
     summary = (f"recorded width {pulse.width_s * 1e3:.1f} ms (commanded {width_s * 1e3:.1f} ms), "
@@ -199,6 +203,25 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
                                  "commanded_width_s": commanded_width_s,
                                  "block_retries": raw.block_retries,
                                  "record_attempts": raw.record_attempts})
+
+
+def _watching(run: RunContext, bench: Bench, ex: Any, vt0: float, every_s: float = 0.25) -> Any:
+    """The bench's check while the record completes, plus (on a terminal) a live vt / efd
+    readout every `every_s`: the operator sees the unit while the recorder finishes."""
+    last = [0.0]
+
+    def check() -> None:
+        bench.check()
+        now = time.monotonic()
+        if run.shown and now - last[0] >= every_s:
+            last[0] = now
+            run.status(f"recording, vt {ex.read('vt'):.4f} pu (pre-test {vt0:.4f} pu){_efd_text(ex)}")
+    return check
+
+
+def _efd_text(ex: Any) -> str:
+    """`, efd X pu` for the operator's live readout, when the exciter's profile maps efd."""
+    return f", efd {ex.read('efd'):.3f} pu" if "efd" in ex.profile.registers else ""
 
 
 def _progress_bar(run: RunContext) -> Any:

@@ -36,5 +36,8 @@ def test_demo_writes_every_artifact_and_fits(tmp_path, capsys):
     assert audit
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html and "http://" not in html and "https://" not in html
+    # what the engineer reads: the identified parameters, the verdict, engineering values
+    assert "identified: KAVR " in printed and "report verdict: PASS" in printed
+    assert "setpoint restored (raw): 1.0000 pu, pre-test 1.0000 pu (register words identical)" in printed
     # a second run into the same folder is refused: captures are never overwritten
-    assert main(["demo", "--out", str(out), "--evals", "50"]) == 2
+    assert main(["demo", "--out", str(out), "--evals", "400"]) == 2

@@ -233,3 +233,28 @@ def test_a_watchdog_longer_than_the_width_cap_is_said_before_the_first_write(ben
     assert "WARNING: the exciter's watchdog (2 s" in asked[0] and "pulse width cap (1.2 s)" in asked[0]
     warns = [r for r in read_audit(out.audit_path) if r["kind"] == "warning"]
     assert len(warns) == 1 and "up to 2 s" in warns[0]["message"]
+
+
+def test_a_run_on_a_terminal_shows_its_steps_and_a_live_readout(tmp_path, monkeypatch):
+    """On a terminal the operator sees each step end and vt / efd while the unit recovers;
+    off a terminal (logs, CI) nothing is written."""
+    import io
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    tty = Tty()
+    monkeypatch.setattr("sys.stderr", tty)
+    out = run_procedure("no_load_pulse", ROOT / "benches" / "example.toml", tmp_path / "run",
+                        dry_run=True, params=SHORT, progress=True)
+    shown = tty.getvalue()
+    assert out.exit_code in (0, 1), out.message
+    for step in ("connect: ok", "arm recorder: ok", "pulse: ok", "recovery: ok", "download: ok"):
+        assert step in shown, shown[-500:]
+    assert "recovery: recording, vt " in shown and "efd " in shown
+    plain = io.StringIO()
+    monkeypatch.setattr("sys.stderr", plain)
+    run_procedure("no_load_pulse", ROOT / "benches" / "example.toml", tmp_path / "run2",
+                  dry_run=True, params=SHORT, progress=True)
+    assert "pulse: ok" not in plain.getvalue()

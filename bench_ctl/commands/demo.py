@@ -42,7 +42,7 @@ def demo(out_dir: str | None, evals: int, seed: int) -> int:
     from bench_ctl.diagnosis.diagnose import diagnose
     from bench_ctl.identification.identify import identify
     from bench_ctl.model.unit import reference_unit
-    from bench_ctl.report import render_report
+    from bench_ctl.report import analyse, write_report
 
     t_start = time.perf_counter()
     if out_dir is None:
@@ -72,6 +72,11 @@ def demo(out_dir: str | None, evals: int, seed: int) -> int:
                       max_evals=evals, seed=seed, command_line=command_line)
     result_path = out / "result.json"
     _write_json(result_path, result)
+    det = (result.get("identifiability") or {}).get("determined") or {}
+    click.echo("    identified: " + ", ".join(
+        f"{n} {v:.4g}{'' if det.get(n, True) else ' (not determined)'}" for n, v in result["params"].items()))
+    click.echo(f"    mse {result['mse']:.3e} pu^2; setpoint edges at "
+               + ", ".join(f"{e['fitted_s']:.5f} s" for e in result.get("edges", [])))
     for row in result.get("comparison", []):
         click.echo(f"    {row['optimizer']:<10} mse {row['mse']:.3e}  evals {row['evaluations']:>5}  "
                    f"{row['wall_s']:.2f} s  violated: {', '.join(row['constraints_violated']) or '-'}")
@@ -83,7 +88,12 @@ def demo(out_dir: str | None, evals: int, seed: int) -> int:
     click.echo(f"    verdict: {diag['verdict']}")
 
     click.echo("4/4 validation report")
-    paths = render_report(result, out / "report.html", diagnosis=diag, report_command=command_line)
+    data = analyse(result, diagnosis=diag, report_command=command_line)
+    paths = write_report(data, out / "report.html")
+    for c in data.checks:
+        if c.status in ("fail", "warn"):
+            click.echo(f"    {c.status.upper()}: {c.name}: {c.detail}")
+    click.secho(f"    report verdict: {data.verdict}", bold=True)
 
     click.echo("")
     for label, path in (("capture", outcome.capture_path), ("sidecar", outcome.sidecar_path),

@@ -40,7 +40,7 @@ def print_outcome(outcome: RunOutcome) -> None:
     click.echo(outcome.message, err=err)
     for c in outcome.criteria:
         mark = "PASS" if c.passed else "FAIL"
-        click.echo(f"  [{mark}] {c.name}: {c.value} (limit {c.limit} {c.unit})".rstrip())
+        click.echo(f"  [{mark}] {c.name}: {c.text()}".rstrip())
     for r in outcome.safe_state:
         line = f"  safe state {r.device}: {r.action}"
         click.secho(line, fg=None if r.ok else "red", bold=not r.ok, err=not r.ok)

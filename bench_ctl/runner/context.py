@@ -12,6 +12,7 @@ import contextlib
 import getpass
 import hashlib
 import logging
+import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -48,10 +49,19 @@ class Criterion:
     value: Any = None
     limit: Any = None
     unit: str = ""
+    shown: str = ""     # how the operator reads it (engineering values), when not value/limit
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "passed": self.passed, "value": self.value,
-                "limit": self.limit, "unit": self.unit}
+                "limit": self.limit, "unit": self.unit, "shown": self.shown}
+
+    def text(self) -> str:
+        """`value (limit L unit)` rounded for a person; `shown` when the procedure gave one."""
+        if self.shown:
+            return self.shown
+        def num(v: Any) -> str:
+            return f"{v:.4g}" if isinstance(v, float) else str(v)
+        return f"{num(self.value)} {self.unit} (limit {num(self.limit)} {self.unit})".replace("  ", " ")
 
 
 @dataclass(frozen=True)
@@ -103,17 +113,38 @@ class RunContext:
         self.audit.step = name
         self.audit.event("step_start", **info)
         log.info("step %s", name)
+        self._show(f"{name} ...", end="")
         t0 = time.monotonic()
         try:
             yield
         except BaseException as exc:
             self.audit.event("step_end", result="failed", duration_s=time.monotonic() - t0,
                              error=f"{type(exc).__name__}: {exc}")
+            self._show(f"{name}: failed ({time.monotonic() - t0:.1f} s)", end="\n")
             raise
         else:
             self.audit.event("step_end", result="ok", duration_s=time.monotonic() - t0)
+            self._show(f"{name}: ok ({time.monotonic() - t0:.1f} s)", end="\n")
         finally:
             self.audit.step = outer
+
+    def status(self, text: str) -> None:
+        """A live readout on the operator's terminal (e.g. vt and efd while waiting); nothing
+        when the run is not shown on a terminal. Never audited: notes are."""
+        step = self.audit.step or ""
+        self._show(f"{step}: {text}" if step else text, end="")
+
+    @property
+    def shown(self) -> bool:
+        """The run is shown on a terminal (steps and live readouts are written)."""
+        return bool(self.progress and sys.stderr.isatty())
+
+    def _show(self, text: str, *, end: str) -> None:
+        """One line on stderr, rewritten in place until it ends (`end` = newline)."""
+        if not self.shown:
+            return
+        sys.stderr.write("\r\x1b[K  " + text + end)
+        sys.stderr.flush()
 
     def note(self, kind: str, **fields: Any) -> None:
         """An audit line of the procedure's own (readings, preconditions, measurements)."""
