@@ -27,6 +27,7 @@ COMMANDS = {
     "sim": "bench_ctl.commands.sim:sim",
     "run": "bench_ctl.commands.run:run",
     "demo": "bench_ctl.commands.demo:demo",
+    "batch": "bench_ctl.commands.batch:batch",
 }
 
 

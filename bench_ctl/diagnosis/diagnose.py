@@ -364,7 +364,16 @@ def _sequence(unit: Unit, st: _Setup, fits: Mapping[str, ModelFit], entries: lis
     return sequence
 
 
-def diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, seed: int = 0,
+def diagnose(*args: Any, **kwargs: Any) -> dict[str, Any]:
+    """`_diagnose` with BLAS on one thread (the same answer on any machine, alone or in a batch;
+    see identification.identify.run_identification)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _diagnose(*args, **kwargs)
+
+
+def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, seed: int = 0,
              budget: Budget = Budget(), base_params: Mapping[str, float] | None = None,
              command_line: str = "") -> dict[str, Any]:
     """The diagnosis of `capture` against `unit` (see the module docstring); a JSON-ready dict."""

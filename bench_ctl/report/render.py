@@ -9,6 +9,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from bench_ctl.outputs import write_text
 from bench_ctl.report import checks as chk
 from bench_ctl.report.analysis import ReportData, analyse
 from bench_ctl.report.blocks import Fig, Section
@@ -70,7 +71,7 @@ def write_report(data: ReportData, out_html: str | os.PathLike[str], *,
             if isinstance(b, Fig):
                 pngs[b.name] = png_bytes(b.draw, b.size or FIGSIZE)
     out_html.parent.mkdir(parents=True, exist_ok=True)
-    out_html.write_text(render_html(title, sub, secs, pngs), encoding="utf-8")
+    write_text(out_html, render_html(title, sub, secs, pngs))  # a temporary file, renamed: never half a page
     written = [out_html]
     for name, png in pngs.items():
         p = figure_path(out_html, name)

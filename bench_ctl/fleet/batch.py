@@ -1,0 +1,237 @@
+"""`run_batch`: the steps of every capture of a manifest on a Dask cluster, then the summary.
+
+Cluster: a LocalCluster sized to the machine (one single-threaded worker process per core; the
+kernel's own threads are kept to one per worker, `NUMBA_NUM_THREADS=1`, so workers do not fight
+over the cores), started and closed here; or an existing cluster by scheduler address. Every
+worker loads the compiled kernel once (a worker plugin, numba's disk cache) before its first
+task. One task per capture step; report waits for identify and diagnose of its capture.
+Resumable: a capture whose `done.json` fingerprint (input SHA-256s and settings) matches is
+skipped. A failing step (bad file, fit failure, worker lost) becomes a row with its error; the
+others go on. Ctrl-C cancels what has not finished; what has finished stays, and the summary is
+written for it.
+"""
+from __future__ import annotations
+
+import csv
+import html
+import json
+import logging
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from distributed.diagnostics.plugin import WorkerPlugin
+
+from bench_ctl.outputs import write_text
+
+from . import tasks
+from .manifest import Entry, read_manifest
+
+log = logging.getLogger(__name__)
+
+SUMMARY_COLUMNS = ("capture", "status", "mse", "noise_floor", "mse_over_floor", "verdict", "explained_by",
+                   "warnings", "result", "diagnosis", "report", "error", "wall_s")
+
+
+@dataclass
+class BatchOutcome:
+    rows: list[dict[str, Any]]
+    summary_csv: Path
+    index_html: Path
+    wall_s: float
+    warm_s: dict[str, float] = field(default_factory=dict)
+    interrupted: bool = False
+
+    @property
+    def exit_code(self) -> int:
+        if self.interrupted:
+            return 2
+        if any(r["status"] == "error" for r in self.rows):
+            return 1
+        return 1 if any(r["status"] == "criteria failed" for r in self.rows) else 0
+
+
+def _report_step(id_row: dict | None, dg_row: dict | None, entry: Entry, folder: str, evals: int,
+                 seed: int) -> dict:
+    """The report of a capture, once its identification (and diagnosis) ended."""
+    if id_row is None or id_row.get("rc") not in (0, 1):
+        return {"step": "report", "capture": entry.name, "rc": 2, "wall_s": 0.0,
+                "error": "not made: the identification failed", "output": ""}
+    return tasks.run_step("report", entry, folder, evals, seed)
+
+
+def _read(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
+def summary_row(entry: Entry, folder: Path, steps: dict[str, dict], *, skipped: bool = False) -> dict[str, Any]:
+    res, dia = _read(folder / tasks.RESULT), _read(folder / tasks.DIAGNOSIS)
+    errors = [f"{s}: {r['error']}" for s, r in steps.items() if r.get("error")]
+    rcs = [r.get("rc") for r in steps.values()]
+    status = ("skipped (up to date)" if skipped else "error" if errors or any(rc not in (0, 1) for rc in rcs)
+              else "criteria failed" if 1 in rcs else "ok")
+    rep_out = steps.get("report", {}).get("output", "")
+    warnings = [ln.strip() for ln in rep_out.splitlines() if ln.startswith(("WARN:", "FAIL:"))]
+    mse, floor = res.get("mse"), dia.get("noise_floor")
+    explained = dia.get("explained_by") or []
+    rel = lambda n: str((folder / n).relative_to(folder.parent)) if (folder / n).exists() else ""  # noqa: E731
+    return {"capture": str(entry.capture), "status": status, "mse": mse, "noise_floor": floor,
+            "mse_over_floor": (mse / floor) if isinstance(mse, (int, float)) and isinstance(floor, (int, float))
+            and floor > 0 else None,
+            "verdict": dia.get("verdict", ""), "explained_by": "+".join(
+                e.get("name", "") if isinstance(e, dict) else str(e) for e in explained),
+            "warnings": " | ".join(warnings), "result": rel(tasks.RESULT), "diagnosis": rel(tasks.DIAGNOSIS),
+            "report": rel(tasks.REPORT), "error": " | ".join(errors),
+            "wall_s": round(sum(r.get("wall_s", 0.0) for r in steps.values()), 3),
+            "unit": str(entry.unit or "reference unit"), "model": entry.model or "reference"}
+
+
+def write_summary(out: Path, rows: list[dict[str, Any]]) -> tuple[Path, Path]:
+    """summary.csv and index.html (sortable by clicking a column head), each written atomically."""
+    import io
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(SUMMARY_COLUMNS), extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    write_text(out / "summary.csv", buf.getvalue())
+    write_text(out / "index.html", _index_html(rows))
+    return out / "summary.csv", out / "index.html"
+
+
+def _fmt(v: Any) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else ("" if v is None else str(v))
+
+
+def _index_html(rows: list[dict[str, Any]]) -> str:
+    heads = ("capture", "unit", "model", "status", "mse / floor", "verdict", "explained by", "warnings", "report")
+    body = []
+    for r in rows:
+        link = f'<a href="{html.escape(r["report"])}">report</a>' if r.get("report") else ""
+        cells = [r["capture"], r.get("unit", ""), r.get("model", ""), r["status"], _fmt(r.get("mse_over_floor")),
+                 r.get("verdict", ""), r.get("explained_by", ""), r.get("warnings") or r.get("error", "")]
+        body.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + f"<td>{link}</td></tr>")
+    return ("<!doctype html><html><head><meta charset='utf-8'><title>bench-ctl batch</title><style>"
+            "body{font-family:sans-serif}table{border-collapse:collapse}td,th{border:1px solid #ccc;"
+            "padding:3px 6px}th{cursor:pointer;background:#eee}</style></head><body>"
+            f"<h1>bench-ctl batch: {len(rows)} captures</h1><table id='runs'><thead><tr>"
+            + "".join(f"<th>{h}</th>" for h in heads) + "</tr></thead><tbody>" + "".join(body)
+            + "</tbody></table><script>"
+            "document.querySelectorAll('#runs th').forEach(function(th,i){th.onclick=function(){"
+            "var tb=th.closest('table').tBodies[0],rs=Array.from(tb.rows),up=th.dataset.up!=='1';"
+            "th.dataset.up=up?'1':'0';rs.sort(function(a,b){var x=a.cells[i].innerText,y=b.cells[i].innerText,"
+            "p=parseFloat(x),q=parseFloat(y);var c=(!isNaN(p)&&!isNaN(q))?p-q:x.localeCompare(y);"
+            "return up?c:-c;});rs.forEach(function(r){tb.appendChild(r);});};});"
+            "</script></body></html>\n")
+
+
+class _WarmUp(WorkerPlugin):
+    """Dask worker plugin: load the kernel once per worker, before its first task."""
+
+    name = "bench-ctl-kernel"
+
+    def setup(self, worker: Any) -> None:
+        worker.bench_ctl_warm_s = tasks.warm_worker()
+
+
+def _kernel_ready(dask_worker: Any = None) -> float:
+    """Seconds the worker spent loading the kernel (runs the warm-up if the plugin has not)."""
+    s = getattr(dask_worker, "bench_ctl_warm_s", None)
+    if s is None:
+        s = tasks.warm_worker()
+        if dask_worker is not None:
+            dask_worker.bench_ctl_warm_s = s
+    return float(s)
+
+
+def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | None = None,
+              workers: int | None = None, evals: int = 1000, seed: int = 0, progress: bool = True,
+              echo: Callable[[str], None] = print) -> BatchOutcome:
+    from distributed import Client, LocalCluster, as_completed
+
+    t0 = time.perf_counter()
+    entries = read_manifest(manifest)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cluster = None
+    if scheduler:
+        client = Client(scheduler)
+    else:
+        n = workers or os.cpu_count() or 1
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               env={"NUMBA_NUM_THREADS": "1"}, silence_logs=logging.WARNING)
+        client = Client(cluster)
+    rows: dict[str, dict[str, Any]] = {}
+    steps: dict[str, dict[str, dict]] = {e.name: {} for e in entries}
+    interrupted = False
+    warm: dict[str, float] = {}
+    try:
+        echo(f"Dask dashboard: {client.dashboard_link}")
+        client.register_plugin(_WarmUp())
+        warm = client.run(_kernel_ready)
+        echo(f"kernel ready on {len(warm)} worker(s): " + ", ".join(f"{v:.1f} s" for v in warm.values()))
+        futures = {}
+        fps = {}
+        for e in entries:
+            folder = out / e.name
+            fp = tasks.fingerprint(e, evals, seed)
+            fps[e.name] = fp
+            if tasks.is_done(folder, fp):
+                rows[e.name] = summary_row(e, folder, {}, skipped=True)
+                continue
+            f_id = f_dg = None
+            if "identify" in e.steps:
+                f_id = client.submit(tasks.run_step, "identify", e, str(folder), evals, seed,
+                                     key=f"identify-{e.name}-{seed}", pure=False)
+                futures[f_id] = e
+            if "diagnose" in e.steps:
+                f_dg = client.submit(tasks.run_step, "diagnose", e, str(folder), evals, seed,
+                                     key=f"diagnose-{e.name}-{seed}", pure=False)
+                futures[f_dg] = e
+            if "report" in e.steps:
+                f_rp = client.submit(_report_step, f_id, f_dg, e, str(folder), evals, seed,
+                                     key=f"report-{e.name}-{seed}", pure=False)
+                futures[f_rp] = e
+        bar = None
+        if progress:
+            from tqdm import tqdm
+            bar = tqdm(total=len(futures), desc="steps", unit="step", file=sys.stderr, disable=None)
+        try:
+            for fut in as_completed(list(futures)):
+                e = futures[fut]
+                try:
+                    row = fut.result()
+                except Exception as exc:  # noqa: BLE001 - a lost worker is a row, not the end
+                    step = str(fut.key).split("-")[0]
+                    row = {"step": step, "capture": e.name, "rc": 2, "wall_s": 0.0, "output": "",
+                           "error": f"{type(exc).__name__}: {exc}"}
+                steps[e.name][row["step"]] = row
+                if bar is not None:
+                    bar.update(1)
+                if len(steps[e.name]) == len(e.steps):
+                    folder = out / e.name
+                    rows[e.name] = summary_row(e, folder, steps[e.name])
+                    if rows[e.name]["status"] in ("ok", "criteria failed"):
+                        tasks.write_done(folder, fps[e.name], list(steps[e.name].values()))
+        finally:
+            if bar is not None:
+                bar.close()
+    except KeyboardInterrupt:
+        interrupted = True
+        echo("interrupted: cancelling the steps not finished; finished results are kept")
+        for f in list(locals().get("futures", {})):
+            f.cancel()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    ordered = [rows.get(e.name) or summary_row(e, out / e.name, steps[e.name]) | {"status": "not run"}
+               for e in entries]
+    csv_path, index = write_summary(out, ordered)
+    return BatchOutcome(ordered, csv_path, index, time.perf_counter() - t0, warm, interrupted)

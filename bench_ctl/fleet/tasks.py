@@ -1,0 +1,119 @@
+"""One step of one capture, run exactly as the single command runs it (same argv, same files):
+`bench-ctl identify CAP --json result.json`, `bench-ctl diagnose CAP [--holdout H] --json
+diagnosis.json`, `bench-ctl report result.json --diagnosis diagnosis.json -o report.html`.
+
+A step returns a plain dict (picklable, for Dask): the exit code, what the command printed, the
+wall time, and the error when it raised. A step never raises for a bad capture; it raises only
+when the worker itself fails. Outputs go to temporary names in the capture's folder and are
+renamed when the command has ended, so an interrupted batch leaves no half-written file.
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import os
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+from .manifest import Entry
+
+RESULT, DIAGNOSIS, REPORT, DONE = "result.json", "diagnosis.json", "report.html", "done.json"
+#: result / diagnosis keys that differ between two runs of the same capture by design
+VOLATILE_KEYS = ("wall_s", "compile_s", "created_utc", "command_line", "seconds")
+
+
+def sha256_of(path: Path | None) -> str | None:
+    if path is None:
+        return None
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def fingerprint(entry: Entry, evals: int, seed: int) -> dict[str, Any]:
+    """What a capture's outputs depend on: input hashes and the settings (for resuming)."""
+    return {"capture": sha256_of(entry.capture), "holdout": sha256_of(entry.holdout),
+            "unit": sha256_of(entry.unit), "overrides": list(entry.overrides), "model": entry.model,
+            "steps": list(entry.steps), "evals": evals, "seed": seed}
+
+
+def _unit_args(entry: Entry) -> list[str]:
+    args = ["--unit", str(entry.unit)] if entry.unit else []
+    for s in entry.overrides:
+        args += ["--set", s]
+    return args
+
+
+def argv_for(step: str, entry: Entry, folder: Path, *, evals: int, seed: int) -> list[str]:
+    """The single command's argv for `step` of `entry`, writing into `folder`."""
+    if step == "identify":
+        return ["identify", str(entry.capture), *_unit_args(entry), "--evals", str(evals), "--seed", str(seed),
+                "--no-progress", "--force", "--json", str(folder / RESULT)]
+    if step == "diagnose":
+        hold = ["--holdout", str(entry.holdout)] if entry.holdout else []
+        return ["diagnose", str(entry.capture), *hold, *_unit_args(entry), "--seed", str(seed), "--force",
+                "--json", str(folder / DIAGNOSIS)]
+    if step == "report":
+        diag = ["--diagnosis", str(folder / DIAGNOSIS)] if (folder / DIAGNOSIS).exists() else []
+        return ["report", str(folder / RESULT), *diag, "--force", "-o", str(folder / REPORT)]
+    raise ValueError(f"unknown step {step!r}")
+
+
+def run_step(step: str, entry: Entry, folder: str, evals: int, seed: int) -> dict[str, Any]:
+    """Run one step in this process; see the module docstring."""
+    from bench_ctl.cli import main
+
+    out_dir = Path(folder)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    buf = io.StringIO()
+    row: dict[str, Any] = {"step": step, "capture": entry.name, "pid": os.getpid()}
+    try:
+        if entry.model:
+            raise ValueError(f"model {entry.model!r}: only the reference structure is available "
+                             "(leave the 'model' column empty)")
+        argv = argv_for(step, entry, out_dir, evals=evals, seed=seed)
+        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+            rc = main(argv)
+        row.update(rc=int(rc), argv=argv)
+    except Exception as exc:  # noqa: BLE001 - a bad capture is a row of the summary, not a crash
+        row.update(rc=2, error=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc(limit=4))
+    row["output"] = buf.getvalue()[-4000:]
+    row["wall_s"] = time.perf_counter() - t0
+    if row["rc"] not in (0, 1) and "error" not in row:
+        lines = [ln for ln in row["output"].splitlines() if ln.strip()]
+        row["error"] = lines[-1] if lines else f"exit {row['rc']}"
+    return row
+
+
+def warm_worker() -> float:
+    """Load (or compile) the kernel in this worker once, before its first task; seconds."""
+    from bench_ctl.identification.identify import warm_up
+    from bench_ctl.model.unit import reference_unit
+
+    return warm_up(reference_unit())
+
+
+def write_done(folder: Path, fp: dict[str, Any], rows: list[dict[str, Any]]) -> None:
+    """Mark a capture complete (last, atomically): its fingerprint and step exit codes."""
+    from bench_ctl.outputs import write_json
+
+    write_json(folder / DONE, {"fingerprint": fp, "steps": {r["step"]: r["rc"] for r in rows}})
+
+
+OUTPUT_OF = {"identify": RESULT, "diagnose": DIAGNOSIS, "report": REPORT}
+
+
+def is_done(folder: Path, fp: dict[str, Any]) -> bool:
+    """The capture's outputs exist and were made from the same inputs and settings."""
+    try:
+        done = json.loads((folder / DONE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return done.get("fingerprint") == fp and all((folder / OUTPUT_OF[s]).exists() for s in fp["steps"])
