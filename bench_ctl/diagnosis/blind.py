@@ -224,6 +224,7 @@ class CaseResult:
     ranking: list[str] = field(default_factory=list)
     ambiguous: list[list[str]] = field(default_factory=list)
     sequence: list[str] = field(default_factory=list)
+    explained: list[str] = field(default_factory=list)   # explained_by names, in order
 
 
 def run_suite(cases: Sequence[Case], diagnose_fn: Callable[..., dict], *, seed: int = 0,
@@ -250,7 +251,8 @@ def run_suite(cases: Sequence[Case], diagnose_fn: Callable[..., dict], *, seed: 
         r = CaseResult(case.case_id, case.effect, diag["verdict"], gap, dt, cpu,
                        [e["name"] for e in diag["effects"]],
                        [a["effects"] for a in diag.get("ambiguous", [])],
-                       [q["added"] for q in diag.get("sequence", [])])
+                       [q["added"] for q in diag.get("sequence", [])],
+                       [q["name"] for q in diag.get("explained_by", [])])
         results.append(r)
         if progress:
             progress(r)
@@ -262,6 +264,8 @@ def score(results: Sequence[CaseResult]) -> dict:
     median holdout gap_closed of the true effect, seconds per capture."""
     labels = list(EFFECT_NAMES) + [NONE]
     confusion = {t: {p: 0 for p in labels} for t in labels}
+    pairs = [r for r in results if "+" in r.truth]
+    results = [r for r in results if "+" not in r.truth]
     for r in results:
         confusion[r.truth][r.verdict if r.verdict in labels else NONE] += 1
     eff = [r for r in results if r.truth != NONE]
@@ -278,5 +282,10 @@ def score(results: Sequence[CaseResult]) -> dict:
         "seconds_per_capture": float(np.mean([r.seconds for r in results])) if results else None,
         "cpu_seconds_per_capture": float(np.mean([r.cpu_seconds for r in results])) if results else None,
         "extra_effects_in_sequence": sum(len(r.sequence) > 1 for r in results),
+        "none_with_explained_by": sum(bool(r.explained) for r in results if r.truth == NONE),
+        "pair_cases": len(pairs),
+        "pair_both_explained": sum(set(r.truth.split("+")) <= set(r.explained) for r in pairs),
+        "pair_by_kind": {k: [sum(set(r.truth.split("+")) <= set(r.explained) for r in pairs if r.truth == k),
+                             sum(r.truth == k for r in pairs)] for k in sorted({r.truth for r in pairs})},
         "confusion": confusion,
     }

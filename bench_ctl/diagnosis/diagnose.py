@@ -288,6 +288,26 @@ def _fit_effects(unit: Unit, st: _Setup, base: ModelFit, hints: Mapping[str, flo
     return fits
 
 
+BUS_FED = "bus-fed: VRMAX*Vt, VRMIN*Vt"
+
+
+def _ceiling_variant(unit: Unit, st: _Setup, fits: dict[str, ModelFit], budget: Budget, seed: int
+                     ) -> tuple[Unit, str]:
+    """The ceiling of a bus-fed static exciter (limits x Vt, VRVT = 1) tried beside the fixed one,
+    from the fixed fit's values; the better scored is kept (`fits` updated) and, when bus-fed,
+    the unit carries VRVT = 1 for the rest of the diagnosis. Returns (unit, variant)."""
+    fixed = fits["ceiling_limit"]
+    n, n_c = st.rec.n, st.check.n
+    values = {**unit.values(), "VRVT": 1.0}
+    bus = fit_model(unit, values, ("ceiling_limit",), st.rec, st.coarse, st.check, [dict(fixed.params)], evals=0,
+                    seed=seed + 41, polish_coarse=budget.polish_coarse, polish_fine=budget.effect_polish)
+    log.info("ceiling variants: fixed mse %.4g, bus-fed mse %.4g", fixed.mse, bus.mse)
+    if bus.feasible and score(bus, n, n_c) < score(fixed, n, n_c):
+        fits["ceiling_limit"] = bus
+        return replace(unit, fixed={**unit.fixed, "VRVT": 1.0}), BUS_FED
+    return unit, "fixed limits"
+
+
 def _entries(unit: Unit, st: _Setup, base: ModelFit, fits: Mapping[str, ModelFit]) -> list[dict]:
     """The ranked `effects` list of the JSON."""
     n, n_c = st.rec.n, st.check.n
@@ -340,7 +360,8 @@ def _sequence(unit: Unit, st: _Setup, fits: Mapping[str, ModelFit], entries: lis
     """Add effects greedily to the verdict while both the fit (BIC) and the check error improve."""
     n, n_c = st.rec.n, st.check.n
     current = fits[verdict]
-    sequence = [{"added": verdict, "mse": current.mse, "mse_holdout": current.mse_check}]
+    sequence = [{"added": verdict, "mse": current.mse, "mse_holdout": current.mse_check,
+                 "params": current.effect_params()}]
     cands = [d["name"] for d in entries if d["significant"] and d["name"] != verdict]
     while len(current.effects) < budget.max_sequence and cands and current.mse > st.floor_tol:
         best = None
@@ -361,7 +382,46 @@ def _sequence(unit: Unit, st: _Setup, fits: Mapping[str, ModelFit], entries: lis
         cands.remove(best.effects[-1])
         sequence.append({"added": best.effects[-1], "mse": best.mse, "mse_holdout": best.mse_check,
                          "params": best.effect_params()})
-    return sequence
+    return sequence, current
+
+
+#: what is left after the explaining effects, over the noise floor, beyond which the rest is called
+#: "a structure the vocabulary lacks"
+LACKS = 2.0
+
+
+def _explained_by(unit: Unit, st: _Setup, base: ModelFit, sequence: list[dict], final: ModelFit | None,
+                  capture: Capture, edges: Edges) -> tuple[list[dict], dict]:
+    """The effects that together explain the record (in the order added, each re-fitted jointly
+    with those before it), and what is left after the last: its error against the noise floor and
+    where in the record it lies."""
+    floor = st.floor.variance
+    span = base.mse - floor
+    steps = []
+    for step in sequence:
+        params = dict(step.get("params", {}))
+        if step["added"] == "ceiling_limit" and unit.fixed.get("VRVT") == 1.0:
+            params["VRVT"] = 1.0  # the bus-fed variant
+        steps.append({"name": step["added"], "params": params, "mse": step["mse"],
+                      "mse_over_floor": step["mse"] / floor,
+                      "gap_closed": (base.mse - step["mse"]) / span if span > 0 else None,
+                      "check": {"on": st.check.label, "mse": step["mse_holdout"],
+                                "mse_base": base.mse_check}})
+    model = final if final is not None else base
+    space = model_space(unit, model.effects, unit.values())
+    x = np.array([model.params[n] for n in space.names])
+    resid = simulate_efd(space, x, st.full)[0][0] - capture.efd
+    ratio = model.mse / floor
+    if model.mse <= st.floor_tol:
+        note = "at the noise floor: nothing left to explain"
+    elif ratio <= LACKS:
+        note = f"{ratio:.2f} x the noise floor: close to it"
+    else:
+        note = (f"{ratio:.1f} x the noise floor: a structure the vocabulary lacks (or an effect it could "
+                "not fit); see where it lies")
+    left = {"mse": model.mse, "mse_over_floor": ratio, "effects": list(model.effects), "note": note,
+            "localization": localization(resid, capture.dt, edges)}
+    return steps, left
 
 
 def diagnose(*args: Any, **kwargs: Any) -> dict[str, Any]:
@@ -394,6 +454,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     feats, hints = _features(capture, model, edges, floor, unit.values(), st.rec.n)
 
     fits = _fit_effects(unit, st, base, hints, budget, seed)
+    unit, ceiling_variant = _ceiling_variant(unit, st, fits, budget, seed)
     # the base fit may sit in a worse basin than the AVR parameters an effect fit reached
     better = refine_base(unit, unit.values(), st.rec, base_fit.x, [m.params for m in fits.values()],
                          polish_evals=budget.base_polish)
@@ -405,10 +466,15 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     loc = localization(model - capture.efd, capture.dt, edges)
 
     entries = _entries(unit, st, base, fits)
+    for e in entries:
+        if e["name"] == "ceiling_limit":
+            e["variant"] = ceiling_variant
     at_floor = base.mse <= st.floor_tol
     verdict = choose_verdict(entries, at_floor=at_floor, has_check=base.mse_check is not None)
     ambiguous = ambiguous_pairs(entries) if verdict != "none" else []
-    sequence = _sequence(unit, st, fits, entries, verdict, budget, seed) if verdict != "none" else []
+    sequence, final = (_sequence(unit, st, fits, entries, verdict, budget, seed) if verdict != "none"
+                       else ([], None))
+    explained, left = _explained_by(unit, st, base, sequence, final, capture, edges)
 
     return {
         "schema": SCHEMA,
@@ -430,6 +496,8 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
         "effects": entries,
         "ambiguous": ambiguous,
         "sequence": sequence,
+        "explained_by": explained,
+        "left": left,
         "verdict": verdict,
         "criteria": {"significant_delta": SIGNIFICANT, "strong_delta": STRONG, "ambiguous_delta": AMBIGUOUS,
                      "floor_sigmas": budget.floor_sigmas,

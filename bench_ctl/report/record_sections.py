@@ -107,7 +107,35 @@ def diagnosis(d: ReportData) -> Section | None:
                          for i, s in enumerate(seq)], id="diagnosis-sequence",
                         caption="Greedy sequence: effects added one after another")
                   if seq else Para(f"Greedy sequence: {NOT_AVAILABLE}.", "na"))
+    blocks += _explained_by(g)
     return Section("diagnosis", "Diagnosis of the remaining gap", tuple(blocks))
+
+
+def _explained_by(g: Mapping[str, Any]) -> list[Block]:
+    """The staircase: the error after each effect added (jointly re-fitted), down to what is left."""
+    steps = _objs(g.get("explained_by"))
+    left = g.get("left") if isinstance(g.get("left"), Mapping) else None
+    if not steps and left is None:
+        return []
+    base = g.get("base") if isinstance(g.get("base"), Mapping) else {}
+    floor = num(g.get("noise_floor"))
+    rows = [("base model", "", Num(num(base.get("mse")), digits=4),
+             Num(num(base.get("mse")) / floor if floor and num(base.get("mse")) is not None else None, digits=3),
+             "", Num(num(base.get("mse_holdout")), digits=4))]
+    for i, s in enumerate(steps, 1):
+        params = ", ".join(f"{k} {fmt(v, 4)}" for k, v in (s.get("params") or {}).items())
+        check = s.get("check") if isinstance(s.get("check"), Mapping) else {}
+        rows.append((f"+ {s.get('name', '?')}", params, Num(num(s.get("mse")), digits=4),
+                     Num(num(s.get("mse_over_floor")), digits=3), Num(num(s.get("gap_closed")), digits=3),
+                     Num(num(check.get("mse")), digits=4)))
+    out: list[Block] = [table(("model", "effect parameters", "MSE (pu²)", "MSE / noise floor", "gap closed",
+                               "check MSE (pu²)"), rows, id="diagnosis-explained-by",
+                              caption="The effects that together explain the record, in the order added "
+                                      "(each step re-fits every parameter): the error after each, down to "
+                                      "the noise floor")]
+    if left is not None:
+        out.append(Para(f"What is left: {left.get('note', '')}.", "note"))
+    return out
 
 
 def _unit_rows(unit: Mapping[str, Any]) -> list[tuple[str, str]]:
