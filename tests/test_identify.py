@@ -59,10 +59,12 @@ def test_result_dict_has_every_schema_key_and_is_strict_json(fitted):
     assert r["schema"] == "bench-ctl/result/1"
     assert set(r["params"]) == set(TRUTH)
     assert set(r["fixed"]) >= {"Td0p", "Td0pp", "Vt0", "VRMAX"} and r["fixed"]["VRMAX"] is None
-    assert r["evaluations"] == 2000 and r["optimizer"]["name"] == "mvmo"
+    # MVMO spends its share of the budget; the joint polish of the edge instants that follows
+    # may end before the rest is used (a Jacobian batch that no longer fits, or convergence)
+    assert 1900 <= r["evaluations"] <= 2000 and r["optimizer"]["name"] == "mvmo"
     assert r["wall_s"] > 0 and r["compile_s"] >= 0
     hist = r["history"]
-    assert hist[-1][0] == 2000 and all(a[1] >= b[1] for a, b in zip(hist, hist[1:]))
+    assert hist[-1][0] == r["evaluations"] and all(a[1] >= b[1] for a, b in zip(hist, hist[1:]))
     assert r["objective"] == pytest.approx(hist[-1][1])
     c = r["captures"][0]
     assert c["n"] == 2001 and c["rate_hz"] == pytest.approx(500.0) and c["weight"] == 1.0
