@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     from distributed import Client, LocalCluster
 
     from bench_ctl.fleet import tasks
-    from bench_ctl.fleet.batch import run_batch
+    from bench_ctl.fleet.batch import WORKER_ENV, run_batch
     from bench_ctl.fleet.manifest import read_manifest
 
     work = Path(tempfile.mkdtemp(prefix="bench-ctl-batch-"))
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     serial_rss = _peak_rss_mb()
 
     with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      env={"NUMBA_NUM_THREADS": "1"}, silence_logs=logging.WARNING) as cluster:
+                      env=WORKER_ENV, silence_logs=logging.WARNING) as cluster:
         outcome = run_batch(manifest, work / "cluster", scheduler=cluster.scheduler_address, evals=args.evals,
                             seed=args.seed, progress=False, echo=lambda s: None)
         with Client(cluster.scheduler_address) as client:

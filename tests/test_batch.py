@@ -10,6 +10,7 @@ import logging
 import pytest
 
 from bench_ctl.cli import main
+from bench_ctl.fleet.batch import WORKER_ENV
 from bench_ctl.fleet.manifest import ManifestError, read_manifest
 from bench_ctl.fleet.tasks import VOLATILE_KEYS
 
@@ -27,7 +28,7 @@ def _strip(d, drop=VOLATILE_KEYS):
 @pytest.fixture(scope="module")
 def cluster():
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  env={"NUMBA_NUM_THREADS": "1"}, silence_logs=logging.WARNING) as c:
+                                  env=WORKER_ENV, silence_logs=logging.WARNING) as c:
         yield c
 
 

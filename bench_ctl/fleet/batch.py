@@ -32,6 +32,10 @@ from .manifest import Entry, read_manifest
 
 log = logging.getLogger(__name__)
 
+#: the environment of our LocalCluster's workers: the kernel on one thread (one worker per core),
+#: and no statistical profiler (its thread takes the GIL every 10 ms from the fits that hold it)
+WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
+
 SUMMARY_COLUMNS = ("capture", "status", "mse", "noise_floor", "mse_over_floor", "verdict", "explained_by",
                    "warnings", "result", "diagnosis", "report", "error", "wall_s")
 
@@ -165,7 +169,7 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
     else:
         n = workers or os.cpu_count() or 1
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               env={"NUMBA_NUM_THREADS": "1"}, silence_logs=logging.WARNING)
+                               env=WORKER_ENV, silence_logs=logging.WARNING)
         client = Client(cluster)
     rows: dict[str, dict[str, Any]] = {}
     steps: dict[str, dict[str, dict]] = {e.name: {} for e in entries}
