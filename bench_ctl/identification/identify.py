@@ -64,11 +64,16 @@ def warm_up(unit: Unit) -> float:
     t0 = time.perf_counter()
     u = np.array([1.0, 1.0, 1.05, 1.05])
     m = np.ones(4)
+    # a capture's arrays are read-only, and numba types (and compiles) those apart: both kinds
+    ur, mr = u.copy(), m.copy()
+    ur.setflags(write=False)
+    mr.setflags(write=False)
     # one candidate runs serially, a population in parallel chunks: compile both paths
     for P in (param_matrix(unit.values()), np.repeat(param_matrix(unit.values()), 64, axis=0)):
-        run_kernel(P, u, 1e-3, 1.0, efd_meas=m, vt_meas=m, w_vt=1.0, store=False)
-        run_kernel(P, u, 1e-3, 1.0, efd_meas=m, store=False)
-        run_kernel(P, u, 1e-3, 1.0)
+        for uu, mm in ((u, m), (ur, mr)):
+            run_kernel(P, uu, 1e-3, 1.0, efd_meas=mm, vt_meas=mm, w_vt=1.0, store=False)
+            run_kernel(P, uu, 1e-3, 1.0, efd_meas=mm, store=False)
+            run_kernel(P, uu, 1e-3, 1.0)
     return time.perf_counter() - t0
 
 
