@@ -28,6 +28,8 @@ COMMANDS = {
     "run": "bench_ctl.commands.run:run",
     "demo": "bench_ctl.commands.demo:demo",
     "batch": "bench_ctl.commands.batch:batch",
+    "models": "bench_ctl.commands.models:models",
+    "export": "bench_ctl.commands.export:export",
 }
 
 

@@ -31,9 +31,10 @@ from bench_ctl.identification.constraints import ConstraintError, parse_constrai
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.model.simulate import simulate
-from bench_ctl.model.unit import Unit, UnitError, apply_overrides, load_unit
+from bench_ctl.model.unit import Unit, UnitError
 
 from .options import fmt_value as _fmt
+from .options import model_args, model_options, resolve_unit
 
 log = logging.getLogger(__name__)
 
@@ -124,13 +125,14 @@ def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, An
     }
 
 
-def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str],
+def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str], model_kw: dict,
                   result: str | None, seed: int, json_out: str | None, report_out: str | None) -> str:
     args = ["bench-ctl", "diagnose", capture]
     if holdout:
         args += ["--holdout", holdout]
     if unit_path:
         args += ["--unit", unit_path]
+    args += model_args(model_kw or {})
     for o in overrides:
         args += ["--set", o]
     if result:
@@ -150,6 +152,7 @@ def _command_line(capture: str, holdout: str | None, unit_path: str | None, over
               help="A second capture of the same unit (e.g. another pulse width) to check the fits on.")
 @click.option("--unit", "unit_path", type=click.Path(dir_okay=False), default=None,
               help="Unit file (TOML); default: the built-in reference unit.")
+@model_options
 @click.option("--set", "overrides", multiple=True, metavar="NAME=VALUE",
               help="Override one unit value: Td0p=6.0, KAVR.min=20 (repeatable).")
 @click.option("--result", "result_path", metavar="RESULT.json", type=click.Path(dir_okay=False), default=None,
@@ -160,14 +163,17 @@ def _command_line(capture: str, holdout: str | None, unit_path: str | None, over
 @click.option("--force", is_flag=True, help="Replace an existing --json / --report output (never an input).")
 @click.option("--report", "report_out", type=click.Path(dir_okay=False), default=None,
               help="Write the HTML report of the base fit with the diagnosis section here.")
-def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None, overrides: tuple[str, ...],
+def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None, model: str | None,
+             from_dyr: str | None, dyr_bus: int | None, dyr_id: str | None, overrides: tuple[str, ...],
              result_path: str | None, seed: int, json_out: str | None, report_out: str | None,
              force: bool = False) -> int:
     """Diagnose the gap between the unit's model and CAPTURE (a pulse or step test)."""
     from bench_ctl.diagnosis import DiagnosisError, diagnose as run
 
+    model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id)
+
     try:
-        unit = apply_overrides(load_unit(unit_path), overrides)
+        unit = resolve_unit(unit_path, overrides, **model_kw)
         capture = read_capture(capture_path)
         holdout = read_capture(holdout_path) if holdout_path else None
         for c in (capture, holdout):
@@ -199,7 +205,7 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
         return EXIT_BAD_INPUT
-    command_line = _command_line(capture_path, holdout_path, unit_path, overrides, result_path, seed,
+    command_line = _command_line(capture_path, holdout_path, unit_path, overrides, model_kw, result_path, seed,
                                  json_out, report_out)
     try:
         d = run(capture, unit, holdout=holdout, seed=seed, base_params=base_params, command_line=command_line)

@@ -29,9 +29,10 @@ from bench_ctl.identification.constraints import ConstraintError
 from bench_ctl.identification.identify import Identification, run_identification
 from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
-from bench_ctl.model.unit import UnitError, apply_overrides, load_unit
+from bench_ctl.model.unit import UnitError
 
 from .options import fmt_value as _fmt
+from .options import model_args, model_options, resolve_unit
 
 log = logging.getLogger(__name__)
 
@@ -118,6 +119,7 @@ def plot_fit(ident: Identification, path: str | Path) -> None:
 @click.argument("captures", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--unit", "unit_path", type=click.Path(dir_okay=False), default=None,
               help="Unit file (TOML); default: the built-in reference unit.")
+@model_options
 @click.option("--set", "overrides", multiple=True, metavar="NAME=VALUE",
               help="Override a unit value, bound (KAVR.min=20), weight or effect parameter.")
 @click.option("--optimizer", "optimizers", multiple=True, type=click.Choice(OPTIMIZERS),
@@ -132,12 +134,14 @@ def plot_fit(ident: Identification, path: str | Path) -> None:
 @click.option("--plot", "plot_out", type=click.Path(dir_okay=False), default=None,
               help="Write a PNG of measured vs simulated efd here.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
-def identify(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[str, ...],
+def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None, from_dyr: str | None,
+             dyr_bus: int | None, dyr_id: str | None, overrides: tuple[str, ...],
              optimizers: tuple[str, ...], compare: bool, evals: int, seed: int,
              json_out: str | None, plot_out: str | None, no_progress: bool, force: bool = False) -> int:
     """Identify the AVR parameters from CAPTURE files (CSV + sidecar) by simulation in the loop."""
+    model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id)
     try:
-        unit = apply_overrides(load_unit(unit_path), overrides)
+        unit = resolve_unit(unit_path, overrides, **model_kw)
         caps = [read_capture(p) for p in captures]
         for c in caps:
             check_plausible(c)
@@ -174,7 +178,7 @@ def identify(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[
             bar.update(min(nfev, evals) - bar.n)
         return cb
 
-    command_line = _command_line(captures, unit_path, overrides, chosen, compare, evals, seed,
+    command_line = _command_line(captures, unit_path, overrides, model_kw, chosen, compare, evals, seed,
                                  json_out, plot_out)
     try:
         ident = run_identification(caps, unit, optimizer=chosen[0], compare=others, max_evals=evals,
@@ -205,13 +209,14 @@ def identify(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[
     return EXIT_OK
 
 
-def _command_line(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[str, ...],
+def _command_line(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[str, ...], model_kw: dict,
                   chosen: list[str], compare: bool, evals: int, seed: int, json_out: str | None,
                   plot_out: str | None) -> str:
     """The command as run, rebuilt from the parsed options (canonical order, shell-quoted)."""
     args = ["bench-ctl", "identify", *captures]
     if unit_path:
         args += ["--unit", unit_path]
+    args += model_args(model_kw or {})
     for o in overrides:
         args += ["--set", o]
     for name in chosen:

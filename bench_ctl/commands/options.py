@@ -1,4 +1,5 @@
-"""Click options shared by the commands that take a unit: --unit, --set, --effect."""
+"""Click options shared by the commands that take a unit: --unit, --model, --from-dyr, --set,
+--effect."""
 from __future__ import annotations
 
 import math
@@ -7,10 +8,64 @@ from typing import Any, Sequence
 import click
 
 from bench_ctl.model.effects import effect
-from bench_ctl.model.unit import Unit, UnitError, apply_overrides, load_unit
+from bench_ctl.model.structures import STRUCTURES
+from bench_ctl.model.unit import Unit, UnitError, apply_overrides, load_unit, with_model
+
+
+def model_options(f):
+    """--model NAME and --from-dyr FILE [--dyr-bus N --dyr-id ID]: the structure and the record a
+    unit starts from (see `resolve_unit`)."""
+    f = click.option("--dyr-id", default=None, metavar="ID",
+                     help="Machine ID of the records to take from --from-dyr (default: the only one).")(f)
+    f = click.option("--dyr-bus", type=int, default=None, metavar="N",
+                     help="Bus of the records to take from --from-dyr (default: the only one).")(f)
+    f = click.option("--from-dyr", "from_dyr", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+                     help="Start from a PSS/E .dyr record: its exciter model and values, and the "
+                          "GENROU/GENSAL record's T'd0, T''d0, S(1.0), S(1.2).")(f)
+    f = click.option("--model", "model", default=None, metavar="NAME",
+                     help=f"AVR / exciter structure ({', '.join(STRUCTURES)}; default: the unit "
+                          "file's, else REFERENCE). See `bench-ctl models`.")(f)
+    return f
+
+
+def model_args(kw: dict) -> list[str]:
+    """The --model / --from-dyr options as given, for a result's command line."""
+    out: list[str] = []
+    for key, opt in (("model", "--model"), ("from_dyr", "--from-dyr"), ("dyr_bus", "--dyr-bus"),
+                     ("dyr_id", "--dyr-id")):
+        if kw.get(key) is not None:
+            out += [opt, str(kw[key])]
+    return out
+
+
+def resolve_unit(unit_path: str | None, overrides: Sequence[str], *, model: str | None = None,
+                 from_dyr: str | None = None, dyr_bus: int | None = None, dyr_id: str | None = None,
+                 effects: Sequence[str] = ()) -> Unit:
+    """The unit file (or the reference unit), in the structure `model`, started from a .dyr
+    record, then the --set overrides (standard names of the structure) and --effect's."""
+    unit = load_unit(unit_path)
+    if model:
+        try:
+            unit = with_model(unit, model)
+        except ValueError as exc:
+            raise UnitError(f"--model {model}: {exc}") from None
+    if from_dyr:
+        from bench_ctl.model.dyr_unit import unit_from_dyr
+        unit = unit_from_dyr(unit, from_dyr, bus=dyr_bus, ident=dyr_id)
+        if model and unit.model != with_model(unit, model).model:
+            raise UnitError(f"--model {model} differs from the record's model {unit.model} in {from_dyr}")
+    unit = apply_overrides(unit, overrides)
+    parsed: dict[str, dict[str, float]] = {}
+    for name, params in (parse_effect(e) for e in effects):  # repeated: the values add up
+        parsed.setdefault(name, {}).update(params)
+    try:
+        return unit.with_effects(parsed) if parsed else unit
+    except ValueError as exc:
+        raise UnitError(str(exc)) from None
 
 
 def unit_options(f):
+    f = model_options(f)
     f = click.option("--effect", "effects", multiple=True, metavar="NAME:P=V[,P=V...]",
                      help="Switch an effect on, e.g. ceiling_limit:VRMAX=2.8,VRMIN=-1.0 (repeatable).")(f)
     f = click.option("--set", "overrides", multiple=True, metavar="NAME=VALUE",
@@ -39,15 +94,9 @@ def parse_effect(text: str) -> tuple[str, dict[str, float]]:
     return eff.name, params
 
 
-def build_unit(unit_path: str | None, overrides: Sequence[str], effects: Sequence[str] = ()) -> Unit:
-    unit = apply_overrides(load_unit(unit_path), overrides)
-    parsed: dict[str, dict[str, float]] = {}
-    for name, params in (parse_effect(e) for e in effects):  # repeated: the values add up
-        parsed.setdefault(name, {}).update(params)
-    try:
-        return unit.with_effects(parsed) if parsed else unit
-    except ValueError as exc:
-        raise UnitError(str(exc)) from None
+def build_unit(unit_path: str | None, overrides: Sequence[str], effects: Sequence[str] = (),
+               **model: Any) -> Unit:
+    return resolve_unit(unit_path, overrides, effects=effects, **model)
 
 
 def fmt_value(v: Any, spec: str = ".4g") -> str:

@@ -64,7 +64,7 @@ def _hostport(text: str, option: str) -> tuple[str, int]:
               help="Arm a fault at start, e.g. no_reply:device=exciter,count=1 (repeatable).")
 @click.option("--control", default=None, metavar="HOST:PORT",
               help="Open a line-based control port for run-time faults.")
-def sim(unit_path, overrides, effects, tcp, recorder_tcp, serial_link, no_serial,
+def sim(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, tcp, recorder_tcp, serial_link, no_serial,
         exciter_profile, recorder_profile, exciter_unit_id, recorder_unit_id, heartbeat_timeout,
         load_mw, noise, seed, faults, control) -> int:
     """Run the simulated exciter and recorder around one real-time plant until Ctrl-C."""
@@ -75,7 +75,11 @@ def sim(unit_path, overrides, effects, tcp, recorder_tcp, serial_link, no_serial
     rec_addr = _hostport(recorder_tcp, "--recorder-tcp")
     control_addr = _hostport(control, "--control") if control else None
     try:
-        unit = build_unit(unit_path, overrides, effects)
+        unit = build_unit(unit_path, overrides, effects, model=model, from_dyr=from_dyr,
+                          dyr_bus=dyr_bus, dyr_id=dyr_id)
+        if unit.model != "REFERENCE":   # the real-time plant steps the reference blocks only
+            raise UnitError(f"the simulated bench runs the REFERENCE structure only, not {unit.model}; "
+                            "use `bench-ctl simulate` for a capture of another structure")
         armed = [parse_fault(f) for f in faults]
         bench = SimBench(unit, tcp=tcp_addr, recorder_tcp=rec_addr,
                          serial=False if no_serial else (serial_link or True),

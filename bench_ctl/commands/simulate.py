@@ -32,10 +32,11 @@ MAX_SAMPLES = 1.0e7
               help="Recorder quantisation step (pu); default 12 bit over +-10 pu.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Capture CSV to write.")
-def simulate(unit_path, overrides, effects, amplitude, width, start, duration, rate, noise, lsb, seed, output):
+def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, amplitude, width, start, duration, rate, noise, lsb, seed, output):
     """Write a synthetic pulse capture (CSV + JSON sidecar) of the unit."""
     try:
-        unit = build_unit(unit_path, overrides, effects)
+        unit = build_unit(unit_path, overrides, effects, model=model, from_dyr=from_dyr,
+                          dyr_bus=dyr_bus, dyr_id=dyr_id)
         for opt, v in (("--amplitude", amplitude), ("--width", width), ("--start", start),
                        ("--duration", duration), ("--rate", rate), ("--noise", noise), ("--lsb", lsb)):
             if not math.isfinite(v):

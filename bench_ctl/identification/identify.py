@@ -131,6 +131,27 @@ def run_identification(*args: Any, **kwargs: Any) -> Identification:
         return _run_identification(*args, **kwargs)
 
 
+def model_entry(unit: Unit, kernel_values: Mapping[str, float], identified: Sequence[str],
+                determined: Mapping[str, bool]) -> dict[str, Any]:
+    """The result's `model`: the structure, its parameters under their standard names (fitted
+    values where identified), which ones were identified and which the captures determined."""
+    st = unit.structure
+    values = st.std_values(kernel_values, unit.model_values)
+    ident_std = [unit.std_name(n) for n in identified if n not in RECORD_PARAMS]
+    return {
+        "name": st.name,
+        "title": st.title,
+        "dyr_model": st.dyr_model,
+        "params": {k: _none_if_inf(float(v)) for k, v in values.items()},
+        "units": {p.name: p.unit for p in st.params},
+        "identified": ident_std,
+        "determined": {unit.std_name(n): bool(v) for n, v in determined.items() if n not in RECORD_PARAMS},
+        "simulated": [p.name for p in st.params if p.kernel is not None],
+        "generator": {k: _none_if_inf(float(kernel_values[k])) for k in ("Td0p", "Td0pp", "Vt0", "KPP", "KDA")
+                      if k in kernel_values},
+    }
+
+
 def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: str = "mvmo",
                        compare: Sequence[str] = (), max_evals: int = 1000, seed: int | None = 0,
                        x0: Sequence[float] | None = None, progress: Progress | None = None,
@@ -198,6 +219,8 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
         "failed": best.failed,
         "message": best.message,
     }
+    result["model"] = model_entry(prob.unit, {**prob.base, **result["params"]}, prob.names,
+                                  ident.get("determined") or {})
     if len(runs) > 1:
         result["comparison"] = [_run_summary(prob, r) for r in runs]
     return Identification(result=result, problem=prob, best=best, runs=tuple(runs))

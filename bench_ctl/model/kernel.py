@@ -40,7 +40,12 @@ _llvm.set_option("", "-vectorize-memory-check-threshold=512")
 (D_KAVR, D_R1, D_IT2, D_R2, D_IT4, D_ITE, D_ITR, D_ITD0P, D_ITD0PP, D_SATA, D_SATB,
  D_VRMAX, D_VRMIN, D_TD, D_RATE, D_RAMP, D_GAIN, D_SKEW, D_VT0, D_EFD0, D_E0, D_UREF0,
  D_VALID, D_TRON, D_TDON, D_VRVT, D_KC, D_EDGE0) = range(28)
-N_DERIVED = 27 + len(RECORD_PARAMS)   # D_EDGE0 + slot: offset of setpoint edge `slot` (s)
+# the blocks of the standard structures: rate feedback gain KF/TF and 1/TF, DC exciter (1/TEX, on,
+# KE, quadratic saturation A, B), output clamp instead of a non-windup lag, the field voltage at
+# the steady state (the kernel's output; D_EFD0 is the regulator output's)
+(D_KFT, D_ITF, D_ITEX, D_DCON, D_KE, D_SEA, D_SEB, D_LIMOUT, D_OUT0, D_KPP, D_SATVT, D_KDA) = range(
+    27 + len(RECORD_PARAMS), 27 + len(RECORD_PARAMS) + 12)
+N_DERIVED = 27 + len(RECORD_PARAMS) + 12   # D_EDGE0 + slot: offset of setpoint edge `slot` (s)
 #: an edge instant within this many steps of a sample instant is taken to fall on it
 EDGE_EPS = 1.0e-9
 
@@ -56,6 +61,18 @@ def saturation_ab(s10: np.ndarray, s12: np.ndarray) -> tuple[np.ndarray, np.ndar
     r = np.sqrt(np.where(on, s12, 1.0) / np.where(on, s10, 1.0))
     a = np.where(on, (r - 1.2) / np.where(on, r - 1.0, 1.0), 0.0)
     b = np.where(on, s10 / np.where(on, (1.0 - a) ** 2, 1.0), 0.0)
+    return a, b
+
+
+def exciter_saturation_ab(e1, se1, e2, se2) -> tuple[np.ndarray, np.ndarray]:
+    """DC exciter saturation SE(Efd) Efd = B (Efd - A)^2 for Efd > A, through SE(E1) = SE1 and
+    SE(E2) = SE2 (the quadratic form of IEEE 421.5 as PSS/E and ANDES' ExcQuadSat use it).
+    Off (A = 0, B = 0) unless 0 < E1 < E2 and 0 < SE1 < SE2... with E2 SE2 > E1 SE1."""
+    e1, se1, e2, se2 = (np.asarray(x, float) for x in (e1, se1, e2, se2))
+    on = (e1 > 0) & (e2 > e1) & (se1 > 0) & (se2 * e2 > se1 * e1)
+    r = np.sqrt(np.where(on, (e2 * se2) / np.where(on, e1 * se1, 1.0), 4.0))
+    a = np.where(on, (r * e1 - e2) / np.where(on, r - 1.0, 1.0), 0.0)
+    b = np.where(on, e1 * se1 / np.where(on, (e1 - a) ** 2, 1.0), 0.0)
     return a, b
 
 
@@ -76,13 +93,23 @@ def derive(P: np.ndarray) -> np.ndarray:
         valid &= (g["RATE"] > 0.0) & (g["RAMP"] > 0.0) & np.isfinite(g["GAIN"])
         valid &= g["VRMAX"] > g["VRMIN"]
         valid &= (g["VRVT"] >= 0.0) & (g["VRVT"] <= 1.0) & (g["KC"] >= 0.0) & np.isfinite(g["KC"])
+        valid &= np.isfinite(g["KF"]) & (g["KF"] >= 0.0) & ((g["KF"] == 0.0) | (g["TF"] > 0.0))
+        valid &= np.isfinite(g["TEX"]) & (g["TEX"] >= 0.0) & np.isfinite(g["KE"])
+        valid &= (g["KPP"] >= 0.0) & (g["KPP"] <= 1.0) & (g["KDA"] >= 0.0) & np.isfinite(g["KDA"])
         for name in RECORD_PARAMS:
             valid &= np.isfinite(g[name])
         safe = lambda x: np.where(valid, x, 1.0)  # noqa: E731
         a, b = saturation_ab(g["S10"], g["S12"])
         vt0 = safe(g["Vt0"])
         sat0 = np.where(vt0 > a, b * (vt0 - a) ** 2, 0.0)
-        efd0 = vt0 + sat0
+        fld0 = vt0 + sat0                      # the field voltage the generator needs
+        dc = valid & (g["TEX"] > 0.0)
+        sea, seb = exciter_saturation_ab(g["E1"], g["SE1"], g["E2"], g["SE2"])
+        sea = np.where(dc, sea, 0.0)
+        seb = np.where(dc, seb, 0.0)
+        ke = np.where(dc, g["KE"], 0.0)
+        # a DC exciter needs VR = (KE + SE(Efd)) Efd from the regulator; a static one, Efd itself
+        efd0 = np.where(dc, ke * fld0 + seb * np.maximum(fld0 - sea, 0.0) ** 2, fld0)
         D[:, D_KAVR] = safe(g["KAVR"])
         D[:, D_R1] = safe(g["TA1"] / g["TA2"])
         D[:, D_IT2] = safe(1.0 / g["TA2"])
@@ -116,42 +143,86 @@ def derive(P: np.ndarray) -> np.ndarray:
         D[:, D_TDON] = (D[:, D_TD] > 0.0).astype(np.float64)
         for slot, name in enumerate(RECORD_PARAMS):
             D[:, D_EDGE0 + slot] = np.where(valid, g[name], 0.0)
+        fb = valid & (g["KF"] > 0.0)
+        D[:, D_KFT] = np.where(fb, g["KF"] / np.where(fb, g["TF"], 1.0), 0.0)
+        D[:, D_ITF] = np.where(fb, 1.0 / np.where(fb, g["TF"], 1.0), 0.0)
+        D[:, D_ITEX] = np.where(dc, 1.0 / np.where(dc, g["TEX"], 1.0), 0.0)
+        D[:, D_DCON] = dc.astype(np.float64)
+        D[:, D_KE] = ke
+        D[:, D_SEA] = sea
+        D[:, D_SEB] = seb
+        D[:, D_LIMOUT] = np.where(valid & ~dc, g["LIMOUT"] > 0.5, False).astype(np.float64)
+        # the output at the steady state: the DC exciter's Efd, else the (clamped) regulator output
+        D[:, D_OUT0] = np.where(dc, fld0, D[:, D_EFD0])
+        D[:, D_KPP] = np.where(valid, g["KPP"], 0.0)
+        D[:, D_SATVT] = (D[:, D_KPP] > 0.0).astype(np.float64)
+        D[:, D_KDA] = np.where(valid, g["KDA"], 0.0)
     return D
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
-def _avr(D, i, uref, vm, x1, x2):
-    """AVR lead-lags: returns (VR, e, y1) for error e = uref - Vm."""
-    e = uref - vm
+def _avr(D, i, uref, vm, x1, x2, vf):
+    """AVR lead-lags: returns (VR, e, y1) for error e = uref - Vm - Vf (Vf: rate feedback)."""
+    e = uref - vm - vf
     y1 = x1 + D[D_R1, i] * (e - x1)
     y2 = x2 + D[D_R2, i] * (y1 - x2)
     return D[D_KAVR, i] * y2, e, y1
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _vt(D, i, eqp, eqpp):
+    """Terminal voltage at no load: E''q, or with a GENROU-like flux share KPP of E'q,
+    Vt = KPP E'q + (1 - KPP) E''q."""
+    return eqpp + D[D_KPP, i] * (eqp - eqpp)
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _limits(D, i, eqp, eqpp):
-    """Exciter ceilings (hi, lo): VRMAX, VRMIN, scaled by Vt = E''q when VRVT = 1 (bus-fed), the
-    upper one less KC*Ifd, Ifd = E'q + Sat(E'q) (the no-load field current on the air-gap base)."""
-    d = eqp - D[D_SATA, i]
+    """Exciter ceilings (hi, lo): VRMAX, VRMIN, scaled by Vt when VRVT = 1 (bus-fed), the upper
+    one less KC*Ifd, Ifd = E'q + Sat (the no-load field current on the air-gap base)."""
+    vt = _vt(D, i, eqp, eqpp)
+    d = eqp + D[D_SATVT, i] * (vt - eqp) - D[D_SATA, i]
     d = d if d > 0.0 else 0.0
-    ifd = eqp + D[D_SATB, i] * d * d
-    sc = 1.0 + D[D_VRVT, i] * (eqpp - 1.0)
+    ifd = eqp + D[D_KDA, i] * (eqp - eqpp) + D[D_SATB, i] * d * d
+    sc = 1.0 + D[D_VRVT, i] * (vt - 1.0)
     sc = sc if sc > 1.0e-3 else 1.0e-3
     return D[D_VRMAX, i] * sc - D[D_KC, i] * ifd, D[D_VRMIN, i] * sc
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
-def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
-    """Derivatives of (xm, x1, x2, efd, E'q, E''q); branch-free so candidate loops vectorise.
+def _vf(D, i, ef, xf, xe):
+    """Rate feedback KF s/(1 + s TF) of the exciter output (DC) or the regulator output (static)."""
+    src = ef + D[D_DCON, i] * (xe - ef)
+    return D[D_KFT, i] * (src - xf)
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _field(D, i, ef, eqp, eqpp, xe):
+    """The field voltage (the kernel's output): the DC exciter's, else the regulator output,
+    clamped to the ceilings when they clamp the output (D_LIMOUT) rather than the lag."""
+    hi, lo = _limits(D, i, eqp, eqpp)
+    efc = ef if ef > lo else lo
+    efc = efc if efc < hi else hi
+    efc = ef + D[D_LIMOUT, i] * (efc - ef)
+    return efc + D[D_DCON, i] * (xe - efc)
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe):
+    """Derivatives of (xm, x1, x2, VR lag (efd of a static exciter), E'q, E''q, rate feedback,
+    DC exciter Efd); branch-free so candidate loops vectorise.
 
     `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1)."""
     tron = D[D_TRON, i]
-    vm = tron * xm + (1.0 - tron) * eqpp
-    e = uref - vm
+    vt = _vt(D, i, eqp, eqpp)
+    vm = tron * xm + (1.0 - tron) * vt
+    src = ef + D[D_DCON, i] * (xe - ef)
+    e = uref - vm - D[D_KFT, i] * (src - xf)
+    dxf = (src - xf) * D[D_ITF, i]
     y1 = x1 + D[D_R1, i] * (e - x1)
     y2 = x2 + D[D_R2, i] * (y1 - x2)
     vr = D[D_KAVR, i] * y2
-    dxm = (eqpp - xm) * D[D_ITR, i]
+    dxm = (vt - xm) * D[D_ITR, i]
     dx1 = (e - x1) * D[D_IT2, i]
     dx2 = (y1 - x2) * D[D_IT4, i]
     tdon = D[D_TDON, i]
@@ -161,21 +232,38 @@ def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
     de = (drive - ef) * D[D_ITE, i]
     de = de if de < rate else rate
     de = de if de > -rate else -rate
-    d = eqp - D[D_SATA, i]
-    d = d if d > 0.0 else 0.0
-    deqp = (ef - eqp - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
-    deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
-    # non-windup ceiling: at a limit efd may not pass it, and follows it where it moves (with Vt
-    # for a bus-fed exciter, with Ifd through the commutation drop); fixed limits do not move
+    # the field voltage: the DC exciter's state, else the regulator output (clamped when the
+    # ceilings clamp the output rather than the lag)
     hi, lo = _limits(D, i, eqp, eqpp)
-    dsc = D[D_VRVT, i] * deqpp
-    dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (1.0 + 2.0 * D[D_SATB, i] * d) * deqp
+    limout = D[D_LIMOUT, i]
+    efc = ef if ef > lo else lo
+    efc = efc if efc < hi else hi
+    efc = ef + limout * (efc - ef)
+    dcon = D[D_DCON, i]
+    fld = efc + dcon * (xe - efc)
+    dx = xe - D[D_SEA, i]
+    dx = dx if dx > 0.0 else 0.0
+    dxe = (efc - D[D_KE, i] * xe - D[D_SEB, i] * dx * dx) * D[D_ITEX, i]
+    # saturation of E'q (the reference model) or, with a GENROU-like flux share, of Vt = psi''
+    satvt = D[D_SATVT, i]
+    d = eqp + satvt * (vt - eqp) - D[D_SATA, i]
+    d = d if d > 0.0 else 0.0
+    deqp = (fld - eqp - D[D_KDA, i] * (eqp - eqpp) - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
+    deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
+    dvt = deqpp + D[D_KPP, i] * (deqp - deqpp)
+    # non-windup ceiling: at a limit efd may not pass it, and follows it where it moves (with Vt
+    # for a bus-fed exciter, with Ifd through the commutation drop); fixed limits do not move.
+    # Not when the ceilings clamp the output (the lag winds up beyond them, ESST1A/EXST1)
+    dsc = D[D_VRVT, i] * dvt
+    dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (deqp + D[D_KDA, i] * (deqp - deqpp)
+                                              + 2.0 * D[D_SATB, i] * d * (deqp + satvt * (dvt - deqp)))
     dlo = D[D_VRMIN, i] * dsc
     dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
     dlo = dlo if dlo == dlo else 0.0
-    de = (de if de < dhi else dhi) if ef >= hi else de
-    de = (de if de > dlo else dlo) if ef <= lo else de
-    return dxm, dx1, dx2, de, deqp, deqpp
+    nw = limout == 0.0
+    de = (de if de < dhi else dhi) if (ef >= hi and nw) else de
+    de = (de if de > dlo else dlo) if (ef <= lo and nw) else de
+    return dxm, dx1, dx2, de, deqp, deqpp, dxf, dxe
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
@@ -213,38 +301,46 @@ def _hermite(y0, m0, y1, m1, s, h):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
-def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
-    """One RK4 step of length h with input u0 -> u1 (linear) and delayed VR v0, vm, v1."""
+def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, x6, x7, h):
+    """One RK4 step of length h with input u0 -> u1 (linear) and delayed VR v0, vm, v1. Returns
+    the 8 states and the output's derivative at both ends (the DC exciter's Efd, else VR lag)."""
     um = 0.5 * (u0 + u1)
     h2 = 0.5 * h
-    a = _rhs(D, i, u0, v0, x0, x1, x2, x3, x4, x5)
-    b = _rhs(D, i, um, vm, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3], x4 + h2 * a[4], x5 + h2 * a[5])
-    c = _rhs(D, i, um, vm, x0 + h2 * b[0], x1 + h2 * b[1], x2 + h2 * b[2], x3 + h2 * b[3], x4 + h2 * b[4], x5 + h2 * b[5])
-    d = _rhs(D, i, u1, v1, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3], x4 + h * c[4], x5 + h * c[5])
+    a = _rhs(D, i, u0, v0, x0, x1, x2, x3, x4, x5, x6, x7)
+    b = _rhs(D, i, um, vm, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3], x4 + h2 * a[4],
+             x5 + h2 * a[5], x6 + h2 * a[6], x7 + h2 * a[7])
+    c = _rhs(D, i, um, vm, x0 + h2 * b[0], x1 + h2 * b[1], x2 + h2 * b[2], x3 + h2 * b[3], x4 + h2 * b[4],
+             x5 + h2 * b[5], x6 + h2 * b[6], x7 + h2 * b[7])
+    d = _rhs(D, i, u1, v1, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3], x4 + h * c[4],
+             x5 + h * c[5], x6 + h * c[6], x7 + h * c[7])
     h6 = h / 6.0
     y3 = x3 + h6 * (a[3] + 2 * b[3] + 2 * c[3] + d[3])
     y4 = x4 + h6 * (a[4] + 2 * b[4] + 2 * c[4] + d[4])
     y5 = x5 + h6 * (a[5] + 2 * b[5] + 2 * c[5] + d[5])
     hi, lo = _limits(D, i, y4, y5)
-    y3 = y3 if y3 > lo else lo
-    y3 = y3 if y3 < hi else hi
+    z3 = y3 if y3 > lo else lo
+    z3 = z3 if z3 < hi else hi
+    y3 = z3 + D[D_LIMOUT, i] * (y3 - z3)   # a lag that the ceilings do not limit winds up
+    dcon = D[D_DCON, i]
     return (x0 + h6 * (a[0] + 2 * b[0] + 2 * c[0] + d[0]), x1 + h6 * (a[1] + 2 * b[1] + 2 * c[1] + d[1]),
-            x2 + h6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2]), y3, y4, y5, a[3], d[3])
+            x2 + h6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2]), y3, y4, y5,
+            x6 + h6 * (a[6] + 2 * b[6] + 2 * c[6] + d[6]), x7 + h6 * (a[7] + 2 * b[7] + 2 * c[7] + d[7]),
+            a[3] + dcon * (a[7] - a[3]), d[3] + dcon * (d[7] - d[3]))
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _rk4_all(D, S, U, V, dt, m):
     """One RK4 step for every candidate of a chunk: a branch-free loop LLVM vectorises across c.
 
-    Only four arrays take part (D, V read; U = [u at start, u at end] read; S = 6 states plus the
-    efd derivative at both ends, written), so LLVM's runtime alias checks stay under its limit.
+    Only four arrays take part (D, V read; U = [u at start, u at end] read; S = 8 states plus the
+    output's derivative at both ends, written), so LLVM's runtime alias checks stay under its limit.
     Kept as its own function: inside the big chunk loop numba's reference counting of the array
     arguments stops the vectoriser."""
     for c in range(m):
         r = _rk4(D, c, U[0, c], U[1, c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
-                 S[4, c], S[5, c], dt)
+                 S[4, c], S[5, c], S[6, c], S[7, c], dt)
         S[0, c] = r[0]; S[1, c] = r[1]; S[2, c] = r[2]; S[3, c] = r[3]; S[4, c] = r[4]; S[5, c] = r[5]
-        S[6, c] = r[6]; S[7, c] = r[7]
+        S[6, c] = r[6]; S[7, c] = r[7]; S[8, c] = r[8]; S[9, c] = r[9]
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
@@ -256,7 +352,7 @@ def _split_step(D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, 
     delayed sample boundary, a delayed setpoint jump). Writes the state at t_k+1 into S; returns
     (setpoint reference at t_k+1, efd' at t_k, efd' at t_k+1). With `skew_on` the efd kink at
     the (first) setpoint jump is kept for the recorder-skew readout (`kf`, `kef`, `kdl`, `kdr`)."""
-    x0, x1, x2, x3, x4, x5 = S0[0, c], S0[1, c], S0[2, c], S0[3, c], S0[4, c], S0[5, c]
+    x0, x1, x2, x3, x4, x5, x6, x7 = S0[0, c], S0[1, c], S0[2, c], S0[3, c], S0[4, c], S0[5, c], S0[6, c], S0[7, c]
     ramp = D[D_RAMP, c]
     ramp_on = ramp < 1.0e300
     e0 = D[D_EFD0, c]
@@ -288,30 +384,32 @@ def _split_step(D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, 
                 va = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base + sa, k, e0, False)
                 vm = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base + 0.5 * (sa + sb), k, e0, False)
                 vb = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base + sb, k, e0, True)
-            r = _rk4(D, c, ua, ub, va, vm, vb, x0, x1, x2, x3, x4, x5, h)
-            x0, x1, x2, x3, x4, x5 = r[0], r[1], r[2], r[3], r[4], r[5]
+            r = _rk4(D, c, ua, ub, va, vm, vb, x0, x1, x2, x3, x4, x5, x6, x7, h)
+            x0, x1, x2, x3, x4, x5, x6, x7 = r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7]
             if first:
-                d_start = r[6]
+                d_start = r[8]
                 first = False
             if pending:
-                kdr[c, k % Ls] = r[6]
+                kdr[c, k % Ls] = r[8]
                 pending = False
-            d_end = r[7]
+            d_end = r[9]
             ur = ub
         if q < nbrk and bj[q] != 0.0:
             if td_on and not ramp_on:  # VR jumps here: keep both limits for the delayed reads
-                vmeas = x0 if D[D_ITR, c] > 0.0 else x5
-                vjl[c, k % L] = _avr(D, c, tg, vmeas, x1, x2)[0]
-                vjr[c, k % L] = _avr(D, c, tg + bj[q], vmeas, x1, x2)[0]
+                vmeas = x0 if D[D_ITR, c] > 0.0 else _vt(D, c, x4, x5)
+                vf = _vf(D, c, x3, x6, x7)
+                vjl[c, k % L] = _avr(D, c, tg, vmeas, x1, x2, vf)[0]
+                vjr[c, k % L] = _avr(D, c, tg + bj[q], vmeas, x1, x2, vf)[0]
                 jf[c, k % L] = sb
             if skew_on and kf[c, k % Ls] == 0.0 and not first:
                 kf[c, k % Ls] = sb
-                kef[c, k % Ls] = x3
+                kef[c, k % Ls] = _field(D, c, x3, x4, x5, x7)
                 kdl[c, k % Ls] = d_end
                 pending = True
             tg += bj[q]
         sa = sb
     S[0, c] = x0; S[1, c] = x1; S[2, c] = x2; S[3, c] = x3; S[4, c] = x4; S[5, c] = x5
+    S[6, c] = x6; S[7, c] = x7
     return (ur if ramp_on else tg), d_start, d_end
 
 
@@ -321,8 +419,9 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                eidx, ejump, etn, eslot, ewin):
     T = usetp.shape[0]
     m = hi - lo
-    S = np.zeros((8, m))            # states xm, x1, x2, efd, E'q, E''q; efd' at step start, end
-    S0 = np.empty((6, m))           # state at t_k, kept for split steps
+    S = np.zeros((10, m))           # states xm, x1, x2, VR lag, E'q, E''q, rate feedback, DC Efd;
+    #                                 the output's derivative at step start, end
+    S0 = np.empty((8, m))           # state at t_k, kept for split steps
     uref = np.empty(m)
     U = np.empty((2, m))            # setpoint reference at the start and the end of the step
     ua = U[0]
@@ -346,26 +445,28 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         S[0, c] = vt0; S[4, c] = vt0; S[5, c] = vt0
         S[3, c] = D[D_EFD0, c]
         S[1, c] = D[D_E0, c]; S[2, c] = D[D_E0, c]
+        S[6, c] = D[D_EFD0, c] + D[D_DCON, c] * (D[D_OUT0, c] - D[D_EFD0, c])
+        S[7, c] = D[D_OUT0, c]
         uref[c] = D[D_UREF0, c]
-        out_e[c] = D[D_GAIN, c] * D[D_EFD0, c]
+        out_e[c] = D[D_GAIN, c] * D[D_OUT0, c]
         if D[D_VALID, c] == 0.0:
             failed[c] = True
             fail_step[i] = 0
         for q in range(L):
             vr_r[c, q] = D[D_EFD0, c]; vr_l[c, q] = D[D_EFD0, c]
         for q in range(Ls):
-            ef_h[c, q] = D[D_EFD0, c]
+            ef_h[c, q] = D[D_OUT0, c]
     for k in range(T):
         # ---- record sample k (states at t_k); failed candidates hold their last output ----
         if any_skew:
             for c in range(m):
                 i = lo + c
                 skew = D[D_SKEW, c]
-                y = S[3, c]
+                y = _field(D, c, S[3, c], S[4, c], S[5, c], S[7, c])
                 if skew > 0.0:
                     tau = k - skew / dt
                     if tau <= 0.0:
-                        y = D[D_EFD0, c]
+                        y = D[D_OUT0, c]
                     else:
                         j = int(math.floor(tau))
                         if j < k:
@@ -384,11 +485,12 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                     out_e[c] = D[D_GAIN, c] * y
         else:
             for c in range(m):
-                out_e[c] = D[D_GAIN, c] * S[3, c] if not failed[c] else out_e[c]
+                if not failed[c]:
+                    out_e[c] = D[D_GAIN, c] * _field(D, c, S[3, c], S[4, c], S[5, c], S[7, c])
         if store:
             for c in range(m):
                 efd_out[lo + c, k] = out_e[c]
-                vt_out[lo + c, k] = S[5, c]
+                vt_out[lo + c, k] = _vt(D, c, S[4, c], S[5, c])
         if w_efd > 0.0:
             em = efd_meas[k]
             for c in range(m):
@@ -404,11 +506,11 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         if w_vt > 0.0:
             vmeas = vt_meas[k]
             for c in range(m):
-                d = S[5, c] - vmeas
+                d = _vt(D, c, S[4, c], S[5, c]) - vmeas
                 sse_vt[lo + c] += d * d
             if k == 0 or k == T - 1:
                 for c in range(m):
-                    d = S[5, c] - vmeas
+                    d = _vt(D, c, S[4, c], S[5, c]) - vmeas
                     if k == 0:
                         e_first[c] += w_vt * d * d
                     else:
@@ -451,8 +553,9 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                 i = lo + c
                 td = D[D_TD, c]
                 if td > 0.0:
-                    vm0 = S[0, c] if D[D_ITR, c] > 0.0 else S[5, c]
-                    vr_r[c, k % L] = _avr(D, c, ua[c], vm0, S[1, c], S[2, c])[0]
+                    vm0 = S[0, c] if D[D_ITR, c] > 0.0 else _vt(D, c, S[4, c], S[5, c])
+                    vf = _vf(D, c, S[3, c], S[6, c], S[7, c])
+                    vr_r[c, k % L] = _avr(D, c, ua[c], vm0, S[1, c], S[2, c], vf)[0]
                     jf[c, k % L] = 0.0
                     base = k - td / dt
                     V[0, c] = _delayed(vr_r, vr_l, jf, vjl, vjr, c, L, base, k, D[D_EFD0, c], False)
@@ -461,11 +564,11 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         # ---- RK4 step, one fused straight-line body per candidate (vectorises across c) ----
         if any_skew:
             for c in range(m):
-                ef_h[c, k % Ls] = S[3, c]
+                ef_h[c, k % Ls] = _field(D, c, S[3, c], S[4, c], S[5, c], S[7, c])
                 kf[c, k % Ls] = 0.0
         if any_delay or inwin:
             for c in range(m):
-                for q in range(6):
+                for q in range(8):
                     S0[q, c] = S[q, c]
         _rk4_all(D, S, U, V, dt, m)
         for c in range(m):
@@ -525,15 +628,16 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                                 vr_r, vr_l, jf, vjl, vjr, any_skew, Ls, kf, kef, kdl, kdr)
                 uref[c] = r[0]
                 ub[c] = r[0]
-                S[6, c] = r[1]
-                S[7, c] = r[2]
+                S[8, c] = r[1]
+                S[9, c] = r[2]
         if any_skew:
             for c in range(m):
-                der_r[c, k % Ls] = S[6, c]
-                der_l[c, (k + 1) % Ls] = S[7, c]
+                der_r[c, k % Ls] = S[8, c]
+                der_l[c, (k + 1) % Ls] = S[9, c]
         for c in range(m):
             i = lo + c
-            mag = abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
+            mag = (abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
+                   + abs(S[6, c]) + abs(S[7, c]))
             if not (mag < BLOWUP):
                 if not failed[c]:
                     failed[c] = True
@@ -541,15 +645,18 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                 # park the state at the steady state so the arithmetic stays finite
                 S[0, c] = D[D_VT0, c]; S[4, c] = D[D_VT0, c]; S[5, c] = D[D_VT0, c]
                 S[3, c] = D[D_EFD0, c]; S[1, c] = D[D_E0, c]; S[2, c] = D[D_E0, c]
+                S[6, c] = D[D_EFD0, c] + D[D_DCON, c] * (D[D_OUT0, c] - D[D_EFD0, c])
+                S[7, c] = D[D_OUT0, c]
         if any_skew:
             for c in range(m):
-                ef_h[c, (k + 1) % Ls] = S[3, c]
+                ef_h[c, (k + 1) % Ls] = _field(D, c, S[3, c], S[4, c], S[5, c], S[7, c])
         if any_delay:
             for c in range(m):
                 i = lo + c
                 if D[D_TD, c] > 0.0:  # left limit of VR at t_k+1 (state k+1, input of step k)
-                    vm = S[0, c] if D[D_ITR, c] > 0.0 else S[5, c]
-                    vr_l[c, (k + 1) % L] = _avr(D, c, ub[c], vm, S[1, c], S[2, c])[0]
+                    vm = S[0, c] if D[D_ITR, c] > 0.0 else _vt(D, c, S[4, c], S[5, c])
+                    vf = _vf(D, c, S[3, c], S[6, c], S[7, c])
+                    vr_l[c, (k + 1) % L] = _avr(D, c, ub[c], vm, S[1, c], S[2, c], vf)[0]
     for c in range(m):
         i = lo + c
         obj[i] = dt * (w_efd * sse_efd[i] + w_vt * sse_vt[i] - 0.5 * (e_first[c] + e_last[c]))

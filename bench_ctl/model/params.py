@@ -41,6 +41,12 @@ _CATALOGUE = [
     ParamInfo("Td0p", "s", "open-circuit d-axis transient time constant T'd0", 0.1, 30.0),
     ParamInfo("Td0pp", "s", "open-circuit d-axis subtransient time constant T''d0", 0.001, 1.0),
     ParamInfo("Vt0", "pu", "initial terminal voltage", 0.5, 1.3),
+    ParamInfo("KPP", "1", "share of E'q in Vt at no load, (X''d - Xl)/(X'd - Xl) of a GENROU/GENSAL; "
+                          "0: Vt = E''q (the reference model); > 0 also saturates on Vt = psi''",
+              0.0, 1.0, 0.0),
+    ParamInfo("KDA", "1", "damper coupling in the no-load field current, Ifd = E'q + KDA (E'q - E''q) + Sat; "
+                          "(Xd - X'd)(X'd - X''d)/(X'd - Xl)^2 of a GENROU; 0 in the reference model",
+              0.0, 50.0, 0.0),
     # effects (neutral value = effect off)
     ParamInfo("VRMAX", "pu", "exciter ceiling, upper (ceiling_limit)", 1.05, 20.0, INF),
     ParamInfo("VRMIN", "pu", "exciter ceiling, lower (ceiling_limit)", -20.0, 0.95, -INF),
@@ -56,6 +62,19 @@ _CATALOGUE = [
     ParamInfo("RAMP", "pu/s", "setpoint ramp rate of the device (setpoint_ramp)", 0.005, 100.0, INF),
     ParamInfo("GAIN", "1", "efd recorder channel gain (recorder_gain)", 0.5, 1.5, 1.0),
     ParamInfo("SKEW", "s", "efd channel recorded late vs usetp (time_skew)", 0.0, 0.2, 0.0),
+    # blocks of the standard structures (bench_ctl.model.structures); neutral = block absent
+    ParamInfo("KF", "pu", "rate-feedback gain: KF s/(1 + s TF) from the regulator (ST) or exciter (DC) "
+                          "output to the summing junction", 0.0, 1.0, 0.0),
+    ParamInfo("TF", "s", "rate-feedback time constant", 0.01, 20.0, 1.0),
+    ParamInfo("TEX", "s", "DC exciter time constant: TEX dEfd/dt = VR - (KE + SE(Efd)) Efd; 0 = no DC "
+                          "exciter (the regulator output is Efd)", 0.0, 10.0, 0.0),
+    ParamInfo("KE", "pu", "DC exciter self-excitation constant", -1.0, 2.0, 1.0),
+    ParamInfo("E1", "pu", "DC exciter saturation: first Efd point", 0.0, 20.0, 0.0),
+    ParamInfo("SE1", "pu", "DC exciter saturation SE(E1)", 0.0, 5.0, 0.0),
+    ParamInfo("E2", "pu", "DC exciter saturation: second Efd point", 0.0, 20.0, 0.0),
+    ParamInfo("SE2", "pu", "DC exciter saturation SE(E2)", 0.0, 5.0, 0.0),
+    ParamInfo("LIMOUT", "1", "ceilings clamp the output (1: the regulator lag itself is not limited, as "
+                             "ESST1A/EXST1) instead of a non-windup limit on the lag (0)", 0.0, 1.0, 0.0),
     # record timing, not the model: fitted instant of setpoint edge N minus the sample where the
     # record first shows it (bench_ctl.model.edges); 0 = the kernel's zero-order hold
     *(ParamInfo(f"EDGE{i}", "s", f"setpoint edge {i}: fitted instant minus its nominal sample (record timing)",
@@ -70,6 +89,10 @@ COL: dict[str, int] = {name: i for i, name in enumerate(KERNEL_PARAMS)}
 
 AVR_PARAMS = ("KAVR", "TA1", "TA2", "TA3", "TA4", "TE")
 GENERATOR_PARAMS = ("Td0p", "Td0pp", "Vt0")
+#: generator constants a unit file may give (neutral when absent)
+GENERATOR_OPTIONAL = ("KPP", "KDA")
+#: blocks of the standard structures beyond the reference one (neutral: the block is absent)
+STRUCTURE_PARAMS = ("KPP", "KDA", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "LIMOUT")
 #: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
 RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")
 

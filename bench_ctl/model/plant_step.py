@@ -32,8 +32,11 @@ _FM = {"contract", "arcp", "reassoc", "afn"}
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
 def _rk4_step(D, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
     """The kernel's RK4 step (with the efd clamp) for candidate 0. Kept out of line: the
-    kernel's stage functions are inlined, and three inlined copies would triple compile time."""
-    return K._rk4(D, 0, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h)
+    kernel's stage functions are inlined, and three inlined copies would triple compile time.
+    The plant is the reference structure: no rate feedback, no DC exciter (their states stay 0);
+    element 6/7 of the result are efd' at the step's start and end."""
+    r = K._rk4(D, 0, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, 0.0, 0.0, h)
+    return r[0], r[1], r[2], r[3], r[4], r[5], r[8], r[9]
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
@@ -84,7 +87,7 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
         v2 = 0.0
         if td > 0.0:
             vm0 = X[0] if D[K.D_ITR, 0] > 0.0 else X[5]
-            vr_r[0, k % L] = K._avr(D, 0, ua, vm0, X[1], X[2])[0]
+            vr_r[0, k % L] = K._avr(D, 0, ua, vm0, X[1], X[2], 0.0)[0]
             base = k - td / dt
             v0 = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base, k, e0, False)
             v1 = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base + 0.5, k, e0, False)
@@ -126,7 +129,7 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
         if skew > 0.0:
             ef_h[0, (k + 1) % Ls] = X[3]
         vm = X[0] if D[K.D_ITR, 0] > 0.0 else X[5]
-        vr = K._avr(D, 0, ub, vm, X[1], X[2])[0]
+        vr = K._avr(D, 0, ub, vm, X[1], X[2], 0.0)[0]
         if td > 0.0:
             vr_l[0, (k + 1) % L] = vr
         # ---- limiter flags after the step ----

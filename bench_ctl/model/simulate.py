@@ -13,19 +13,22 @@ import numpy as np
 
 from .edges import EdgeSpec
 from .kernel import run_kernel
-from .params import COL, KERNEL_PARAMS, RECORD_PARAMS
+from .params import COL, KERNEL_PARAMS, PARAMS, RECORD_PARAMS, STRUCTURE_PARAMS
 from .unit import Unit
 
 
 def param_matrix(base: Mapping[str, float], names: Sequence[str] = (), X: np.ndarray | None = None) -> np.ndarray:
     """Kernel parameter matrix: every row starts from `base`; columns `names` take the rows of X.
-    The record's edge offsets (EDGE1..) default to 0, the zero-order hold."""
+    The record's edge offsets (EDGE1..) default to 0, the zero-order hold; the blocks of the
+    standard structures (KF, TEX, ...) to absent."""
     row = np.empty(len(KERNEL_PARAMS))
     for i, name in enumerate(KERNEL_PARAMS):
         if name in base:
             row[i] = base[name]
         elif name in RECORD_PARAMS:
             row[i] = 0.0
+        elif name in STRUCTURE_PARAMS:
+            row[i] = float(PARAMS[name].neutral)  # type: ignore[arg-type]
         else:
             raise KeyError(f"no value for model parameter {name!r}")
     if X is None:

@@ -5,6 +5,12 @@ are errors. `--set NAME=VALUE` overrides go through `apply_overrides`: a generat
 (`Td0p=6.0`), a fixed parameter (`TR=0.01`), the value of an identified parameter (`KAVR=250`), a
 bound (`KAVR.min=20`), a weight (`weights.vt=0.5`) or an effect parameter (`VRMAX=2.8`, which
 switches its effect on).
+
+The AVR / exciter structure is chosen with `[avr] model = "ESST1A"` (or `--model`, see
+`with_model`); its parameters are then named as the standard names them (KA, TC, TB, ...) in
+`[identify]`, `[fixed]`, `constraints` and `--set`, and translated here to the kernel's columns
+(`bench_ctl.model.structures`). The unit keeps the standard values too (`model_values`), for the
+report and the PSS/E record.
 """
 from __future__ import annotations
 
@@ -16,7 +22,9 @@ from pathlib import Path
 from typing import Iterable, Iterator, Mapping
 
 from .effects import EFFECTS, effect
-from .params import AVR_PARAMS, GENERATOR_PARAMS, PARAMS, neutral_values
+from .params import AVR_PARAMS, GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, neutral_values
+from .structures import DEFAULT as DEFAULT_MODEL
+from .structures import Structure, StructureError, structure
 
 
 class UnitError(ValueError):
@@ -40,6 +48,22 @@ class Unit:
     weights: dict[str, float]
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
     source: str = "<built-in reference unit>"
+    #: the AVR / exciter structure and the values of its parameters under their standard names
+    model: str = DEFAULT_MODEL
+    model_values: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def structure(self) -> Structure:
+        return structure(self.model)
+
+    def standard_values(self, kernel: Mapping[str, float] | None = None) -> dict[str, float]:
+        """The structure's parameters under their standard names, from `kernel` values (default:
+        the unit's own), the unit's standard values where the kernel does not simulate them."""
+        return self.structure.std_values(self.values() if kernel is None else kernel, self.model_values)
+
+    def std_name(self, kernel_name: str) -> str:
+        """The standard name of a kernel parameter in this unit's structure (itself if none)."""
+        return self.structure.std_name(kernel_name) or kernel_name
 
     @property
     def identified_names(self) -> tuple[str, ...]:
@@ -84,6 +108,8 @@ class Unit:
             "constraints": list(self.constraints),
             "weights": dict(self.weights),
             "effects": {k: {p: _finite_or_none(v) for p, v in ps.items()} for k, ps in self.effects.items()},
+            "model": self.model,
+            "model_values": {k: _finite_or_none(v) for k, v in self.standard_values().items()},
         }
 
 
@@ -108,8 +134,8 @@ def _finite_or_none(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
-_TOP_KEYS = {"name", "constraints", "generator", "identify", "fixed", "weights", "effects"}
-_TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects")
+_TOP_KEYS = {"name", "constraints", "generator", "identify", "fixed", "weights", "effects", "avr"}
+_TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects", "avr")
 
 
 def check_unit(unit: Unit, source: str) -> Unit:
@@ -155,6 +181,57 @@ def _num(value: object, where: str) -> float:
     return v
 
 
+def _translate(st: Structure, data: Mapping, source: str) -> tuple[dict, dict[str, float]]:
+    """A unit file of a standard structure in the kernel's names: [identify], [fixed] and the
+    constraints renamed, the structure's settings fixed, its typical values where the file is
+    silent. Returns (data, the standard values the file gave or implied)."""
+    ident_raw = dict(data.get("identify", {}) or {})
+    fixed_raw = dict(data.get("fixed", {}) or {})
+    if "identify" not in data:
+        ident_raw = {p.name: {"value": p.typical, "min": p.bounds[0], "max": p.bounds[1]}
+                     for p in st.params if p.identify and p.bounds}
+    std_vals: dict[str, float] = {}
+    identify: dict[str, object] = {}
+    for name, spec in ident_raw.items():
+        try:
+            identify[st.kernel_name(name)] = spec
+        except StructureError as exc:
+            raise UnitError(f"{source}: identify.{name}: {exc}") from None
+        if isinstance(spec, Mapping) and "value" in spec:
+            std_vals[name] = _num(spec["value"], f"{source}: identify.{name}.value")
+    fixed: dict[str, object] = {}
+    for name, v in fixed_raw.items():
+        if name in st.names:
+            std_vals[name] = _num(v, f"{source}: fixed.{name}")
+        elif name in PARAMS and name not in {p.kernel for p in st.params}:
+            fixed[name] = v      # a kernel parameter the structure does not name (TD, ...)
+        else:
+            raise UnitError(f"{source}: fixed.{name}: model {st.name} has no parameter {name!r}; "
+                            f"it has {', '.join(st.names)}")
+    for p in st.params:
+        if p.name not in ident_raw:
+            std_vals.setdefault(p.name, p.typical)
+    kern = st.kernel_values({k: v for k, v in std_vals.items() if k not in ident_raw})
+    for k, v in kern.items():
+        if k not in identify:
+            fixed[k] = v
+    constraints = [_rename(c, st) for c in data.get("constraints", list(st.constraints)) or []] \
+        if isinstance(data.get("constraints", []), list) else data.get("constraints")
+    out = {k: v for k, v in data.items() if k != "avr"}
+    out.update(identify=identify, fixed=fixed, constraints=constraints)
+    return out, std_vals
+
+
+def _rename(text: object, st: Structure) -> object:
+    """A constraint's standard names in the kernel's ("TB1 <= TC1" -> "TA4 <= TA3")."""
+    if not isinstance(text, str):
+        return text
+    import re
+    return re.sub(r"[A-Za-z_][A-Za-z0-9_]*",
+                  lambda m: (st.param(m.group(0)).kernel or m.group(0)) if m.group(0) in st.names
+                  else m.group(0), text)
+
+
 def unit_from_dict(data: Mapping, source: str) -> Unit:
     unknown = set(data) - _TOP_KEYS
     if unknown:
@@ -162,13 +239,24 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     for key in _TABLE_KEYS:
         if key in data and not isinstance(data[key], Mapping):
             raise UnitError(f"{source}: {key} must be a table ([{key}]), got {data[key]!r}")
+    avr = dict(data.get("avr", {}))
+    if set(avr) - {"model"}:
+        raise UnitError(f"{source}: [avr] unknown key(s) {sorted(set(avr) - {'model'})}; allowed: ['model']")
+    try:
+        st = structure(avr.get("model") if isinstance(avr.get("model", ""), str) else repr(avr.get("model")))
+    except StructureError as exc:
+        raise UnitError(f"{source}: avr.model: {exc}") from None
+    std_vals: dict[str, float] = {}
+    if st.name != DEFAULT_MODEL:
+        data, std_vals = _translate(st, data, source)
     for name, ps in data.get("effects", {}).items():
         if not isinstance(ps, Mapping):
             raise UnitError(f"{source}: effects.{name} must be a table of its parameters, got {ps!r}")
     gen_raw = data.get("generator", {})
-    bad = set(gen_raw) - set(GENERATOR_PARAMS)
+    bad = set(gen_raw) - set(GENERATOR_PARAMS) - set(GENERATOR_OPTIONAL)
     if bad:
-        raise UnitError(f"{source}: [generator] unknown key(s) {sorted(bad)}; allowed: {list(GENERATOR_PARAMS)}")
+        raise UnitError(f"{source}: [generator] unknown key(s) {sorted(bad)}; allowed: "
+                        f"{list(GENERATOR_PARAMS + GENERATOR_OPTIONAL)}")
     generator = {k: _num(v, f"{source}: generator.{k}") for k, v in gen_raw.items()}
     missing = set(GENERATOR_PARAMS) - set(generator)
     if missing:
@@ -214,6 +302,7 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
         name=str(data.get("name", Path(source).stem)),
         generator=generator, identify=identify, fixed=fixed,
         constraints=tuple(constraints), weights=weights, source=source,
+        model=st.name, model_values=std_vals,
     )
     effects_raw = data.get("effects", {})
     for name in effects_raw:
@@ -284,7 +373,43 @@ def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
     return check_unit(unit, f"{unit.source} with --set {' '.join(overrides)}") if overrides else unit
 
 
+def with_model(unit: Unit, name: str) -> Unit:
+    """The unit with another structure (`--model NAME`): the generator, weights and effects kept,
+    the structure's default identified parameters, bounds and typical values."""
+    st = structure(name)
+    if st.name == unit.model:
+        return unit
+    data = {"name": unit.name, "generator": dict(unit.generator), "weights": dict(unit.weights),
+            "avr": {"model": st.name}}
+    if st.name == DEFAULT_MODEL:
+        ref = reference_unit()
+        data.update(identify={k: {"value": b.value, "min": b.min, "max": b.max} for k, b in ref.identify.items()},
+                    fixed=dict(ref.fixed), constraints=list(ref.constraints))
+    new = unit_from_dict(data, f"{unit.source} with --model {st.name}")
+    return replace(new, effects={k: dict(v) for k, v in unit.effects.items()}, source=unit.source)
+
+
+def _std_to_kernel(unit: Unit, key: str, item: str) -> str:
+    """`--set` names a standard parameter of the unit's structure: the kernel's name for it."""
+    if unit.model == DEFAULT_MODEL:
+        return key
+    base, dot, attr = key.partition(".")
+    st = unit.structure
+    if base in st.names:
+        try:
+            return st.kernel_name(base) + dot + attr
+        except StructureError as exc:
+            raise UnitError(f"--set {item!r}: {exc}") from None
+    return key
+
+
 def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
+    std_key = key
+    if unit.model != DEFAULT_MODEL and key in unit.structure.names and unit.structure.param(key).kernel is None:
+        return replace(unit, model_values={**unit.model_values, key: value})  # for the record only
+    key = _std_to_kernel(unit, key, item)
+    if unit.model != DEFAULT_MODEL and key != std_key and "." not in std_key:
+        unit = replace(unit, model_values={**unit.model_values, std_key: value})
     if key.startswith("weights."):
         sig = key.split(".", 1)[1]
         if sig not in _WEIGHT_KEYS:

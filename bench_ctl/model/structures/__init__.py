@@ -1,0 +1,201 @@
+"""The model library: the AVR / exciter structures a unit can use (issue 13, DESIGN.md section 3).
+
+Each structure lives in one file of this package and declares, once, its parameters under their
+standard (IEEE 421.5 / PSS/E) names with unit, meaning, typical value and default identification
+bounds, the kernel column each one drives, the kernel settings the structure implies, its block
+diagram in words and its PSS/E dynamic data record. All structures run on the one compiled kernel
+(`bench_ctl.model.kernel`): its blocks are a superset (two lead-lags, a regulator lag whose
+ceilings scale with Vt and drop by KC*Ifd, non-windup or output clamp, rate feedback, a DC
+exciter with quadratic saturation), a structure picks and names the ones it has. The effects of
+the diagnosis stay switchable on top of every structure.
+
+Adding a structure: one file here with a `STRUCTURE = Structure(...)`, its name in `_MODULES`,
+and an ANDES fixture (benchmarks/andes_captures.py) that checks it (docs/decisions/0009).
+"""
+from __future__ import annotations
+
+import importlib
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+from ..params import PARAMS
+
+
+class StructureError(ValueError):
+    """An unknown structure or a parameter it does not have; the message names both."""
+
+
+@dataclass(frozen=True)
+class StdParam:
+    """One parameter of a standard structure, under its standard name."""
+    name: str
+    unit: str
+    info: str
+    typical: float
+    #: default identification bounds (the typical range); None: not identified by default
+    bounds: tuple[float, float] | None = None
+    #: the kernel parameter it drives; None: part of the record, not simulated (`note` says why)
+    kernel: str | None = None
+    identify: bool = False
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Structure:
+    name: str
+    title: str
+    diagram: tuple[str, ...]
+    params: tuple[StdParam, ...]
+    #: kernel values the structure implies (e.g. a lead-lag it lacks: TA3 = TA4 = 1)
+    settings: Mapping[str, float] = field(default_factory=dict)
+    constraints: tuple[str, ...] = ()
+    #: the PSS/E model name of its dynamic data record (None: no standard record)
+    dyr_model: str | None = None
+    #: PSS/E fields that are not a parameter under the same name: field -> (to_dyr, from_dyr)
+    dyr_special: Mapping[str, tuple[Callable[[Mapping[str, float]], float],
+                                    Callable[[Mapping[str, float]], tuple[str, float]]]] = \
+        field(default_factory=dict)
+    #: kernel lead-lag pairs (lead, lag): both 0 in the standard means "no lead-lag" (1, 1 here)
+    lead_lags: tuple[tuple[str, str], ...] = ()
+    source: str = ""
+
+    # ---- names ----
+    def param(self, name: str) -> StdParam:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise StructureError(f"model {self.name} has no parameter {name!r}; it has "
+                             f"{', '.join(p.name for p in self.params)}")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params)
+
+    def kernel_name(self, name: str) -> str:
+        """The kernel parameter a standard name drives; an error for one that is not simulated."""
+        p = self.param(name)
+        if p.kernel is None:
+            raise StructureError(f"model {self.name}: {name} is kept for the record but not simulated "
+                                 f"({p.note or 'inactive in a no-load pulse test'}); it cannot be identified")
+        return p.kernel
+
+    def std_name(self, kernel: str) -> str | None:
+        for p in self.params:
+            if p.kernel == kernel:
+                return p.name
+        return None
+
+    def typical(self) -> dict[str, float]:
+        return {p.name: p.typical for p in self.params}
+
+    def default_identified(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params if p.identify)
+
+    # ---- values ----
+    def kernel_values(self, std: Mapping[str, float]) -> dict[str, float]:
+        """Kernel values for the simulated standard parameters in `std` plus the structure's
+        settings; a lead-lag given as both time constants 0 (bypassed) becomes 1, 1."""
+        out = dict(self.settings)
+        for name, v in std.items():
+            p = self.param(name)
+            if p.kernel is not None:
+                out[p.kernel] = float(v)
+        for lead, lag in self.lead_lags:
+            if out.get(lead) == 0.0 and out.get(lag) == 0.0:
+                out[lead] = out[lag] = 1.0
+        return out
+
+    def std_values(self, kernel: Mapping[str, float], given: Mapping[str, float]) -> dict[str, float]:
+        """Standard values: `given` (the unit's own, typical where absent), each simulated one
+        replaced by the kernel's value unless it is a bypassed lead-lag that stayed bypassed."""
+        out = {**self.typical(), **{k: float(v) for k, v in given.items()}}
+        bypassed = {n for lead, lag in self.lead_lags
+                    if kernel.get(lead) == 1.0 and kernel.get(lag) == 1.0
+                    for n in (self.std_name(lead), self.std_name(lag))
+                    if n is not None and out.get(n) == 0.0}
+        for p in self.params:
+            if p.kernel is not None and p.kernel in kernel and p.name not in bypassed:
+                v = kernel[p.kernel]
+                out[p.name] = float(v) if v is not None else out[p.name]
+        return out
+
+    # ---- the PSS/E record ----
+    def dyr_values(self, std: Mapping[str, float], fields: tuple[str, ...]) -> dict[str, float]:
+        out = {}
+        for f in fields:
+            if f in self.dyr_special:
+                out[f] = float(self.dyr_special[f][0](std))
+            elif f in std:
+                out[f] = float(std[f])
+            else:
+                raise StructureError(f"model {self.name}: no value for the {self.dyr_model} field {f!r}")
+        return out
+
+    def from_dyr(self, values: Mapping[str, float]) -> dict[str, float]:
+        out = {}
+        for f, v in values.items():
+            if f in self.dyr_special:
+                name, value = self.dyr_special[f][1](values)
+                out[name] = value
+            elif f in self.names:
+                out[f] = float(v)
+        return out
+
+    def describe(self) -> str:
+        lines = [f"{self.name}: {self.title}", ""]
+        lines += ["Block diagram:"] + [f"  {d}" for d in self.diagram] + [""]
+        lines.append(f"{'parameter':<9} {'unit':<6} {'typical':>9}  {'bounds':<17} {'kernel':<7} meaning")
+        for p in self.params:
+            b = f"[{p.bounds[0]:g}, {p.bounds[1]:g}]" if p.bounds else "-"
+            mark = "*" if p.identify else " "
+            kern = p.kernel or "(record)"
+            lines.append(f"{p.name + mark:<9} {p.unit:<6} {p.typical:>9g}  {b:<17} {kern:<7} {p.info}"
+                         + (f" [{p.note}]" if p.note else ""))
+        lines.append("")
+        lines.append("* identified by default; (record): written to the .dyr, not simulated")
+        if self.constraints:
+            lines.append("constraints: " + ", ".join(self.constraints))
+        if self.dyr_model:
+            lines.append(f"PSS/E record: {self.dyr_model}")
+        if self.source:
+            lines.append(f"source: {self.source}")
+        return "\n".join(lines)
+
+    def check(self) -> None:
+        """The declaration is coherent: kernel names exist, typical values inside the bounds and
+        the kernel's physical ranges."""
+        for p in self.params:
+            if p.kernel is not None and p.kernel not in PARAMS:
+                raise StructureError(f"model {self.name}: {p.name} drives unknown kernel parameter {p.kernel}")
+            if p.bounds is not None and not (p.bounds[0] <= p.typical <= p.bounds[1]):
+                raise StructureError(f"model {self.name}: typical {p.name} = {p.typical} outside {p.bounds}")
+            if p.kernel is not None and math.isfinite(p.typical) and not (
+                    p.typical == 0.0 and any(p.kernel in pair for pair in self.lead_lags)):
+                PARAMS[p.kernel].check(p.typical, where=f"model {self.name}: {p.name} -> ")
+
+
+_MODULES = ("reference", "sexs", "exst1", "esst1a", "ieeex1")
+DEFAULT = "REFERENCE"
+
+
+def _load() -> dict[str, Structure]:
+    out: dict[str, Structure] = {}
+    for mod in _MODULES:
+        s: Structure = importlib.import_module(f"{__name__}.{mod}").STRUCTURE
+        s.check()
+        out[s.name] = s
+    return out
+
+
+STRUCTURES: dict[str, Structure] = _load()
+
+
+def structure(name: str | None) -> Structure:
+    key = (name or DEFAULT).strip().upper()
+    aliases = {"ESDC1A": "IEEEX1", "REF": "REFERENCE"}
+    key = aliases.get(key, key)
+    try:
+        return STRUCTURES[key]
+    except KeyError:
+        raise StructureError(f"unknown model {name!r}; known: {', '.join(STRUCTURES)}") from None
