@@ -39,6 +39,11 @@ log = logging.getLogger(__name__)
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
 
+def _kernel_names(r: dict) -> list[str]:
+    """The identified kernel names in the order the result's model lists their standard names."""
+    return [n for n in r["params"]]
+
+
 def summary(ident: Identification) -> str:
     """The human-readable summary table of a result."""
     r = ident.result
@@ -48,12 +53,17 @@ def summary(ident: Identification) -> str:
              f"wall: {r['wall_s']:.2f} s (compile {r['compile_s']:.2f} s)", ""]
     head = f"{'param':<7}{'value':>12}{'min':>10}{'max':>10}{'std':>11}{'rel std':>9}  determined"
     lines += [head, "-" * len(head)]
+    model = r.get("model") or {}
+    std = (lambda n: n) if model.get("name", "REFERENCE") == "REFERENCE" else \
+        (lambda n: {k: s for k, s in zip(_kernel_names(r), model.get("identified") or [])}.get(n, n))
+    if model.get("name", "REFERENCE") != "REFERENCE":
+        lines.insert(1, f"model: {model['name']} ({model.get('title', '')})")
     for n, v in r["params"].items():
         lo, hi = r["bounds"][n]
         rel = idn.get("rel_std", {}).get(n)
         det = idn.get("determined", {}).get(n)
         why = "; ".join(idn.get("reasons", {}).get(n, []))
-        lines.append(f"{n:<7}{_fmt(v, '.6g'):>12}{_fmt(lo, '.4g'):>10}{_fmt(hi, '.4g'):>10}"
+        lines.append(f"{std(n):<7}{_fmt(v, '.6g'):>12}{_fmt(lo, '.4g'):>10}{_fmt(hi, '.4g'):>10}"
                      f"{_fmt(idn.get('std', {}).get(n), '.3g'):>11}"
                      f"{(_fmt(100 * rel, '.1f') + ' %') if rel is not None else '-':>9}  "
                      f"{'yes' if det else 'NO'}{('  (' + why + ')') if why else ''}")

@@ -188,6 +188,8 @@ def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float
     values = problem.values(x)
     cands, meta = [], []
     for note, mapping in SWAPS:
+        if not set(mapping) & set(names):   # a structure without these blocks fitted
+            continue
         if not set(mapping) <= set(names):
             fixed = sorted(set(mapping) - set(names))
             notes.append(f"{note}: not examined, {', '.join(fixed)} not fitted")

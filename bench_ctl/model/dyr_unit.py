@@ -70,8 +70,9 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
         p = st.param(name)
         if p.kernel is not None and p.kernel in identify:
             b = identify[p.kernel]
-            lo, hi = min(b.min, value), max(b.max, value)
-            identify[p.kernel] = Bound(value, lo, hi)
+            if value > 0.0:   # the record's value is the start; bounds widened to hold it
+                identify[p.kernel] = Bound(value, min(b.min, value), max(b.max, value))
+            # a zero (a bypassed block in the record) cannot start a fit of it: typical kept
         else:
             fixed_std[name] = value
     fixed = dict(new.fixed)

@@ -36,6 +36,8 @@ STRUCTURE = Structure(
         StdParam("ILR", "pu", "field current limit", 5.0, None, None, note=_LR),
     ),
     settings={"VRVT": 1.0, "LIMOUT": 1.0},
+    # 1/(1 + s TB1) and 1/(1 + s TA) commute below the ceilings: the fast one is the regulator's
+    constraints=("TA <= TB1",),
     lead_lags=(("TA1", "TA2"), ("TA3", "TA4")),
     dyr_model="ESST1A",
     source="IEEE Std 421.5-2016 ST1A; PSS/E model library, ESST1A; ANDES andes/models/exciter/esst1a.py",

@@ -1,0 +1,80 @@
+"""`bench-ctl export RESULT.json --dyr OUT.dyr [--bus N] [--id ID]`: the identified model as the
+PSS/E dynamic data record the grid operator loads.
+
+The record holds every field of the structure's PSS/E model in the standard order: identified
+values, the unit's fixed values, and for fields bench-ctl does not simulate (input limiter,
+field current limiter, ...) the unit's value or the library's default; a comment above the
+record says which is which, and where the result came from. An existing file is never
+overwritten. The REFERENCE structure is written as ESST1A (the same blocks; limits wide unless the
+ceiling was modelled). Exit codes: 0 written, 2 bad input (file, key or value named).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+
+EXIT_BAD_INPUT = 2
+
+
+@click.command("export")
+@click.argument("result_path", metavar="RESULT.json", type=click.Path(dir_okay=False))
+@click.option("--dyr", "dyr_out", required=True, type=click.Path(dir_okay=False),
+              help="PSS/E .dyr file to write (never overwritten).")
+@click.option("--bus", type=int, default=1, show_default=True, help="Bus number of the record.")
+@click.option("--id", "machine_id", default="1", show_default=True, help="Machine ID of the record.")
+def export(result_path: str, dyr_out: str, bus: int, machine_id: str) -> int:
+    """Write the identified model of RESULT.json as a PSS/E dynamic data record."""
+    from bench_ctl.model.dyr import DyrError, DyrRecord, write_dyr
+    from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of
+    from bench_ctl.model.structures import StructureError
+
+    try:
+        result = json.loads(Path(result_path).read_text("utf-8"))
+        if not isinstance(result, dict) or "params" not in result:
+            raise ValueError("not an identification result (no 'params')")
+        st, std = dyr_values_of(result)
+        fields = dyr_fields(st)
+        values = st.dyr_values(std, fields)
+        for k, v in values.items():
+            if not math.isfinite(v):
+                raise ValueError(f"field {k} = {v} is not finite")
+    except OSError as exc:
+        click.echo(f"error: cannot read {result_path}: {exc.strerror}", err=True)
+        return EXIT_BAD_INPUT
+    except (ValueError, StructureError, DyrError) as exc:
+        click.echo(f"error: {result_path}: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    model = result.get("model") or {}
+    identified = set(model.get("identified") or [])
+    if st.name == "ESST1A" and model.get("name") == "REFERENCE":
+        identified = {st.std_name(k) for k in (result.get("params") or {})} - {None}
+    typical = st.typical()
+    notes = []
+    for f in fields:
+        names = [f] if f in st.names else [n for n in ("TA", "TB") if f == "TA/TB"]
+        if any(n in identified for n in names):
+            how = "identified"
+        elif all(n in typical and std.get(n) == typical[n] for n in names):
+            how = "bench-ctl library default"
+        else:
+            how = "fixed (unit)"
+        notes.append(f"{f} = {values[f]:.6G}: {how}")
+    header = (f"bench-ctl export of {result_path} (model {model.get('name', st.name)} as PSS/E {st.dyr_model})\n"
+              f"command: {result.get('command_line', '')}\n"
+              f"fit: mse {result.get('mse')} pu^2 over {len(result.get('captures') or [])} capture(s)")
+    icons = {"UEL": 1, "VOS": 1} if st.dyr_model == "ESST1A" else {}
+    rec = DyrRecord(bus, st.dyr_model, str(machine_id), values, icons)  # type: ignore[arg-type]
+    try:
+        write_dyr(dyr_out, [(rec, "\n".join(notes))], header=header)
+    except FileExistsError as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        click.echo(f"error: cannot write {dyr_out}: {exc.strerror}", err=True)
+        return EXIT_BAD_INPUT
+    click.echo(f"wrote {dyr_out}: {st.dyr_model} at bus {bus}, ID {machine_id} "
+               f"({len(identified)} identified, {len(fields) - len(identified)} fixed or default)")
+    return 0

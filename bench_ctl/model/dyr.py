@@ -1,0 +1,188 @@
+"""PSS/E dynamic data records (.dyr): read and write the records bench-ctl knows.
+
+A record is `BUS 'MODEL' ID [ICONs] CONs /`, whitespace-separated over one or more lines; text after
+the `/` is a comment, as are lines starting with `//` or `@!`. Field orders (PSS/E model library,
+cross-checked with ANDES' andes/io/psse-dyr.yaml, the InterPSS reader and published .dyr files):
+
+- GENROU: T'do T''do T'qo T''qo H D Xd Xq X'd X'q X''d Xl S(1.0) S(1.2)
+- GENSAL: T'do T''do T''qo H D Xd Xq X'd X''d Xl S(1.0) S(1.2)
+- SEXS:   TA/TB TB K TE EMIN EMAX
+- EXST1:  TR VIMAX VIMIN TC TB KA TA VRMAX VRMIN KC KF TF
+- ESST1A: ICONs UEL VOS; TR VIMAX VIMIN TC TB TC1 TB1 KA TA VAMAX VAMIN VRMAX VRMIN KC KF TF KLR ILR
+  (ANDES 2.0's psse-dyr.yaml lists TB before TC and KLR, ILR, KC elsewhere: it misreads ESST1A)
+- IEEEX1: TR KA TA TB TC VRMAX VRMIN KE TE KF TF1 SWITCH E1 SE(E1) E2 SE(E2)
+
+Records of other models are kept with positional names (CON1..), never refused: real files hold
+hundreds of governors and stabilisers. Written by hand (no maintained PyPI reader of .dyr files
+exists; ANDES' reader builds an ANDES system, it is a benchmark extra): docs/decisions/0009.
+"""
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable
+
+FIELDS: dict[str, tuple[str, ...]] = {
+    "GENROU": ("T'do", "T''do", "T'qo", "T''qo", "H", "D", "Xd", "Xq", "X'd", "X'q", "X''d", "Xl",
+               "S(1.0)", "S(1.2)"),
+    "GENSAL": ("T'do", "T''do", "T''qo", "H", "D", "Xd", "Xq", "X'd", "X''d", "Xl", "S(1.0)", "S(1.2)"),
+    "SEXS": ("TA/TB", "TB", "K", "TE", "EMIN", "EMAX"),
+    "EXST1": ("TR", "VIMAX", "VIMIN", "TC", "TB", "KA", "TA", "VRMAX", "VRMIN", "KC", "KF", "TF"),
+    "ESST1A": ("TR", "VIMAX", "VIMIN", "TC", "TB", "TC1", "TB1", "KA", "TA", "VAMAX", "VAMIN", "VRMAX",
+               "VRMIN", "KC", "KF", "TF", "KLR", "ILR"),
+    "IEEEX1": ("TR", "KA", "TA", "TB", "TC", "VRMAX", "VRMIN", "KE", "TE", "KF", "TF1", "SWITCH", "E1",
+               "SE1", "E2", "SE2"),
+}
+ICONS: dict[str, tuple[str, ...]] = {"ESST1A": ("UEL", "VOS")}
+DESCRIPTION = {
+    "GENROU": "round-rotor generator", "GENSAL": "salient-pole generator",
+    "SEXS": "simplified excitation system", "EXST1": "IEEE ST1 static exciter",
+    "ESST1A": "IEEE 421.5 ST1A static exciter", "IEEEX1": "IEEE type 1 DC exciter",
+}
+
+_TOKEN = re.compile(r"'[^']*'|\"[^\"]*\"|[^\s']+")
+
+
+class DyrError(ValueError):
+    """A record that cannot be read or written; the message names the file and line."""
+
+
+@dataclass(frozen=True)
+class DyrRecord:
+    bus: int
+    model: str
+    id: str
+    values: dict[str, float]
+    icons: dict[str, int] = field(default_factory=dict)
+    source: str = ""
+
+
+def _number(text: str, where: str) -> float:
+    try:
+        return float(text.replace("D", "E").replace("d", "e"))
+    except ValueError:
+        raise DyrError(f"{where}: {text!r} is not a number") from None
+
+
+def _records(text: str, name: str) -> Iterable[tuple[int, list[str]]]:
+    """(line of its first field, tokens) per record; comments dropped."""
+    tokens: list[str] = []
+    start = 0
+    for n, line in enumerate(text.splitlines(), 1):
+        s = line.strip()
+        if not s or s.startswith("//") or s.startswith("@!"):
+            continue
+        body, slash, _ = line.partition("/")
+        found = _TOKEN.findall(body)
+        if found and not tokens:
+            start = n
+        tokens += found
+        if slash:
+            if tokens:
+                yield start, tokens
+            tokens = []
+    if tokens:
+        raise DyrError(f"{name}:{start}: record not terminated by '/'")
+
+
+def parse_dyr(text: str, name: str = "<dyr>") -> list[DyrRecord]:
+    out = []
+    for line, tok in _records(text, name):
+        where = f"{name}:{line}"
+        if len(tok) < 3:
+            raise DyrError(f"{where}: a record needs at least BUS 'MODEL' ID, got {' '.join(tok)!r}")
+        try:
+            bus = int(tok[0])
+        except ValueError:
+            raise DyrError(f"{where}: bus {tok[0]!r} is not an integer") from None
+        model = tok[1].strip("'\"").upper()
+        ident = tok[2].strip("'\"")
+        rest = tok[3:]
+        where = f"{where}: {model}"
+        icon_names = ICONS.get(model, ())
+        names = FIELDS.get(model)
+        if names is not None and len(rest) != len(icon_names) + len(names):
+            raise DyrError(f"{where}: expected {len(icon_names)} ICONs and {len(names)} CONs "
+                           f"({len(icon_names) + len(names)} fields), found {len(rest)}")
+        icons = {}
+        for k, text_ in zip(icon_names, rest):
+            v = _number(text_, f"{where} {k}")
+            if v != int(v):
+                raise DyrError(f"{where}: ICON {k} = {text_!r} is not an integer")
+            icons[k] = int(v)
+        cons = rest[len(icon_names):]
+        names = names or tuple(f"CON{i + 1}" for i in range(len(cons)))
+        values = {k: _number(t, f"{where} {k}") for k, t in zip(names, cons)}
+        out.append(DyrRecord(bus, model, ident, values, icons, where.split(": ")[0]))
+    return out
+
+
+def read_dyr(path: str | os.PathLike[str]) -> list[DyrRecord]:
+    p = Path(path)
+    if not p.is_file() or p.stat().st_size > (64 << 20):
+        raise DyrError(f"{p}: not a .dyr file (a regular file of at most 64 MiB)")
+    try:
+        text = p.read_text("utf-8", errors="strict")
+    except UnicodeDecodeError:
+        text = p.read_text("latin-1")
+    return parse_dyr(text, str(p))
+
+
+def format_record(rec: DyrRecord, comment: str | None = None, per_line: int = 5) -> str:
+    names = FIELDS.get(rec.model)
+    if names is None:
+        raise DyrError(f"{rec.model}: no field order known; known: {', '.join(FIELDS)}")
+    missing = [k for k in names if k not in rec.values] + [k for k in ICONS.get(rec.model, ()) if k not in rec.icons]
+    if missing:
+        raise DyrError(f"{rec.model} at bus {rec.bus}: no value for {', '.join(missing)}")
+    items = [str(int(rec.icons[k])) for k in ICONS.get(rec.model, ())]
+    items += [f"{float(rec.values[k]):.6G}" for k in names]
+    lines = [f"// {c}" for c in (comment.splitlines() if comment else [])]
+    head = f"{rec.bus} '{rec.model}' {rec.id}"
+    chunks = [items[i:i + per_line] for i in range(0, len(items), per_line)] or [[]]
+    lines.append(f"{head}  " + "  ".join(chunks[0]))
+    lines += ["    " + "  ".join(c) for c in chunks[1:]]
+    lines[-1] += "  /"
+    return "\n".join(lines) + "\n"
+
+
+def write_dyr(path: str | os.PathLike[str], records: Iterable[tuple[DyrRecord, str | None]], *,
+              header: str | None = None, overwrite: bool = False) -> None:
+    """Write `records` (each with its comment) to `path`: never over an existing file unless
+    `overwrite`, through a temporary file in the same folder renamed into place."""
+    p = Path(path)
+    if p.exists() and not overwrite:
+        raise FileExistsError(f"{p}: exists; the .dyr is never overwritten (choose another name)")
+    text = "".join(f"// {h}\n" for h in (header.splitlines() if header else []))
+    text += "".join(format_record(r, c) for r, c in records)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=str(p.parent or Path(".")))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        if not overwrite:
+            os.link(tmp, p)      # fails if the name appeared meanwhile
+            os.unlink(tmp)
+        else:
+            os.replace(tmp, p)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def find(records: Iterable[DyrRecord], models: set[str] | str, bus: int | None = None,
+         id: str | None = None) -> DyrRecord:
+    """The one record of `models` (at `bus`, machine `id` when given)."""
+    wanted = {models} if isinstance(models, str) else set(models)
+    hits = [r for r in records if r.model in wanted and (bus is None or r.bus == bus)
+            and (id is None or r.id == str(id))]
+    if not hits:
+        raise DyrError(f"no {'/'.join(sorted(wanted))} record" + (f" at bus {bus}" if bus is not None else "")
+                       + (f" with ID {id}" if id is not None else ""))
+    if len(hits) > 1:
+        where = ", ".join(f"{r.model} bus {r.bus} ID {r.id} ({r.source})" for r in hits)
+        raise DyrError(f"several records match ({where}); choose with --dyr-bus / --dyr-id")
+    return hits[0]

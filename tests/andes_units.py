@@ -1,0 +1,77 @@
+"""Units for the ANDES fixtures (tests/fixtures/andes): each capture's exciter structure with the
+values it was made with, and the kernel's generator from the GENROU data in the manifest.
+
+Shared by tests/test_structures.py and benchmarks/model_library.py. The GENROU -> kernel
+conversion is written out here from the GENROU equations (not taken from bench_ctl's own
+`generator_from_record`, which a test checks against it)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from bench_ctl.capture import Capture
+from bench_ctl.capture.capture import read_capture
+from bench_ctl.model.edges import EdgeSpec, find_setpoint_edges
+from bench_ctl.model.unit import Unit, apply_overrides, reference_unit, with_model
+
+FOLDER = Path(__file__).resolve().parent / "fixtures" / "andes"
+
+
+def manifest() -> dict:
+    return json.loads((FOLDER / "manifest.json").read_text("utf-8"))
+
+
+def generator_values(gen: dict) -> dict[str, float]:
+    """GENROU at no load (Id = Iq = 0): psi''d = g E'q + (1 - g) psi1d with g = (X''d - Xl)/(X'd -
+    Xl); field current E'q + (Xd - X'd)(X'd - X''d)/(X'd - Xl)^2 (E'q - psi1d) + B (psi'' - A)^2,
+    the saturation through Se(1.0) 1.0 = S10 and Se(1.2) 1.2 = 1.2 S12."""
+    xd, xd1, xd2, xl = gen["xd"], gen["xd1"], gen["xd2"], gen["xl"]
+    return {"Td0p": gen["Td10"], "Td0pp": gen["Td20"], "KPP": (xd2 - xl) / (xd1 - xl),
+            "KDA": (xd - xd1) * (xd1 - xd2) / (xd1 - xl) ** 2, "S10": gen["S10"], "S12": 1.2 * gen["S12"]}
+
+
+def standard_params(entry: dict) -> dict[str, float]:
+    """The capture's exciter values under bench-ctl's standard names (ANDES names a few apart)."""
+    p = dict(entry["exciter_params"])
+    if entry["exciter"] == "SEXS":
+        p["TA"] = p.pop("TATB") * p["TB"]
+    if entry["exciter"] == "IEEEX1":
+        p["KF"] = p.pop("KF1")
+    return p
+
+
+def fixture_unit(name: str, *, true_values: bool = True) -> Unit:
+    """The structure of capture `name` with the ANDES generator; its exciter values when
+    `true_values`, else the structure's typical values (the start of an identification)."""
+    m = manifest()
+    entry = m["captures"][name]
+    g = generator_values(m["generator_params"])
+    unit = with_model(reference_unit(), entry["exciter"])
+    sets = [f"{k}={g[k]}" for k in ("Td0p", "Td0pp", "KPP", "KDA")]
+    if true_values:
+        st = unit.structure
+        p = standard_params(entry)
+        ident = set(st.default_identified())
+        sets += [f"{k}={v}" for k, v in p.items() if k in st.names and k not in ident]
+        sets += [f"{k}={v}" for k, v in p.items() if k in ident]
+    else:  # known: everything but the identified parameters (the unit's data sheet)
+        st = unit.structure
+        p = standard_params(entry)
+        sets += [f"{k}={v}" for k, v in p.items() if k in st.names and k not in st.default_identified()]
+    unit = apply_overrides(unit, sets)
+    return unit.with_effects({"saturation": {"S10": g["S10"], "S12": g["S12"]}})
+
+
+def read_fixture(name: str) -> Capture:
+    return read_capture(FOLDER / manifest()["captures"][name]["file"])
+
+
+def true_edges(name: str, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:
+    """The capture's setpoint edges and the EDGE offsets of their true instants (the manifest)."""
+    entry = manifest()["captures"][name]
+    k = find_setpoint_edges(cap.usetp)
+    spec = EdgeSpec(k, cap.usetp[k] - cap.usetp[k - 1], cap.time[k], np.arange(len(k)))
+    offsets = {f"EDGE{i + 1}": t - n for i, (n, t) in enumerate(zip(entry["edges_nominal_s"], entry["edges_true_s"]))}
+    return spec, offsets
