@@ -58,16 +58,44 @@ AMPLITUDES = (0.05, 0.10, 0.20)
 SCALED = ("KA", "K", "TA", "TE", "TB", "TC", "TB1", "TC1")
 
 
-def _system(andes, model: str, params: dict):
+def _network(andes):
+    """The two buses, the line the Toggle opens at t = 0.05 s, the slack and the unit's PV."""
     ss = andes.System()
     ss.add("Bus", dict(idx=1, name="G", Vn=20.0, v0=1.0))
     ss.add("Bus", dict(idx=2, name="INF", Vn=20.0, v0=1.0))
     ss.add("Line", dict(idx="L1", bus1=1, bus2=2, r=0.0, x=0.1, Vn1=20.0, Vn2=20.0))
     ss.add("Slack", dict(idx=10, bus=2, Vn=20.0, v0=1.0, p0=0.0, Sn=100.0))
-    ss.add("PV", dict(idx=20, bus=1, Vn=20.0, v0=1.0, p0=0.0, Sn=100.0))
+    ss.add("PV", dict(idx=20, bus=1, Vn=20.0, v0=1.0, p0=0.0, Sn=100.0, subidx=1))
+    ss.add("Toggle", dict(model="Line", dev="L1", t=0.05))
+    return ss
+
+
+def _system(andes, model: str, params: dict):
+    ss = _network(andes)
     ss.add("GENROU", dict(idx=1, bus=1, gen=20, **GENERATOR))
     ss.add(model, dict(idx=1, syn=1, **params))
-    ss.add("Toggle", dict(model="Line", dev="L1", t=0.05))
+    return _ready(ss)
+
+
+def system_from_dyr(andes, dyr_path: str):
+    """The same network, its generator and exciter read by ANDES' own PSS/E reader from a .dyr
+    (bench-ctl's exported record plus a GENROU record at bus 1, ID 1)."""
+    from andes.io import psse
+    ss = _network(andes)
+    if not psse.read_add(ss, dyr_path):
+        raise RuntimeError(f"ANDES could not read {dyr_path}")
+    return _ready(ss)
+
+
+def generator_record() -> str:
+    """The GENROU of the fixtures as a PSS/E record at bus 1, ID 1 (H = M/2)."""
+    g = GENERATOR
+    vals = [g["Td10"], g["Td20"], g["Tq10"], g["Tq20"], g["M"] / 2.0, g["D"], g["xd"], g["xq"], g["xd1"], g["xq1"],
+            g["xd2"], g["xl"], g["S10"], g["S12"]]
+    return "1 'GENROU' 1 " + " ".join(f"{v:g}" for v in vals) + " /\n"
+
+
+def _ready(ss):
     ss.setup()
     ss.PFlow.run()
     if not ss.PFlow.converged:
@@ -84,8 +112,9 @@ def _run_until(ss, t: float) -> None:
     ss.TDS.run()
 
 
-def make_capture(andes, model: str, params: dict, amplitude: float) -> dict:
-    ss = _system(andes, model, params)
+def make_capture(andes, model: str, params: dict, amplitude: float, ss=None) -> dict:
+    """A pulse of `amplitude` on the unit's reference; `ss`: a ready system (else built here)."""
+    ss = _system(andes, model, params) if ss is None else ss
     exc = getattr(ss, model)
     t_on = RECORD_START + EDGE_ON
     t_off = t_on + WIDTH

@@ -188,8 +188,8 @@ def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float
     values = problem.values(x)
     cands, meta = [], []
     for note, mapping in SWAPS:
-        if not set(mapping) & set(names):   # a structure without these blocks fitted
-            continue
+        if not set(mapping) <= set(names) and getattr(problem.unit, "model", "REFERENCE") != "REFERENCE":
+            continue   # a standard structure: these blocks are not all its fitted parameters
         if not set(mapping) <= set(names):
             fixed = sorted(set(mapping) - set(names))
             notes.append(f"{note}: not examined, {', '.join(fixed)} not fitted")

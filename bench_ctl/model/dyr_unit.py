@@ -58,8 +58,19 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
     """`unit` (its generator constants, weights, effects) started from the records in `path`."""
     try:
         records = read_dyr(path)
-        exc = find(records, {s.dyr_model for s in STRUCTURES.values() if s.name != "REFERENCE"}, bus=bus, id=ident)
     except (DyrError, OSError) as exc_:
+        raise UnitError(f"--from-dyr {path}: {exc_}") from None
+    exciters = {s.dyr_model for s in STRUCTURES.values() if s.name != "REFERENCE"}
+    if not any(r.model in exciters for r in records):   # a generator record only: the unit's structure
+        try:
+            gen = find(records, set(GENERATORS), bus=bus, id=ident)
+        except DyrError as exc_:
+            raise UnitError(f"--from-dyr {path}: neither an exciter record ({', '.join(sorted(exciters))}) "
+                            f"nor a usable generator record: {exc_}") from None
+        return _with_generator(replace(unit, source=f"{unit.source} with --from-dyr {path}"), gen)
+    try:
+        exc = find(records, exciters, bus=bus, id=ident)
+    except DyrError as exc_:
         raise UnitError(f"--from-dyr {path}: {exc_}") from None
     st = structure(exc.model)
     new = with_model(unit, st.name)
@@ -85,14 +96,17 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
         gen = find(records, set(GENERATORS), bus=exc.bus, id=exc.id)
     except DyrError:
         gen = None
-    if gen is not None:
-        g = generator_from_record(gen)
-        generator = dict(new.generator)
-        generator.update({k: g[k] for k in ("Td0p", "Td0pp", "KPP", "KDA")})
-        new = replace(new, generator=generator)
-        if "S10" in g:
-            new = new.with_effects({"saturation": {"S10": g["S10"], "S12": g["S12"]}})
-    return new
+    return _with_generator(new, gen) if gen is not None else new
+
+
+def _with_generator(unit: Unit, gen: DyrRecord) -> Unit:
+    g = generator_from_record(gen)
+    generator = dict(unit.generator)
+    generator.update({k: g[k] for k in ("Td0p", "Td0pp", "KPP", "KDA")})
+    unit = replace(unit, generator=generator)
+    if "S10" in g:
+        unit = unit.with_effects({"saturation": {"S10": g["S10"], "S12": g["S12"]}})
+    return unit
 
 
 def dyr_values_of(result: Mapping[str, Any]) -> tuple[Structure, dict[str, float]]:
