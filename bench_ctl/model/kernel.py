@@ -49,6 +49,9 @@ N_DERIVED = 27 + len(RECORD_PARAMS) + 12   # D_EDGE0 + slot: offset of setpoint 
 #: an edge instant within this many steps of a sample instant is taken to fall on it
 EDGE_EPS = 1.0e-9
 
+#: candidates per parallel chunk (see run_kernel)
+CHUNK = 32
+
 #: a state magnitude beyond this marks the candidate failed (pu; physical values are < 20)
 BLOWUP = 1.0e5
 
@@ -343,6 +346,89 @@ def _rk4_all(D, S, U, V, dt, m):
         S[6, c] = r[6]; S[7, c] = r[7]; S[8, c] = r[8]; S[9, c] = r[9]
 
 
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _limits_ref(D, i, eqp, eqpp):
+    """`_limits` of the reference blocks only (no GENROU flux shares): the fast path.
+    Exciter ceilings (hi, lo): VRMAX, VRMIN, scaled by Vt = E''q when VRVT = 1 (bus-fed), the
+    upper one less KC*Ifd, Ifd = E'q + Sat(E'q) (the no-load field current on the air-gap base)."""
+    d = eqp - D[D_SATA, i]
+    d = d if d > 0.0 else 0.0
+    ifd = eqp + D[D_SATB, i] * d * d
+    sc = 1.0 + D[D_VRVT, i] * (eqpp - 1.0)
+    sc = sc if sc > 1.0e-3 else 1.0e-3
+    return D[D_VRMAX, i] * sc - D[D_KC, i] * ifd, D[D_VRMIN, i] * sc
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _rhs_ref(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
+    """`_rhs` of the reference blocks only (6 states): the fast path of a chunk none of whose
+    candidates uses a block of the standard structures (`_needs_full`). Derivatives of (xm, x1, x2,
+    efd, E'q, E''q); branch-free so candidate loops vectorise.
+
+    `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1)."""
+    tron = D[D_TRON, i]
+    vm = tron * xm + (1.0 - tron) * eqpp
+    e = uref - vm
+    y1 = x1 + D[D_R1, i] * (e - x1)
+    y2 = x2 + D[D_R2, i] * (y1 - x2)
+    vr = D[D_KAVR, i] * y2
+    dxm = (eqpp - xm) * D[D_ITR, i]
+    dx1 = (e - x1) * D[D_IT2, i]
+    dx2 = (y1 - x2) * D[D_IT4, i]
+    tdon = D[D_TDON, i]
+    drive = vr + tdon * (vrd - vr)
+    # plain compare-and-select (numba's min/max carry NaN branches that stop the vectoriser)
+    rate = D[D_RATE, i]
+    de = (drive - ef) * D[D_ITE, i]
+    de = de if de < rate else rate
+    de = de if de > -rate else -rate
+    d = eqp - D[D_SATA, i]
+    d = d if d > 0.0 else 0.0
+    deqp = (ef - eqp - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
+    deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
+    # non-windup ceiling: at a limit efd may not pass it, and follows it where it moves (with Vt
+    # for a bus-fed exciter, with Ifd through the commutation drop); fixed limits do not move
+    hi, lo = _limits_ref(D, i, eqp, eqpp)
+    dsc = D[D_VRVT, i] * deqpp
+    dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (1.0 + 2.0 * D[D_SATB, i] * d) * deqp
+    dlo = D[D_VRMIN, i] * dsc
+    dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
+    dlo = dlo if dlo == dlo else 0.0
+    de = (de if de < dhi else dhi) if ef >= hi else de
+    de = (de if de > dlo else dlo) if ef <= lo else de
+    return dxm, dx1, dx2, de, deqp, deqpp
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _rk4_ref(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
+    """`_rk4` on the reference blocks only (see `_rhs_ref`)."""
+    um = 0.5 * (u0 + u1)
+    h2 = 0.5 * h
+    a = _rhs_ref(D, i, u0, v0, x0, x1, x2, x3, x4, x5)
+    b = _rhs_ref(D, i, um, vm, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3], x4 + h2 * a[4], x5 + h2 * a[5])
+    c = _rhs_ref(D, i, um, vm, x0 + h2 * b[0], x1 + h2 * b[1], x2 + h2 * b[2], x3 + h2 * b[3], x4 + h2 * b[4], x5 + h2 * b[5])
+    d = _rhs_ref(D, i, u1, v1, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3], x4 + h * c[4], x5 + h * c[5])
+    h6 = h / 6.0
+    y3 = x3 + h6 * (a[3] + 2 * b[3] + 2 * c[3] + d[3])
+    y4 = x4 + h6 * (a[4] + 2 * b[4] + 2 * c[4] + d[4])
+    y5 = x5 + h6 * (a[5] + 2 * b[5] + 2 * c[5] + d[5])
+    hi, lo = _limits_ref(D, i, y4, y5)
+    y3 = y3 if y3 > lo else lo
+    y3 = y3 if y3 < hi else hi
+    return (x0 + h6 * (a[0] + 2 * b[0] + 2 * c[0] + d[0]), x1 + h6 * (a[1] + 2 * b[1] + 2 * c[1] + d[1]),
+            x2 + h6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2]), y3, y4, y5, a[3], d[3])
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _rk4_all_ref(D, S, U, V, dt, m):
+    """`_rk4_all` on the reference blocks only: states 6, 7 (rate feedback, DC exciter) untouched."""
+    for c in range(m):
+        r = _rk4_ref(D, c, U[0, c], U[1, c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
+                     S[4, c], S[5, c], dt)
+        S[0, c] = r[0]; S[1, c] = r[1]; S[2, c] = r[2]; S[3, c] = r[3]; S[4, c] = r[4]; S[5, c] = r[5]
+        S[8, c] = r[6]; S[9, c] = r[7]
+
+
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _split_step(D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, vr_r, vr_l, jf, vjl, vjr,
                 skew_on, Ls, kf, kef, kdl, kdr):
@@ -456,6 +542,12 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
             vr_r[c, q] = D[D_EFD0, c]; vr_l[c, q] = D[D_EFD0, c]
         for q in range(Ls):
             ef_h[c, q] = D[D_OUT0, c]
+    # the full blocks when some candidate of the chunk uses a block of the standard structures
+    full = False
+    for c in range(m):
+        if (D[D_KFT, c] != 0.0 or D[D_DCON, c] != 0.0 or D[D_LIMOUT, c] != 0.0 or D[D_KPP, c] != 0.0
+                or D[D_KDA, c] != 0.0):
+            full = True
     for k in range(T):
         # ---- record sample k (states at t_k); failed candidates hold their last output ----
         if any_skew:
@@ -570,7 +662,10 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
             for c in range(m):
                 for q in range(8):
                     S0[q, c] = S[q, c]
-        _rk4_all(D, S, U, V, dt, m)
+        if full:
+            _rk4_all(D, S, U, V, dt, m)
+        else:
+            _rk4_all_ref(D, S, U, V, dt, m)
         for c in range(m):
             uref[c] = ub[c]
         # ---- steps with a jump inside: the setpoint at a fitted edge instant, the delayed VR at
@@ -730,7 +825,10 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
     obj = np.zeros(n)
     fail_step = np.full(n, -1, dtype=np.int64)
     if chunk is None:
-        chunk = max(1, min(64, -(-n // nb.get_num_threads())))
+        # fixed, not from the thread count: a candidate then sits at the same place of its chunk
+        # (vectorised body or remainder loop, which fastmath may round differently) however many
+        # threads run, so a result is bit-identical alone, in a batch worker, on any machine
+        chunk = CHUNK
     edges = EdgeSpec.none() if edges is None else edges
     if edges.n and int(edges.index.max()) >= T:
         raise ValueError(f"edge at sample {int(edges.index.max())} lies beyond the record ({T} samples)")

@@ -33,10 +33,8 @@ _FM = {"contract", "arcp", "reassoc", "afn"}
 def _rk4_step(D, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
     """The kernel's RK4 step (with the efd clamp) for candidate 0. Kept out of line: the
     kernel's stage functions are inlined, and three inlined copies would triple compile time.
-    The plant is the reference structure: no rate feedback, no DC exciter (their states stay 0);
-    element 6/7 of the result are efd' at the step's start and end."""
-    r = K._rk4(D, 0, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, 0.0, 0.0, h)
-    return r[0], r[1], r[2], r[3], r[4], r[5], r[8], r[9]
+    The plant is the reference structure (`_rk4_ref`: no block of the standard structures)."""
+    return K._rk4_ref(D, 0, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h)
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
