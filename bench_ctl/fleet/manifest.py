@@ -9,6 +9,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench_ctl.model.structures import StructureError, structure
+
 STEPS = ("identify", "diagnose", "report")
 COLUMNS = ("capture", "holdout", "unit", "model", "set", "steps")
 
@@ -75,6 +77,11 @@ def read_manifest(path: str | Path) -> list[Entry]:
         for s in sets:
             if "=" not in s:
                 raise ManifestError(f"{path}, line {i}, column 'set': {s!r} is not NAME=VALUE")
+        if cell.get("model"):
+            try:
+                structure(cell["model"])
+            except StructureError as exc:
+                raise ManifestError(f"{path}, line {i}, column 'model': {exc}") from None
         opt = lambda key: (base / cell[key]) if cell.get(key) else None  # noqa: E731
         out.append(Entry(line=i, name=_name(cell["capture"], taken), capture=base / cell["capture"],
                          holdout=opt("holdout"), unit=opt("unit"), model=cell.get("model") or None,

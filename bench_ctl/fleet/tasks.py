@@ -45,6 +45,8 @@ def fingerprint(entry: Entry, evals: int, seed: int) -> dict[str, Any]:
 
 def _unit_args(entry: Entry) -> list[str]:
     args = ["--unit", str(entry.unit)] if entry.unit else []
+    if entry.model:
+        args += ["--model", entry.model]
     for s in entry.overrides:
         args += ["--set", s]
     return args
@@ -75,9 +77,6 @@ def run_step(step: str, entry: Entry, folder: str, evals: int, seed: int) -> dic
     buf = io.StringIO()
     row: dict[str, Any] = {"step": step, "capture": entry.name, "pid": os.getpid()}
     try:
-        if entry.model:
-            raise ValueError(f"model {entry.model!r}: only the reference structure is available "
-                             "(leave the 'model' column empty)")
         argv = argv_for(step, entry, out_dir, evals=evals, seed=seed)
         with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
             rc = main(argv)

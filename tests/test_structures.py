@@ -1,0 +1,129 @@
+"""The model library (issue 13): declarations, unit files and --model in standard names, the
+structures against ANDES' captures (another simulator), and the kernel unchanged for the
+reference structure."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from andes_units import fixture_unit, manifest, read_fixture, true_edges
+from bench_ctl.cli import main
+from bench_ctl.model.params import PARAMS
+from bench_ctl.model.simulate import simulate
+from bench_ctl.model.structures import STRUCTURES, StructureError, structure
+from bench_ctl.model.unit import UnitError, apply_overrides, load_unit, reference_unit, with_model
+
+
+def test_the_library_holds_the_standard_structures_each_coherent():
+    assert {"REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1"} <= set(STRUCTURES)
+    for st in STRUCTURES.values():
+        st.check()
+        assert st.default_identified(), st.name
+        for p in st.params:
+            assert p.unit and p.info, (st.name, p.name)
+            if p.identify:  # an identified parameter drives a kernel block and has default bounds
+                assert p.kernel in PARAMS and p.bounds is not None
+    assert structure("esdc1a").name == "IEEEX1"
+    with pytest.raises(StructureError, match="unknown model 'ST9'.*ESST1A"):
+        structure("ST9")
+
+
+def test_models_command_lists_and_describes(capsys):
+    assert main(["models"]) == 0
+    out = capsys.readouterr().out
+    for name in ("SEXS", "EXST1", "ESST1A", "IEEEX1", "REFERENCE"):
+        assert name in out
+    assert main(["models", "ESST1A"]) == 0
+    out = capsys.readouterr().out
+    assert "Block diagram" in out and "Vt VRMAX - KC Ifd" in out and "TB1" in out
+    assert main(["models", "NOPE"]) == 2
+    assert "unknown model 'NOPE'" in capsys.readouterr().err
+
+
+def test_unit_file_in_standard_names_is_translated_to_the_kernel(tmp_path):
+    f = tmp_path / "esst1a.toml"
+    f.write_text('name = "unit 3"\n[avr]\nmodel = "ESST1A"\n[generator]\nTd0p = 6.0\nTd0pp = 0.04\nVt0 = 1.0\n'
+                 'KPP = 0.6\n[identify.KA]\nvalue = 150\nmin = 50\nmax = 400\n[identify.TA]\nvalue = 0.02\n'
+                 'min = 0.005\nmax = 0.1\n[fixed]\nTC = 1.0\nTB = 10.0\nTC1 = 0.0\nTB1 = 0.0\nKC = 0.08\n'
+                 'VRMAX = 5.0\nVIMAX = 0.5\n')
+    u = load_unit(f)
+    assert u.model == "ESST1A" and set(u.identify) == {"KAVR", "TE"}
+    v = u.values()
+    assert v["TA1"] == 1.0 and v["TA2"] == 10.0
+    assert v["TA3"] == 1.0 and v["TA4"] == 1.0          # TC1 = TB1 = 0: the lead-lag is bypassed
+    assert v["KC"] == 0.08 and v["VRMAX"] == 5.0 and v["VRVT"] == 1.0 and v["LIMOUT"] == 1.0
+    assert v["KPP"] == 0.6
+    std = u.standard_values()
+    assert std["TC1"] == 0.0 and std["TB1"] == 0.0 and std["VIMAX"] == 0.5 and std["KA"] == 150.0
+    # --set in standard names, also for a value kept only for the record
+    u2 = apply_overrides(u, ["KA.max=500", "TB=12", "VIMAX=0.6"])
+    assert u2.identify["KAVR"].max == 500 and u2.values()["TA2"] == 12 and u2.standard_values()["VIMAX"] == 0.6
+
+
+def test_unit_file_errors_name_the_model_and_key(tmp_path):
+    f = tmp_path / "bad.toml"
+    gen = "[generator]\nTd0p = 6.0\nTd0pp = 0.04\nVt0 = 1.0\n"
+    f.write_text('[avr]\nmodel = "ESST9"\n' + gen)
+    with pytest.raises(UnitError, match=r"bad.toml: avr.model: unknown model 'ESST9'"):
+        load_unit(f)
+    f.write_text('[avr]\nmodel = "SEXS"\n' + gen + '[fixed]\nKA = 3\n')
+    with pytest.raises(UnitError, match=r"fixed.KA: model SEXS has no parameter 'KA'"):
+        load_unit(f)
+    f.write_text('[avr]\nmodel = "ESST1A"\n' + gen + '[identify.VIMAX]\nmin = 0.1\nmax = 1\n')
+    with pytest.raises(UnitError, match="VIMAX is kept for the record but not simulated"):
+        load_unit(f)
+
+
+def test_with_model_keeps_generator_and_effects_and_back():
+    u = apply_overrides(reference_unit(), ["Td0p=6.5"]).with_effects({"dead_time": {"TD": 0.01}})
+    s = with_model(u, "SEXS")
+    assert s.model == "SEXS" and s.generator["Td0p"] == 6.5 and s.effects == u.effects
+    assert set(s.identify) == {"KAVR", "TA1", "TA2", "TE"}
+    back = with_model(s, "REFERENCE")
+    assert back.identify == reference_unit().identify and back.constraints == reference_unit().constraints
+
+
+def test_reference_structure_is_unchanged_by_the_new_blocks():
+    """The blocks the standard structures added are neutral by default: the reference unit's
+    pulse is exactly what the kernel gave before (the DESIGN.md figures: about 3.1 and -1.0 pu)."""
+    u = reference_unit()
+    t = np.arange(6001) * 1e-3
+    usetp = 1.0 + 0.05 * ((t >= 1.0) & (t < 2.0))
+    efd, vt, fail = simulate(u.values(), usetp, 1e-3)
+    assert fail == -1
+    assert 3.0 < efd.max() < 3.2 and -1.1 < efd.min() < -0.9
+
+
+@pytest.mark.parametrize("name", sorted(manifest()["captures"]))
+def test_each_structure_reproduces_andes_at_the_true_values(name):
+    """Closed loop, ANDES' own GENROU data converted (tests/andes_units.py), edges at their true
+    instants: the efd error stays small against a 0.01 pu recorder noise. ANDES integrates the edge
+    with its trapezoidal 0.2 ms step, which puts it 0.1 ms late: with that, the error is smaller
+    still (benchmarks/model_library.py prints both)."""
+    entry = manifest()["captures"][name]
+    unit = fixture_unit(name)
+    if entry["exciter"] == "EXST1":   # ANDES 2.0's EXST1 limits its washout output: no ceiling acts
+        unit = apply_overrides(unit, ["VRMAX=20", "VRMIN=-20"])
+    cap = read_fixture(name)
+    spec, off = true_edges(name, cap)
+    scale = entry["amplitude_of_vt0"] / 0.05
+    for shift, max_tol, rms_tol in ((0.0, 0.013, 0.0008), (1e-4, 0.0035, 0.0001)):
+        v = {**unit.values(), **{k: x + shift for k, x in off.items()}}
+        efd, _, fail = simulate(v, cap.usetp, cap.dt, edges=spec)
+        err = efd - cap.efd
+        assert fail == -1
+        assert np.max(np.abs(err)) <= max_tol * scale, (name, shift, np.max(np.abs(err)))
+        assert np.sqrt(np.mean(err ** 2)) <= rms_tol * scale, (name, shift)
+
+
+def test_generator_conversion_from_a_dyr_record_matches_the_fixture_helper():
+    from andes_units import generator_values
+    from bench_ctl.model.dyr import parse_dyr
+    from bench_ctl.model.dyr_unit import generator_from_record
+    g = manifest()["generator_params"]
+    rec = parse_dyr(f"1 'GENROU' 1 {g['Td10']} {g['Td20']} {g['Tq10']} {g['Tq20']} 3 0 {g['xd']} {g['xq']} "
+                    f"{g['xd1']} {g['xq1']} {g['xd2']} {g['xl']} {g['S10']} {g['S12']} /\n")[0]
+    ours = generator_from_record(rec)
+    ref = generator_values(g)
+    for k in ("Td0p", "Td0pp", "KPP", "KDA", "S10", "S12"):
+        assert ours[k] == pytest.approx(ref[k], rel=1e-12), k
