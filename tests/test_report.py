@@ -34,7 +34,8 @@ from bench_ctl.report import figures as F
 
 START_S, WIDTH_S, RATE_HZ, EDGE_WINDOW_S = 1.0, 1.0, 1000.0, 0.2
 FIT = {**{k: REFERENCE_VALUES[k] for k in AVR_PARAMS}, "KAVR": 185.0, "TE": 0.024}
-SECTIONS_FULL = ["sec-" + s for s in ("summary", "response", "errors", "parameters", "constraints",
+SECTIONS_FULL = ["sec-" + s for s in ("summary", "response", "errors", "acceptance", "parameters",
+                                       "constraints",
                                        "convergence", "comparison", "diagnosis", "metadata",
                                        "provenance")]
 FIGS_FULL = ["response", "residual", "edges", "convergence", "diagnosis_effects"]
@@ -106,7 +107,26 @@ def _expected(rec: dict, values: dict) -> dict:
             "peak": float(abs(r[k])), "peak_time": float(t[k]),
             "objective": float(np.trapezoid(sq, dx=dt)),
             "shares": {n: float(sq[a:b].sum() / sq.sum()) for n, (a, b) in cuts.items()},
-            "noise_pre": float(np.var(meas[:k0], ddof=1))}
+            "noise_pre": float(np.var(meas[:k0], ddof=1)),
+            "acceptance": _acceptance_expected(t, meas, sim, k0, k1)}
+
+
+def _acceptance_expected(t, meas, sim, k0, k1) -> dict:
+    """IEC 61400-27-2 figures from how the pulse was made: windows cut at the edge samples, 20 ms
+    (20 samples) left out after each edge, figures per unit of max |meas - pre-trigger mean|."""
+    step = float(np.max(np.abs(meas - meas[:k0].mean())))
+    d = (sim - meas) / step
+    out = {}
+    for name, (a, b) in {"before": (0, k0), "during": (k0 + 20, k1), "after": (k1 + 20, t.size)}.items():
+        w = d[a:b]
+        out[name] = {"mxe": float(np.max(np.abs(w))), "me": float(abs(w.mean())),
+                     "mae": float(np.mean(np.abs(w)))}
+    return out
+
+
+#: the grid operator's limits in the unit file: the deliberately off fit passes them (the
+#: default limits would fail it, see test_default_acceptance_limits_fail_the_off_fit)
+LIMITS = {"during": {"MXE": 0.2}, "after": {"MXE": 0.2, "MAE": 0.05}}
 
 
 @pytest.fixture(scope="module")
@@ -129,7 +149,8 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> dict:
     result = {
         "schema": "bench-ctl/result/1", "software_version": "0.1.0",
         "command_line": "bench-ctl identify pulse.csv --json result.json --seed 3",
-        "created_utc": "2025-01-01T00:00:00+00:00", "unit": unit.to_dict(),
+        "created_utc": "2025-01-01T00:00:00+00:00",
+        "unit": {**unit.to_dict(), "acceptance": LIMITS},
         "captures": [cap_entry], "params": FIT, "fixed": fixed,
         "bounds": {k: list(v) for k, v in REFERENCE_BOUNDS.items()},
         "constraints": [{"expr": "TA2 <= TA1", "satisfied": True, "margin": 0.8},
@@ -202,6 +223,37 @@ def test_error_figures_equal_independent_values(bench: dict) -> None:
     # the fit is deliberately off: the leading edge carries more than its 2 % of the samples
     assert exp["shares"]["leading_edge"] > 0.1
     assert "measured efd range" in page.text_of["errors"]
+
+
+def test_acceptance_table_equals_independent_values(bench: dict) -> None:
+    page, exp = bench["page"], bench["exp"]["acceptance"]
+    for window, figs in exp.items():
+        for fig, value in figs.items():
+            assert page.value(f"acc-{window}-{fig}") == pytest.approx(value, rel=1e-9, abs=1e-12), (window, fig)
+    table_text = page.text_of["acceptance"]
+    assert "IEC 61400-27-2" in page.text_of["sec-acceptance"] and "MOD-026" in page.text_of["sec-acceptance"]
+    assert table_text.count("pass") == 3 and "fail" not in table_text
+    # the unit's limits are the ones shown, not the defaults
+    assert "0.2" in table_text and "numeric acceptance (IEC 61400-27-2)" in page.text_of["checks"]
+
+
+def test_default_acceptance_limits_fail_the_off_fit(bench: dict, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture) -> None:
+    result = json.loads(json.dumps(bench["result"]))
+    del result["unit"]["acceptance"]
+    path = _write_result(tmp_path, result)
+    rc = main(["report", str(path), "-o", str(tmp_path / "r.html")])
+    printed = capsys.readouterr().out
+    assert rc == 1
+    page = Page((tmp_path / "r.html").read_text(encoding="utf-8"))
+    assert page.text_of["verdict"].startswith("FAIL")
+    assert "during: MXE" in page.text_of["checks"] and "> 0.08" in page.text_of["checks"]
+    assert "FAIL: numeric acceptance" in printed
+    # bad limits in the result's unit: refused, the key named
+    result["unit"]["acceptance"] = {"during": {"MXE": -1}}
+    path = _write_result(tmp_path, result)
+    assert main(["report", str(path), "-o", str(tmp_path / "r2.html")]) == 2
+    assert "acceptance.during.MXE = -1" in capsys.readouterr().err
 
 
 def test_parameter_table_units_bounds_uncertainty(bench: dict) -> None:

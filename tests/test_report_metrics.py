@@ -139,9 +139,11 @@ def test_fit_window_failed_flag_and_null_history(tmp_path: Path) -> None:
                         if k not in AVR_PARAMS},
               "history": [[8, None], [16, 0.5], [24, 0.2]]}
     d = analyse(result)
-    # KAVR off by 15 %: nothing fails, but the fit is far above the noise floor and says so
-    assert d.verdict == "PASS WITH WARNINGS", d.checks
+    # KAVR off by 15 %: far above the noise floor (a warning), and beyond the default numeric
+    # acceptance limits (a failure), nothing else
+    assert d.verdict == "FAIL", d.checks
     assert [c.name for c in d.checks if c.status == "warn"] == ["fit vs noise floor"]
+    assert [c.name for c in d.checks if c.status == "fail"] == ["numeric acceptance (IEC 61400-27-2)"]
     assert d.objective == pytest.approx(result["objective"], rel=1e-12)
     assert d.mse == pytest.approx(result["mse"], rel=1e-12)  # over the window...
     assert d.captures[0].figures.mse == pytest.approx(np.mean((rec["efd"] - sim) ** 2), rel=1e-12)

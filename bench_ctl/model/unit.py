@@ -10,7 +10,8 @@ The AVR / exciter structure is chosen with `[avr] model = "ESST1A"` (or `--model
 `with_model`); its parameters are then named as the standard names them (KA, TC, TB, ...) in
 `[identify]`, `[fixed]`, `constraints` and `--set`, and translated here to the kernel's columns
 (`bench_ctl.model.structures`). The unit keeps the standard values too (`model_values`), for the
-report and the PSS/E record.
+report and the PSS/E record. `[acceptance]` holds the grid operator's numeric acceptance limits
+(`bench_ctl.model.acceptance`).
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Iterable, Iterator, Mapping
 
+from .acceptance import AcceptanceError, acceptance_limits
 from .effects import EFFECTS, effect
 from .params import AVR_PARAMS, GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, neutral_values
 from .structures import DEFAULT as DEFAULT_MODEL
@@ -51,6 +53,8 @@ class Unit:
     #: the AVR / exciter structure and the values of its parameters under their standard names
     model: str = DEFAULT_MODEL
     model_values: dict[str, float] = field(default_factory=dict)
+    #: the numeric acceptance limits ([acceptance], checked; None = the defaults)
+    acceptance: dict | None = None
 
     @property
     def structure(self) -> Structure:
@@ -110,6 +114,7 @@ class Unit:
             "effects": {k: {p: _finite_or_none(v) for p, v in ps.items()} for k, ps in self.effects.items()},
             "model": self.model,
             "model_values": {k: _finite_or_none(v) for k, v in self.standard_values().items()},
+            "acceptance": acceptance_limits(self.acceptance, self.source),
         }
 
 
@@ -134,8 +139,9 @@ def _finite_or_none(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
-_TOP_KEYS = {"name", "constraints", "generator", "identify", "fixed", "weights", "effects", "avr"}
-_TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects", "avr")
+_TOP_KEYS = {"name", "constraints", "generator", "identify", "fixed", "weights", "effects", "avr",
+             "acceptance"}
+_TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects", "avr", "acceptance")
 
 
 def check_unit(unit: Unit, source: str) -> Unit:
@@ -232,6 +238,16 @@ def _rename(text: object, st: Structure) -> object:
                   else m.group(0), text)
 
 
+def _acceptance(raw: object, source: str) -> dict | None:
+    if raw is None:
+        return None
+    try:
+        acceptance_limits(raw, source)
+    except AcceptanceError as exc:
+        raise UnitError(str(exc)) from None
+    return {k: dict(v) if isinstance(v, Mapping) else v for k, v in raw.items()}
+
+
 def unit_from_dict(data: Mapping, source: str) -> Unit:
     unknown = set(data) - _TOP_KEYS
     if unknown:
@@ -302,7 +318,7 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
         name=str(data.get("name", Path(source).stem)),
         generator=generator, identify=identify, fixed=fixed,
         constraints=tuple(constraints), weights=weights, source=source,
-        model=st.name, model_values=std_vals,
+        model=st.name, model_values=std_vals, acceptance=_acceptance(data.get("acceptance"), source),
     )
     effects_raw = data.get("effects", {})
     for name in effects_raw:

@@ -19,6 +19,7 @@ import numpy as np
 
 from bench_ctl.capture.plausible import implausible
 from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.model.acceptance import Acceptance, AcceptanceError, acceptance_limits, evaluate
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import outside_bounds
 from bench_ctl.report import checks as chk
@@ -41,6 +42,7 @@ class CaptureAnalysis:
     suffix: str  # "" for a single capture, else "_<1-based index>"
     fit_mse: float        # MSE over the fit window (= figures.mse without a window)
     fit_objective: float  # objective over the fit window (unweighted by the capture weight)
+    acceptance: Acceptance  # IEC 61400-27-2 windows (bench_ctl.model.acceptance)
 
     @property
     def residual(self) -> np.ndarray:
@@ -96,8 +98,13 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
     weights = dict((result.get("unit") or {}).get("weights") or {})
     w_efd, w_vt = _num(weights.get("efd"), 1.0), _num(weights.get("vt"), 0.0)
     window = _fit_window(result.get("fit_window"), where)
+    unit = result.get("unit") if isinstance(result.get("unit"), Mapping) else {}
+    try:
+        limits = acceptance_limits(unit.get("acceptance"), f"{where}: unit")
+    except AcceptanceError as exc:
+        raise ReportError(str(exc)) from None
     analyses = [_analyse_capture(lc, values, window, where, window_s=window_s, w_efd=w_efd,
-                                 w_vt=w_vt, single=len(loaded) == 1) for lc in loaded]
+                                 w_vt=w_vt, single=len(loaded) == 1, limits=limits) for lc in loaded]
     failures = [f"{a.loaded.path.name}: the model blew up at t = "
                 f"{a.loaded.capture.time[a.fail_step]:.3f} s" for a in analyses if a.fail_step >= 0]
     mse = float(np.mean([a.fit_mse for a in analyses]))
@@ -129,6 +136,7 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
                                        dict(result.get("bounds") or {})),
         outside_bounds=outside_bounds(dict(result.get("params") or {}), dict(result.get("bounds") or {})),
         n_captures=len(analyses))
+    checks.append(_acceptance_check(analyses))
     return ReportData(result=result, diagnosis=diagnosis, values=values,
                       captures=tuple(analyses), mse=mse, objective=objective, fit_window=window,
                       constraints=constraints, checks=checks, verdict=chk.overall(checks),
@@ -139,7 +147,8 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
 
 def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
                      window: tuple[float, float] | None, where: str, *, window_s: float,
-                     w_efd: float, w_vt: float, single: bool) -> CaptureAnalysis:
+                     w_efd: float, w_vt: float, single: bool,
+                     limits: Mapping[str, Any] | None = None) -> CaptureAnalysis:
     cap = lc.capture
     # the setpoint edges at the instants the fit found (none recorded: the zero-order hold)
     try:
@@ -164,7 +173,22 @@ def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
         if w_vt and cap.vt is not None:
             fit_obj += w_vt * trapezoid_sq(cap.vt[sl] - vt[sl], cap.dt)
     suffix = "" if single else f"_{lc.index + 1}"
-    return CaptureAnalysis(lc, efd, vt, fail, edges, figs, suffix, fit_mse, fit_obj)
+    acc = evaluate(cap.time, cap.efd, efd, edges.leading_s, edges.trailing_s, limits)
+    return CaptureAnalysis(lc, efd, vt, fail, edges, figs, suffix, fit_mse, fit_obj, acc)
+
+
+def _acceptance_check(analyses: list[CaptureAnalysis]) -> chk.Check:
+    """One line for the summary: every window of every capture within its limits."""
+    bad = [f"{a.loaded.path.name} {w.name}: " + ", ".join(
+               f"{f} {w.figures[f]:.3g} > {w.limits[f]:g}" for f in w.figures if not w.passed[f])
+           for a in analyses for w in a.acceptance.windows if w.ok is False]
+    if not any(w.n for a in analyses for w in a.acceptance.windows):
+        return chk.Check("numeric acceptance (IEC 61400-27-2)", "n/a", "no samples in any window")
+    if bad:
+        return chk.Check("numeric acceptance (IEC 61400-27-2)", "fail", "; ".join(bad))
+    n = sum(1 for a in analyses for w in a.acceptance.windows if w.n)
+    return chk.Check("numeric acceptance (IEC 61400-27-2)", "pass",
+                     f"MXE, ME, MAE within the limits in all {n} windows; see Numeric acceptance")
 
 
 def _fit_window(value: Any, where: str) -> tuple[float, float] | None:

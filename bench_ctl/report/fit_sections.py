@@ -10,7 +10,9 @@ from typing import Any
 
 import numpy as np
 
+from bench_ctl.model.acceptance import SOURCE
 from bench_ctl.model.params import PARAMS
+from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
 from bench_ctl.report.blocks import (NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section,
@@ -170,6 +172,35 @@ def errors(d: ReportData) -> Section:
     return Section("errors", "Error figures", tuple(blocks))
 
 
+def acceptance(d: ReportData) -> Section:
+    """The IEC 61400-27-2 table per capture: windows, figures against limits, pass / fail."""
+    first = d.captures[0].acceptance if d.captures else None
+    blocks: list[Block] = [Para(
+        "d = (efd simulated − efd measured) / step size, where the step size is the largest "
+        "deviation of the measured efd from its pre-trigger mean. Per window: MXE = max |d|, "
+        "ME = |mean d|, MAE = mean |d|. Windows: before (start to the leading setpoint edge), "
+        "during (leading to trailing edge), after (trailing edge to the end); "
+        + (f"the first {fmt(first.exclusion_s * 1e3, 4)} ms after each edge is excluded. "
+           if first else "") + "A window passes when every figure is at or below its limit.",
+        "note"), Para(SOURCE, "note")]
+    for a in d.captures:
+        acc, s = a.acceptance, a.suffix
+        if len(d.captures) > 1:
+            blocks.append(Heading(a.label))
+        rows = []
+        for w in acc.windows:
+            cells: list[Any] = [w.name, Num(w.t0, digits=5), Num(w.t1, digits=5), Num(w.n)]
+            for f in ("MXE", "ME", "MAE"):
+                cells += [Num(w.figures[f] if w.n else None, f"acc-{w.name}-{f.lower()}{s}", 4),
+                          Num(w.limits[f], digits=4)]
+            cells.append(Status("n/a" if w.ok is None else "pass" if w.ok else "fail"))
+            rows.append(tuple(cells))
+        blocks.append(table(("window", "from (s)", "to (s)", "samples", "MXE", "limit", "ME", "limit",
+                             "MAE", "limit", "status"), rows, id=f"acceptance{s}",
+                            caption=f"Step size {fmt(acc.step_pu, 4)} pu; figures in per unit of it"))
+    return Section("acceptance", "Numeric acceptance", tuple(blocks))
+
+
 def _strong_pairs(ident: Mapping[str, Any]) -> list[tuple[str, float]]:
     names, corr = ident.get("names"), ident.get("correlation")
     try:
@@ -210,6 +241,40 @@ def _determined(det: Any, reasons: Any) -> str:
     return text
 
 
+def _model_blocks(r: Mapping[str, Any]) -> list[Block]:
+    """The structure by name and its parameters under their standard names: value, unit, meaning,
+    identified (and determined by the capture) or fixed, simulated or kept for the record."""
+    model = r.get("model")
+    if not isinstance(model, Mapping) or not model.get("name"):
+        return [Para("AVR / exciter model: the reference structure (this result names no model).", "note")]
+    try:
+        st = structure(str(model["name"]))
+    except StructureError:
+        return [Para(f"AVR / exciter model: {model['name']} (not in this version's library).", "na")]
+    values = model.get("params") if isinstance(model.get("params"), Mapping) else {}
+    ident = set(model.get("identified") or [])
+    det = model.get("determined") if isinstance(model.get("determined"), Mapping) else {}
+    rows = []
+    for p in st.params:
+        if p.name in ident:
+            role = "identified, " + ("determined by the capture" if det.get(p.name) else "NOT determined")
+        elif p.kernel is None:
+            role = f"for the record only ({p.note})" if p.note else "for the record only"
+        else:
+            role = "fixed"
+        rows.append((p.name, Num(num(values.get(p.name)), f"model-{p.name}"), p.unit, p.info, role))
+    gen = model.get("generator") if isinstance(model.get("generator"), Mapping) else {}
+    text = (f"AVR / exciter model: {st.name} — {st.title}. PSS/E record: {st.dyr_model or 'none'} "
+            f"(bench-ctl export --dyr). Block diagram: " + "; ".join(st.diagram) + ".")
+    blocks: list[Block] = [Para(text, "model"),
+                           table(("parameter", "value", "unit", "meaning", "role"), rows, id="model-params",
+                                 caption=f"{st.name} parameters under their standard names")]
+    if gen:
+        blocks.append(Para("No-load generator: " + ", ".join(f"{k} = {fmt(v, 4)}" for k, v in gen.items())
+                           + " (KPP, KDA: the GENROU flux shares, 0 in the reference model).", "note"))
+    return blocks
+
+
 def parameters(d: ReportData) -> Section:
     r = d.result
     params = dict(r.get("params") or {})
@@ -217,18 +282,25 @@ def parameters(d: ReportData) -> Section:
     ident = r.get("identifiability") if isinstance(r.get("identifiability"), Mapping) else None
     get = (lambda key, name: (ident.get(key) or {}).get(name)) if ident else (lambda k, n: None)
     rows = []
+    model = r.get("model") if isinstance(r.get("model"), Mapping) else {}
+    try:
+        st = structure(str(model.get("name"))) if model.get("name") else None
+    except StructureError:
+        st = None
     for name, value in params.items():
         info = PARAMS.get(name)
+        std = st.std_name(name) if st is not None and st.name != "REFERENCE" else None
         b = bounds.get(name) if isinstance(bounds.get(name), (list, tuple)) else (None, None)
         rel = num(get("rel_std", name))
         det = get("determined", name)
-        rows.append((name, Num(num(value), f"param-{name}"), info.unit if info else "?",
+        rows.append((f"{std} ({name})" if std and std != name else name, Num(num(value), f"param-{name}"),
+                     info.unit if info else "?",
                      info.info if info else "", Num(num(b[0])), Num(num(b[1])),
                      Num(num(get("std", name)), f"std-{name}", 3),
                      Num(None if rel is None else 100.0 * rel, digits=3),
                      Num(num(get("sensitivity", name)), digits=3),
                      _determined(det, get("reasons", name))))
-    blocks: list[Block] = [table(("parameter", "value", "unit", "meaning", "lower bound",
+    blocks: list[Block] = _model_blocks(r) + [table(("parameter", "value", "unit", "meaning", "lower bound",
                                   "upper bound", "std", "rel. std (%)", "sensitivity",
                                   "determined"), rows, id="params",
                                  caption="Identified parameters")]
