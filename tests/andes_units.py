@@ -68,6 +68,22 @@ def read_fixture(name: str) -> Capture:
     return read_capture(FOLDER / manifest()["captures"][name]["file"])
 
 
+def fixture_column(name: str, column: str) -> np.ndarray:
+    """One column of a fixture by its header name (the capture reader keeps only its own)."""
+    path = FOLDER / manifest()["captures"][name]["file"]
+    header = path.read_text("utf-8").splitlines()[0].split(",")
+    return np.loadtxt(path, delimiter=",", skiprows=1, usecols=header.index(column))
+
+
+def open_loop_efd(name: str, unit, cap: Capture) -> np.ndarray:
+    """The unit's excitation system alone fed the fixture's Vt and Ifd, setpoint edges at their
+    true instants (bench_ctl.model.open_loop)."""
+    from bench_ctl.model.open_loop import run_open_loop
+    spec, off = true_edges(name, cap)
+    times = [spec.nominal_s[i] + off[f"EDGE{i + 1}"] for i in range(spec.n)]
+    return run_open_loop(unit.values(), cap.time, cap.vt, fixture_column(name, "ifd"), times, spec.jump)
+
+
 def true_edges(name: str, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:
     """The capture's setpoint edges and the EDGE offsets of their true instants (the manifest)."""
     entry = manifest()["captures"][name]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from andes_units import fixture_unit, manifest, read_fixture, true_edges
+from andes_units import fixture_unit, manifest, open_loop_efd, read_fixture, true_edges
 from bench_ctl.cli import main
 from bench_ctl.model.params import PARAMS
 from bench_ctl.model.simulate import simulate
@@ -95,25 +95,38 @@ def test_reference_structure_is_unchanged_by_the_new_blocks():
 
 
 @pytest.mark.parametrize("name", sorted(manifest()["captures"]))
-def test_each_structure_reproduces_andes_at_the_true_values(name):
-    """Closed loop, ANDES' own GENROU data converted (tests/andes_units.py), edges at their true
-    instants: the efd error stays small against a 0.01 pu recorder noise. ANDES integrates the edge
-    with its trapezoidal 0.2 ms step, which puts it 0.1 ms late: with that, the error is smaller
-    still (benchmarks/model_library.py prints both)."""
+def test_each_structure_reproduces_andes_open_and_closed_loop(name):
+    """ANDES' captures at the values it used, edges at their true instants (inside a sample): the
+    excitation system alone fed ANDES' Vt and Ifd (open loop), and the closed loop with ANDES' own
+    GENROU data converted (tests/andes_units.py), each within the 0.01 pu issue 13 sets."""
     entry = manifest()["captures"][name]
     unit = fixture_unit(name)
     if entry["exciter"] == "EXST1":   # ANDES 2.0's EXST1 limits its washout output: no ceiling acts
         unit = apply_overrides(unit, ["VRMAX=20", "VRMIN=-20"])
     cap = read_fixture(name)
     spec, off = true_edges(name, cap)
-    scale = entry["amplitude_of_vt0"] / 0.05
-    for shift, max_tol, rms_tol in ((0.0, 0.013, 0.0008), (1e-4, 0.0035, 0.0001)):
-        v = {**unit.values(), **{k: x + shift for k, x in off.items()}}
-        efd, _, fail = simulate(v, cap.usetp, cap.dt, edges=spec)
+    closed, _, fail = simulate({**unit.values(), **off}, cap.usetp, cap.dt, edges=spec)
+    assert fail == -1
+    for how, efd in (("open loop", open_loop_efd(name, unit, cap)), ("closed loop", closed)):
         err = efd - cap.efd
-        assert fail == -1
-        assert np.max(np.abs(err)) <= max_tol * scale, (name, shift, np.max(np.abs(err)))
-        assert np.sqrt(np.mean(err ** 2)) <= rms_tol * scale, (name, shift)
+        assert np.max(np.abs(err)) <= 0.01, (name, how, np.max(np.abs(err)))
+        assert np.sqrt(np.mean(err ** 2)) <= 0.001, (name, how, np.sqrt(np.mean(err ** 2)))
+    # the check can fail: 10 % off in the exciter's gain is seen open loop
+    gain = {"ESST1A": "KA", "SEXS": "K", "EXST1": "KA", "IEEEX1": "KA"}[entry["exciter"]]
+    worse = apply_overrides(unit, [f"{gain}={1.1 * unit.standard_values()[gain]}"])
+    assert np.max(np.abs(open_loop_efd(name, worse, cap) - cap.efd)) > 0.01
+
+
+def test_open_loop_refuses_what_it_cannot_run():
+    from bench_ctl.model.open_loop import run_open_loop
+    t = np.arange(0, 1.0, 0.001)
+    vals = reference_unit().values()
+    with pytest.raises(ValueError, match="TD = 0.01"):
+        run_open_loop({**vals, "TD": 0.01}, t, np.ones_like(t), np.ones_like(t))
+    with pytest.raises(ValueError, match="equal length"):
+        run_open_loop(vals, t, np.ones(3), np.ones_like(t))
+    with pytest.raises(ValueError, match="uniform"):
+        run_open_loop(vals, t ** 2, np.ones_like(t), np.ones_like(t))
 
 
 def test_generator_conversion_from_a_dyr_record_matches_the_fixture_helper():
