@@ -3,9 +3,13 @@ the same captures serially in one process (issue 14).
 
 Captures: the independent plant (tests/independent_plant.py) with random AVR parameters, 5 %/1 s
 pulses, edges inside their sample intervals, 0.01 pu noise. Reported: wall time serial and on
-the cluster, speedup, overhead per task ((cluster wall x workers - sum of task times) / sum of
-task times), the first task's wait for the kernel on each worker, peak RSS per worker, and
-captures per hour. Kernel compilation is excluded from both timings (warm caches, stated apart).
+the cluster, speedup end to end and over the window in which tasks ran, where the cluster's wall
+time went (before the first task: client and the kernel loaded on each worker; the task window;
+after the last task), how busy each worker was in the window, how much slower a task runs beside
+another than alone (cache and memory contention of this VM), overhead per task ((window x workers
+- sum of task times) / sum of task times), the first task's wait for the kernel on each worker,
+peak RSS per worker, and captures per hour. Kernel compilation is excluded from both timings
+(warm caches, stated apart).
 
 Usage: python benchmarks/batch.py [--captures 40] [--workers 2] [--duration 10] [--evals 1000]
        [--json OUT]
@@ -91,8 +95,17 @@ def main(argv: list[str] | None = None) -> int:
             rss = client.run(_peak_rss_mb)
     cluster_s = outcome.wall_s
     task_s = sum(r.get("wall_s", 0.0) for r in serial_tasks)
-    task_cluster_s = sum(float(r["wall_s"]) for r in outcome.rows)
+    steps = outcome.step_rows
+    task_cluster_s = sum(float(r["wall_s"]) for r in steps)
     n_tasks = len(serial_tasks)
+    # where the cluster's wall time went: before the first task (client, kernel load on each
+    # worker), the window in which tasks ran, after the last one (summary, client close)
+    first = min(r["start_unix"] for r in steps)
+    last = max(r["end_unix"] for r in steps)
+    window_s = last - first
+    busy = {}
+    for r in steps:
+        busy[r["pid"]] = busy.get(r["pid"], 0.0) + float(r["wall_s"])
     same = 0
     for e in entries:
         a = json.loads((work / "serial" / e.name / tasks.RESULT).read_text())
@@ -103,7 +116,13 @@ def main(argv: list[str] | None = None) -> int:
         "captures": args.captures, "workers": args.workers, "duration_s": args.duration, "evals": args.evals,
         "tasks": n_tasks, "generate_s": gen_s, "compile_s": compile_s,
         "serial_s": serial_s, "cluster_s": cluster_s, "speedup": serial_s / cluster_s,
-        "overhead_per_task_pct": 100.0 * (cluster_s * args.workers - task_cluster_s) / task_cluster_s,
+        "speedup_with_kernel_load": (serial_s + compile_s) / cluster_s,
+        "before_first_task_s": first - outcome.start_unix, "task_window_s": window_s,
+        "after_last_task_s": cluster_s - (last - outcome.start_unix),
+        "speedup_task_window": serial_s / window_s,
+        "worker_busy_pct_min": 100.0 * min(busy.values()) / window_s,
+        "task_slowdown_cluster_vs_serial": task_cluster_s / task_s,
+        "overhead_per_task_pct": 100.0 * (window_s * args.workers - task_cluster_s) / task_cluster_s,
         "mean_task_s": task_s / n_tasks, "first_task_wait_s_max": max(outcome.warm_s.values()),
         "peak_rss_mb_worker_max": max(rss.values()), "peak_rss_mb_serial": serial_rss,
         "results_identical": same, "captures_per_hour_cluster": 3600.0 * args.captures / cluster_s,
@@ -111,7 +130,9 @@ def main(argv: list[str] | None = None) -> int:
         "load_avg_1min": os.getloadavg()[0],
     }
     print(f"{args.captures} captures (identify + diagnose), {args.duration:g} s records, {args.evals} evaluations")
-    for k in ("serial_s", "cluster_s", "speedup", "overhead_per_task_pct", "mean_task_s", "first_task_wait_s_max",
+    for k in ("serial_s", "cluster_s", "speedup", "speedup_with_kernel_load", "before_first_task_s",
+              "task_window_s", "after_last_task_s", "speedup_task_window", "worker_busy_pct_min",
+              "task_slowdown_cluster_vs_serial", "overhead_per_task_pct", "mean_task_s", "first_task_wait_s_max",
               "peak_rss_mb_worker_max", "peak_rss_mb_serial", "results_identical", "captures_per_hour_cluster",
               "compile_s", "load_avg_1min"):
         v = out[k]

@@ -48,6 +48,10 @@ class BatchOutcome:
     wall_s: float
     warm_s: dict[str, float] = field(default_factory=dict)
     interrupted: bool = False
+    #: every step's row as the task returned it (timestamps, pid, wall time), for benchmarks
+    step_rows: list[dict[str, Any]] = field(default_factory=list)
+    #: time.time() when run_batch began
+    start_unix: float = 0.0
 
     @property
     def exit_code(self) -> int:
@@ -159,7 +163,7 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
               echo: Callable[[str], None] = print) -> BatchOutcome:
     from distributed import Client, LocalCluster, as_completed
 
-    t0 = time.perf_counter()
+    t0, t0_unix = time.perf_counter(), time.time()
     entries = read_manifest(manifest)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -238,4 +242,5 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
     ordered = [rows.get(e.name) or summary_row(e, out / e.name, steps[e.name]) | {"status": "not run"}
                for e in entries]
     csv_path, index = write_summary(out, ordered)
-    return BatchOutcome(ordered, csv_path, index, time.perf_counter() - t0, warm, interrupted)
+    return BatchOutcome(ordered, csv_path, index, time.perf_counter() - t0, warm, interrupted,
+                        [r for s in steps.values() for r in s.values()], t0_unix)

@@ -75,7 +75,7 @@ def run_step(step: str, entry: Entry, folder: str, evals: int, seed: int) -> dic
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     buf = io.StringIO()
-    row: dict[str, Any] = {"step": step, "capture": entry.name, "pid": os.getpid()}
+    row: dict[str, Any] = {"step": step, "capture": entry.name, "pid": os.getpid(), "start_unix": time.time()}
     try:
         argv = argv_for(step, entry, out_dir, evals=evals, seed=seed)
         with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
@@ -85,6 +85,7 @@ def run_step(step: str, entry: Entry, folder: str, evals: int, seed: int) -> dic
         row.update(rc=2, error=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc(limit=4))
     row["output"] = buf.getvalue()[-4000:]
     row["wall_s"] = time.perf_counter() - t0
+    row["end_unix"] = time.time()
     if row["rc"] not in (0, 1) and "error" not in row:
         lines = [ln for ln in row["output"].splitlines() if ln.strip()]
         row["error"] = lines[-1] if lines else f"exit {row['rc']}"
