@@ -15,7 +15,7 @@ from bench_ctl.model.unit import UnitError, apply_overrides, load_unit, referenc
 
 
 def test_the_library_holds_the_standard_structures_each_coherent():
-    assert {"REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1"} <= set(STRUCTURES)
+    assert {"REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1", "ESST4B"} <= set(STRUCTURES)
     for st in STRUCTURES.values():
         st.check()
         assert st.default_identified(), st.name
@@ -112,9 +112,81 @@ def test_each_structure_reproduces_andes_open_and_closed_loop(name):
         assert np.max(np.abs(err)) <= 0.01, (name, how, np.max(np.abs(err)))
         assert np.sqrt(np.mean(err ** 2)) <= 0.001, (name, how, np.sqrt(np.mean(err ** 2)))
     # the check can fail: 10 % off in the exciter's gain is seen open loop
-    gain = {"ESST1A": "KA", "SEXS": "K", "EXST1": "KA", "IEEEX1": "KA"}[entry["exciter"]]
+    gain = {"ESST1A": "KA", "SEXS": "K", "EXST1": "KA", "IEEEX1": "KA", "ESST4B": "KPR"}[entry["exciter"]]
     worse = apply_overrides(unit, [f"{gain}={1.1 * unit.standard_values()[gain]}"])
     assert np.max(np.abs(open_loop_efd(name, worse, cap) - cap.efd)) > 0.01
+
+
+def _fex(x: float) -> float:
+    """IEEE 421.5 rectifier regulation, written here apart from the kernel's."""
+    if x <= 0.0:
+        return 1.0
+    if x <= 0.433:
+        return 1.0 - 0.577 * x
+    if x <= 0.75:
+        return float(np.sqrt(0.75 - x * x))
+    return 1.732 * (1.0 - x) if x <= 1.0 else 0.0
+
+
+@pytest.mark.parametrize("amp,kg,kim,limited", [(0.05, 0.0, 0.0, False), (0.2, 0.0, 0.0, True),
+                                                (0.2, 0.3, 0.5, True), (0.1, 0.3, 0.5, False)])
+def test_esst4b_blocks_match_solve_ivp(amp, kg, kim, limited):
+    """ESST4B's potential-source stage against solve_ivp on the equations as ANDES writes them
+    (PITrackAW with tracking gain 2, Efd = VB VM with the loop through KG solved by brentq here),
+    with a GENROU-like generator and saturation; `limited`: limits low enough that the 20 % pulse
+    drives the PIs into them (checked on the reference solution; with KG = 0 all three)."""
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
+
+    u = apply_overrides(with_model(reference_unit(), "ESST4B"),
+                        ["KPP=0.6", "KDA=0.5", "Td0p=6", "Td0pp=0.05", f"KG={kg}", f"KIM={kim}"]
+                        + (["VRMAX=0.5", "VRMIN=-0.4", "VMMAX=0.6", "VMMIN=-0.5"] if limited else []))
+    v = u.with_effects({"saturation": {"S10": 0.05, "S12": 0.24}}).values()
+    dt, n = 1e-3, 4000
+    usetp = np.ones(n)
+    usetp[500:1500] = 1.0 + amp
+    efd, _, fail = simulate(v, usetp, dt)
+    assert fail == -1
+    s10, s12 = 0.05, 0.24        # Sat(x) = B (x - A)^2 through S(1.0), S(1.2)
+    r = np.sqrt(s12 / s10)
+    a_ = (r - 1.2) / (r - 1.0)
+    b_ = s10 / (1.0 - a_) ** 2
+    sat = lambda x: b_ * max(x - a_, 0.0) ** 2  # noqa: E731
+    clamp = lambda x, lo, hi: min(max(x, lo), hi)  # noqa: E731
+
+    def out(x):
+        xm, xi1, va, xi2, eqp, eqpp = x
+        vt = eqpp + 0.6 * (eqp - eqpp)
+        ifd = eqp + 0.5 * (eqp - eqpp) + sat(vt)
+        vb = min(v["KPV"] * vt * _fex(v["KC"] * ifd / (v["KPV"] * vt)), v["VBMAX"])
+        def vm_of(efd_):  # the inner PI's limited output for a field voltage efd_
+            return clamp(v["KPM"] * (va - kg * efd_) + xi2, v["VMMIN"], v["VMMAX"])
+        e_ = brentq(lambda z: vb * vm_of(z) - z, -50.0, 50.0, xtol=1e-13)
+        return e_, vm_of(e_), v["KPM"] * (va - kg * e_) + xi2, vt, ifd
+
+    def f(t, x):
+        xm, xi1, va, xi2, eqp, eqpp = x
+        fld, vm, ys2, vt, ifd = out(x)
+        e = 1.0 + (amp if 0.5 <= t < 1.5 else 0.0) - xm
+        ys1 = v["KPI"] * e + xi1
+        y1 = clamp(ys1, v["VPMIN"], v["VPMAX"])
+        return [(vt - xm) / v["TR"], v["KII"] * (e - 2 * (ys1 - y1)), (y1 - va) / v["TE"],
+                kim * (va - kg * fld - 2 * (ys2 - vm)),
+                (fld - eqp - 0.5 * (eqp - eqpp) - sat(vt)) / 6.0, (eqp - eqpp) / 0.05]
+
+    fld0 = 1.0 + sat(1.0)
+    vb0 = v["KPV"] * _fex(v["KC"] * fld0 / v["KPV"])
+    t = np.arange(n) * dt
+    sol = solve_ivp(f, (0, t[-1]), [1.0, kg * fld0, kg * fld0, fld0 / vb0, 1.0, 1.0], t_eval=t, method="LSODA",
+                    rtol=1e-9, atol=1e-11, max_step=2e-4)
+    ref = np.array([out(sol.y[:, k])[0] for k in range(n)])
+    assert np.max(np.abs(efd - ref)) < 1e-3, np.max(np.abs(efd - ref))
+    vms = np.array([out(sol.y[:, k])[1] for k in range(n)])
+    ys1 = v["KPI"] * (1.0 + amp * ((t >= 0.5) & (t < 1.5)) - sol.y[0]) + sol.y[1]
+    hits = (np.sum(vms >= v["VMMAX"] - 1e-12), np.sum(ys1 > v["VPMAX"]), np.sum(ys1 < v["VPMIN"]))
+    assert (max(hits) > 10) == limited, hits
+    if limited and kg == 0.0:   # VM at VMMAX, the regulator's PI at both of its limits
+        assert min(hits) > 10, hits
 
 
 def test_open_loop_refuses_what_it_cannot_run():

@@ -11,6 +11,7 @@ cross-checked with ANDES' andes/io/psse-dyr.yaml, the InterPSS reader and publis
 - ESST1A: ICONs UEL VOS; TR VIMAX VIMIN TC TB TC1 TB1 KA TA VAMAX VAMIN VRMAX VRMIN KC KF TF KLR ILR
   (ANDES 2.0's psse-dyr.yaml lists TB before TC and KLR, ILR, KC elsewhere: it misreads ESST1A)
 - IEEEX1: TR KA TA TB TC VRMAX VRMIN KE TE KF TF1 SWITCH E1 SE(E1) E2 SE(E2)
+- ESST4B: TR KPR KIR VRMAX VRMIN TA KPM KIM VMMAX VMMIN KG KP KI VBMAX KC XL THETAP
 
 Records of other models are kept with positional names (CON1..), never refused: real files hold
 hundreds of governors and stabilisers. Written by hand (no maintained PyPI reader of .dyr files
@@ -35,12 +36,15 @@ FIELDS: dict[str, tuple[str, ...]] = {
                "VRMIN", "KC", "KF", "TF", "KLR", "ILR"),
     "IEEEX1": ("TR", "KA", "TA", "TB", "TC", "VRMAX", "VRMIN", "KE", "TE", "KF", "TF1", "SWITCH", "E1",
                "SE1", "E2", "SE2"),
+    "ESST4B": ("TR", "KPR", "KIR", "VRMAX", "VRMIN", "TA", "KPM", "KIM", "VMMAX", "VMMIN", "KG", "KP", "KI",
+               "VBMAX", "KC", "XL", "THETAP"),
 }
 ICONS: dict[str, tuple[str, ...]] = {"ESST1A": ("UEL", "VOS")}
 DESCRIPTION = {
     "GENROU": "round-rotor generator", "GENSAL": "salient-pole generator",
     "SEXS": "simplified excitation system", "EXST1": "IEEE ST1 static exciter",
     "ESST1A": "IEEE 421.5 ST1A static exciter", "IEEEX1": "IEEE type 1 DC exciter",
+    "ESST4B": "IEEE 421.5 ST4B potential-source static exciter",
 }
 
 _TOKEN = re.compile(r"'[^']*'|\"[^\"]*\"|[^\s']+")

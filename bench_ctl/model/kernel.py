@@ -45,7 +45,14 @@ _llvm.set_option("", "-vectorize-memory-check-threshold=512")
 # the steady state (the kernel's output; D_EFD0 is the regulator output's)
 (D_KFT, D_ITF, D_ITEX, D_DCON, D_KE, D_SEA, D_SEB, D_LIMOUT, D_OUT0, D_KPP, D_SATVT, D_KDA) = range(
     27 + len(RECORD_PARAMS), 27 + len(RECORD_PARAMS) + 12)
-N_DERIVED = 27 + len(RECORD_PARAMS) + 12   # D_EDGE0 + slot: offset of setpoint edge `slot` (s)
+# the potential-source stage (ESST4B): on, the PI in place of lead-lag 1 (proportional gain added
+# to the lead-lag's output, integral gain, output limits), KP (1 when off), VBMAX, the inner PI
+# (KPM, KIM, limits), KG, and the rate-feedback state's steady state (the inner integrator's)
+(D_ST4, D_P1, D_KI1, D_Y1MAX, D_Y1MIN, D_KPV, D_VBMAX, D_KPM, D_KIM, D_VMMAX, D_VMMIN, D_KG, D_XF0) = range(
+    27 + len(RECORD_PARAMS) + 12, 27 + len(RECORD_PARAMS) + 25)
+N_DERIVED = 27 + len(RECORD_PARAMS) + 25   # D_EDGE0 + slot: offset of setpoint edge `slot` (s)
+#: tracking gain of the anti-windup of the ESST4B's PI regulators (ANDES' PITrackAW default, ks = 2)
+PI_TRACK = 2.0
 #: an edge instant within this many steps of a sample instant is taken to fall on it
 EDGE_EPS = 1.0e-9
 
@@ -79,6 +86,15 @@ def exciter_saturation_ab(e1, se1, e2, se2) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
+def _vb_np(ve: np.ndarray, kc_ifd: np.ndarray, vbmax: np.ndarray) -> np.ndarray:
+    """VB = VE FEX(KC Ifd / VE), at most VBMAX (numpy twin of `_vb`)."""
+    ve = np.maximum(ve, 1.0e-6)
+    x = kc_ifd / ve
+    f = np.where(x <= 0.0, 1.0, np.where(x <= 0.433, 1.0 - 0.577 * x, np.where(
+        x <= 0.75, np.sqrt(np.maximum(0.75 - x * x, 0.0)), np.where(x <= 1.0, 1.732 * (1.0 - x), 0.0))))
+    return np.minimum(ve * f, vbmax)
+
+
 def derive(P: np.ndarray) -> np.ndarray:
     """Per-candidate factors for the kernel from the parameter matrix (n, len(KERNEL_PARAMS))."""
     P = np.atleast_2d(np.asarray(P, dtype=np.float64))
@@ -99,6 +115,10 @@ def derive(P: np.ndarray) -> np.ndarray:
         valid &= np.isfinite(g["KF"]) & (g["KF"] >= 0.0) & ((g["KF"] == 0.0) | (g["TF"] > 0.0))
         valid &= np.isfinite(g["TEX"]) & (g["TEX"] >= 0.0) & np.isfinite(g["KE"])
         valid &= (g["KPP"] >= 0.0) & (g["KPP"] <= 1.0) & (g["KDA"] >= 0.0) & np.isfinite(g["KDA"])
+        valid &= np.isfinite(g["KPV"]) & (g["KPV"] >= 0.0) & (g["VBMAX"] > 0.0)
+        for name in ("KPI", "KII", "KPM", "KIM", "KG"):
+            valid &= np.isfinite(g[name]) & (g[name] >= 0.0)
+        valid &= (g["VPMAX"] > g["VPMIN"]) & (g["VMMAX"] > g["VMMIN"])
         for name in RECORD_PARAMS:
             valid &= np.isfinite(g[name])
         safe = lambda x: np.where(valid, x, 1.0)  # noqa: E731
@@ -113,6 +133,11 @@ def derive(P: np.ndarray) -> np.ndarray:
         ke = np.where(dc, g["KE"], 0.0)
         # a DC exciter needs VR = (KE + SE(Efd)) Efd from the regulator; a static one, Efd itself
         efd0 = np.where(dc, ke * fld0 + seb * np.maximum(fld0 - sea, 0.0) ** 2, fld0)
+        # the potential-source stage: Efd = VB VM; at the steady state (as ANDES initialises it)
+        # the regulator's error is 0, its PI and lag hold KG Efd and the inner integrator Efd / VB
+        st4 = valid & ~dc & (g["KPV"] > 0.0)
+        vb0 = _vb_np(np.where(st4, g["KPV"], 1.0) * vt0, np.where(valid, g["KC"], 0.0) * fld0, g["VBMAX"])
+        efd0 = np.where(st4, np.where(st4, g["KG"], 0.0) * fld0, efd0)
         D[:, D_KAVR] = safe(g["KAVR"])
         D[:, D_R1] = safe(g["TA1"] / g["TA2"])
         D[:, D_IT2] = safe(1.0 / g["TA2"])
@@ -140,7 +165,7 @@ def derive(P: np.ndarray) -> np.ndarray:
         D[:, D_VRVT] = np.where(valid, g["VRVT"], 0.0)
         D[:, D_KC] = np.where(valid, g["KC"], 0.0)
         D[:, D_E0] = D[:, D_EFD0] / D[:, D_KAVR]
-        D[:, D_UREF0] = vt0 + D[:, D_E0]
+        D[:, D_UREF0] = vt0 + np.where(st4, 0.0, D[:, D_E0])
         D[:, D_VALID] = valid.astype(np.float64)
         D[:, D_TRON] = (D[:, D_ITR] > 0.0).astype(np.float64)
         D[:, D_TDON] = (D[:, D_TD] > 0.0).astype(np.float64)
@@ -160,16 +185,77 @@ def derive(P: np.ndarray) -> np.ndarray:
         D[:, D_KPP] = np.where(valid, g["KPP"], 0.0)
         D[:, D_SATVT] = (D[:, D_KPP] > 0.0).astype(np.float64)
         D[:, D_KDA] = np.where(valid, g["KDA"], 0.0)
+        D[:, D_ST4] = st4.astype(np.float64)
+        D[:, D_R1] = np.where(st4, 0.0, D[:, D_R1])      # the PI replaces lead-lag 1
+        D[:, D_IT2] = np.where(st4, 0.0, D[:, D_IT2])
+        D[:, D_P1] = np.where(st4, g["KPI"], 0.0)
+        D[:, D_KI1] = np.where(st4, g["KII"], 0.0)
+        D[:, D_Y1MAX] = np.where(st4, g["VPMAX"], np.inf)
+        D[:, D_Y1MIN] = np.where(st4, g["VPMIN"], -np.inf)
+        D[:, D_KPV] = np.where(st4, g["KPV"], 1.0)
+        D[:, D_VBMAX] = np.where(st4, g["VBMAX"], np.inf)
+        D[:, D_KPM] = np.where(st4, g["KPM"], 0.0)
+        D[:, D_KIM] = np.where(st4, g["KIM"], 0.0)
+        D[:, D_VMMAX] = np.where(st4, g["VMMAX"], np.inf)
+        D[:, D_VMMIN] = np.where(st4, g["VMMIN"], -np.inf)
+        D[:, D_KG] = np.where(st4, g["KG"], 0.0)
+        D[:, D_OUT0] = np.where(st4, fld0, D[:, D_OUT0])
+        D[:, D_XF0] = np.where(st4, fld0 / np.where(st4, vb0, 1.0),
+                               D[:, D_EFD0] + D[:, D_DCON] * (D[:, D_OUT0] - D[:, D_EFD0]))
     return D
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _avr(D, i, uref, vm, x1, x2, vf):
-    """AVR lead-lags: returns (VR, e, y1) for error e = uref - Vm - Vf (Vf: rate feedback)."""
+    """AVR lead-lags: returns (VR, e, y1) for error e = uref - Vm - Vf (Vf: rate feedback).
+    With the potential-source stage the first lead-lag is a PI (KPI e + x1) within its limits."""
     e = uref - vm - vf
-    y1 = x1 + D[D_R1, i] * (e - x1)
+    y1 = _pi1(D, i, e, x1)[0]
     y2 = x2 + D[D_R2, i] * (y1 - x2)
     return D[D_KAVR, i] * y2, e, y1
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _pi1(D, i, e, x1):
+    """The first lead-lag, or the ESST4B's PI regulator in its place: (output, its unlimited sum).
+    Lead-lag: x1 + R1 (e - x1) (P1 = 0, no limits); PI: x1 + KPI e (R1 = 0), limited."""
+    ys = x1 + D[D_R1, i] * (e - x1) + D[D_P1, i] * e
+    y = ys if ys < D[D_Y1MAX, i] else D[D_Y1MAX, i]
+    y = y if y > D[D_Y1MIN, i] else D[D_Y1MIN, i]
+    return y, ys
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _vb(D, i, vt, ifd):
+    """VB = VE FEX(IN), VE = KP Vt (no load: no current term), IN = KC Ifd / VE, at most VBMAX:
+    the rectifier regulation characteristic of IEEE 421.5 (ESST4B). Branch-free selects."""
+    ve = D[D_KPV, i] * vt
+    ve = ve if ve > 1.0e-6 else 1.0e-6
+    x = D[D_KC, i] * ifd / ve
+    q = 0.75 - x * x
+    q = q if q > 0.0 else 0.0
+    f = 1.732 * (1.0 - x)
+    f = f if x <= 1.0 else 0.0
+    f = math.sqrt(q) if x <= 0.75 else f
+    f = 1.0 - 0.577 * x if x <= 0.433 else f
+    f = 1.0 if x <= 0.0 else f
+    vb = ve * f
+    return vb if vb < D[D_VBMAX, i] else D[D_VBMAX, i]
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _st4(D, i, ef, xf, vt, ifd):
+    """The potential-source output stage: (Efd = VB VM, VM, its unlimited sum, VB). The inner PI
+    VM = KPM (VA - KG Efd) + xf (xf its integrator, VA the regulator lag `ef`) with Efd = VB VM
+    is solved in closed form, then VM limited (the limited VM is the consistent one: the sum
+    falls as VM rises)."""
+    vb = _vb(D, i, vt, ifd)
+    kpm = D[D_KPM, i]
+    vm = (kpm * ef + xf) / (1.0 + kpm * D[D_KG, i] * vb)
+    vm = vm if vm < D[D_VMMAX, i] else D[D_VMMAX, i]
+    vm = vm if vm > D[D_VMMIN, i] else D[D_VMMIN, i]
+    fld = vb * vm
+    return fld, vm, kpm * (ef - D[D_KG, i] * fld) + xf, vb
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
@@ -177,6 +263,14 @@ def _vt(D, i, eqp, eqpp):
     """Terminal voltage at no load: E''q, or with a GENROU-like flux share KPP of E'q,
     Vt = KPP E'q + (1 - KPP) E''q."""
     return eqpp + D[D_KPP, i] * (eqp - eqpp)
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _ifd(D, i, eqp, eqpp, vt):
+    """The no-load field current on the air-gap base: E'q + KDA (E'q - E''q) + Sat."""
+    d = eqp + D[D_SATVT, i] * (vt - eqp) - D[D_SATA, i]
+    d = d if d > 0.0 else 0.0
+    return eqp + D[D_KDA, i] * (eqp - eqpp) + D[D_SATB, i] * d * d
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
@@ -200,13 +294,17 @@ def _vf(D, i, ef, xf, xe):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
-def _field(D, i, ef, eqp, eqpp, xe):
+def _field(D, i, ef, eqp, eqpp, xf, xe):
     """The field voltage (the kernel's output): the DC exciter's, else the regulator output,
-    clamped to the ceilings when they clamp the output (D_LIMOUT) rather than the lag."""
+    clamped to the ceilings when they clamp the output (D_LIMOUT) rather than the lag, else
+    (ESST4B) VB VM."""
     hi, lo = _limits(D, i, eqp, eqpp)
     efc = ef if ef > lo else lo
     efc = efc if efc < hi else hi
     efc = ef + D[D_LIMOUT, i] * (efc - ef)
+    if D[D_ST4, i] != 0.0:   # a branch: the loops that record the output do not vectorise
+        vt = _vt(D, i, eqp, eqpp)
+        return _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt))[0]
     return efc + D[D_DCON, i] * (xe - efc)
 
 
@@ -221,12 +319,12 @@ def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe):
     vm = tron * xm + (1.0 - tron) * vt
     src = ef + D[D_DCON, i] * (xe - ef)
     e = uref - vm - D[D_KFT, i] * (src - xf)
-    dxf = (src - xf) * D[D_ITF, i]
-    y1 = x1 + D[D_R1, i] * (e - x1)
+    y1, ys1 = _pi1(D, i, e, x1)
     y2 = x2 + D[D_R2, i] * (y1 - x2)
     vr = D[D_KAVR, i] * y2
     dxm = (vt - xm) * D[D_ITR, i]
-    dx1 = (e - x1) * D[D_IT2, i]
+    # lead-lag 1, or the PI's integrator with tracking anti-windup (ANDES' PITrackAW)
+    dx1 = (e - x1) * D[D_IT2, i] + D[D_KI1, i] * (e - PI_TRACK * (ys1 - y1))
     dx2 = (y1 - x2) * D[D_IT4, i]
     tdon = D[D_TDON, i]
     drive = vr + tdon * (vrd - vr)
@@ -251,6 +349,13 @@ def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe):
     satvt = D[D_SATVT, i]
     d = eqp + satvt * (vt - eqp) - D[D_SATA, i]
     d = d if d > 0.0 else 0.0
+    dxf = (src - xf) * D[D_ITF, i]
+    # the potential-source stage (ESST4B): Efd = VB VM, and state 6 is the inner PI's integrator
+    # (tracking anti-windup as ANDES' PITrackAW); selected, not branched, so the loop vectorises
+    s4 = D[D_ST4, i]
+    f4, vm4, ys4, _vb4 = _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt))
+    fld = fld + s4 * (f4 - fld)
+    dxf = dxf + s4 * (D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4)) - dxf)
     deqp = (fld - eqp - D[D_KDA, i] * (eqp - eqpp) - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
     deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
     dvt = deqpp + D[D_KPP, i] * (deqp - deqpp)
@@ -304,6 +409,20 @@ def _hermite(y0, m0, y1, m1, s, h):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _out_slope(D, i, ef, xf, eqp, eqpp, def_, dxf, other):
+    """The output's time derivative for the recorder-skew readout: `other` (the DC exciter's or
+    the regulator lag's), or for the potential-source stage VB dVM/dt (VB's own slow change with
+    Vt and Ifd left out; 0 while VM is at a limit)."""
+    vt = _vt(D, i, eqp, eqpp)
+    f4, vm, ys, vb = _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt))
+    kpm = D[D_KPM, i]
+    sl = vb * (kpm * def_ + dxf) / (1.0 + kpm * D[D_KG, i] * vb)
+    sl = sl if vm < D[D_VMMAX, i] else 0.0   # nested selects: `and` would branch (no vectorising)
+    sl = sl if vm > D[D_VMMIN, i] else 0.0
+    return other + D[D_ST4, i] * (sl - other)
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, x6, x7, h):
     """One RK4 step of length h with input u0 -> u1 (linear) and delayed VR v0, vm, v1. Returns
     the 8 states and the output's derivative at both ends (the DC exciter's Efd, else VR lag)."""
@@ -325,10 +444,16 @@ def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, x6, x7, h):
     z3 = z3 if z3 < hi else hi
     y3 = z3 + D[D_LIMOUT, i] * (y3 - z3)   # a lag that the ceilings do not limit winds up
     dcon = D[D_DCON, i]
+    # the output's slope at both ends (for the recorder-skew readout): the DC exciter's or the
+    # regulator lag's, or VB dVM/dt of the potential-source stage (at the end: at the state of
+    # RK4's last stage, as for the others)
+    m0 = _out_slope(D, i, x3, x6, x4, x5, a[3], a[6], a[3] + dcon * (a[7] - a[3]))
+    m1 = _out_slope(D, i, x3 + h * c[3], x6 + h * c[6], x4 + h * c[4], x5 + h * c[5], d[3], d[6],
+                    d[3] + dcon * (d[7] - d[3]))
     return (x0 + h6 * (a[0] + 2 * b[0] + 2 * c[0] + d[0]), x1 + h6 * (a[1] + 2 * b[1] + 2 * c[1] + d[1]),
             x2 + h6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2]), y3, y4, y5,
             x6 + h6 * (a[6] + 2 * b[6] + 2 * c[6] + d[6]), x7 + h6 * (a[7] + 2 * b[7] + 2 * c[7] + d[7]),
-            a[3] + dcon * (a[7] - a[3]), d[3] + dcon * (d[7] - d[3]))
+            m0, m1)
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
@@ -489,7 +614,7 @@ def _split_step(D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, 
                 jf[c, k % L] = sb
             if skew_on and kf[c, k % Ls] == 0.0 and not first:
                 kf[c, k % Ls] = sb
-                kef[c, k % Ls] = _field(D, c, x3, x4, x5, x7)
+                kef[c, k % Ls] = _field(D, c, x3, x4, x5, x6, x7)
                 kdl[c, k % Ls] = d_end
                 pending = True
             tg += bj[q]
@@ -531,7 +656,7 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         S[0, c] = vt0; S[4, c] = vt0; S[5, c] = vt0
         S[3, c] = D[D_EFD0, c]
         S[1, c] = D[D_E0, c]; S[2, c] = D[D_E0, c]
-        S[6, c] = D[D_EFD0, c] + D[D_DCON, c] * (D[D_OUT0, c] - D[D_EFD0, c])
+        S[6, c] = D[D_XF0, c]
         S[7, c] = D[D_OUT0, c]
         uref[c] = D[D_UREF0, c]
         out_e[c] = D[D_GAIN, c] * D[D_OUT0, c]
@@ -546,7 +671,7 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
     full = False
     for c in range(m):
         if (D[D_KFT, c] != 0.0 or D[D_DCON, c] != 0.0 or D[D_LIMOUT, c] != 0.0 or D[D_KPP, c] != 0.0
-                or D[D_KDA, c] != 0.0):
+                or D[D_KDA, c] != 0.0 or D[D_ST4, c] != 0.0):
             full = True
     for k in range(T):
         # ---- record sample k (states at t_k); failed candidates hold their last output ----
@@ -554,7 +679,7 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
             for c in range(m):
                 i = lo + c
                 skew = D[D_SKEW, c]
-                y = _field(D, c, S[3, c], S[4, c], S[5, c], S[7, c])
+                y = _field(D, c, S[3, c], S[4, c], S[5, c], S[6, c], S[7, c])
                 if skew > 0.0:
                     tau = k - skew / dt
                     if tau <= 0.0:
@@ -578,7 +703,7 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         else:
             for c in range(m):
                 if not failed[c]:
-                    out_e[c] = D[D_GAIN, c] * _field(D, c, S[3, c], S[4, c], S[5, c], S[7, c])
+                    out_e[c] = D[D_GAIN, c] * _field(D, c, S[3, c], S[4, c], S[5, c], S[6, c], S[7, c])
         if store:
             for c in range(m):
                 efd_out[lo + c, k] = out_e[c]
@@ -656,7 +781,7 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         # ---- RK4 step, one fused straight-line body per candidate (vectorises across c) ----
         if any_skew:
             for c in range(m):
-                ef_h[c, k % Ls] = _field(D, c, S[3, c], S[4, c], S[5, c], S[7, c])
+                ef_h[c, k % Ls] = _field(D, c, S[3, c], S[4, c], S[5, c], S[6, c], S[7, c])
                 kf[c, k % Ls] = 0.0
         if any_delay or inwin:
             for c in range(m):
@@ -740,11 +865,11 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                 # park the state at the steady state so the arithmetic stays finite
                 S[0, c] = D[D_VT0, c]; S[4, c] = D[D_VT0, c]; S[5, c] = D[D_VT0, c]
                 S[3, c] = D[D_EFD0, c]; S[1, c] = D[D_E0, c]; S[2, c] = D[D_E0, c]
-                S[6, c] = D[D_EFD0, c] + D[D_DCON, c] * (D[D_OUT0, c] - D[D_EFD0, c])
+                S[6, c] = D[D_XF0, c]
                 S[7, c] = D[D_OUT0, c]
         if any_skew:
             for c in range(m):
-                ef_h[c, (k + 1) % Ls] = _field(D, c, S[3, c], S[4, c], S[5, c], S[7, c])
+                ef_h[c, (k + 1) % Ls] = _field(D, c, S[3, c], S[4, c], S[5, c], S[6, c], S[7, c])
         if any_delay:
             for c in range(m):
                 i = lo + c

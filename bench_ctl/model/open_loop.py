@@ -47,13 +47,13 @@ def _open_loop(D, t0, dt, T, uref0, etimes, ejumps, vt, ifd, out):
     x1 = D[K.D_E0, 0]
     x2 = D[K.D_E0, 0]
     ef = D[K.D_EFD0, 0]
-    xf = D[K.D_EFD0, 0] + D[K.D_DCON, 0] * (D[K.D_OUT0, 0] - D[K.D_EFD0, 0])
+    xf = D[K.D_XF0, 0]
     xe = D[K.D_OUT0, 0]
     ne = etimes.shape[0]
     cuts = np.empty(ne + 2)
     for k in range(T):
         tk = t0 + k * dt
-        out[k] = D[K.D_GAIN, 0] * K._field(D, 0, ef, ifd[k], vt[k], xe)
+        out[k] = D[K.D_GAIN, 0] * K._field(D, 0, ef, ifd[k], vt[k], xf, xe)
         if k == T - 1:
             break
         # the step [t_k, t_k+1], split at every setpoint edge inside it

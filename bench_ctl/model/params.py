@@ -75,6 +75,23 @@ _CATALOGUE = [
     ParamInfo("SE2", "pu", "DC exciter saturation SE(E2)", 0.0, 5.0, 0.0),
     ParamInfo("LIMOUT", "1", "ceilings clamp the output (1: the regulator lag itself is not limited, as "
                              "ESST1A/EXST1) instead of a non-windup limit on the lag (0)", 0.0, 1.0, 0.0),
+    # the potential-source static exciter (ESST4B): a PI regulator in place of the first lead-lag,
+    # an inner field-voltage PI with feedback KG, and the output VB * VM, VB = KPV Vt FEX(KC Ifd /
+    # (KPV Vt)) (IEEE 421.5 rectifier regulation); KPV = 0: no such stage (the blocks above)
+    ParamInfo("KPV", "pu", "potential-source gain KP: the output is VB VM with VB = KP Vt FEX(IN) "
+                           "(ESST4B); 0 = no potential-source stage", 0.0, 20.0, 0.0),
+    ParamInfo("VBMAX", "pu", "upper limit of VB (ESST4B)", 0.1, 100.0, INF),
+    ParamInfo("KPI", "pu", "proportional gain of the PI regulator that replaces the first lead-lag "
+                           "when KPV > 0 (ESST4B KPR)", 0.0, 1000.0, 0.0),
+    ParamInfo("KII", "pu/s", "integral gain of that PI regulator (ESST4B KIR)", 0.0, 1000.0, 0.0),
+    ParamInfo("VPMAX", "pu", "upper limit of that PI regulator (ESST4B VRMAX)", -20.0, 20.0, INF),
+    ParamInfo("VPMIN", "pu", "lower limit of that PI regulator (ESST4B VRMIN)", -20.0, 20.0, -INF),
+    ParamInfo("KPM", "pu", "proportional gain of the inner field-voltage PI (ESST4B)", 0.0, 100.0, 1.0),
+    ParamInfo("KIM", "pu/s", "integral gain of the inner field-voltage PI (ESST4B; 0: its integrator "
+                             "holds the steady-state share)", 0.0, 100.0, 0.0),
+    ParamInfo("VMMAX", "pu", "upper limit of the inner PI (ESST4B)", -20.0, 20.0, INF),
+    ParamInfo("VMMIN", "pu", "lower limit of the inner PI (ESST4B)", -20.0, 20.0, -INF),
+    ParamInfo("KG", "pu", "feedback gain of the field voltage into the inner PI (ESST4B)", 0.0, 1.1, 0.0),
     # record timing, not the model: fitted instant of setpoint edge N minus the sample where the
     # record first shows it (bench_ctl.model.edges); 0 = the kernel's zero-order hold
     *(ParamInfo(f"EDGE{i}", "s", f"setpoint edge {i}: fitted instant minus its nominal sample (record timing)",
@@ -92,7 +109,8 @@ GENERATOR_PARAMS = ("Td0p", "Td0pp", "Vt0")
 #: generator constants a unit file may give (neutral when absent)
 GENERATOR_OPTIONAL = ("KPP", "KDA")
 #: blocks of the standard structures beyond the reference one (neutral: the block is absent)
-STRUCTURE_PARAMS = ("KPP", "KDA", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "LIMOUT")
+STRUCTURE_PARAMS = ("KPP", "KDA", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "LIMOUT", "KPV", "VBMAX",
+                    "KPI", "KII", "VPMAX", "VPMIN", "KPM", "KIM", "VMMAX", "VMMIN", "KG")
 #: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
 RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")
 

@@ -6,7 +6,8 @@ bounds, the kernel column each one drives, the kernel settings the structure imp
 diagram in words and its PSS/E dynamic data record. All structures run on the one compiled kernel
 (`bench_ctl.model.kernel`): its blocks are a superset (two lead-lags, a regulator lag whose
 ceilings scale with Vt and drop by KC*Ifd, non-windup or output clamp, rate feedback, a DC
-exciter with quadratic saturation), a structure picks and names the ones it has. The effects of
+exciter with quadratic saturation, a potential-source stage with PI regulators and the output
+VB VM), a structure picks and names the ones it has. The effects of
 the diagnosis stay switchable on top of every structure.
 
 Adding a structure: one file here with a `STRUCTURE = Structure(...)`, its name in `_MODULES`,
@@ -175,7 +176,7 @@ class Structure:
                 PARAMS[p.kernel].check(p.typical, where=f"model {self.name}: {p.name} -> ")
 
 
-_MODULES = ("reference", "sexs", "exst1", "esst1a", "ieeex1")
+_MODULES = ("reference", "sexs", "exst1", "esst1a", "ieeex1", "esst4b")
 DEFAULT = "REFERENCE"
 
 
