@@ -2,7 +2,7 @@
 
 A GENROU (T'd0 7.5 s, T''d0 0.05 s, saturation S(1.0) 0.05, S(1.2) 0.2) on its own bus, tied to an
 infinite bus by a line that a Toggle opens at t = 0.05 s: from then on the unit runs at no load.
-Its excitation system is, in turn, ESST1A, SEXS, EXST1 and IEEEX1 with published-typical values
+Its excitation system is, in turn, ESST1A, SEXS, EXST1, IEEEX1 and ESST4B with published-typical values
 (varied a little between captures so that nothing can memorise one set). The record starts at
 0.5 s (steady state after the trip); the AVR reference `vref0` is raised by 5, 10 or 20 % of the
 initial terminal voltage for 1 s, at instants off the 1 kHz grid (`EDGE_ON`, `EDGE_OFF` after the
@@ -58,9 +58,14 @@ EXCITERS = {
                   KC=0.05, KF=0.0, TF=1.0),
     "IEEEX1": dict(TR=0.01, KA=40.0, TA=0.04, TC=1.0, TB=1.0, KE=1.0, TE=0.5, KF1=0.03, TF1=1.0, VRMAX=7.3,
                    VRMIN=-7.3, E1=2.5, SE1=0.05, E2=3.5, SE2=0.3),
+    # IEEE 421.5 sample data of ST4B, with KG = 0.1 (typical data has 0) so that the loop through
+    # the field voltage is checked too, and VMMAX 0.5 (sample 1.0) so that the 20 % pulse rides
+    # the ceiling VB VMMAX, which moves with Vt and Ifd
+    "ESST4B": dict(TR=0.01, KPR=3.15, KIR=3.15, VRMAX=1.0, VRMIN=-0.87, TA=0.02, KPM=1.0, KIM=0.0, VMMAX=0.5,
+                   VMMIN=-0.87, KG=0.1, KP=6.5, KI=0.0, VBMAX=8.41, KC=0.08, XL=0.0, THETAP=0.0, VGMAX=20.0),
 }
 AMPLITUDES = (0.05, 0.10, 0.20)
-SCALED = ("KA", "K", "TA", "TE", "TB", "TC", "TB1", "TC1")
+SCALED = ("KA", "K", "TA", "TE", "TB", "TC", "TB1", "TC1", "KPR", "KIR")
 
 
 def _network(andes):
@@ -169,6 +174,13 @@ def _limits(model: str, p: dict, vt: np.ndarray, ifd: np.ndarray) -> tuple[np.nd
         return vt * p["VRMAX"] - p["KC"] * ifd, vt * p["VRMIN"] - p["KC"] * ifd
     if model == "SEXS":
         return np.full_like(vt, p["EMAX"]), np.full_like(vt, p["EMIN"])
+    if model == "ESST4B":  # VB VMMAX / VB VMMIN, VB = KP Vt FEX(KC Ifd / (KP Vt)) at most VBMAX
+        ve = p["KP"] * vt
+        x = p["KC"] * ifd / ve
+        fex = np.where(x <= 0.433, 1 - 0.577 * x, np.where(x <= 0.75, np.sqrt(np.maximum(0.75 - x * x, 0)),
+                                                           np.where(x <= 1, 1.732 * (1 - x), 0.0)))
+        vb = np.minimum(ve * fex, p["VBMAX"])
+        return vb * p["VMMAX"], vb * p["VMMIN"]
     return np.full_like(vt, np.inf), np.full_like(vt, -np.inf)
 
 
@@ -201,6 +213,9 @@ def main(argv: list[str] | None = None) -> int:
                                "andes_step_s": STEP,
                                "andes_step_after_edges_s": [FINE_STEP, FINE_SPAN]},
                     "generator_params": dict(GENERATOR), "captures": {}}
+        if args.only and (out / "manifest.json").exists():  # add to the captures already there
+            manifest["captures"] = json.loads((out / "manifest.json").read_text("utf-8"))["captures"]
+            manifest["command"] = "python benchmarks/andes_captures.py (each model in turn, --only)"
         print(f"{'capture':<22}{'vt0':>8}{'step':>8}{'efd max':>9}{'efd min':>9}{'ceiling ms':>11}{'floor ms':>9}"
               f"{'s':>6}")
         for model in models:
@@ -222,7 +237,8 @@ def main(argv: list[str] | None = None) -> int:
                     "ceiling_ms": cap["ceiling_ms"], "floor_ms": cap["floor_ms"],
                     "limits": "VRMAX*Vt - KC*Ifd / VRMIN*Vt" if model == "ESST1A" else
                               "VRMAX*Vt - KC*Ifd / VRMIN*Vt - KC*Ifd" if model == "EXST1" else
-                              "EMAX / EMIN" if model == "SEXS" else "VRMAX / VRMIN on VR (exciter lag after)"}
+                              "EMAX / EMIN" if model == "SEXS" else
+                              "VB*VMMAX / VB*VMMIN" if model == "ESST4B" else "VRMAX / VRMIN on VR (exciter lag after)"}
                 print(f"{name:<22}{cap['vt0']:>8.4f}{cap['step_pu']:>8.4f}{d['efd'].max():>9.3f}{d['efd'].min():>9.3f}"
                       f"{cap['ceiling_ms']:>11.0f}{cap['floor_ms']:>9.0f}{time.perf_counter() - t0:>6.1f}", flush=True)
         (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")

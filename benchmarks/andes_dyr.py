@@ -12,7 +12,7 @@ bench-ctl wrote.
 Needs ANDES (`pip install -e '.[andes]'`); HOME is pointed at a temporary folder (ANDES writes
 generated code under $HOME/.andes).
 
-Usage: python benchmarks/andes_dyr.py [--models SEXS,EXST1,IEEEX1,ESST1A] [--json OUT]
+Usage: python benchmarks/andes_dyr.py [--models SEXS,EXST1,IEEEX1,ESST1A,ESST4B] [--json OUT]
 """
 from __future__ import annotations
 
@@ -114,7 +114,7 @@ def run(model: str, work: Path, seed: int = 0) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--models", default="SEXS,EXST1,IEEEX1,ESST1A")
+    ap.add_argument("--models", default="SEXS,EXST1,IEEEX1,ESST1A,ESST4B")
     ap.add_argument("--json", dest="json_out", default=None)
     args = ap.parse_args(argv)
     out: dict = {}

@@ -1,5 +1,5 @@
 """The model library against another simulator: ANDES captures (tests/fixtures/andes) of a no-load
-GENROU with SEXS, EXST1, ESST1A and IEEEX1 exciters (issue 13).
+GENROU with SEXS, EXST1, ESST1A, IEEEX1 and ESST4B exciters (issue 13).
 
 1. Reproduction at the true values: each structure, with the values ANDES used, the setpoint
    edges at their true instants: open loop (the excitation system alone fed ANDES' Vt and Ifd,
@@ -125,13 +125,15 @@ def speed(out: dict) -> None:
     usetp = 1.0 + 0.05 * ((t >= 1.0) & (t < 2.0))
     rng = np.random.default_rng(7)
     ref = None
-    for model in ("REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1"):
+    for model in ("REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1", "ESST4B"):
         from bench_ctl.model.unit import with_model
         unit = with_model(reference_unit(), model)
         names = list(unit.identify)
         lo = np.array([b.min for b in unit.identify.values()])
         hi = np.array([b.max for b in unit.identify.values()])
-        X = np.exp(rng.uniform(np.log(lo), np.log(hi), (1000, len(names))))
+        pos = lo > 0   # log-uniform inside positive bounds, uniform where a bound is 0 (ESST4B's KIR)
+        X = np.where(pos, np.exp(rng.uniform(np.log(np.where(pos, lo, 1.0)), np.log(hi), (1000, len(names)))),
+                     rng.uniform(lo, hi, (1000, len(names))))
         P = param_matrix(unit.values(), names, X)
         efd = np.ones_like(t)
         run_kernel(P[:8], usetp, 1e-3, 1.0, efd_meas=efd, store=False)  # compile / load the cache
