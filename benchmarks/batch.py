@@ -62,10 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", dest="json_out", default=None)
     args = ap.parse_args(argv)
 
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     from bench_ctl.fleet import tasks
-    from bench_ctl.fleet.batch import WORKER_ENV, run_batch
+    from bench_ctl.fleet.batch import local_cluster, run_batch
     from bench_ctl.fleet.manifest import read_manifest
 
     work = Path(tempfile.mkdtemp(prefix="bench-ctl-batch-"))
@@ -87,8 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     serial_s = time.perf_counter() - t0
     serial_rss = _peak_rss_mb()
 
-    with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      env=WORKER_ENV, silence_logs=logging.WARNING) as cluster:
+    with local_cluster(args.workers) as cluster:
         outcome = run_batch(manifest, work / "cluster", scheduler=cluster.scheduler_address, evals=args.evals,
                             seed=args.seed, progress=False, echo=lambda s: None)
         with Client(cluster.scheduler_address) as client:

@@ -10,7 +10,7 @@ import logging
 import pytest
 
 from bench_ctl.cli import main
-from bench_ctl.fleet.batch import WORKER_ENV
+from bench_ctl.fleet.batch import WORKER_ENV, local_cluster
 from bench_ctl.fleet.manifest import ManifestError, read_manifest
 from bench_ctl.fleet.tasks import VOLATILE_KEYS
 
@@ -41,6 +41,21 @@ def fleet(tmp_path_factory):
     (d / "bad.csv").write_text("time,usetp,efd\n")
     (d / "m.csv").write_text("capture,steps\nc1.csv,\nbad.csv,\nc2.csv,identify+report\n")
     return d
+
+
+def _worker_settings():
+    import os
+
+    import dask
+    return (dask.config.get("distributed.worker.profile.enabled"), os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+            os.environ.get("NUMBA_NUM_THREADS"))
+
+
+def test_our_local_cluster_runs_workers_without_profiler_or_forced_trim():
+    """What `batch` starts: workers whose config has the statistical profiler off (a DASK_* variable
+    in their environment would be overridden by the parent's config) and glibc's own malloc trim."""
+    with local_cluster(1) as c, distributed.Client(c) as client:
+        assert list(client.run(_worker_settings).values()) == [(False, None, "1")]
 
 
 def test_manifest_errors_name_line_and_column(tmp_path):

@@ -21,7 +21,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -30,11 +30,37 @@ from bench_ctl.outputs import write_text
 from . import tasks
 from .manifest import Entry, read_manifest
 
+if TYPE_CHECKING:
+    from distributed import LocalCluster
+
 log = logging.getLogger(__name__)
 
-#: the environment of our LocalCluster's workers: the kernel on one thread (one worker per core),
-#: and no statistical profiler (its thread takes the GIL every 10 ms from the fits that hold it)
-WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
+#: the environment of our LocalCluster's workers: the kernel on one thread (one worker per core)
+WORKER_ENV = {"NUMBA_NUM_THREADS": "1"}
+#: Dask settings of our LocalCluster's workers. They go through dask.config in the process that
+#: starts the cluster: each nanny hands its worker the parent's config, which overrides what a
+#: DASK_* variable in the worker's environment says (seen: profile.enabled True in a worker
+#: started with DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False). No statistical profiler (a
+#: callback that samples the running task's stack every 10 ms, taking the GIL from the fits);
+#: glibc's own trim threshold instead of Dask's MALLOC_TRIM_THRESHOLD_=65536, which fixes the mmap
+#: threshold too, so every array above 64 kB is mapped and faulted in anew (measured: the same 8
+#: captures 30.1 s in a plain process with it, 26.0 s without). The event-loop watchdog (tick)
+#: and the dashboard's CPU / memory sampler run at 1 s and 2 s instead of 20 ms and 0.5 s: on a
+#: 2-core machine every core is a worker, and their wake-ups came out of the fits' time.
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False,
+                 "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                 "distributed.admin.tick.interval": "1s",
+                 "distributed.admin.system-monitor.interval": "2s"}
+
+
+def local_cluster(n_workers: int) -> "LocalCluster":
+    """A LocalCluster of `n_workers` single-threaded worker processes set up for the fits."""
+    import dask
+    from distributed import LocalCluster
+
+    with dask.config.set(WORKER_CONFIG):   # read by each nanny when it is made, here
+        return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                            env=WORKER_ENV, silence_logs=logging.WARNING)
 
 SUMMARY_COLUMNS = ("capture", "status", "mse", "noise_floor", "mse_over_floor", "verdict", "explained_by",
                    "warnings", "result", "diagnosis", "report", "error", "wall_s")
@@ -161,7 +187,7 @@ def _kernel_ready(dask_worker: Any = None) -> float:
 def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | None = None,
               workers: int | None = None, evals: int = 1000, seed: int = 0, progress: bool = True,
               echo: Callable[[str], None] = print) -> BatchOutcome:
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, as_completed
 
     t0, t0_unix = time.perf_counter(), time.time()
     entries = read_manifest(manifest)
@@ -172,8 +198,7 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
         client = Client(scheduler)
     else:
         n = workers or os.cpu_count() or 1
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               env=WORKER_ENV, silence_logs=logging.WARNING)
+        cluster = local_cluster(n)
         client = Client(cluster)
     rows: dict[str, dict[str, Any]] = {}
     steps: dict[str, dict[str, dict]] = {e.name: {} for e in entries}
