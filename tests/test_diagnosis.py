@@ -256,37 +256,50 @@ def test_diagnosis_finds_the_ceiling_and_reports_the_gap(diag, ceiling_case):
     assert diag["verdict"] == "ceiling_limit"
     top = diag["effects"][0]
     assert top["params"]["VRMAX"] == pytest.approx(ceiling_case.effect_params["VRMAX"], abs=0.03)
-    # gap_closed on the holdout, recomputed from the reported figures
+    # gap_closed on the holdout, recomputed from the reported figures (the holdout part of the check)
     floor_h = diag["noise_floor_detail"]["holdout"]
-    expect = (diag["base"]["mse_holdout"] - top["mse_holdout"]) / (diag["base"]["mse_holdout"] - floor_h)
+    hold = {e: next(p["mse"] for p in c["check"]["parts"] if p["label"] == "holdout") for e, c in
+            (("base", diag["base"]), ("top", top))}
+    expect = (hold["base"] - hold["top"]) / (hold["base"] - floor_h)
     assert top["gap_closed_holdout"] == pytest.approx(expect)
     assert top["gap_closed_holdout"] > 0.8
     assert diag["sequence"][0]["added"] == "ceiling_limit"
+    assert [s["name"] for s in diag["explained_by"]] == ["ceiling_limit"]
+    # the check: the holdout and the capture's windows, each window left out of a re-fit
+    labels = [p["label"] for p in top["check"]["parts"]]
+    assert labels == ["holdout", "leading_edge", "plateau", "trailing_edge", "recovery"]
+    assert diag["validation"]["kind"] == "holdout + windows"
 
 
-def test_diagnosis_without_holdout_splits_the_record(unit, ceiling_case):
+def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling_case):
+    """No holdout: every model is fitted on the whole capture and judged by cross-validation over
+    its windows; the ceiling acts at the edges, so that is where its check gain lies."""
     d = diagnose(ceiling_case.capture, unit, budget=FAST)
     v = d["validation"]
-    assert v["kind"] == "split" and d["holdout"] is None
     cap = ceiling_case.capture
-    assert v["check"]["t0"] == pytest.approx(v["fit"]["t1"] + cap.dt)  # adjacent, both ends included
-    assert v["fit"]["t1"] == pytest.approx(2.0 + 1.0, abs=0.01)  # trailing edge + one pulse width
+    assert v["kind"] == "windows" and d["holdout"] is None
+    assert v["fit"] == {"t0": 0.0, "t1": pytest.approx((cap.n - 1) * cap.dt)}
+    wins = {w["label"]: (w["t0"], w["t1"]) for w in v["check"]["windows"]}
+    assert list(wins) == ["leading_edge", "plateau", "trailing_edge", "recovery"]
+    assert wins["leading_edge"][0] == pytest.approx(1.0, abs=cap.dt) and wins["trailing_edge"][0] == pytest.approx(
+        2.0, abs=cap.dt)
     assert d["verdict"] == "ceiling_limit"
-    # the report re-simulates the base fit over the fit window: exactly the samples it was fitted on
+    top = next(e for e in d["effects"] if e["name"] == "ceiling_limit")
+    base_parts = {p["label"]: p["mse"] for p in d["base"]["check"]["parts"]}
+    top_parts = {p["label"]: p["mse"] for p in top["check"]["parts"]}
+    gain = {k: base_parts[k] / top_parts[k] for k in base_parts}
+    assert gain["leading_edge"] > 2.0 and gain["trailing_edge"] > 2.0, gain
+    # the report re-simulates the base fit over the whole record with the fitted edge instants
     from bench_ctl.commands.diagnose import base_result
+    from bench_ctl.identification.timing import edge_spec_of
     from bench_ctl.model.simulate import simulate
-    from bench_ctl.report.metrics import window_slice
 
     res = base_result(d, cap, unit)
-    sl = window_slice(cap.time, tuple(res["fit_window"]))
-    from bench_ctl.identification.timing import edge_spec_of
-
-    # with the setpoint edges at the instants the diagnosis fitted (as the report does)
+    assert res["fit_window"] is None
     spec, offsets = edge_spec_of(res["captures"][0]["edges"], cap.n)
     assert set(offsets) == {"EDGE1", "EDGE2"} and all(-cap.dt <= v <= 0 for v in offsets.values())
     efd, _, _ = simulate({**unit.values(), **d["base"]["params"], **offsets}, cap.usetp, cap.dt, edges=spec)
-    assert sl.stop - sl.start == int(round(v["check"]["t0"] / cap.dt))
-    assert np.mean((cap.efd[sl] - efd[sl]) ** 2) == pytest.approx(d["base"]["mse"], rel=1e-9)
+    assert np.mean((cap.efd - efd) ** 2) == pytest.approx(d["base"]["mse"], rel=1e-9)
 
 
 def test_effect_free_capture_gives_none(unit):

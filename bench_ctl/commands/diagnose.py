@@ -100,7 +100,7 @@ def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, An
     efd, _vt, _fail = simulate({**values, **offsets}, capture.usetp, capture.dt, edges=spec)
     val = d["validation"]
     t1 = val["fit"]["t1"]
-    k1 = capture.n if val["kind"] == "holdout" else int(round(t1 / capture.dt)) + 1  # t1 included
+    k1 = min(capture.n, int(round(t1 / capture.dt)) + 1)  # t1 included (the whole capture today)
     r = capture.efd[:k1] - efd[:k1]
     objective = float(capture.dt * (np.sum(r * r) - 0.5 * (r[0] ** 2 + r[-1] ** 2)))
     names = list(unit.identified_names)
@@ -121,7 +121,7 @@ def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, An
         "constraints": cons, "objective": objective, "mse": d["base"]["mse"],
         "evaluations": d["base"]["evaluations"], "wall_s": d["wall_s"], "compile_s": 0.0,
         "optimizer": {"name": "mvmo + least squares (diagnosis base fit)", "settings": {}, "seed": None},
-        "history": [], "fit_window": None if val["kind"] == "holdout" else [0.0, t1],
+        "history": [], "fit_window": None if k1 >= capture.n else [0.0, t1],
     }
 
 

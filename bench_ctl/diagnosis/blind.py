@@ -27,9 +27,10 @@ from bench_ctl.model.effects import EFFECT_NAMES
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate
 from bench_ctl.model.unit import Bound, Unit, load_unit
 
-from .fit import coarse_factor, coarse_record, fit, mse_of, polish, record_of
+from bench_ctl.identification.problem import make_problem
+
+from .fit import Space, coarse_factor, fit, mse_of, polish
 from .localize import find_edges
-from .effect_fits import model_space
 
 log = logging.getLogger(__name__)
 
@@ -142,15 +143,14 @@ def record_visibility(unit: Unit, cap: Capture, avr: Mapping[str, float], cfg: S
     the samples), over the noise variance; the record may come from any plant."""
     u = cap.usetp
     dt = float(cap.dt)
-    rec = record_of(cap)
+    p = make_problem([cap], unit, fit_edges=False)   # the edges act on their samples
     edges = find_edges(u)
     q = coarse_factor(unit, dt, 0.004)
-    coarse = coarse_record(rec, q=q, n_max=(edges.k_off or rec.n) + int(round(3.0 / dt)), offset=edges.k_on)
-    space = model_space(unit, (), unit.values())
-    x0 = np.array([avr[n] for n in space.names])
-    res = fit(space, coarse, x0=x0, evals=600, seed=seed, polish_evals=150)
-    _u, f, _n = polish(space, rec, space.to_u(res.x), max_calls=100)
-    f = min(f, float(mse_of(space, res.x, rec)[0]))  # the polish returns inf when it left the constraints
+    coarse = p.decimated(q, n_max=(edges.k_off or cap.n) + int(round(3.0 / dt)), offset=edges.k_on)
+    x0 = np.array([avr[n] for n in p.names])
+    res = fit(coarse, x0=x0, evals=600, seed=seed, polish_evals=150)
+    _u, f, _n = polish(p, Space.of(p).to_u(res.x), max_calls=100)
+    f = min(f, float(mse_of(p, res.x)[0]))  # the polish returns inf when it left the constraints
     return f / cfg.noise_pu ** 2
 
 

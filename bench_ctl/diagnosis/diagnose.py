@@ -1,23 +1,32 @@
-"""Sim-to-real gap diagnosis of one capture: where the model misses, which effect, how far it shrinks.
+"""Sim-to-real gap diagnosis of one capture: where the model misses, which effects, how far it shrinks.
 
 `diagnose(capture, unit, holdout=...)` returns the diagnosis JSON (SCHEMA.md, schema
-"bench-ctl/diagnosis/1"):
+"bench-ctl/diagnosis/1"). Every model is fitted on the whole capture with identification's
+objective (`identification.problem`: the unit's identified parameters, the effects' parameters
+and the instant of every setpoint edge, `effect_fits.Views`):
 
-1. Base fit: the unit's identified parameters fitted by MVMO on the coarse record (started from
-   the unit's values, or `base_params` when a previous identification is given) and polished by
-   least squares on the full record; re-polished from an effect fit's AVR parameters when those
-   fit the base model better (the base model is multimodal; the effect fits explore it too).
+1. Base fit: MVMO on the coarse record (started from the unit's values, or `base_params` when a
+   previous identification is given), polished by least squares on the full record; re-polished
+   from an effect fit's parameters when those fit the base model better (the base model is
+   multimodal; the effect fits explore it too).
 2. Noise floor (pre-trigger efd variance), localization (residual energy per segment and band),
-   feature tests (flat top, delay, steady-state ratio, pre-trigger level, asymmetry, edge shape).
-3. Every effect re-identified with the base model, warm-started from the base fit; ranked by BIC
-   plus the predictive deviance on the check record; `none` when no effect is significant, or
-   when the base model fits to the noise floor and no effect brings a strong (`STRONG`) gain; near-equal effects listed in `ambiguous` with the test that
-   separates them; further effects added greedily while the check error keeps falling.
+   feature tests (flat top - also relative to a ceiling that moves with Vt -, delay, steady-state
+   ratio, pre-trigger level, asymmetry, edge shape).
+3. Every effect re-identified with the base model, warm-started from the base fit; the ceiling
+   also as a bus-fed exciter's (limits x Vt) and, with a recorded field current, with the
+   commutation drop KC*Ifd; ranked by BIC plus the predictive deviance on the check; `none` when
+   no effect is significant, or when the base model fits to the noise floor and no effect brings
+   a strong (`STRONG`) gain; near-equal effects listed in `ambiguous` with the test that
+   separates them.
+4. Several effects at once (`explained_by`): effects are added one at a time, all parameters
+   re-fitted jointly, while the next one is significant on the fit and on the check; after each
+   addition an earlier effect that no longer earns its place is dropped (one that stood in for
+   the effect just added). Then what is left: the error against the noise floor and where it
+   lies.
 
-Fit / check split: with a holdout capture, every model is fitted on the whole capture and checked
-on the whole holdout. Without one, models are fitted on the record up to the trailing edge plus
-one pulse width (at least 0.5 s; both edges are in it) and checked on the rest of the record
-(the recovery tail), which the fit never saw.
+The check (`effect_fits.check_parts`): the cross-validation windows of the capture (leading
+edge, plateau, trailing edge, recovery; each left out of a re-fit and scored), and the holdout
+capture when one is given.
 """
 from __future__ import annotations
 
@@ -34,18 +43,17 @@ import numpy as np
 
 import bench_ctl
 from bench_ctl.capture import Capture
+from bench_ctl.model.edges import EDGE_PARAMS
 from bench_ctl.model.effects import EFFECTS, EFFECT_NAMES
 from bench_ctl.model.kernel import saturation_ab
 from bench_ctl.model.unit import Unit
 
-from bench_ctl.identification.timing import edges_entry
-
 from . import features as F
-from .fit import (FitResult, Record, Space, coarse_factor, coarse_record, fit, mse_of, polish, record_of,
-                  simulate_efd)
-from .localize import DiagnosisError, Edges, NoiseFloor, find_edges, localization, noise_floor
-from .effect_fits import (AMBIGUOUS, SIGNIFICANT, STRONG, Check, ModelFit, aic, all_starts, ambiguous_pairs, bic,
-                    check_mse, fit_model, global_search, lag_variants, model_space, refine, refine_base, score)
+from .effect_fits import (AMBIGUOUS, CHECK_GAIN, SIGNIFICANT, STRONG, ModelFit, Views, Window, aic, all_starts,
+                          ambiguous_pairs, bic, check_deviance, checked, describe_check, edge_names, finish,
+                          fit_model, global_search, lag_variants, refine, refine_base, score)
+from .fit import Space, coarse_factor, fit, simulate_efd
+from .localize import DiagnosisError, Edges, NoiseFloor, find_edges, localization, noise_floor, segments
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +66,7 @@ class Budget:
     base: int = 1000
     base_polish: int = 100
     effect: int = 600          # MVMO evaluations per leading effect (coarse record, whole box)
-    profile: int = 600         # MVMO evaluations over the AVR parameters with the effect held
+    profile: int = 600         # MVMO evaluations over the model parameters with the effect held
     global_top: int = 3        # effects (best after the local fits) that get the MVMO searches
     effect_polish: int = 60    # least-squares simulations on the full record per effect polished
     polish_top: int = 3        # effects polished on the full record (the best after the coarse fits)
@@ -69,8 +77,9 @@ class Budget:
     coarse_tail_s: float = 3.0 # the coarse record ends this long after the trailing edge
     combo_polish: int = 60
     max_sequence: int = 3
-    sequence_candidates: int = 4  # significant effects tried at each greedy step
+    sequence_candidates: int = 4  # effects tried at each step of explained_by
     floor_sigmas: float = 3.0
+    cv_polish: int = 40        # least-squares simulations per cross-validation window re-fit
 
 
 def _sha256(path: str) -> str | None:
@@ -94,21 +103,6 @@ def _efd0_model(values: Mapping[str, float]) -> float:
     return vt0 + sat
 
 
-def _split(capture: Capture, edges: Edges) -> int:
-    """Samples used to fit when there is no holdout (see the module docstring)."""
-    n, dt = capture.n, capture.dt
-    if edges.k_off is not None:
-        width = (edges.k_off - edges.k_on) * dt
-        k = edges.k_off + int(round(max(width, 0.5) / dt))
-    else:
-        k = edges.k_on + int(round(0.6 * (n - edges.k_on)))
-    k = min(k, n - max(20, int(0.2 * n)))
-    if k <= edges.k_on + 10:
-        raise DiagnosisError(f"{capture.source or 'capture'}: record too short after the setpoint change to "
-                             f"split into a fitted part and a check part; give a holdout capture")
-    return k
-
-
 def _gap(mse_base: float | None, mse_eff: float | None, floor: float, floor_se: float) -> tuple[float | None, float | None]:
     """gap_closed with the denominator kept at least one standard error of the floor; and raw."""
     if mse_base is None or mse_eff is None or not math.isfinite(mse_eff):
@@ -119,122 +113,86 @@ def _gap(mse_base: float | None, mse_eff: float | None, floor: float, floor_se: 
     return num / max(den, floor * floor_se), raw
 
 
+#: cross-validation windows: the segments of the record (localize.segments) each left out in turn
+CV_SEGMENTS = ("leading_edge", "plateau", "trailing_edge", "recovery")
+
+
 @dataclass(frozen=True, eq=False)
 class _Setup:
-    """What every step works on: the records, the noise floor and its tolerance."""
-    rec: Record          # the fit record (whole capture, or its first part without a holdout)
-    coarse: Record       # its decimated copy for the searches
-    full: Record         # the whole capture
-    check: Check
-    check_se: float
-    validation: dict
+    """What every step works on: the views of the capture, the noise floors and the tolerance."""
+    views: Views
+    n: int               # samples of the capture (every model is fitted on all of them)
     floor: NoiseFloor
+    check_floor: float   # the check's noise floor (pooled: holdout floor and the capture's)
+    check_se: float
     floor_tol: float     # base MSE up to this counts as "at the noise floor"
+    validation: dict
+
+
+def _windows(capture: Capture, edges: Edges) -> tuple[Window, ...]:
+    dt = capture.dt
+    return tuple(Window(s.name, s.k0 * dt, (s.k1 - 1) * dt) for s in segments(capture.n, dt, edges)
+                 if s.name in CV_SEGMENTS and s.k1 - s.k0 >= 5)
 
 
 def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: Edges, floor: NoiseFloor,
            budget: Budget) -> _Setup:
-    src = capture.source or "capture"
-    if holdout is not None:
-        h_src = holdout.source or "holdout"
-        h_floor = noise_floor(holdout.efd, holdout.dt, find_edges(holdout.usetp, h_src), h_src)
-        rec = record_of(capture, label=src)
-        # the holdout's own edges take the EDGE columns after the capture's
-        check = Check(record_of(holdout, slot0=len(rec.edge_list)), 0, h_floor.variance, "holdout")
-        check_se = h_floor.rel_se
-        validation = {"kind": "holdout", "fit": {"t0": 0.0, "t1": float(capture.time[-1] - capture.time[0])},
-                      "check": {"capture": holdout.source or None, "t0": 0.0,
-                                "t1": float(holdout.time[-1] - holdout.time[0])}}
-    else:
-        k = _split(capture, edges)
-        rec = record_of(capture, n=k, label=src)
-        check = Check(record_of(capture), k, floor.variance, "tail")
-        check_se = floor.rel_se
-        # both windows include their ends (as fit windows do): the fit is samples 0 .. k-1
-        validation = {"kind": "split", "fit": {"t0": 0.0, "t1": (k - 1) * capture.dt},
-                      "check": {"capture": src, "t0": k * capture.dt, "t1": (capture.n - 1) * capture.dt}}
+    windows = _windows(capture, edges)
+    if not windows:
+        raise DiagnosisError(f"{capture.source or 'capture'}: too short after the setpoint change for a check")
     q = coarse_factor(unit, capture.dt, budget.coarse_dt)
     if edges.k_off is not None:  # both setpoint edges on the coarse grid, or the trailing one moves
         q = math.gcd(q, edges.k_off - edges.k_on) or 1
-    n_coarse = rec.n if edges.k_off is None else min(rec.n, edges.k_off + int(round(budget.coarse_tail_s / capture.dt)))
-    coarse = coarse_record(rec, q=q, n_max=n_coarse, offset=edges.k_on)
-    floor_tol = floor.variance * (1.0 + budget.floor_sigmas * math.sqrt(floor.rel_se ** 2 + 2.0 / rec.n))
-    return _Setup(rec, coarse, record_of(capture, label=src), check, check_se, validation, floor, floor_tol)
+    n_coarse = capture.n if edges.k_off is None else min(capture.n, edges.k_off + int(round(budget.coarse_tail_s /
+                                                                                            capture.dt)))
+    views = Views(unit, capture, holdout, q, n_coarse, edges.k_on, windows, cv_calls=budget.cv_polish)
+    check_floor, check_se = floor.variance, floor.rel_se
+    hold = None
+    if holdout is not None:
+        h_src = holdout.source or "holdout"
+        h_floor = noise_floor(holdout.efd, holdout.dt, find_edges(holdout.usetp, h_src), h_src)
+        n_w = sum(int(round((w.t1 - w.t0) / capture.dt)) + 1 for w in windows)
+        check_floor = (h_floor.variance * holdout.n + floor.variance * n_w) / (holdout.n + n_w)
+        check_se = max(h_floor.rel_se, floor.rel_se)
+        hold = {"capture": holdout.source or None, "t0": 0.0, "t1": float(holdout.time[-1] - holdout.time[0]),
+                "noise_floor": h_floor.variance}
+    floor_tol = floor.variance * (1.0 + budget.floor_sigmas * math.sqrt(floor.rel_se ** 2 + 2.0 / capture.n))
+    validation = {"kind": "holdout + windows" if holdout is not None else "windows",
+                  "fit": {"t0": 0.0, "t1": (capture.n - 1) * capture.dt},
+                  "check": {**describe_check(views), "holdout": hold}}
+    return _Setup(views, capture.n, floor, check_floor, check_se, floor_tol, validation)
 
 
-def _fit_base(unit: Unit, st: _Setup, budget: Budget, seed: int,
-              base_params: Mapping[str, float] | None) -> tuple[FitResult, ModelFit]:
-    """MVMO on the coarse record from the unit's values (or `base_params`), polish on the full one."""
-    space = model_space(unit, (), unit.values())
-    x0 = [float((base_params or {}).get(n, unit.identify[n].value)) for n in space.names]
-    res = fit(space, st.coarse, x0=x0, evals=budget.base, seed=seed, polish_evals=budget.polish_coarse)
-    u, f, calls = polish(space, st.rec, space.to_u(res.x), max_calls=budget.base_polish)
-    x = space.to_x(u)
-    if not math.isfinite(f):  # the polish left the constraints: keep the global search's result
-        x, f = res.x, float(mse_of(space, res.x, st.rec)[0])
-    res = FitResult(space.names, x, f, res.evaluations + calls, bool(space.violation(x)[0] <= 1e-9), "")
-    return res, _as_model(unit, res, st)
+def _fit_base(st: _Setup, budget: Budget, seed: int, base_params: Mapping[str, float] | None) -> ModelFit:
+    """MVMO on the coarse record (edge instants held mid-interval) from the unit's values (or
+    `base_params`), then least squares on the full record with the edge instants free."""
+    views = st.views
+    p = views.problem(())
+    edges = edge_names(p)
+    mid = {n: 0.5 * (lo + hi) for n, (lo, hi) in zip(p.names, p.bounds) if n in edges}
+    pc = views.coarse(p.held(mid)) if edges else views.coarse(p)
+    sc = Space.of(pc)
+    x0 = sc.vector({n: float((base_params or {}).get(n, views.unit.identify[n].value)) for n in sc.names})
+    res = fit(pc, x0=x0, evals=budget.base, seed=seed, polish_evals=budget.polish_coarse)
+    m = finish(views, (), {}, Space.of(p).vector({**mid, **res.params()}), polish_fine=budget.base_polish,
+               noise_variance=st.floor.variance)
+    return replace(m, evaluations=m.evaluations + res.evaluations)
 
 
-def _fit_edge_instants(unit: Unit, st: _Setup, base_fit: FitResult, budget: Budget
-                       ) -> tuple[Unit, FitResult, list[dict[str, Any]]]:
-    """The instant of every setpoint edge (DESIGN.md section 4), fitted with the base model: on the
-    fit record jointly with the AVR parameters (a least-squares polish from the base fit), on a
-    holdout with the model held (its edges are the holdout's own timing). Returns the unit with
-    the offsets as fixed values (EDGE1..; every later fit and check holds them), the base fit
-    after the polish, and the JSON `edges` list."""
-    fixed: dict[str, float] = {}
-    out: list[dict[str, Any]] = []
-    names_e = st.full.edge_names()
-    model = base_fit
-    if names_e:
-        space = Space(tuple(base_fit.names) + names_e,
-                      np.concatenate([model_space(unit, (), unit.values()).lo, [e.lo_s for e in st.full.edge_list]]),
-                      np.concatenate([model_space(unit, (), unit.values()).hi, [e.hi_s for e in st.full.edge_list]]),
-                      unit.values(), tuple(unit.constraints))
-        x0 = np.concatenate([base_fit.x, np.zeros(len(names_e))])
-        u, f, calls = polish(space, st.rec, space.to_u(x0), max_calls=budget.base_polish)
-        x = space.to_x(u)
-        if not math.isfinite(f):
-            x, f = x0, float(mse_of(space, x0, st.rec)[0])
-        d = len(base_fit.names)
-        fixed.update(zip(names_e, (float(v) for v in x[d:])))
-        model = FitResult(base_fit.names, x[:d], f, base_fit.evaluations + calls,
-                          bool(space.violation(x)[0] <= 1e-9), "")
-        out += [{"capture": "capture", **e} for e in edges_entry(st.full.edge_list, list(range(len(names_e))), fixed)]
-    if st.check.label == "holdout" and st.check.record.edge_list:
-        rec_h = st.check.record
-        names_h = rec_h.edge_names()
-        space = Space(names_h, np.array([e.lo_s for e in rec_h.edge_list]), np.array([e.hi_s for e in rec_h.edge_list]),
-                      {**unit.values(), **model.params(), **fixed})
-        u, f, _calls = polish(space, rec_h, space.to_u(np.zeros(len(names_h))), max_calls=budget.base_polish)
-        xh = space.to_x(u) if math.isfinite(f) else np.zeros(len(names_h))
-        fixed.update(zip(names_h, (float(v) for v in xh)))
-        out += [{"capture": "holdout", **e} for e in edges_entry(rec_h.edge_list, rec_h.edges.slot.tolist(), fixed)]
-    if not fixed:
-        return unit, base_fit, out
-    return replace(unit, fixed={**unit.fixed, **fixed}), model, out
+def _model_params(unit: Unit, m: ModelFit) -> dict[str, float]:
+    return {n: m.params[n] for n in unit.identified_names}
 
 
-def _as_model(unit: Unit, res: FitResult, st: _Setup) -> ModelFit:
-    space = model_space(unit, (), unit.values())
-    return ModelFit((), res.params(), res.mse, check_mse(space, res.x, st.check), 0, res.evaluations, res.feasible)
-
-
-def _features(capture: Capture, model: np.ndarray, edges: Edges, floor: NoiseFloor,
-              values: Mapping[str, float], n_fit: int) -> tuple[list[F.Feature], dict[str, float]]:
-    """The feature tests, and the hints they give the effect fits' starting values; they read
-    only the fit record (`n_fit` samples: without a holdout the rest is the check record)."""
-    capture = replace(capture, time=capture.time[:n_fit], usetp=capture.usetp[:n_fit],
-                      efd=capture.efd[:n_fit], vt=None if capture.vt is None else capture.vt[:n_fit],
-                      extra={})
-    model = model[:n_fit]
+def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: Edges, floor: NoiseFloor,
+              values: Mapping[str, float]) -> tuple[list[F.Feature], dict[str, float]]:
+    """The feature tests, and the hints they give the effect fits' starting values."""
     sigma = math.sqrt(floor.variance)
     efd_pre = float(np.mean(capture.efd[:floor.n]))
     efd_se = sigma / math.sqrt(floor.n)
     vt_pre = float(np.mean(capture.vt[:floor.n])) if capture.vt is not None else None
+    vt = capture.vt if capture.vt is not None else model_vt
     feats = [
-        F.flat_top(capture.efd, model, capture.dt, edges, sigma),
+        F.flat_top(capture.efd, model, capture.dt, edges, sigma, vt=vt, vt_recorded=capture.vt is not None),
         F.delay(capture.efd, model, capture.dt, edges, sigma),
         F.steady_state_ratio(efd_pre, efd_se, vt_pre, values["Vt0"]),
         F.pre_trigger_level(efd_pre, efd_se, _efd0_model(values)),
@@ -244,6 +202,8 @@ def _features(capture: Capture, model: np.ndarray, edges: Edges, floor: NoiseFlo
     fv = {f.name: f.values for f in feats}
     hints = {
         "top_level": fv["flat_top"]["top_level"], "bottom_level": fv["flat_top"]["bottom_level"],
+        "top_level_vt": fv["flat_top"].get("top_level_vt", math.nan),
+        "bottom_level_vt": fv["flat_top"].get("bottom_level_vt", math.nan),
         "delay_s": fv["delay"]["delay_s"],
         "sat0": efd_pre - fv["steady_state_ratio"]["vt"],
         "slope_up": fv["asymmetry"].get("slope_up", math.nan),
@@ -253,101 +213,131 @@ def _features(capture: Capture, model: np.ndarray, edges: Edges, floor: NoiseFlo
     return feats, hints
 
 
-def _fit_effects(unit: Unit, st: _Setup, base: ModelFit, hints: Mapping[str, float], budget: Budget,
+def _fit_effects(st: _Setup, base: ModelFit, hints: Mapping[str, float], budget: Budget,
                  seed: int) -> dict[str, ModelFit]:
     """Every effect: local fits from the starts (coarse), MVMO for the leaders, polish of the leaders."""
-    values = unit.values()
-    n, n_c = st.rec.n, st.check.n
-    starts = all_starts(unit, values, st.coarse, lag_variants(unit, base.params), hints)
+    views, n = st.views, st.n
+    avr = {**base.params}
+    starts = all_starts(views, lag_variants(st.views.unit, avr), hints)
     fits: dict[str, ModelFit] = {}
     for i, e in enumerate(EFFECT_NAMES):
         t0 = time.perf_counter()
-        fits[e] = fit_model(unit, values, (e,), st.rec, st.coarse, st.check, starts[e], evals=0, seed=seed + 1 + i,
+        fits[e] = fit_model(views, (e,), [{**avr, **s} for s in starts[e]], evals=0, seed=seed + 1 + i,
                             polish_coarse=budget.polish_coarse, polish_fine=0, multi=budget.starts)
-        log.info("effect %s: mse %.4g check %s (%d evaluations, %.1f s)", e, fits[e].mse, fits[e].mse_check,
-                 fits[e].evaluations, time.perf_counter() - t0)
+        log.info("effect %s: mse %.4g (%d evaluations, %.1f s)", e, fits[e].mse, fits[e].evaluations,
+                 time.perf_counter() - t0)
     # global searches (MVMO) for the leaders that are not yet at the noise floor
-    ranked = sorted(fits, key=lambda e: score(fits[e], n, n_c))
+    ranked = sorted(fits, key=lambda e: bic(n, fits[e].mse, fits[e].k))
     for i, e in enumerate(ranked[:budget.global_top]):
         if fits[e].mse <= st.floor_tol:
             continue
         t0 = time.perf_counter()
-        fits[e] = global_search(unit, values, fits[e], st.rec, st.coarse, st.check, evals=budget.effect,
-                                profile_evals=budget.profile, seed=seed + 11 + i,
-                                polish_coarse=budget.polish_coarse, floor_tol=st.floor_tol)
+        fits[e] = global_search(views, fits[e], evals=budget.effect, profile_evals=budget.profile,
+                                seed=seed + 11 + i, polish_coarse=budget.polish_coarse, floor_tol=st.floor_tol)
         log.info("effect %s global search: mse %.4g (%.1f s)", e, fits[e].mse, time.perf_counter() - t0)
     # the leaders (and every effect close to the best) get the least-squares polish on the full
-    # record; so does a nested model worse than the base model there: its coarse-record solution
-    # did not carry over (e.g. a lag near the coarse step)
-    ranked = sorted(fits, key=lambda e: score(fits[e], n, n_c))
-    best_score = score(fits[ranked[0]], n, n_c)
+    # record, edge instants free; so does a nested model worse than the base model there: its
+    # coarse-record solution did not carry over (e.g. a lag near the coarse step)
+    ranked = sorted(fits, key=lambda e: bic(n, fits[e].mse, fits[e].k))
+    best = bic(n, fits[ranked[0]].mse, fits[ranked[0]].k)
     for j, e in enumerate(ranked):
-        if (j < budget.polish_top or score(fits[e], n, n_c) - best_score < 2 * SIGNIFICANT
+        if (j < budget.polish_top or bic(n, fits[e].mse, fits[e].k) - best < 2 * SIGNIFICANT
                 or fits[e].mse > base.mse):
-            fits[e] = refine(unit, values, fits[e], st.rec, st.check, polish_fine=budget.effect_polish)
+            fits[e] = refine(views, fits[e], polish_fine=budget.effect_polish)
     return fits
 
 
+FIXED_LIMITS = "fixed limits"
 BUS_FED = "bus-fed: VRMAX*Vt, VRMIN*Vt"
+COMMUTATION = "bus-fed with commutation drop: VRMAX*Vt - KC*Ifd, VRMIN*Vt"
 
 
-def _ceiling_variant(unit: Unit, st: _Setup, fits: dict[str, ModelFit], budget: Budget, seed: int
-                     ) -> tuple[Unit, str]:
-    """The ceiling of a bus-fed static exciter (limits x Vt, VRVT = 1) tried beside the fixed one,
-    from the fixed fit's values; the better scored is kept (`fits` updated) and, when bus-fed,
-    the unit carries VRVT = 1 for the rest of the diagnosis. Returns (unit, variant)."""
+def _ceiling_variants(st: _Setup, fits: dict[str, ModelFit], budget: Budget, seed: int) -> str:
+    """The ceiling of a bus-fed static exciter (limits x Vt, VRVT = 1) tried beside the fixed one
+    from the fixed fit's values, and, when the capture records the field current (an `ifd`
+    column), with the commutation drop KC*Ifd fitted too; the best by BIC is kept in `fits`.
+    Returns the variant's name."""
+    views, n = st.views, st.n
     fixed = fits["ceiling_limit"]
-    n, n_c = st.rec.n, st.check.n
-    values = {**unit.values(), "VRVT": 1.0}
-    bus = fit_model(unit, values, ("ceiling_limit",), st.rec, st.coarse, st.check, [dict(fixed.params)], evals=0,
-                    seed=seed + 41, polish_coarse=budget.polish_coarse, polish_fine=budget.effect_polish)
-    log.info("ceiling variants: fixed mse %.4g, bus-fed mse %.4g", fixed.mse, bus.mse)
-    if bus.feasible and score(bus, n, n_c) < score(fixed, n, n_c):
-        fits["ceiling_limit"] = bus
-        return replace(unit, fixed={**unit.fixed, "VRVT": 1.0}), BUS_FED
-    return unit, "fixed limits"
+    tries = [(BUS_FED, {"VRVT": 1.0}, ())]
+    if "ifd" in views.capture.extra:
+        tries.append((COMMUTATION, {"VRVT": 1.0}, ("KC",)))
+    best, name = fixed, FIXED_LIMITS
+    for label, var, extra in tries:
+        start = {**fixed.params, "KC": 0.05} if extra else dict(fixed.params)
+        m = fit_model(views, ("ceiling_limit",), [start], evals=0, seed=seed + 41, fixed=var, extra=extra,
+                      polish_coarse=budget.polish_coarse, polish_fine=budget.effect_polish)
+        log.info("ceiling variant %s: mse %.4g (fixed limits %.4g)", label, m.mse, fixed.mse)
+        if m.feasible and bic(n, m.mse, m.k) < bic(n, best.mse, best.k) - 2.0:
+            best, name = m, label
+    fits["ceiling_limit"] = best
+    return name
 
 
-def _entries(unit: Unit, st: _Setup, base: ModelFit, fits: Mapping[str, ModelFit]) -> list[dict]:
+def _significant(st: _Setup, ref: ModelFit, m: ModelFit) -> tuple[float, float, bool]:
+    """(fit gain, check gain, significant) of m over ref: the BIC falls by more than SIGNIFICANT
+    and the check's deviance by more than CHECK_GAIN."""
+    gain_fit = bic(st.n, ref.mse, ref.k) - bic(st.n, m.mse, m.k)
+    gain_check = check_deviance(ref, m)
+    return gain_fit, gain_check, bool(gain_fit > SIGNIFICANT and gain_check > CHECK_GAIN and m.feasible)
+
+
+def _entries(unit: Unit, st: _Setup, base: ModelFit, fits: Mapping[str, ModelFit], variant: str) -> list[dict]:
     """The ranked `effects` list of the JSON."""
-    n, n_c = st.rec.n, st.check.n
-    bic_base = bic(n, base.mse, 0)
-    s_base = score(base, n, n_c)
-    check, floor = st.check, st.floor
-    use_check = base.mse_check is not None and base.mse_check > check.floor * (1 + 3 * st.check_se)
+    n = st.n
+    s_base = score(base, n)
+    floor = st.floor
+    base_check = base.mse_check
+    use_check = base_check is not None and base_check > st.check_floor * (1 + 3 * st.check_se)
     # a base model at the noise floor leaves no gap: a fraction of (nearly) nothing would be noise
     # scaled up (values like -60), so the headline gap_closed is None; the raw figures stay below
     at_floor = base.mse <= st.floor_tol
     entries = []
     for e, m in fits.items():
-        d_bic = bic_base - bic(n, m.mse, m.k)
-        d_check = (n_c * math.log(base.mse_check / m.mse_check)
-                   if (m.mse_check and base.mse_check and math.isfinite(m.mse_check)) else -math.inf)
-        significant = d_bic > SIGNIFICANT and d_check > 0.0 and m.feasible
-        g_check, g_check_raw = _gap(base.mse_check, m.mse_check, check.floor, st.check_se)
+        d_bic, d_check, significant = _significant(st, base, m)
+        g_check, g_check_raw = _gap(base_check, m.mse_check, st.check_floor, st.check_se)
         g_fit, g_fit_raw = _gap(base.mse, m.mse, floor.variance, floor.rel_se)
-        entries.append({
-            "name": e, "params": m.effect_params(),
-            "avr_params": {p: m.params[p] for p in unit.identified_names},
+        hold_b, hold_m = base.part("holdout"), m.part("holdout")
+        g_hold = g_hold_raw = None
+        if hold_b is not None and hold_m is not None:
+            g_hold, g_hold_raw = _gap(hold_b.mse, hold_m.mse, st.validation["check"]["holdout"]["noise_floor"],
+                                      st.check_se)
+        params = m.effect_params()
+        entry = {
+            "name": e, "params": params, "fixed": dict(m.fixed),
+            "avr_params": _model_params(unit, m),
             "mse": m.mse, "mse_holdout": m.mse_check,
             "gap_closed": None if at_floor else (g_check if use_check else g_fit),
-            "gap_closed_on": None if at_floor else (check.label if use_check else "fit"),
+            "gap_closed_on": None if at_floor else ("check" if use_check else "fit"),
             "gap_closed_fit": g_fit, "gap_closed_fit_raw": g_fit_raw,
-            "gap_closed_holdout": g_check, "gap_closed_holdout_raw": g_check_raw,
-            "score": score(m, n, n_c) - s_base, "aic": aic(n, m.mse, m.k), "bic": bic(n, m.mse, m.k),
-            "delta_bic": d_bic, "delta_check": d_check, "significant": bool(significant),
-            "k": m.k, "evaluations": m.evaluations, "start": {p: m.start[p] for p in m.effect_params()},
-        })
-    entries.sort(key=lambda d: d["score"])
+            "gap_closed_check": g_check, "gap_closed_check_raw": g_check_raw,
+            "gap_closed_holdout": g_hold if hold_b is not None else g_check,
+            "gap_closed_holdout_raw": g_hold_raw if hold_b is not None else g_check_raw,
+            "check": _check_entry(m),
+            "score": score(m, n) - s_base if m.checks else math.inf,
+            "aic": aic(n, m.mse, m.k), "bic": bic(n, m.mse, m.k),
+            "delta_bic": d_bic, "delta_check": d_check, "significant": significant,
+            "k": m.k, "evaluations": m.evaluations, "start": {p: m.start.get(p) for p in params},
+        }
+        if e == "ceiling_limit":
+            entry["variant"] = variant
+        entries.append(entry)
+    entries.sort(key=lambda d: (d["score"], -d["delta_bic"]))
     return entries
+
+
+def _check_entry(m: ModelFit) -> dict[str, Any] | None:
+    if not m.checks:
+        return None
+    return {"mse": m.mse_check, "parts": [{"label": p.label, "samples": p.n, "mse": p.mse} for p in m.checks]}
 
 
 def choose_verdict(entries: list[dict], *, at_floor: bool, has_check: bool) -> str:
     """The verdict from the ranked `entries` (best score first): the best-scored SIGNIFICANT
-    effect (one scored higher but worse on the check record, or breaking a constraint, must not
-    hide it), or `none`. At the noise floor (within the floor estimate's uncertainty) only a
-    strong improvement counts: the floor comes from ~1000 pre-trigger samples, the likelihood
-    ratio from the whole record."""
+    effect (one scored higher but worse on the check, or breaking a constraint, must not hide
+    it), or `none`. At the noise floor (within the floor estimate's uncertainty) only a strong
+    improvement counts: the floor comes from ~1000 pre-trigger samples, the likelihood ratio from
+    the whole record."""
     top = next((e for e in entries if e["significant"]), None)
     if top is None:
         return "none"
@@ -355,34 +345,60 @@ def choose_verdict(entries: list[dict], *, at_floor: bool, has_check: bool) -> s
     return top["name"] if (strong or not at_floor) else "none"
 
 
-def _sequence(unit: Unit, st: _Setup, fits: Mapping[str, ModelFit], entries: list[dict], verdict: str,
-              budget: Budget, seed: int) -> list[dict]:
-    """Add effects greedily to the verdict while both the fit (BIC) and the check error improve."""
-    n, n_c = st.rec.n, st.check.n
-    current = fits[verdict]
-    sequence = [{"added": verdict, "mse": current.mse, "mse_holdout": current.mse_check,
-                 "params": current.effect_params()}]
-    cands = [d["name"] for d in entries if d["significant"] and d["name"] != verdict]
-    while len(current.effects) < budget.max_sequence and cands and current.mse > st.floor_tol:
-        best = None
-        for c in cands[:budget.sequence_candidates]:
-            x0 = dict(current.params)
-            x0.update({p: fits[c].params[p] for p in EFFECTS[c].params})
-            m = fit_model(unit, unit.values(), current.effects + (c,), st.rec, st.coarse, st.check, [x0], evals=0,
-                          seed=seed, polish_coarse=budget.polish_coarse, polish_fine=budget.combo_polish)
-            if best is None or score(m, n, n_c) < score(best, n, n_c):
-                best = m
-        assert best is not None
-        gain_fit = bic(n, current.mse, current.k) - bic(n, best.mse, best.k)
-        gain_check = (n_c * math.log(current.mse_check / best.mse_check)
-                      if current.mse_check and best.mse_check else -math.inf)
-        if not (gain_fit > SIGNIFICANT and gain_check > SIGNIFICANT):
+def _combine(st: _Setup, current: ModelFit, c: str, single: ModelFit, budget: Budget, seed: int) -> ModelFit:
+    """current + effect c, every parameter re-fitted jointly from current's values and c's own fit."""
+    x0 = {**current.params, **single.effect_params()}
+    return fit_model(st.views, current.effects + (c,), [x0], evals=0, seed=seed, fixed={**current.fixed, **single.fixed},
+                     extra=current.extra + single.extra, polish_coarse=budget.polish_coarse,
+                     polish_fine=budget.combo_polish)
+
+
+def _without(st: _Setup, m: ModelFit, e: str, budget: Budget) -> ModelFit:
+    """m with effect e taken out (its parameters back to neutral), the rest re-fitted."""
+    effects = tuple(x for x in m.effects if x != e)
+    fixed = {k: v for k, v in m.fixed.items() if k not in EFFECTS[e].options}
+    extra = tuple(x for x in m.extra if x not in EFFECTS[e].options)
+    p = st.views.problem(effects, fixed, extra=extra)
+    out = finish(st.views, effects, fixed, Space.of(p).vector(m.params), polish_fine=budget.combo_polish, extra=extra)
+    return checked(st.views, out)
+
+
+def _sequence(st: _Setup, fits: Mapping[str, ModelFit], entries: list[dict], verdict: str, budget: Budget,
+              seed: int) -> tuple[list[dict], ModelFit]:
+    """The effects that together explain the record: from the verdict, add the effect (of the
+    best-ranked `sequence_candidates` not yet in) whose joint re-fit lowers the BIC most, while
+    that step is significant on the fit and on the check; after each addition drop an earlier
+    effect whose removal the fit and the check do not notice."""
+    current = checked(st.views, fits[verdict])
+    steps = [{"added": verdict, "model": current, "dropped": []}]
+    ranked = [d["name"] for d in entries if d["name"] != verdict and d["delta_bic"] > 0]
+    while len(current.effects) < budget.max_sequence and current.mse > st.floor_tol:
+        cands = [c for c in ranked if c not in current.effects][:budget.sequence_candidates]
+        if not cands:
             break
-        current = best
-        cands.remove(best.effects[-1])
-        sequence.append({"added": best.effects[-1], "mse": best.mse, "mse_holdout": best.mse_check,
-                         "params": best.effect_params()})
-    return sequence, current
+        tried = sorted((_combine(st, current, c, fits[c], budget, seed) for c in cands),
+                       key=lambda m: bic(st.n, m.mse, m.k))
+        accepted = None
+        for m in tried[:2]:   # the two best on the fit get the check
+            if bic(st.n, current.mse, current.k) - bic(st.n, m.mse, m.k) <= SIGNIFICANT:
+                break
+            m = checked(st.views, m)
+            if _significant(st, current, m)[2]:
+                accepted = m
+                break
+        if accepted is None:
+            break
+        current = accepted
+        dropped = []
+        for e in current.effects[:-1]:
+            reduced = _without(st, current, e, budget)
+            if not _significant(st, reduced, current)[2]:
+                log.info("explained_by: %s dropped after %s was added", e, current.effects[-1])
+                dropped.append(e)
+                current = reduced
+        steps.append({"added": accepted.effects[-1], "model": current, "dropped": dropped})
+        ranked = [c for c in ranked if c not in dropped]  # not tried again
+    return steps, current
 
 
 #: what is left after the explaining effects, over the noise floor, beyond which the rest is called
@@ -390,27 +406,30 @@ def _sequence(unit: Unit, st: _Setup, fits: Mapping[str, ModelFit], entries: lis
 LACKS = 2.0
 
 
-def _explained_by(unit: Unit, st: _Setup, base: ModelFit, sequence: list[dict], final: ModelFit | None,
-                  capture: Capture, edges: Edges) -> tuple[list[dict], dict]:
+def _explained_by(st: _Setup, base: ModelFit, steps: list[dict], final: ModelFit | None, capture: Capture,
+                  edges: Edges) -> tuple[list[dict], dict]:
     """The effects that together explain the record (in the order added, each re-fitted jointly
     with those before it), and what is left after the last: its error against the noise floor and
     where in the record it lies."""
     floor = st.floor.variance
     span = base.mse - floor
-    steps = []
-    for step in sequence:
-        params = dict(step.get("params", {}))
-        if step["added"] == "ceiling_limit" and unit.fixed.get("VRVT") == 1.0:
-            params["VRVT"] = 1.0  # the bus-fed variant
-        steps.append({"name": step["added"], "params": params, "mse": step["mse"],
-                      "mse_over_floor": step["mse"] / floor,
-                      "gap_closed": (base.mse - step["mse"]) / span if span > 0 else None,
-                      "check": {"on": st.check.label, "mse": step["mse_holdout"],
-                                "mse_base": base.mse_check}})
+    out = []
+    prev = base
+    for step in steps:
+        m: ModelFit = step["model"]
+        params = m.effect_params()
+        params.update({k: v for k, v in m.fixed.items()})
+        out.append({"name": step["added"], "effects": list(m.effects), "dropped": step["dropped"],
+                    "params": params, "mse": m.mse, "mse_over_floor": m.mse / floor,
+                    "gap_closed": (base.mse - m.mse) / span if span > 0 else None,
+                    "edges": {k: m.params[k] for k in EDGE_PARAMS if k in m.params},
+                    "check": {"on": st.validation["kind"], "mse": m.mse_check, "mse_before": prev.mse_check,
+                              "gain": check_deviance(prev, m), "parts": (_check_entry(m) or {}).get("parts")}})
+        prev = m
     model = final if final is not None else base
-    space = model_space(unit, model.effects, unit.values())
-    x = np.array([model.params[n] for n in space.names])
-    resid = simulate_efd(space, x, st.full)[0][0] - capture.efd
+    p = st.views.problem(model.effects, model.fixed, extra=model.extra)
+    x = Space.of(p).vector(model.params)
+    resid = simulate_efd(p, x)[0][0] - capture.efd
     ratio = model.mse / floor
     if model.mse <= st.floor_tol:
         note = "at the noise floor: nothing left to explain"
@@ -421,7 +440,24 @@ def _explained_by(unit: Unit, st: _Setup, base: ModelFit, sequence: list[dict], 
                 "not fit); see where it lies")
     left = {"mse": model.mse, "mse_over_floor": ratio, "effects": list(model.effects), "note": note,
             "localization": localization(resid, capture.dt, edges)}
-    return steps, left
+    return out, left
+
+
+def _edges_json(st: _Setup, m: ModelFit) -> list[dict[str, Any]]:
+    """Each setpoint edge of the capture at the base model's fit (nominal and fitted instant, std),
+    and of the holdout (its instants fitted with the base model held)."""
+    p = st.views.problem((), m.fixed)
+    x = Space.of(p).vector(m.params)
+    out = [{"capture": "capture", **e} for e in p.edges(x, m.std)[0]]
+    if st.views.holdout is not None:
+        from .fit import polish
+        h = st.views.holdout_problem(p.values(x))
+        hs = Space.of(h)
+        x0 = hs.vector({n: 0.5 * (lo + hi) for n, (lo, hi) in zip(h.names, h.bounds)})
+        u, f, _ = polish(h, hs.to_u(x0), max_calls=st.views.holdout_calls)
+        xh = hs.to_x(u) if math.isfinite(f) else x0
+        out += [{"capture": "holdout", **e} for e in h.edges(xh)[0]]
+    return out
 
 
 def diagnose(*args: Any, **kwargs: Any) -> dict[str, Any]:
@@ -434,47 +470,52 @@ def diagnose(*args: Any, **kwargs: Any) -> dict[str, Any]:
 
 
 def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, seed: int = 0,
-             budget: Budget = Budget(), base_params: Mapping[str, float] | None = None,
-             command_line: str = "") -> dict[str, Any]:
+              budget: Budget = Budget(), base_params: Mapping[str, float] | None = None,
+              command_line: str = "") -> dict[str, Any]:
     """The diagnosis of `capture` against `unit` (see the module docstring); a JSON-ready dict."""
     t_start = time.perf_counter()
     src = capture.source or "capture"
     edges = find_edges(capture.usetp, src)
     floor = noise_floor(capture.efd, capture.dt, edges, src)
     st = _setup(capture, holdout, unit, edges, floor, budget)
-    unit_in = unit
+    views = st.views
 
     t0 = time.perf_counter()
-    base_fit, base = _fit_base(unit, st, budget, seed, base_params)
-    unit, base_fit, edge_entries = _fit_edge_instants(unit, st, base_fit, budget)
-    base = _as_model(unit, base_fit, st)
-    base_space = model_space(unit, (), unit.values())
+    base = _fit_base(st, budget, seed, base_params)
     log.info("base fit: mse %.4g (%d evaluations, %.1f s)", base.mse, base.evaluations, time.perf_counter() - t0)
-    model = simulate_efd(base_space, base_fit.x, st.full)[0][0]
-    feats, hints = _features(capture, model, edges, floor, unit.values(), st.rec.n)
+    p0 = views.problem(())
+    sim = simulate_efd(p0, Space.of(p0).vector(base.params))[0][0]
+    from bench_ctl.model.kernel import run_kernel
+    r0 = p0.records[0]
+    vt_model = run_kernel(p0.matrix(Space.of(p0).vector(base.params)), r0.usetp, r0.dt, r0.usetp_pre,
+                          edges=r0.edges)["vt"][0]
+    feats, hints = _features(capture, sim, vt_model, edges, floor, unit.values())
 
-    fits = _fit_effects(unit, st, base, hints, budget, seed)
-    unit, ceiling_variant = _ceiling_variant(unit, st, fits, budget, seed)
-    # the base fit may sit in a worse basin than the AVR parameters an effect fit reached
-    better = refine_base(unit, unit.values(), st.rec, base_fit.x, [m.params for m in fits.values()],
-                         polish_evals=budget.base_polish)
-    if better is not None and better.mse < base_fit.mse:
-        log.info("base fit improved from the effect fits: mse %.4g -> %.4g", base_fit.mse, better.mse)
-        base_fit = replace(better, evaluations=base_fit.evaluations + better.evaluations)
-        base = _as_model(unit, base_fit, st)
-        model = simulate_efd(base_space, base_fit.x, st.full)[0][0]
-    loc = localization(model - capture.efd, capture.dt, edges)
+    fits = _fit_effects(st, base, hints, budget, seed)
+    variant = _ceiling_variants(st, fits, budget, seed)
+    # the base fit may sit in a worse basin than the model parameters an effect fit reached
+    better = refine_base(views, base, [m.params for m in fits.values()], polish_evals=budget.base_polish)
+    if better is not None:
+        log.info("base fit improved from the effect fits: mse %.4g -> %.4g", base.mse, better.mse)
+        base = finish(views, (), {}, Space.of(p0).vector(better.params), polish_fine=budget.base_polish,
+                      noise_variance=floor.variance)
+        sim = simulate_efd(p0, Space.of(p0).vector(base.params))[0][0]
+    loc = localization(sim - capture.efd, capture.dt, edges)
+    base = checked(views, base)
+    # the check for every effect that improves the fit at all (the others cannot be significant)
+    n = st.n
+    for e, m in fits.items():
+        if bic(n, base.mse, 0) - bic(n, m.mse, m.k) > SIGNIFICANT:
+            fits[e] = checked(views, m)
 
-    entries = _entries(unit, st, base, fits)
-    for e in entries:
-        if e["name"] == "ceiling_limit":
-            e["variant"] = ceiling_variant
+    entries = _entries(unit, st, base, fits, variant)
     at_floor = base.mse <= st.floor_tol
-    verdict = choose_verdict(entries, at_floor=at_floor, has_check=base.mse_check is not None)
+    verdict = choose_verdict(entries, at_floor=at_floor, has_check=True)
     ambiguous = ambiguous_pairs(entries) if verdict != "none" else []
-    sequence, final = (_sequence(unit, st, fits, entries, verdict, budget, seed) if verdict != "none"
-                       else ([], None))
-    explained, left = _explained_by(unit, st, base, sequence, final, capture, edges)
+    steps, final = (_sequence(st, fits, entries, verdict, budget, seed) if verdict != "none" else ([], None))
+    explained, left = _explained_by(st, base, steps, final, capture, edges)
+    sequence = [{"added": s["added"], "mse": s["model"].mse, "mse_holdout": s["model"].mse_check,
+                 "params": s["model"].effect_params(), "dropped": s["dropped"]} for s in steps]
 
     return {
         "schema": SCHEMA,
@@ -483,14 +524,16 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "capture": _capture_ref(capture),
         "holdout": _capture_ref(holdout),
-        "unit": unit_in.to_dict(),
+        "unit": unit.to_dict(),
         "validation": st.validation,
-        "edges": edge_entries,
-        "base": {"params": base.params, "mse": base.mse, "mse_holdout": base.mse_check,
-                 "evaluations": base.evaluations, "at_noise_floor": bool(at_floor)},
+        "check": st.validation["check"],
+        "edges": _edges_json(st, base),
+        "base": {"params": _model_params(unit, base), "mse": base.mse, "mse_holdout": base.mse_check,
+                 "check": _check_entry(base), "evaluations": base.evaluations, "at_noise_floor": bool(at_floor)},
         "noise_floor": floor.variance,
         "noise_floor_detail": {"samples": floor.n, "t0": floor.t0, "t1": floor.t1, "rel_se": floor.rel_se,
-                               "holdout": st.check.floor if holdout is not None else None},
+                               "check": st.check_floor,
+                               "holdout": (st.validation["check"]["holdout"] or {}).get("noise_floor")},
         "localization": loc,
         "features": [f.to_dict() for f in feats],
         "effects": entries,
@@ -499,8 +542,9 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
         "explained_by": explained,
         "left": left,
         "verdict": verdict,
-        "criteria": {"significant_delta": SIGNIFICANT, "strong_delta": STRONG, "ambiguous_delta": AMBIGUOUS,
-                     "floor_sigmas": budget.floor_sigmas,
-                     "score": "BIC on the fit record + n ln(mse) on the check record, relative to the base model"},
+        "criteria": {"significant_delta": SIGNIFICANT, "check_gain": CHECK_GAIN, "strong_delta": STRONG,
+                     "ambiguous_delta": AMBIGUOUS, "floor_sigmas": budget.floor_sigmas,
+                     "score": "BIC on the capture + sum over the check's parts of n ln(mse), relative to the base "
+                              "model"},
         "wall_s": time.perf_counter() - t_start,
     }

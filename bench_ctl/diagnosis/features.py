@@ -5,7 +5,8 @@ the numbers themselves (`values`), which also seed the effect fits (e.g. the fla
 the starting VRMAX). Thresholds are in units of the noise (sigma = sqrt(noise floor)) so that
 the tests mean the same on a quiet and on a noisy recorder.
 
-- flat_top: the measured efd dwells at a level (a limit) where the base model overshoots it.
+- flat_top: the measured efd dwells at a level (a limit) where the base model overshoots it;
+  also relative to Vt (a bus-fed exciter's ceiling VRMAX*Vt rises with Vt).
 - delay: the measured response starts later after the setpoint edge than the model's.
 - steady_state_ratio: efd / Vt in the pre-trigger steady state; above 1 at no load means
   saturation (Efd0 = Vt0 + Sat(Vt0)) or a recorder gain error.
@@ -53,15 +54,23 @@ def _dwell(y: np.ndarray, level: float, tol: float, above: bool) -> int:
     return int(np.count_nonzero(y >= level - tol) if above else np.count_nonzero(y <= level + tol))
 
 
-def flat_top(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: float) -> Feature:
+def flat_top(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: float, *,
+             vt: np.ndarray | None = None, vt_recorded: bool = False) -> Feature:
     """A limit: the measured extreme is a plateau (long dwell within the noise of the extreme)
-    and the base model goes beyond it."""
+    and the base model goes beyond it. With the terminal voltage (`vt`: recorded, else the base
+    model's) the plateau is also looked for in efd / Vt: the ceiling of a bus-fed static exciter
+    is VRMAX*Vt, so its top rises with Vt and is flat only relative to it."""
     k0 = edges.k_on
     k1 = meas.size if edges.k_off is None else min(meas.size, edges.k_off + int(round(1.0 / dt)))
     m = max(1, int(round(0.005 / dt)))
-    ys = _smooth(meas[k0:k1], m)[m:-m or None]
-    mod = model[k0:k1][m:-m or None]
+    cut = slice(m, -m or None)
+    ys = _smooth(meas[k0:k1], m)[cut]
+    mod = model[k0:k1][cut]
     tol = 3.0 * sigma / math.sqrt(m) + 0.002
+    scale = None
+    if vt is not None:
+        v = _smooth(np.asarray(vt, float)[k0:k1], m)[cut]
+        scale = np.where(np.abs(v) > 0.05, v, np.nan)
     vals: dict[str, float] = {}
     parts, detected = [], False
     for side, above in (("top", True), ("bottom", False)):
@@ -74,12 +83,34 @@ def flat_top(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma
         sel = ys >= lvl - tol if above else ys <= lvl + tol
         plateau = float(np.mean(ys[sel]))
         flat = dw >= 0.02 and dw > 2.0 * mdw + 0.01
-        det = flat and over > -3.0 * sigma
-        detected |= det
+        text = (f"{side}: measured efd stays within {tol:.3f} pu of {plateau:.3f} pu for {dw * 1e3:.0f} ms "
+                f"(base model {mdw * 1e3:.0f} ms, model beyond it by {over:+.3f} pu)")
         vals.update({f"{side}_level": plateau, f"{side}_dwell_s": dw, f"model_{side}_dwell_s": mdw,
                      f"model_{side}_overshoot": over})
-        parts.append(f"{side}: measured efd stays within {tol:.3f} pu of {plateau:.3f} pu for {dw * 1e3:.0f} ms "
-                     f"(base model {mdw * 1e3:.0f} ms, model beyond it by {over:+.3f} pu)")
+        if scale is not None:
+            # the same in efd / Vt, around the measured extreme (a ceiling x Vt is flat there)
+            j = int(np.argmax(ys) if above else np.argmin(ys))
+            r = ys / scale
+            rm = mod / scale
+            rl = float(r[j])
+            tol_r = tol / float(abs(scale[j])) if math.isfinite(float(scale[j])) else math.inf
+            near = np.abs(np.arange(r.size) - j) * dt <= 0.2   # the extreme's own excursion
+            dw_r = float(np.count_nonzero(near & (np.abs(r - rl) <= tol_r))) * dt
+            mlvl_r = float(np.nanmax(rm[near]) if above else np.nanmin(rm[near]))
+            mdw_r = float(np.count_nonzero(near & (np.abs(rm - mlvl_r) <= tol_r))) * dt
+            flat_r = dw_r >= 0.02 and dw_r > 2.0 * mdw_r + 0.01 and dw_r > 1.5 * dw
+            sel_r = near & (np.abs(r - rl) <= tol_r)
+            level_r = float(np.nanmean(r[sel_r])) if np.any(sel_r) else rl
+            vals.update({f"{side}_level_vt": level_r, f"{side}_dwell_vt_s": dw_r,
+                         f"model_{side}_dwell_vt_s": mdw_r})
+            if flat_r:
+                flat = True
+                text += (f"; relative to Vt ({'recorded' if vt_recorded else 'the base model'}'s) it is flat "
+                         f"for {dw_r * 1e3:.0f} ms at efd/Vt = {level_r:.3f} (base model {mdw_r * 1e3:.0f} ms): "
+                         "a ceiling that scales with Vt")
+        det = flat and over > -3.0 * sigma
+        detected |= det
+        parts.append(text)
     return Feature("flat_top", detected, "; ".join(parts), vals)
 
 

@@ -1,18 +1,22 @@
-"""Fitting the reference model, with or without an effect, to one record (diagnosis engine).
+"""Fitting a model (the unit's identified parameters, any effects, the setpoint edge instants) to
+a capture: the diagnosis' optimisers on identification's objective.
 
-A thin objective on the batched kernel (`run_kernel`) rather than the identification `Problem`:
-the diagnosis fits on *windows* of a capture and on a decimated copy (`coarse_record`) for its
-searches, starts from many warm points, and needs every fit driven to its local minimum, so that
-the MSE of "base model" and "base model + effect" differ by what the effect explains and not by
-how far an optimizer happened to get. Tools: `fit` = MVMO (vectorised, one kernel call per
-generation, optionally in a box around a start) followed by `polish`, a bounded least-squares
-run (scipy `least_squares`, TRF) whose forward-difference Jacobian is one kernel call of `d`
-candidates. Small kernel calls run on one thread (`SMALL_CALL`).
+The objective is identification's own `Problem` (`bench_ctl.identification.problem`): the same
+kernel call, trapezoidal weighting, edge timing (`EDGE1`.. fitted in every fit), signal weights
+and the same views of a record - the whole capture, a decimated copy for the searches
+(`Problem.decimated`), windows left out for cross-validation (`Problem.excluding`) or scored
+alone (`Problem.only`). A fix to the objective reaches identification and diagnosis alike.
 
-Parameters are searched in a normalised space `u` in [0, 1]: logarithmic for strictly positive
-parameters whose bounds span a decade or more (gains, time constants, rates), linear otherwise.
-Constraints (unit file and effect) are linear in the physical parameters; constraints on
-parameters that are not free are evaluated at their fixed values.
+What is the diagnosis' own: it needs every fit driven to its local minimum, so that the MSE of
+"base model" and "base model + effect" differ by what the effect explains and not by how far an
+optimizer happened to get. Tools: `fit` = MVMO (vectorised, one kernel call per generation,
+optionally in a box around a start) followed by `polish`, a bounded least-squares run (scipy
+`least_squares`, TRF) on the problem's weighted residuals, whose forward-difference Jacobian is
+one kernel call of `d` candidates. Small kernel calls run on one thread (`SMALL_CALL`).
+
+Parameters are searched in a normalised space `u` in [0, 1] (`Space`): logarithmic for strictly
+positive parameters whose bounds span a decade or more (gains, time constants, rates), linear
+otherwise. The problem's constraints are linear in the physical parameters.
 """
 from __future__ import annotations
 
@@ -26,14 +30,8 @@ import numba
 import numpy as np
 from scipy.optimize import least_squares
 
-from bench_ctl.capture import Capture
 from bench_ctl.identification import mvmo
-from bench_ctl.identification.constraints import parse_constraints
-from bench_ctl.identification.timing import EDGE_PARAMS, Edge, edge_spec, record_edges
-from bench_ctl.model.edges import EdgeSpec
-from bench_ctl.model.kernel import run_kernel
-from bench_ctl.model.params import KERNEL_PARAMS
-from bench_ctl.model.simulate import param_matrix, pre_trigger_mean
+from bench_ctl.identification.problem import Problem
 from bench_ctl.model.unit import Unit
 
 log = logging.getLogger(__name__)
@@ -45,58 +43,6 @@ MVMO_OPTIONS: Mapping = {}
 
 #: objective of a candidate whose simulation blew up (mse units; real MSEs are << 1)
 FAIL_PENALTY = 1.0e3
-
-
-@dataclass(frozen=True, eq=False)
-class Record:
-    """The part of a capture a model is fitted to or checked on (samples [0, n) of the capture)."""
-
-    usetp: np.ndarray
-    efd: np.ndarray
-    dt: float
-    usetp_pre: float
-    label: str = ""
-    edges: EdgeSpec = field(default_factory=EdgeSpec.none)  # moved by the EDGE offsets in use
-    edge_list: tuple[Edge, ...] = ()                         # the same edges with their intervals
-
-    @property
-    def n(self) -> int:
-        return int(self.efd.size)
-
-    def edge_names(self) -> tuple[str, ...]:
-        return tuple(EDGE_PARAMS[s] for s in self.edges.slot.tolist())
-
-
-def record_of(capture: Capture, *, n: int | None = None, label: str = "", slot0: int = 0) -> Record:
-    """The first `n` samples of a capture (all when None); usetp_pre from its pre-trigger part.
-    Its setpoint edges get the EDGE columns from `slot0` on (those beyond the last stay nominal)."""
-    pre = pre_trigger_mean(capture.usetp, capture.dt)
-    m = capture.n if n is None else int(n)
-    if not 2 <= m <= capture.n:
-        raise ValueError(f"{capture.source or 'capture'}: window of {m} samples out of 2..{capture.n}")
-    edges = [e for e in record_edges(capture)][: max(0, len(EDGE_PARAMS) - slot0)]
-    inside = [(e, slot0 + i) for i, e in enumerate(edges) if e.index < m]
-    return Record(np.ascontiguousarray(capture.usetp[:m]), np.ascontiguousarray(capture.efd[:m]),
-                  capture.dt, pre, label or capture.source,
-                  edge_spec([e for e, _ in inside], [s for _, s in inside]), tuple(e for e, _ in inside))
-
-
-def coarse_record(rec: Record, *, q: int, n_max: int, offset: int = 0) -> Record:
-    """Every q-th sample from `offset` (use the leading edge's index mod q so the edge stays on
-    the coarse grid), at most up to sample n_max: the cheap record the global searches run on.
-    The kernel integrates at the coarse step; a final polish on the full record removes the
-    small bias this leaves."""
-    q = max(1, int(q))
-    n_max = min(int(n_max), rec.n)
-    idx = np.arange(offset % q, n_max, q)
-    if idx.size < 2:
-        return rec
-    e = rec.edges.decimated(q, offset, rec.dt)
-    keep = e.index < idx.size
-    edges = EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
-    return Record(np.ascontiguousarray(rec.usetp[idx]), np.ascontiguousarray(rec.efd[idx]), rec.dt * q,
-                  rec.usetp_pre, rec.label + f" (every {q}th sample)", edges, rec.edge_list)
-
 
 LAGS = ("TA2", "TA4", "TE", "TR", "Td0pp")
 
@@ -120,41 +66,23 @@ def coarse_factor(unit: Unit, dt: float, target: float) -> int:
 
 @dataclass(frozen=True, eq=False)
 class Space:
-    """Free parameters, their bounds and scaling, the fixed values, the constraints."""
+    """The normalised search space of a problem: its names, bounds, constraints (A x <= b)."""
 
     names: tuple[str, ...]
     lo: np.ndarray
     hi: np.ndarray
-    base: Mapping[str, float]          # every kernel parameter (free ones are overwritten)
-    constraints: tuple[str, ...] = ()
-    log_scale: np.ndarray = field(default=None)  # type: ignore[assignment]
-    _A: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
-    _b: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
+    base: Mapping[str, float]
+    log_scale: np.ndarray
+    A: np.ndarray
+    b: np.ndarray
 
-    def __post_init__(self) -> None:
-        lo = np.asarray(self.lo, float)
-        hi = np.asarray(self.hi, float)
-        if lo.shape != (len(self.names),) or hi.shape != lo.shape or not np.all(hi > lo):
-            raise ValueError(f"bad bounds for {self.names}: {lo} .. {hi}")
-        object.__setattr__(self, "lo", lo)
-        object.__setattr__(self, "hi", hi)
-        object.__setattr__(self, "log_scale", (lo > 0) & (hi / np.where(lo > 0, lo, 1.0) >= 10.0))
-        missing = set(KERNEL_PARAMS) - set(self.base)
-        if missing:
-            raise ValueError(f"no value for kernel parameter(s) {sorted(missing)}")
-        # linear constraints A x <= b over the free names (fixed names folded into b)
-        rows, rhs = [], []
-        for con in parse_constraints(self.constraints, KERNEL_PARAMS):
-            coef = dict(zip(KERNEL_PARAMS, con.coef))
-            a = np.array([coef[n] for n in self.names])
-            b = con.rhs - sum(c * float(self.base[n]) for n, c in coef.items() if n not in self.names and c)
-            if np.any(a != 0.0):
-                rows.append(a)
-                rhs.append(b)
-            elif b < -1e-12:
-                raise ValueError(f"constraint {con.expr!r} is broken by the fixed parameter values")
-        object.__setattr__(self, "_A", np.array(rows).reshape(len(rows), len(self.names)))
-        object.__setattr__(self, "_b", np.array(rhs))
+    @staticmethod
+    def of(problem: Problem) -> "Space":
+        lo, hi = problem.lower, problem.upper
+        log_scale = (lo > 0) & (hi / np.where(lo > 0, lo, 1.0) >= 10.0)
+        A = np.array([c.coef for c in problem.constraints]).reshape(len(problem.constraints), problem.d)
+        b = np.array([c.rhs for c in problem.constraints])
+        return Space(problem.names, lo, hi, problem.base, log_scale, A, b)
 
     @property
     def d(self) -> int:
@@ -177,17 +105,13 @@ class Space:
     def violation(self, X: np.ndarray) -> np.ndarray:
         """Sum of constraint violations (physical units) per candidate row."""
         X = np.atleast_2d(X)
-        if not self._A.size:
+        if not self.A.size:
             return np.zeros(X.shape[0])
-        return np.maximum(0.0, X @ self._A.T - self._b).sum(axis=1)
+        return np.maximum(0.0, X @ self.A.T - self.b).sum(axis=1)
 
-    def values(self, x: Sequence[float]) -> dict[str, float]:
-        out = dict(self.base)
-        out.update({n: float(v) for n, v in zip(self.names, x)})
-        return out
-
-    def matrix(self, X: np.ndarray) -> np.ndarray:
-        return param_matrix(self.base, self.names, np.atleast_2d(X))
+    def vector(self, values: Mapping[str, float]) -> np.ndarray:
+        """x from a name -> value map (a name it lacks: the problem's base value)."""
+        return np.array([float(values.get(n, self.base[n])) for n in self.names])
 
 
 #: below this many candidate-steps a kernel call runs on one thread: waking the worker threads
@@ -210,24 +134,27 @@ def _threads_for(n_cand: int, n_steps: int) -> Iterator[None]:
         numba.set_num_threads(old)
 
 
-def kernel(P: np.ndarray, rec: Record, **kwargs) -> dict:
-    """`run_kernel` on the record, on one thread for small batches (see SMALL_CALL)."""
-    with _threads_for(P.shape[0], rec.n):
-        return run_kernel(P, rec.usetp, rec.dt, rec.usetp_pre, edges=rec.edges, **kwargs)
+def _steps(p: Problem) -> int:
+    return max(r.i1 for r in p.records)
 
 
-def simulate_efd(space: Space, X: np.ndarray, rec: Record) -> tuple[np.ndarray, np.ndarray]:
-    """Recorded-efd traces (n_cand, n) and failure flags of candidates X (physical units)."""
-    out = kernel(space.matrix(X), rec, store=True)
-    return out["efd"], out["fail_step"] >= 0
-
-
-def mse_of(space: Space, X: np.ndarray, rec: Record) -> np.ndarray:
-    """Per-candidate MSE of efd on the record; failed candidates get FAIL_PENALTY."""
+def mse_of(p: Problem, X: np.ndarray) -> np.ndarray:
+    """Per-candidate MSE of efd over the problem's scored samples (its first capture); failed
+    candidates get FAIL_PENALTY."""
     X = np.atleast_2d(X)
-    out = kernel(space.matrix(X), rec, efd_meas=rec.efd, store=False)
-    mse = out["sse_efd"] / rec.n
-    return np.where(out["fail_step"] >= 0, FAIL_PENALTY + mse, mse)
+    with _threads_for(X.shape[0], _steps(p)):
+        m = p.mse_many(X)[0]
+    return np.where(np.isfinite(m), m, FAIL_PENALTY)
+
+
+def simulate_efd(p: Problem, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Recorded-efd traces (n_cand, n) of the problem's first capture, and failure flags."""
+    from bench_ctl.model.kernel import run_kernel
+    r = p.records[0]
+    X = np.atleast_2d(X)
+    with _threads_for(X.shape[0], r.efd.size):
+        out = run_kernel(p.matrix(X), r.usetp, r.dt, r.usetp_pre, edges=r.edges)
+    return out["efd"], out["fail_step"] >= 0
 
 
 @dataclass(frozen=True)
@@ -238,16 +165,18 @@ class FitResult:
     evaluations: int
     feasible: bool
     message: str
+    #: standard deviation of each parameter from the last polish's Jacobian (None: not known)
+    std: Mapping[str, float] | None = field(default=None)
 
     def params(self) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.names, self.x)}
 
 
-def fit(space: Space, rec: Record, *, x0: Sequence[float] | None = None, evals: int = 400,
-        seed: int = 0, box: float | None = None, polish_evals: int = 60,
-        options: Mapping | None = None) -> FitResult:
+def fit(p: Problem, *, x0: Sequence[float] | None = None, evals: int = 400, seed: int = 0,
+        box: float | None = None, polish_evals: int = 60, options: Mapping | None = None) -> FitResult:
     """MVMO (in a box of half-width `box` in normalised units around x0, or the full bounds)
     followed by a least-squares polish. `polish_evals` bounds the polish in kernel calls."""
+    space = Space.of(p)
     d = space.d
     u0 = space.to_u(np.asarray(x0, float)) if x0 is not None else None
     lo_u = np.zeros(d)
@@ -263,12 +192,12 @@ def fit(space: Space, rec: Record, *, x0: Sequence[float] | None = None, evals: 
         nonlocal nfev
         U = np.atleast_2d(U)
         nfev += U.shape[0]
-        return mse_of(space, space.to_x(U), rec)
+        return mse_of(p, space.to_x(U))
 
     def viol(u: np.ndarray) -> float:
         return float(space.violation(space.to_x(u))[0])
 
-    cons = (viol,) if space._A.size else ()
+    cons = (viol,) if space.A.size else ()
     best_u = u0
     best_f = math.inf
     if u0 is not None:
@@ -284,7 +213,7 @@ def fit(space: Space, rec: Record, *, x0: Sequence[float] | None = None, evals: 
         elif best_u is None:
             best_u, best_f = np.asarray(res.x, float), float(res.fun)
     assert best_u is not None
-    u, f, n_pol = polish(space, rec, best_u, max_calls=polish_evals)
+    u, f, n_pol = polish(p, best_u, max_calls=polish_evals)
     nfev += n_pol
     if f < best_f:
         best_u, best_f = u, f
@@ -293,23 +222,44 @@ def fit(space: Space, rec: Record, *, x0: Sequence[float] | None = None, evals: 
     return FitResult(space.names, x, float(best_f), nfev, feasible, "")
 
 
-def polish(space: Space, rec: Record, u0: np.ndarray, *, max_calls: int = 60,
-           step: float = 1e-5) -> tuple[np.ndarray, float, int]:
-    """Bounded Gauss-Newton (TRF) from u0; returns (u, mse, simulations used)."""
+@dataclass
+class Polished:
+    u: np.ndarray
+    mse: float
+    calls: int
+    jac: np.ndarray | None = None   # d(residual)/du at u (residuals scaled so that sum r^2 ~ mse)
+    n_eff: float = 0.0              # scored samples of the residual
+
+
+def polish(p: Problem, u0: np.ndarray, *, max_calls: int = 60, step: float = 1e-5) -> tuple[np.ndarray, float, int]:
+    """Bounded Gauss-Newton (TRF) from u0 on the problem's weighted residuals; returns (u, mse,
+    simulations used); mse is inf when the result leaves the constraints (the caller keeps its
+    feasible start)."""
+    r = polish_full(p, u0, max_calls=max_calls, step=step)
+    return r.u, r.mse, r.calls
+
+
+def polish_full(p: Problem, u0: np.ndarray, *, max_calls: int = 60, step: float = 1e-5) -> Polished:
+    """`polish`, also returning the Jacobian at the result (for the parameters' standard deviations)."""
+    space = Space.of(p)
     d = space.d
-    sq = math.sqrt(rec.n)
+    # the problem's residuals square-sum to its trapezoidal integral; over the scored duration
+    # they square-sum to (about) the MSE, so the constraint penalty and tolerances mean the same
+    dur = sum(r.n_scored * r.dt for r in p.records)
+    scale = 1.0 / math.sqrt(max(dur, 1e-300))
     calls = 0
     cache: dict[bytes, np.ndarray] = {}
 
     def residual_batch(U: np.ndarray) -> np.ndarray:
         nonlocal calls
         X = space.to_x(U)
-        efd, failed = simulate_efd(space, X, rec)
+        with _threads_for(U.shape[0], _steps(p)):
+            R, failed = p.residuals(X)
         calls += U.shape[0]
-        r = (efd - rec.efd[None, :]) / sq
-        r[failed] += math.sqrt(FAIL_PENALTY / rec.n)
+        R = R * scale
+        R[failed] += math.sqrt(FAIL_PENALTY / R.shape[1])
         pen = 10.0 * space.violation(X)
-        return np.concatenate([r, pen[:, None]], axis=1)
+        return np.concatenate([R, pen[:, None]], axis=1)
 
     def f(u: np.ndarray) -> np.ndarray:
         key = u.tobytes()
@@ -325,16 +275,39 @@ def polish(space: Space, rec: Record, u0: np.ndarray, *, max_calls: int = 60,
         R = residual_batch(U)
         return ((R - r0[None, :]) / h[:, None]).T
 
+    J = None
     try:
         res = least_squares(f, np.clip(u0, 0.0, 1.0), jac=jac, bounds=(0.0, 1.0), method="trf",
                             x_scale="jac", max_nfev=max(2, max_calls // (d + 1)), ftol=1e-7, xtol=1e-7)
         u = np.clip(res.x, 0.0, 1.0)
+        J = np.asarray(res.jac)[:-1] if res.jac is not None else None
     except (ValueError, np.linalg.LinAlgError) as exc:  # pragma: no cover - defensive
         log.debug("polish failed: %s", exc)
         u = np.asarray(u0, float)
     x = space.to_x(u)
-    mse = float(mse_of(space, x, rec)[0])
+    mse = float(mse_of(p, x)[0])
     calls += 1
     if space.violation(x)[0] > 1e-9:
         mse = math.inf  # the caller keeps the feasible start
-    return u, mse, calls
+    n_eff = sum(r.n_scored for r in p.records)
+    return Polished(u, mse, calls, J, n_eff)
+
+
+def std_of(p: Problem, pol: Polished, noise_variance: float) -> dict[str, float]:
+    """Standard deviations (physical units) of the parameters at a polished point, from its
+    Jacobian (Gauss-Newton: var(u) = sigma^2 (J^T J)^-1 / n with J of the MSE-scaled residuals);
+    a parameter at a bound or not determined gets NaN."""
+    space = Space.of(p)
+    if pol.jac is None or pol.n_eff <= 0:
+        return {n: math.nan for n in space.names}
+    J = pol.jac
+    try:
+        cov_u = np.linalg.pinv(J.T @ J) * noise_variance / pol.n_eff
+    except np.linalg.LinAlgError:  # pragma: no cover - defensive
+        return {n: math.nan for n in space.names}
+    sd_u = np.sqrt(np.maximum(np.diag(cov_u), 0.0))
+    x = space.to_x(pol.u)
+    # dx/du: linear (hi - lo), logarithmic x ln(hi / lo)
+    dxdu = np.where(space.log_scale, x * np.log(np.where(space.log_scale, space.hi / space.lo, 2.0)),
+                    space.hi - space.lo)
+    return {n: float(v) for n, v in zip(space.names, sd_u * np.abs(dxdu))}

@@ -14,9 +14,12 @@ the earlier they fail, so every candidate stays rankable.
 
 A fit window (`fit_window=(t0, t1)` in s, or `segment=slice(i0, i1)` in samples) restricts the
 objective and the MSE to part of each record; the simulation always starts at the record's
-first sample (initial steady state) and stops at the window's end. Without a window the fast
-path runs the kernel with `store=False`; with one the traces are kept and the error is summed
-in numpy.
+first sample (initial steady state) and stops at the window's end. Windows can also be left out
+of the objective (`Problem.excluding`, the simulation still runs through them: the diagnosis'
+cross-validation) or be the only part scored (`Problem.only`), and a record can be decimated
+(`Problem.decimated`: every q-th sample, integrated at the coarser step, the cheap copy the
+diagnosis searches on). Without a window or mask the fast path runs the kernel with
+`store=False`; with one the traces are kept and the error is summed in numpy.
 
 Constraints are read from the unit's text (and those of any effect whose parameters are fitted)
 over all kernel parameters, then reduced to the fitted names: a term on a parameter that is not
@@ -84,10 +87,21 @@ class _Record:
     edges: EdgeSpec = field(default_factory=EdgeSpec.none)
     edge_list: tuple[Edge, ...] = ()
     edge_slots: tuple[int | None, ...] = ()
+    #: per-sample weight of the objective (1 in, 0 out), over the whole record; None: all 1
+    mask: np.ndarray | None = None
 
     @property
     def full(self) -> bool:
-        return self.i0 == 0 and self.i1 == self.efd.size
+        return self.i0 == 0 and self.i1 == self.efd.size and self.mask is None
+
+    def weights(self) -> np.ndarray:
+        """The samples' weights in the objective over [i0, i1) (mask, or 1)."""
+        return np.ones(self.i1 - self.i0) if self.mask is None else self.mask[self.i0: self.i1]
+
+    @property
+    def n_scored(self) -> float:
+        """How many samples the objective and the MSE count (the sum of the weights)."""
+        return float(np.sum(self.weights()))
 
     def edges_upto(self, n: int) -> EdgeSpec:
         """The edges inside the first n samples (a run that stops at a window's end)."""
@@ -196,6 +210,25 @@ class Problem:
         return replace(self, window=window, records=tuple(
             _apply_window(r, window, c) for r, c in zip(self.records, self.captures)))
 
+    def excluding(self, windows: Sequence[tuple[float, float]]) -> "Problem":
+        """The same problem with the time windows (s from each record's start, ends included)
+        left out of the objective and the MSE; the simulation still runs through them."""
+        return replace(self, records=tuple(_masked(r, windows, keep=False) for r in self.records))
+
+    def only(self, windows: Sequence[tuple[float, float]]) -> "Problem":
+        """The same problem scored on the time windows only (what `excluding` leaves out)."""
+        return replace(self, records=tuple(_masked(r, windows, keep=True) for r in self.records))
+
+    def decimated(self, q: int, *, n_max: int | None = None, offset: int = 0) -> "Problem":
+        """Every q-th sample of each record from `offset` (give the leading edge's index so that it
+        stays on the coarse grid), up to sample n_max: the kernel integrates at q times the step.
+        The edges keep their nominal instants, so the EDGE offsets mean the same on both grids."""
+        return replace(self, records=tuple(_decimated(r, int(q), n_max, int(offset)) for r in self.records))
+
+    def n_scored(self) -> list[float]:
+        """Per capture, how many samples the objective and the MSE count."""
+        return [r.n_scored for r in self.records]
+
     # ------------------------------------------------------------------ constraints
     def violations(self, x: Sequence[float]) -> dict[str, float]:
         """Violation (>= 0, original units) of each optimizer constraint at x."""
@@ -280,7 +313,8 @@ class Problem:
             else:
                 out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
                 e = out["efd"][:, r.i0: r.i1] - r.efd[r.i0: r.i1]
-                m = np.mean(e * e, axis=1)
+                w = r.weights()
+                m = (e * e) @ w / max(float(w.sum()), 1e-300)
             rows.append(np.where(out["fail_step"] >= 0, np.inf, m))
         return np.array(rows)
 
@@ -312,7 +346,7 @@ class Problem:
         out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
         c = np.ones(r.i1 - r.i0)
         c[0] = c[-1] = 0.5
-        scale = np.sqrt(c * r.dt)
+        scale = np.sqrt(c * r.weights() * r.dt)
         res = [math.sqrt(self.w_efd) * scale * (out["efd"][:, r.i0: r.i1] - r.efd[r.i0: r.i1])]
         if r.vt is not None and self.w_vt > 0:
             res.append(math.sqrt(self.w_vt) * scale * (out["vt"][:, r.i0: r.i1] - r.vt[r.i0: r.i1]))
@@ -333,6 +367,39 @@ def _apply_window(r: _Record, window: tuple[float, float] | None, cap: Capture) 
         raise ProblemError(f"{cap.source or 'capture'}: fit window ({t0}, {t1}) s (from the record's "
                            f"start) holds {max(0, i1 - i0)} samples; need t0 < t1 and at least 2")
     return replace(r, i0=i0, i1=i1)
+
+
+def _masked(r: _Record, windows: Sequence[tuple[float, float]], *, keep: bool) -> _Record:
+    """`r` with its objective's weights set to 0 inside the windows (keep=False) or outside them."""
+    n = r.efd.size
+    t = np.arange(n) * r.dt
+    inside = np.zeros(n, dtype=bool)
+    for t0, t1 in windows:
+        inside |= (t >= float(t0) - 1e-9 * r.dt) & (t <= float(t1) + 1e-9 * r.dt)
+    sel = inside if keep else ~inside
+    mask = (np.ones(n) if r.mask is None else r.mask) * sel
+    if not np.any(mask[r.i0: r.i1] > 0):
+        raise ProblemError(f"{r.source}: the windows {list(windows)} leave no sample in the objective")
+    return replace(r, mask=mask)
+
+
+def _decimated(r: _Record, q: int, n_max: int | None, offset: int) -> _Record:
+    """Every q-th sample of `r` from offset (mod q) up to n_max, the window and mask carried over."""
+    n = r.efd.size if n_max is None else min(int(n_max), r.efd.size)
+    first = offset % q if q > 1 else 0
+    idx = np.arange(first, n, max(1, q))
+    if q <= 1 and n == r.efd.size:
+        return r
+    if idx.size < 2:
+        raise ProblemError(f"{r.source}: decimating by {q} leaves {idx.size} sample(s)")
+    e = r.edges.decimated(q, offset, r.dt)
+    keep = e.index < idx.size
+    edges = EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
+    i0 = int(np.searchsorted(idx, r.i0))
+    i1 = int(np.searchsorted(idx, r.i1))
+    return replace(r, usetp=np.ascontiguousarray(r.usetp[idx]), efd=np.ascontiguousarray(r.efd[idx]),
+                   vt=None if r.vt is None else np.ascontiguousarray(r.vt[idx]), dt=r.dt * q, i0=i0,
+                   i1=max(i1, i0 + 2), edges=edges, mask=None if r.mask is None else r.mask[idx])
 
 
 def _segment_window(seg: slice, cap: Capture) -> tuple[float, float]:
@@ -394,7 +461,8 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
                  values: dict[str, float] | None = None, fit_edges: bool = True) -> Problem:
     """Bind captures and a unit into a `Problem`.
 
-    names: parameters to fit (default `unit.identified_names`; effect parameters allowed).
+    names: parameters to fit (default `unit.identified_names`; effect parameters allowed; none, when
+    only the edge instants are fitted, e.g. a holdout's timing under a model held fixed).
     bounds: per-name (lo, hi) overriding `default_bounds`. constraints: texts (default: the
     unit's, plus those of every effect with a fitted parameter). weights: alpha_k per capture
     (default 1). segment / fit_window: restrict the objective and MSE (samples / seconds from
@@ -407,8 +475,6 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
     if not caps:
         raise ProblemError("no capture given")
     names_t = tuple(unit.identified_names if names is None else names)
-    if not names_t:
-        raise ProblemError("no parameter to fit")
     if set(names_t) & set(EDGE_PARAMS):
         raise ProblemError(f"{sorted(set(names_t) & set(EDGE_PARAMS))}: edge offsets are set from the "
                            "captures (fit_edges), not named")
@@ -425,6 +491,8 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
             else:
                 slots.append(None)
         caps_slots.append(slots)
+    if not names_t and not edge_bounds:
+        raise ProblemError("no parameter to fit")
     if any(s is None for slots in caps_slots for s in slots):
         logger.warning("more than %d setpoint edges over the captures: the later ones stay at their "
                        "nominal sample", len(EDGE_PARAMS))
