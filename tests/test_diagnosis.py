@@ -267,7 +267,7 @@ def test_diagnosis_finds_the_ceiling_and_reports_the_gap(diag, ceiling_case):
     assert [s["name"] for s in diag["explained_by"]] == ["ceiling_limit"]
     # the check: the holdout and the capture's windows, each window left out of a re-fit
     labels = [p["label"] for p in top["check"]["parts"]]
-    assert labels == ["holdout", "leading_edge", "plateau", "trailing_edge", "recovery"]
+    assert labels == ["holdout", "leading_edge", "plateau", "trailing_edge"]
     assert diag["validation"]["kind"] == "holdout + windows"
 
 
@@ -280,7 +280,7 @@ def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling
     assert v["kind"] == "windows" and d["holdout"] is None
     assert v["fit"] == {"t0": 0.0, "t1": pytest.approx((cap.n - 1) * cap.dt)}
     wins = {w["label"]: (w["t0"], w["t1"]) for w in v["check"]["windows"]}
-    assert list(wins) == ["leading_edge", "plateau", "trailing_edge", "recovery"]
+    assert list(wins) == ["leading_edge", "plateau", "trailing_edge"]
     assert wins["leading_edge"][0] == pytest.approx(1.0, abs=cap.dt) and wins["trailing_edge"][0] == pytest.approx(
         2.0, abs=cap.dt)
     assert d["verdict"] == "ceiling_limit"

@@ -264,6 +264,7 @@ def score(results: Sequence[CaseResult]) -> dict:
     median holdout gap_closed of the true effect, seconds per capture."""
     labels = list(EFFECT_NAMES) + [NONE]
     confusion = {t: {p: 0 for p in labels} for t in labels}
+    every = list(results)
     pairs = [r for r in results if "+" in r.truth]
     results = [r for r in results if "+" not in r.truth]
     for r in results:
@@ -279,8 +280,9 @@ def score(results: Sequence[CaseResult]) -> dict:
         "none_correct": sum(r.verdict == NONE for r in none),
         "none_cases": len(none),
         "median_gap_closed": float(np.median(gaps)) if gaps else None,
-        "seconds_per_capture": float(np.mean([r.seconds for r in results])) if results else None,
-        "cpu_seconds_per_capture": float(np.mean([r.cpu_seconds for r in results])) if results else None,
+        "seconds_per_capture": float(np.mean([r.seconds for r in every])) if every else None,
+        "seconds_per_capture_median": float(np.median([r.seconds for r in every])) if every else None,
+        "cpu_seconds_per_capture": float(np.mean([r.cpu_seconds for r in every])) if every else None,
         "extra_effects_in_sequence": sum(len(r.sequence) > 1 for r in results),
         "none_with_explained_by": sum(bool(r.explained) for r in results if r.truth == NONE),
         "pair_cases": len(pairs),

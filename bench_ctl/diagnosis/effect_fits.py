@@ -20,10 +20,11 @@ setpoint edge, fitted together (`Views.problem`). For each effect (`fit_model`):
 The check (`check_parts`), where a fitted model is judged on data it was not fitted to: the
 holdout capture when there is one (the model held, only its own edge instants fitted), and
 always the cross-validation windows of the capture - the leading edge, the plateau, the
-trailing edge and the recovery in turn: the model is re-fitted (least squares from its fit) with
-the window left out of the objective, the simulation running through it, and scored on it. So
-an effect that acts at the edges (a ceiling, a slew limit, a setpoint ramp, a delay) is judged on
-an edge the fit never saw.
+trailing edge and the recovery in turn: the model is re-fitted with the window left out of the
+objective (the simulation running through it) and scored on it - the re-fit is the Gauss-Newton
+step from the model's fit over the other samples, one Jacobian serving all windows. So an effect
+that acts at the edges (a ceiling, a slew limit, a setpoint ramp, a delay) is judged on an edge
+the fit never saw.
 
 Ranking: BIC on the capture (n ln(mse) + k ln(n), k = added parameters) plus the predictive
 deviance on the check, sum over its parts of n_i ln(mse_i). An effect is significant when it
@@ -163,7 +164,6 @@ class Views:
     n_coarse: int                      # its last fine sample
     offset: int                        # a fine sample kept on the coarse grid (the leading edge)
     windows: tuple[Window, ...]
-    cv_calls: int = 40                 # least-squares simulations per window re-fit
     holdout_calls: int = 24            # least-squares simulations for the holdout's edge instants
     _cache: dict = field(default_factory=dict, repr=False)
 
@@ -208,8 +208,10 @@ def _mid(p: Problem, names: Sequence[str]) -> dict[str, float]:
 
 
 def check_parts(views: Views, p: Problem, x: np.ndarray) -> tuple[Part, ...]:
-    """The model at x judged where it was not fitted (module docstring): the holdout, then each
-    cross-validation window left out of a re-fit from x and scored."""
+    """The model at x judged where it was not fitted (module docstring): the holdout (the model
+    held, its edge instants fitted), then each cross-validation window left out of a re-fit and
+    scored. The re-fit without a window is the Gauss-Newton step from x on the other samples
+    (`_left_out`): the linearised leave-window-out fit, from one Jacobian for all windows."""
     parts: list[Part] = []
     space = Space.of(p)
     values = space.base | dict(zip(space.names, (float(v) for v in x)))
@@ -221,15 +223,53 @@ def check_parts(views: Views, p: Problem, x: np.ndarray) -> tuple[Part, ...]:
         if not math.isfinite(f):
             f = float(mse_of(h, x0)[0])
         parts.append(Part("holdout", h.n_scored()[0], f if f < FAIL_PENALTY else math.inf))
-    u0 = space.to_u(x)
-    for w in views.windows:
-        pe = p.excluding([(w.t0, w.t1)])
-        u, f, _ = polish(pe, u0, max_calls=views.cv_calls)
-        xw = space.to_x(u) if math.isfinite(f) else np.asarray(x, float)
-        po = p.only([(w.t0, w.t1)])
-        m = float(mse_of(po, xw)[0])
-        parts.append(Part(w.label, po.n_scored()[0], m if m < FAIL_PENALTY else math.inf))
+    parts += _left_out(views, p, x)
     return tuple(parts)
+
+
+#: Levenberg damping of the leave-window-out step, relative to the mean curvature: a parameter
+#: that only the left-out window determines (an edge instant, a limit reached only there) stays
+#: where the full fit put it instead of taking an arbitrary step
+LEAVE_OUT_DAMPING = 1e-6
+
+
+def _left_out(views: Views, p: Problem, x: np.ndarray, step: float = 1e-5) -> list[Part]:
+    """Per window: the efd MSE on the window of the model re-fitted without it, as the Gauss-Newton
+    step from x over the other samples (exact for a model linear in its parameters; the full fit is
+    the start, so the step is small). One kernel call of d + 1 candidates."""
+    space = Space.of(p)
+    d = space.d
+    u = space.to_u(x)
+    h = np.where(u + step <= 1.0, step, -step)
+    U = np.vstack([u[None, :], u[None, :] + np.diag(h)])
+    R, failed = p.residuals(space.to_x(U))
+    rec = p.records[0]
+    sl = p.efd_residual_slices()[0]
+    R = R[:, sl]
+    n = R.shape[1]
+    if failed[0]:
+        return [Part(w.label, 0.0, math.inf) for w in views.windows]
+    r0 = R[0]
+    J = ((R[1:] - r0[None, :]) / h[:, None]).T            # (n, d)
+    c = np.ones(n)
+    c[0] = c[-1] = 0.5
+    wrow = np.sqrt(p.w_efd * c * rec.weights() * rec.dt)  # the residual of a sample is wrow * error
+    t = (rec.i0 + np.arange(n)) * rec.dt
+    out = []
+    for w in views.windows:
+        inw = (t >= w.t0 - 1e-9 * rec.dt) & (t <= w.t1 + 1e-9 * rec.dt)
+        if not inw.any() or inw.all():
+            continue
+        Jr, rr = J[~inw], r0[~inw]
+        A = Jr.T @ Jr
+        lam = LEAVE_OUT_DAMPING * max(float(np.trace(A)) / max(d, 1), 1e-300)
+        try:
+            du = -np.linalg.solve(A + lam * np.eye(d), Jr.T @ rr)
+        except np.linalg.LinAlgError:
+            du = np.zeros(d)
+        pred = (r0[inw] + J[inw] @ du) / np.where(wrow[inw] > 0, wrow[inw], 1.0)
+        out.append(Part(w.label, float(inw.sum()), float(np.mean(pred * pred))))
+    return out
 
 
 def check_deviance(ref: ModelFit, m: ModelFit) -> float:
@@ -367,10 +407,11 @@ def _k(effects: Sequence[str]) -> int:
 def fit_model(views: Views, effects: Sequence[str], starts: Sequence[Mapping[str, float]], *, evals: int,
               seed: int, fixed: Mapping[str, float] | None = None, polish_coarse: int = 150,
               polish_fine: int = 60, multi: int = 8, floor_tol: float = 0.0, profile_evals: int = 0,
-              check: bool = False, extra: Sequence[str] = ()) -> ModelFit:
+              check: bool = False, extra: Sequence[str] = (), profile: bool = True) -> ModelFit:
     """Fit the model + `effects` (steps 2-3 of the module docstring) from the first `multi` starts
     (maps of values; an edge instant it lacks starts mid-interval); the best coarse solution
-    polished on the full record with `polish_fine` simulations (0: only evaluated there)."""
+    polished on the full record with `polish_fine` simulations (0: only evaluated there).
+    profile=False: from each start everything free at once (no profile run first)."""
     fixed = dict(fixed or {})
     extra = tuple(extra)
     p = views.problem(effects, fixed, extra=extra)
@@ -389,12 +430,15 @@ def fit_model(views: Views, effects: Sequence[str], starts: Sequence[Mapping[str
         # a profile (the effect parameters held at the start while the model parameters move, so
         # an effect that the model partly absorbs cannot slide back to its neutral value before
         # the model has left the base fit's basin), then everything free
-        prof_p = views.problem(effects, {**fixed, **{n: x0[n] for n in eff_names}}, with_effects=False, extra=extra)
-        prof = views.coarse(prof_p.held(held_edges)) if edges else views.coarse(prof_p)
-        sp = Space.of(prof)
-        u, f, calls = polish(prof, sp.to_u(sp.vector(x0)), max_calls=short)
-        nfev += calls
-        xp = {**dict(x0), **dict(zip(sp.names, sp.to_x(u)))}
+        xp, f = dict(x0), math.inf
+        if profile:
+            prof_p = views.problem(effects, {**fixed, **{n: x0[n] for n in eff_names}}, with_effects=False,
+                                   extra=extra)
+            prof = views.coarse(prof_p.held(held_edges)) if edges else views.coarse(prof_p)
+            sp = Space.of(prof)
+            u, f, calls = polish(prof, sp.to_u(sp.vector(x0)), max_calls=short)
+            nfev += calls
+            xp = {**dict(x0), **dict(zip(sp.names, sp.to_x(u)))}
         u, f2, calls = polish(pc, sc.to_u(sc.vector(xp)), max_calls=polish_coarse)
         nfev += calls
         cands.append((f2, dict(zip(sc.names, sc.to_x(u)))) if f2 <= f else (f, {k: xp[k] for k in sc.names}))
@@ -549,8 +593,9 @@ def describe_check(views: Views) -> dict[str, Any]:
     out: dict[str, Any] = {
         "kind": ("holdout + windows" if views.holdout is not None else "windows") if views.windows else "holdout",
         "windows": [{"label": w.label, "t0": w.t0, "t1": w.t1} for w in views.windows],
-        "how": "each window in turn left out of a least-squares re-fit from the model's fit (the simulation runs "
-               "through it) and scored on it; the holdout scored with the model held, its edge instants fitted",
+        "how": "each window in turn left out of the fit (the simulation runs through it; the re-fit is the "
+               "Gauss-Newton step from the model's fit over the other samples) and scored on it; the holdout "
+               "scored with the model held, its edge instants fitted",
         "holdout": (views.holdout.source or "holdout") if views.holdout is not None else None,
     }
     return out
