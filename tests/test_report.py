@@ -385,6 +385,42 @@ def test_diagnosis_at_noise_floor_says_gap_not_applicable(bench: dict, tmp_path:
     assert "no gap to close" in page.text_of["sec-diagnosis"]
 
 
+def test_diagnosis_staircase_and_check_windows(bench: dict, tmp_path: Path) -> None:
+    """Several effects: the staircase (error after each, down to the floor) as a table and a figure,
+    and what the models were judged on (the check's windows and holdout, with the base model's MSE)."""
+    diag = json.loads(json.dumps(bench["diagnosis"]))
+    diag["check"] = {"kind": "holdout + windows", "how": "each window left out of a re-fit",
+                     "holdout": {"capture": "hold.csv", "t0": 0.0, "t1": 8.0},
+                     "windows": [{"label": "leading_edge", "t0": 1.0, "t1": 1.199},
+                                 {"label": "plateau", "t0": 1.2, "t1": 1.999}]}
+    diag["base"]["check"] = {"mse": 3e-4, "parts": [{"label": "holdout", "mse": 2.5e-4},
+                                                    {"label": "leading_edge", "mse": 9.1e-4},
+                                                    {"label": "plateau", "mse": 1.7e-4}]}
+    diag["explained_by"] = [
+        {"name": "rate_limit", "params": {"RATE": 40.0}, "mse": 1.6e-4, "mse_over_floor": 1.6, "gap_closed": 0.8,
+         "check": {"mse": 1.8e-4}},
+        {"name": "dead_time", "params": {"RATE": 41.0, "TD": 0.004}, "mse": 1.02e-4, "mse_over_floor": 1.02,
+         "gap_closed": 0.99, "check": {"mse": 1.1e-4}}]
+    diag["left"] = {"mse": 1.02e-4, "mse_over_floor": 1.02, "note": "at the noise floor: nothing left to explain"}
+    (tmp_path / "diag.json").write_text(json.dumps(diag), encoding="utf-8")
+    rc = main(["report", str(bench["dir"] / "result.json"), "--diagnosis", str(tmp_path / "diag.json"),
+               "-o", str(tmp_path / "r.html")])
+    assert rc in (0, 1)
+    page = Page((tmp_path / "r.html").read_text(encoding="utf-8"))
+    stairs = page.text_of["diagnosis-explained-by"]
+    assert stairs.index("+ rate_limit") < stairs.index("+ dead_time")
+    assert "fig-diagnosis_staircase" in page.by_id and (tmp_path / "r_diagnosis_staircase.png").stat().st_size > 1000
+    check = page.text_of["diagnosis-check"]
+    assert "holdout capture hold.csv" in check and "leading_edge" in check and "plateau" in check
+    assert "0.00091" in check   # the base model's error on the left-out leading edge
+    # without explained_by steps, no staircase figure
+    diag["explained_by"] = []
+    (tmp_path / "diag.json").write_text(json.dumps(diag), encoding="utf-8")
+    main(["report", str(bench["dir"] / "result.json"), "--diagnosis", str(tmp_path / "diag.json"),
+          "-o", str(tmp_path / "r2.html")])
+    assert "fig-diagnosis_staircase" not in Page((tmp_path / "r2.html").read_text(encoding="utf-8")).by_id
+
+
 # --- refusals: exit code 2, clear message, nothing written ---------------------------------
 
 def _write_result(d: Path, result: dict) -> Path:

@@ -6,6 +6,7 @@ HTML (one figure per PNG, `png_bytes`) and the PDF (two figures per A4 page). Co
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from io import BytesIO
 from typing import Any
@@ -141,3 +142,27 @@ def draw_effects(fig: Canvas, effects: Sequence[Mapping[str, Any]]) -> None:
     ax.axvline(0.0, color="0.3", lw=0.6)
     ax.grid(alpha=0.3, axis="x")
     ax.legend(loc="lower right", fontsize=8)
+def draw_staircase(fig: Canvas, base_mse: float, floor: float, steps: Sequence[Mapping[str, Any]],
+                   left: Mapping[str, Any] | None = None, base_check: float | None = None) -> None:
+    """The error after each effect added (explained_by), over the noise floor, down to it."""
+    labels = ["base model"] + [f"+ {s.get('name', '?')}" for s in steps]
+    vals = [base_mse / floor] + [float(s.get("mse", math.nan)) / floor for s in steps]
+    checks = [base_check] + [(s.get("check") or {}).get("mse") for s in steps]
+    ax = fig.subplots()
+    x = np.arange(len(labels))
+    ax.step(x, vals, where="mid", color=COLORS["bar"], lw=2, label="MSE on the capture / noise floor")
+    ax.plot(x, vals, "o", color=COLORS["bar"])
+    chk = [(i, float(c) / floor) for i, c in enumerate(checks) if isinstance(c, (int, float))]
+    if chk:
+        ax.plot([i for i, _ in chk], [v for _, v in chk], "s", mfc="none", color="0.35",
+                label="check MSE / noise floor (data not fitted)")
+    ax.axhline(1.0, color="0.3", ls="--", lw=1, label="noise floor")
+    ax.set_yscale("log")
+    ax.set_xticks(x, labels)
+    ax.set_ylabel("MSE / noise floor")
+    note = f" - left: {left.get('note')}" if left and left.get("note") else ""
+    ax.set_title("Diagnosis: the error after each effect added" + note[:90], fontsize=10)
+    ax.grid(alpha=0.3, which="both", axis="y")
+    ax.legend(loc="upper right", fontsize=8)
+
+

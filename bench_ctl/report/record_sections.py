@@ -107,6 +107,7 @@ def diagnosis(d: ReportData) -> Section | None:
                          for i, s in enumerate(seq)], id="diagnosis-sequence",
                         caption="Greedy sequence: effects added one after another")
                   if seq else Para(f"Greedy sequence: {NOT_AVAILABLE}.", "na"))
+    blocks += _check(g)
     blocks += _explained_by(g)
     return Section("diagnosis", "Diagnosis of the remaining gap", tuple(blocks))
 
@@ -133,9 +134,31 @@ def _explained_by(g: Mapping[str, Any]) -> list[Block]:
                               caption="The effects that together explain the record, in the order added "
                                       "(each step re-fits every parameter): the error after each, down to "
                                       "the noise floor")]
+    base_mse = num(base.get("mse"))
+    if steps and floor and base_mse is not None:
+        out.append(Fig("diagnosis_staircase", "The staircase: the error after each effect added, over the noise "
+                       "floor (log scale), down to it; squares: the same on the check.",
+                       partial(F.draw_staircase, base_mse=base_mse, floor=floor, steps=steps, left=left,
+                               base_check=num((base.get("check") or {}).get("mse")))))
     if left is not None:
         out.append(Para(f"What is left: {left.get('note', '')}.", "note"))
     return out
+
+
+def _check(g: Mapping[str, Any]) -> list[Block]:
+    """What every model was judged on: the holdout and the cross-validation windows."""
+    chk = g.get("check") if isinstance(g.get("check"), Mapping) else None
+    if chk is None:
+        return []
+    parts_in = [("holdout", f"holdout capture {h.get('capture') or ''}", h) for h in (chk.get("holdout"),)
+                if isinstance(h, Mapping)]
+    parts_in += [(str(w.get("label", "?")), str(w.get("label", "?")), w) for w in _objs(chk.get("windows"))]
+    base = g.get("base") if isinstance(g.get("base"), Mapping) else {}
+    mse = {str(p.get("label")): num(p.get("mse")) for p in _objs((base.get("check") or {}).get("parts"))}
+    rows = [(name, Num(num(w.get("t0")), digits=4), Num(num(w.get("t1")), digits=4), Num(mse.get(key), digits=4))
+            for key, name, w in parts_in]
+    return [table(("check part", "from (s)", "to (s)", "base model MSE there (pu²)"), rows, id="diagnosis-check",
+                  caption=f"The check ({chk.get('kind', '?')}): {chk.get('how', '')}")]
 
 
 def _unit_rows(unit: Mapping[str, Any]) -> list[tuple[str, str]]:
