@@ -195,7 +195,8 @@ class Views:
         """The holdout with the model held at `values`: only its own edge instants are fitted."""
         assert self.holdout is not None
         held = {k: v for k, v in values.items() if k not in EDGE_PARAMS}
-        return make_problem([self.holdout], self.unit, names=(), values=held)
+        # no constraint: nothing of the model is fitted here (a fit left infeasible is still judged)
+        return make_problem([self.holdout], self.unit, names=(), values=held, constraints=())
 
 
 def edge_names(p: Problem) -> list[str]:
@@ -327,7 +328,7 @@ def effect_starts(effect: str, hints: Mapping[str, float]) -> list[dict[str, flo
         return [{"S10": c("S10", a), "S12": c("S12", a * r)} for a in s10s for r in (2.0, 4.0)]
     if effect == "rate_limit":
         s = max(hints.get("slope_up", math.nan), hints.get("slope_down", math.nan))
-        grid = [5.0, 20.0, 80.0]
+        grid = [3.0, 10.0, 30.0, 80.0]
         if math.isfinite(s) and s > 0:
             grid = [s, 0.8 * s, 1.2 * s] + grid
         return [{"RATE": c("RATE", v)} for v in grid]
