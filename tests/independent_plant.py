@@ -58,6 +58,8 @@ class Recorder:
     noise_pu: float = 0.01
     bits: int = 16
     range_pu: float = 10.0
+    #: noise of the Vt channel (a transducer output on its own range: smaller than efd's)
+    noise_vt_pu: float = 0.002
 
     def quantise(self, x: np.ndarray) -> np.ndarray:
         if self.bits <= 0:
@@ -220,6 +222,8 @@ class Plant:
         ifd = eqp + np.array([self.sat(x) for x in eqp])
         rng = np.random.default_rng(seed)
         efd = recorder.quantise(p["GAIN"] * efd_true + rng.normal(0.0, recorder.noise_pu, n))
+        if recorder.noise_pu > 0.0:  # drawn after efd's: efd is the same with or without it
+            vt = recorder.quantise(vt + rng.normal(0.0, recorder.noise_vt_pu, n))
         usetp = np.array([test.usetp(x) for x in t])  # the recorder samples the setpoint
         truth = {"params": dict(p), "edges_s": [te for te, _ in test.edges()],
                  "noise_pu": recorder.noise_pu, "efd_clean": p["GAIN"] * efd_true}

@@ -267,7 +267,7 @@ def test_diagnosis_finds_the_ceiling_and_reports_the_gap(diag, ceiling_case):
     assert [s["name"] for s in diag["explained_by"]] == ["ceiling_limit"]
     # the check: the holdout and the capture's windows, each window left out of a re-fit
     labels = [p["label"] for p in top["check"]["parts"]]
-    assert labels == ["holdout", "leading_edge", "plateau", "trailing_edge"]
+    assert labels == ["holdout", "leading_edge", "plateau", "trailing_edge", "vt"]  # vt: recorded, not fitted
     assert diag["validation"]["kind"] == "holdout + windows"
 
 

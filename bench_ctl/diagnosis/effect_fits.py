@@ -18,8 +18,9 @@ setpoint edge, fitted together (`Views.problem`). For each effect (`fit_model`):
    evaluated there as they are.
 
 The check (`check_parts`), where a fitted model is judged on data it was not fitted to: the
-holdout capture when there is one (the model held, only its own edge instants fitted), and
-always the cross-validation windows of the capture - the leading edge, the plateau, the
+holdout capture when there is one (the model held, only its own edge instants fitted), the
+recorded terminal voltage when there is one and the fit did not use it, and always the
+cross-validation windows of the capture - the leading edge, the plateau, the
 trailing edge and the recovery in turn: the model is re-fitted with the window left out of the
 objective (the simulation running through it) and scored on it - the re-fit is the Gauss-Newton
 step from the model's fit over the other samples, one Jacobian serving all windows. So an effect
@@ -143,11 +144,11 @@ class ModelFit:
 
     @property
     def mse_check(self) -> float | None:
-        """The check's pooled MSE (its parts' sample-weighted mean), None when not checked."""
-        if not self.checks:
-            return None
-        n = sum(p.n for p in self.checks)
-        return sum(p.n * p.mse for p in self.checks) / n if n > 0 else None
+        """The check's pooled efd MSE (the efd parts' sample-weighted mean; not the Vt part, another
+        channel on another scale), None when not checked."""
+        parts = [p for p in self.checks or () if p.label != "vt"]
+        n = sum(p.n for p in parts)
+        return sum(p.n * p.mse for p in parts) / n if n > 0 else None
 
     def part(self, label: str) -> Part | None:
         return next((p for p in self.checks or () if p.label == label), None)
@@ -225,7 +226,26 @@ def check_parts(views: Views, p: Problem, x: np.ndarray) -> tuple[Part, ...]:
             f = float(mse_of(h, x0)[0])
         parts.append(Part("holdout", h.n_scored()[0], f if f < FAIL_PENALTY else math.inf))
     parts += _left_out(views, p, x)
+    vt = _vt_part(p, x)
+    if vt is not None:
+        parts.append(vt)
     return tuple(parts)
+
+
+def _vt_part(p: Problem, x: np.ndarray) -> Part | None:
+    """The recorded terminal voltage, when the capture has it and the fit did not use it (vt
+    weight 0): how well the model predicts it. It separates effects that look alike in efd but
+    act apart on the machine, e.g. a dead time in the loop (Vt follows the delayed efd) from a
+    recorder skew of the efd channel (Vt follows the real, earlier one)."""
+    rec = p.records[0]
+    if rec.vt is None or p.w_vt > 0:
+        return None
+    from bench_ctl.model.kernel import run_kernel
+    out = run_kernel(p.matrix(np.atleast_2d(x)), rec.usetp, rec.dt, rec.usetp_pre, edges=rec.edges)
+    if out["fail_step"][0] >= 0:
+        return Part("vt", float(rec.vt.size), math.inf)
+    e = out["vt"][0] - rec.vt
+    return Part("vt", float(e.size), float(np.mean(e * e)))
 
 
 #: Levenberg damping of the leave-window-out step, relative to the mean curvature: a parameter
@@ -596,7 +616,9 @@ def describe_check(views: Views) -> dict[str, Any]:
         "windows": [{"label": w.label, "t0": w.t0, "t1": w.t1} for w in views.windows],
         "how": "each window in turn left out of the fit (the simulation runs through it; the re-fit is the "
                "Gauss-Newton step from the model's fit over the other samples) and scored on it; the holdout "
-               "scored with the model held, its edge instants fitted",
+               "scored with the model held, its edge instants fitted; a recorded Vt the fit did not use "
+               "scored as predicted",
         "holdout": (views.holdout.source or "holdout") if views.holdout is not None else None,
+        "vt": bool(views.capture.vt is not None and float(views.unit.weights.get("vt", 0.0)) == 0.0),
     }
     return out
