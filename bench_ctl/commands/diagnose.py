@@ -65,9 +65,15 @@ def summary(d: dict[str, Any]) -> str:
                      + ("" if e["significant"] else "  (not significant)"))
     for a in d["ambiguous"]:
         lines.append(f"ambiguous: {' / '.join(a['effects'])}: {a['separating_test']}")
-    if d["sequence"]:
-        lines.append("sequence: " + " -> ".join(f"{s['added']} (check mse {_fmt(s['mse_holdout'])})"
-                                               for s in d["sequence"]))
+    if d.get("explained_by"):
+        lines += ["", "explained by (each step re-fitted jointly; error over the noise floor):",
+                  f"  base model {b['mse'] / d['noise_floor']:.2f}x"]
+        for s in d["explained_by"]:
+            params = ", ".join(f"{k}={v:.4g}" for k, v in s["params"].items())
+            lines.append(f"  + {s['name']:<15} {s['mse_over_floor']:.2f}x   {params}"
+                         + (f"   (dropped {', '.join(s['dropped'])})" if s.get("dropped") else ""))
+    if d.get("left"):
+        lines.append(f"left: {d['left']['note']}")
     lines += ["", f"verdict: {d['verdict']}   ({d['wall_s']:.1f} s)"]
     return "\n".join(lines)
 
