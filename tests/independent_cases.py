@@ -4,7 +4,8 @@ The same shape as `bench_ctl.diagnosis.blind.make_case` (random AVR parameters, 
 effect at a visible but plausible magnitude or none, a main 5 %/1 s pulse and a holdout pulse of
 another width), but every record comes from the independent plant, each setpoint edge at its own
 random instant inside its sample interval (`edges="inside"`), a whole sample early (`"early"`) or
-on the sample (`"on"`). Visibility is judged on a noise-free record with the edges on the samples,
+on the sample (`"on"`). With the effect the response must still settle (a slew limit can drive the
+loop into a limit cycle: drawn again). Visibility is judged on a noise-free record with the edges on the samples,
 so that it measures the effect and not the edge timing. Several effects may be withheld at once
 (`effect="saturation+ceiling_limit"`).
 """
@@ -22,6 +23,13 @@ def _capture(rec: ip.Record, label: str, test: ip.Test) -> Capture:
     meta = {"test": {"kind": "pulse", "amplitude": test.amplitude_pu, "start": test.on_s, "width": test.width_s},
             "source": "independent plant (tests/independent_plant.py)"}
     return Capture(rec.time, rec.usetp, rec.efd, rec.vt, meta=meta, source=label)
+
+
+def _settles(efd: np.ndarray, dt: float) -> bool:
+    """A pulse response a commissioning test gives: within +-10 pu and back within 0.1 pu of its
+    initial value in the last 0.5 s (as bench_ctl.diagnosis.blind's realistic responses)."""
+    tail = efd[-int(0.5 / dt):]
+    return bool(np.all(np.isfinite(efd)) and np.max(np.abs(efd)) <= 10.0 and np.max(np.abs(tail - efd[0])) < 0.1)
 
 
 def independent_case(effect: str, seed: int, cfg: SuiteConfig = SuiteConfig(), edges: str = "inside",
@@ -46,6 +54,9 @@ def independent_case(effect: str, seed: int, cfg: SuiteConfig = SuiteConfig(), e
                 for name in names:
                     params.update(ip.draw_effect(name, rng, free, dt))
                 clean = ip.Plant({**avr, **params}).run(nominal, clean_cfg)
+                if not _settles(clean.efd, dt):   # e.g. a slew limit that drives the loop into a limit cycle
+                    redraws += 1
+                    continue
                 vis = record_visibility(unit, Capture(clean.time, clean.usetp, clean.efd), avr, cfg, seed)
                 if vis >= VISIBLE:
                     break
