@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from andes_units import fixture_unit, manifest, open_loop_efd, read_fixture, true_edges
+from andes_units import fixture_unit, manifest, open_loop_efd, read_fixture, standard_params, true_edges
 from bench_ctl.cli import main
 from bench_ctl.model.params import PARAMS
 from bench_ctl.model.simulate import simulate
@@ -212,3 +212,33 @@ def test_generator_conversion_from_a_dyr_record_matches_the_fixture_helper():
     ref = generator_values(g)
     for k in ("Td0p", "Td0pp", "KPP", "KDA", "S10", "S12"):
         assert ours[k] == pytest.approx(ref[k], rel=1e-12), k
+
+
+def test_identification_polishes_again_from_ieeex1s_exchanged_lags():
+    """ANDES' IEEEX1 capture, 0.01 pu noise: from the point a fit once stalled at (TA and TE
+    exchanged, 1.24x the noise floor) the restart from the exchanged point reaches the true lags,
+    and an optimizer run on that problem records the restart in its settings."""
+    from bench_ctl.capture import Capture
+    from bench_ctl.identification import peers
+    from bench_ctl.identification.problem import make_problem
+
+    name = "ieeex1_05pct"
+    unit = fixture_unit(name, true_values=False)
+    base = read_fixture(name)
+    noise = np.random.default_rng([2, 0xA7D]).normal(0.0, 0.01, base.n)
+    prob = make_problem([Capture(time=base.time, usetp=base.usetp, efd=base.efd + noise)], unit)
+    swaps = peers._swaps(prob)
+    assert [(prob.names[i], prob.names[j]) for _, i, j in swaps] == [("TE", "TEX")]  # std TA, TE
+    stalled = {"KAVR": 39.909, "TE": 0.5, "TEX": 0.05, "KF": 0.0267}
+    x = np.array([stalled.get(n, 0.5 * (lo + hi)) for n, lo, hi in zip(prob.names, prob.lower, prob.upper)])
+    f = float(prob.objective(x[None])[0])
+    x2, f2, nfev, _, settings, _ = peers._swap_restarts(prob, swaps, 200, x, f, 0, [], {}, "", None)
+    assert nfev <= 200 and settings["swap_restarts"][0]["kept"]
+    assert f2 < 0.85 * f
+    true = standard_params(manifest()["captures"][name])
+    truth = {"TE": true["TA"], "TEX": true["TE"]}
+    v = prob.params(x2)
+    for k, t in truth.items():
+        assert abs(v[k] / t - 1.0) < 0.1, (k, v[k], t)
+    r = peers.run_optimizer("mvmo", prob, max_evals=1000, seed=2)
+    assert r.settings["swap_restarts"][0]["swap"].startswith("regulator lag TA")

@@ -59,6 +59,10 @@ class Structure:
         field(default_factory=dict)
     #: kernel lead-lag pairs (lead, lag): both 0 in the standard means "no lead-lag" (1, 1 here)
     lead_lags: tuple[tuple[str, str], ...] = ()
+    #: (note, (A, B)): two time constants whose exchange leaves the small-signal response (nearly)
+    #: unchanged, so a fit can settle in the exchanged basin; identification restarts its
+    #: polish from the exchanged point (`peers._swap_restarts`)
+    swaps: tuple[tuple[str, tuple[str, str]], ...] = ()
     source: str = ""
 
     # ---- names ----
@@ -143,6 +147,10 @@ class Structure:
                 out[f] = float(v)
         return out
 
+    def kernel_swaps(self) -> list[tuple[str, tuple[str, str]]]:
+        """`swaps` under the kernel names the two parameters drive."""
+        return [(note, (self.kernel_name(a), self.kernel_name(b))) for note, (a, b) in self.swaps]
+
     def describe(self) -> str:
         lines = [f"{self.name}: {self.title}", ""]
         lines += ["Block diagram:"] + [f"  {d}" for d in self.diagram] + [""]
@@ -174,6 +182,9 @@ class Structure:
             if p.kernel is not None and math.isfinite(p.typical) and not (
                     p.typical == 0.0 and any(p.kernel in pair for pair in self.lead_lags)):
                 PARAMS[p.kernel].check(p.typical, where=f"model {self.name}: {p.name} -> ")
+        for note, pair in self.swaps:
+            for n in pair:
+                self.kernel_name(n)
 
 
 _MODULES = ("reference", "sexs", "exst1", "esst1a", "ieeex1", "esst4b")

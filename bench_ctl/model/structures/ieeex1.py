@@ -31,6 +31,8 @@ STRUCTURE = Structure(
     ),
     settings={"TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "KC": 0.0, "LIMOUT": 0.0},
     lead_lags=(("TA1", "TA2"),),
+    swaps=(("regulator lag TA <-> exciter time constant TE (the forward path KA/((1 + s TA)(KE + s TE)) "
+            "is symmetric in them when KE = 1 and saturation is small)", ("TA", "TE")),),
     dyr_model="IEEEX1",
     source="PSS/E model library, IEEEX1 (IEEE 1968 type 1, 421.5 DC1A family); ANDES "
            "andes/models/exciter/ieeex1.py (ANDES scales VRMAX, VRMIN by Vt)",
