@@ -242,3 +242,25 @@ def test_identification_polishes_again_from_ieeex1s_exchanged_lags():
         assert abs(v[k] / t - 1.0) < 0.1, (k, v[k], t)
     r = peers.run_optimizer("mvmo", prob, max_evals=1000, seed=2)
     assert r.settings["swap_restarts"][0]["swap"].startswith("regulator lag TA")
+
+
+def test_identifiability_examines_the_structures_declared_exchange():
+    """At ANDES' IEEEX1 values (KE = 1) the TA <-> TE exchange is reported among the equivalent
+    sets: the no-load capture cannot tell the two lags apart, the default bounds do (TA <= 0.5 s,
+    the true TE is 0.58 s), so TA and TE count as determined and the note says why."""
+    from bench_ctl.capture import Capture
+    from bench_ctl.identification.identifiability import analyse
+    from bench_ctl.identification.problem import make_problem
+
+    name = "ieeex1_05pct"
+    unit = fixture_unit(name, true_values=True)
+    base = read_fixture(name)
+    noise = np.random.default_rng(5).normal(0.0, 0.01, base.n)
+    prob = make_problem([Capture(time=base.time, usetp=base.usetp, efd=base.efd + noise)], unit)
+    x = prob.x_start()
+    out = analyse(prob, x)
+    sets = [s for s in out["equivalent_sets"] if s["note"].startswith("regulator lag TA")]
+    assert len(sets) == 1 and sets[0]["equivalent"] and not sets[0]["in_bounds"]
+    assert sets[0]["verdict"] == "equally good but ruled out by bounds"
+    assert sets[0]["params"]["TE"] == pytest.approx(x[list(prob.names).index("TEX")])
+    assert out["determined"]["TE"] and out["determined"]["TEX"]
