@@ -19,11 +19,14 @@ an explained_by in <= 10 %; <= 10 s per capture.
 
 Sources (issue 11): `--source independent` (default) draws the cases from the plant in
 tests/independent_plant.py, written apart from the kernel, each setpoint edge at a random instant
-inside its sample interval (`--edges early`: a whole sample early); `--source kernel` from
+inside its sample interval (`--edges early`: a whole sample early); `--source andes` from the
+captures another simulator made (tests/andes_cases.py: the ANDES fixtures diagnosed with their
+own structure; the effects ANDES' records can carry: saturation, ceiling_limit, recorder_gain,
+time_skew, none; no holdout, the check is the record's windows); `--source kernel` from
 bench_ctl's own model (edges on the samples).
 
 Usage: python benchmarks/diagnose_blind.py [--cases-per-effect 10] [--none-cases 10] [--seed 0]
-       [--source independent|kernel] [--edges inside|early|on] [--effects a,b,c+d]
+       [--source independent|andes|kernel] [--edges inside|early|on] [--effects a,b,c+d]
        [--rate 1000] [--duration 10] [--no-holdout] [--json OUT] [--csv CASES.csv]
 Prints per-case lines and the table; exits 0 when it ran (it reports, it does not judge).
 """
@@ -69,9 +72,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=10.0, help="record length (s)")
     ap.add_argument("--no-holdout", action="store_true", help="diagnose without the holdout capture "
                     "(fit / check split inside the record)")
-    ap.add_argument("--source", default="independent", choices=("independent", "kernel"),
-                    help="independent: cases from tests/independent_plant.py (not the kernel); kernel: "
-                         "bench_ctl's own synthetic captures")
+    ap.add_argument("--source", default="independent", choices=("independent", "andes", "kernel"),
+                    help="independent: cases from tests/independent_plant.py (not the kernel); andes: the "
+                         "ANDES fixtures (tests/andes_cases.py: saturation, ceiling_limit, recorder_gain, "
+                         "time_skew, none; no holdout); kernel: bench_ctl's own synthetic captures")
     ap.add_argument("--edges", default="inside", choices=("inside", "early", "on"),
                     help="independent source: each setpoint edge inside its sample interval, a whole sample "
                          "early, or on the sample")
@@ -85,7 +89,11 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     effects = [e.strip() for e in args.effects.split(",")] if args.effects else list(EFFECT_NAMES)
-    if args.source == "independent":
+    if args.source == "andes":
+        from andes_cases import EFFECTS, andes_suite
+        cases = andes_suite(args.cases_per_effect, none_cases, seed=args.seed,
+                            effects=effects if args.effects else list(EFFECTS))
+    elif args.source == "independent":
         from independent_cases import independent_suite
         cases = independent_suite(args.cases_per_effect, none_cases, seed=args.seed, effects=effects, cfg=cfg,
                                   edges=args.edges)
@@ -130,7 +138,8 @@ def main(argv: list[str] | None = None) -> int:
         flat = {k: v for k, v in s.items() if k != "confusion"}
         flat.update({"confusion": s["confusion"], "seed": args.seed, "cases_per_effect": args.cases_per_effect,
                      "source": args.source, "edges": args.edges if args.source == "independent" else "on",
-                     "rate_hz": args.rate, "duration_s": args.duration, "holdout": not args.no_holdout,
+                     "rate_hz": args.rate, "duration_s": args.duration,
+                     "holdout": not args.no_holdout and args.source != "andes",
                      "seconds_max": max(r.seconds for r in results)})
         Path(args.json_out).write_text(json.dumps(flat, indent=1) + "\n", encoding="utf-8")
     if args.csv_out:

@@ -37,3 +37,34 @@ def test_none_on_effect_free_captures(scored):
 def test_gap_closed_on_the_holdout(scored):
     results, s = scored
     assert s["median_gap_closed"] >= 0.8, [(r.case_id, r.gap_closed_holdout) for r in results]
+
+
+def test_andes_cases_withhold_what_the_record_carries():
+    """The ANDES source (tests/andes_cases.py): each case's unit and record carry what it says."""
+    import numpy as np
+
+    from andes_cases import andes_case, eligible
+    from andes_units import read_fixture
+
+    assert eligible("ceiling_limit") == ["esst1a_10pct", "esst1a_20pct", "esst4b_20pct"]
+    none = andes_case(NONE, 0)
+    assert "saturation" in none.unit.effects and none.holdout is None
+    assert "saturation" not in andes_case("saturation", 0).unit.effects
+    ceil = andes_case("ceiling_limit", 2)
+    assert ceil.unit.model == "ESST4B" and ceil.unit.standard_values()["VMMAX"] == 20.0
+    skew = andes_case("time_skew", 0)
+    base = read_fixture(skew.capture.source.split("-")[2])
+    late = np.interp(base.time - skew.effect_params["SKEW"], base.time, base.efd, left=base.efd[0])
+    assert np.std(skew.capture.efd - late) == pytest.approx(0.01, rel=0.1)   # the recorder noise only
+    assert np.max(np.abs(skew.capture.efd - base.efd)) > 0.2                 # the edges moved
+
+
+def test_andes_ceiling_withheld_is_found():
+    """ANDES' ESST1A at 20 % rides VRMAX*Vt - KC*Ifd and VRMIN*Vt; the unit's ceilings opened wide,
+    the diagnosis finds ceiling_limit first, with the ceiling ANDES had."""
+    from andes_cases import andes_case
+
+    case = andes_case("ceiling_limit", 1)
+    assert case.capture.source == "andes-ceiling_limit-esst1a_20pct-1"
+    (r,) = run_suite([case], diagnose)
+    assert r.verdict == "ceiling_limit" and r.explained[0] == "ceiling_limit", (r.verdict, r.explained, r.ranking)

@@ -55,9 +55,10 @@ class Case:
     effect_params: dict[str, float]
     avr_params: dict[str, float]
     capture: Capture
-    holdout: Capture
+    holdout: Capture | None             # None: no holdout (the check is the record's windows)
     visibility: float = 0.0             # excess MSE of the refitted base model / noise variance
     redraws: int = 0                    # magnitudes rejected as invisible
+    unit: Unit | None = None            # what the diagnosis is told (None: the reference unit file)
 
 
 def _draw_avr(unit: Unit, rng: np.random.Generator) -> dict[str, float]:
@@ -229,12 +230,13 @@ class CaseResult:
 
 def run_suite(cases: Sequence[Case], diagnose_fn: Callable[..., dict], *, seed: int = 0,
               progress: Callable[[CaseResult], None] | None = None, **kwargs) -> list[CaseResult]:
-    """Diagnose every case blind (the function sees the two captures and the reference unit only)."""
+    """Diagnose every case blind (the function sees the captures and the unit only: the case's
+    when it has one, else the reference unit file)."""
     unit = load_unit(None)
     results = []
     for case in cases:
         t0, c0 = time.perf_counter(), time.process_time()
-        diag = diagnose_fn(case.capture, unit, holdout=case.holdout, seed=seed, **kwargs)
+        diag = diagnose_fn(case.capture, case.unit or unit, holdout=case.holdout, seed=seed, **kwargs)
         dt, cpu = time.perf_counter() - t0, time.process_time() - c0
         gap = None
         if case.effect != NONE:

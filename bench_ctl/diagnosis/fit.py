@@ -308,6 +308,6 @@ def std_of(p: Problem, pol: Polished, noise_variance: float) -> dict[str, float]
     sd_u = np.sqrt(np.maximum(np.diag(cov_u), 0.0))
     x = space.to_x(pol.u)
     # dx/du: linear (hi - lo), logarithmic x ln(hi / lo)
-    dxdu = np.where(space.log_scale, x * np.log(np.where(space.log_scale, space.hi / space.lo, 2.0)),
-                    space.hi - space.lo)
+    ratio = np.where(space.log_scale, space.hi, 2.0) / np.where(space.log_scale, space.lo, 1.0)
+    dxdu = np.where(space.log_scale, x * np.log(ratio), space.hi - space.lo)
     return {n: float(v) for n, v in zip(space.names, sd_u * np.abs(dxdu))}
