@@ -76,3 +76,20 @@ def test_objective_is_the_trapezoidal_integral():
     err2 = (out["efd"][0] - meas) ** 2
     assert math.isclose(out["obj"][0], np.trapezoid(err2, t), rel_tol=1e-9)
     assert math.isclose(out["sse_efd"][0], err2.sum(), rel_tol=1e-9)
+
+
+def test_numba_runs_the_optimisation_the_kernel_needs():
+    """bench_ctl sets NUMBA_OPT=max before numba builds its code generator (the kernel's RK4 loop
+    of the standard structures is vectorised only then); a process where that was overridden is
+    told so."""
+    import os
+    import subprocess
+    import sys
+
+    from bench_ctl.model.kernel import optimisation_note
+
+    assert optimisation_note() is None
+    code = "import bench_ctl.model.kernel as k; print(k.optimisation_note())"
+    env = {**os.environ, "NUMBA_OPT": "3"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert "NUMBA_OPT='3'" in out.stdout and "2.5x slower" in out.stdout

@@ -21,7 +21,7 @@ import numpy as np
 import bench_ctl
 from bench_ctl.capture import Capture
 from bench_ctl.capture.capture import sha256_file
-from bench_ctl.model.kernel import run_kernel
+from bench_ctl.model.kernel import optimisation_note, run_kernel
 from bench_ctl.model.params import RECORD_PARAMS
 from bench_ctl.model.simulate import param_matrix
 from bench_ctl.model.unit import Unit
@@ -59,8 +59,17 @@ class Identification:
         return values_outside_bounds(self.result["params"], self.result["bounds"])
 
 
+_warned = False
+
+
 def warm_up(unit: Unit) -> float:
-    """Compile (or load from the cache) every kernel variant identification uses; seconds."""
+    """Compile (or load from the cache) every kernel variant identification uses; seconds. Warns
+    (once a process) when numba runs without the optimisation the kernel needs."""
+    global _warned
+    note = optimisation_note()
+    if note and not _warned:
+        logger.warning(note)
+        _warned = True
     t0 = time.perf_counter()
     u = np.array([1.0, 1.0, 1.05, 1.05])
     m = np.ones(4)

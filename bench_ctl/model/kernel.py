@@ -21,6 +21,7 @@ Derived per-candidate factors are computed once, in numpy, by `derive` (column o
 from __future__ import annotations
 
 import math
+import os
 
 import llvmlite.binding as _llvm
 import numba as nb
@@ -35,6 +36,23 @@ from .params import COL, KERNEL_PARAMS, RECORD_PARAMS
 # per core). Process-wide, it only raises a vectoriser limit. See docs/decisions/0003.
 _llvm.set_option("", "-runtime-memory-check-threshold=256")
 _llvm.set_option("", "-vectorize-memory-check-threshold=512")
+
+
+def optimisation_note() -> str | None:
+    """None when numba's code generator runs the "max" optimisation the kernel's RK4 loops need to
+    be vectorised (bench_ctl sets NUMBA_OPT=max at import, see bench_ctl/__init__.py), else why
+    not: numba was set up before bench_ctl was imported, or NUMBA_OPT was set otherwise."""
+    try:
+        from numba.core.registry import cpu_target
+        codegen = cpu_target.target_context.codegen()
+        ok = bool(getattr(codegen, "_loopvect", True)) and getattr(codegen, "_opt_level", 3) == 3
+    except Exception:  # pragma: no cover - numba internals moved: do not guess
+        return None
+    if ok:
+        return None
+    return (f"numba runs without its 'max' optimisation (NUMBA_OPT={os.environ.get('NUMBA_OPT', '')!r}, or "
+            "numba was set up before bench_ctl was imported): the kernel's RK4 loops stay scalar and the "
+            "standard structures simulate ~2.5x slower")
 
 # derived-column indices
 (D_KAVR, D_R1, D_IT2, D_R2, D_IT4, D_ITE, D_ITR, D_ITD0P, D_ITD0PP, D_SATA, D_SATB,
