@@ -7,7 +7,9 @@ from the data sheets (`andes_units.fixture_unit(true_values=False)`: the generat
 exciter value but the identified ones; the identified ones start at the structure's typical
 values) and is told nothing else. What is withheld:
 
-* ``none``: nothing; the unit knows the generator's saturation. Every fixture in turn.
+* ``none``: nothing; the unit knows the generator's saturation. Every fixture in turn. (EXST1's
+  ceilings are opened in every case: ANDES 2.0's EXST1 clamps another signal, so they never act
+  in its records, as the data sheet of what ANDES simulated would say.)
 * ``saturation``: the unit is given no saturation (ANDES' is in every record). Every fixture.
 * ``ceiling_limit``: the unit's own ceilings opened wide (VRMAX / VRMIN, and ESST4B's VMMAX /
   VMMIN at +-20 pu), on the captures whose efd rides a limit in ANDES (manifest `ceiling_ms` /
@@ -58,6 +60,10 @@ def andes_case(effect: str, j: int, seed: int = 0) -> Case:
     rng = np.random.default_rng([seed, j, 0xA11D])
     base = read_fixture(name)
     unit = fixture_unit(name, true_values=False)
+    if unit.model == "EXST1":
+        # what ANDES simulated: its EXST1 clamps another signal, its ceilings never act (the
+        # reproduction in benchmarks/model_library.py opens them the same way)
+        unit = apply_overrides(unit, [f"VRMAX={WIDE}", f"VRMIN={-WIDE}"])
     efd = base.efd.copy()
     params: dict[str, float] = {}
     if effect == "saturation":
