@@ -264,3 +264,29 @@ def test_identifiability_examines_the_structures_declared_exchange():
     assert sets[0]["verdict"] == "equally good but ruled out by bounds"
     assert sets[0]["params"]["TE"] == pytest.approx(x[list(prob.names).index("TEX")])
     assert out["determined"]["TE"] and out["determined"]["TEX"]
+
+
+def test_ceiling_limit_bounds_esst4bs_field_voltage_not_its_lag():
+    """The diagnosis' ceiling_limit on an ESST4B acts where VB VMMAX does, on Efd through VM (the
+    regulator lag VA has no ceiling in ST4B): the 20 % pulse's field voltage rides a flat top at
+    the effect's VRMAX less the structure's KC*Ifd, bus-fed it moves with Vt, and the model without
+    the effect still reproduces ANDES."""
+    name = "esst4b_20pct"
+    unit = fixture_unit(name, true_values=True)
+    cap = read_fixture(name)
+    spec, off = true_edges(name, cap)
+    dt = float(cap.time[1] - cap.time[0])
+    free, _, fail = simulate({**unit.values(), **off}, cap.usetp, dt, edges=spec)
+    assert fail < 0 and np.max(np.abs(free - cap.efd)) < 0.01       # ANDES reproduced, as before
+    cut = float(cap.efd[0] + 0.6 * (free.max() - cap.efd[0]))
+    lim = unit.with_effects({"ceiling_limit": {"VRMAX": cut, "VRMIN": -20.0}})
+    efd, _, fail = simulate({**lim.values(), **off}, cap.usetp, dt, edges=spec)
+    top = float(efd.max())
+    assert fail < 0 and free.max() - top > 0.3
+    assert cut - 0.15 < top <= cut                                  # VRMAX - KC Ifd (KC 0.08)
+    flat = np.sum(efd > top - 2e-3) * dt
+    assert flat > 0.03 and flat > 3 * np.sum(free > free.max() - 2e-3) * dt   # a flat top, unlike the free peak
+    bus = unit.with_effects({"ceiling_limit": {"VRMAX": cut, "VRMIN": -20.0, "VRVT": 1.0}})
+    efd_b, vt_b, _ = simulate({**bus.values(), **off}, cap.usetp, dt, edges=spec)
+    k = int(np.argmax(efd_b))
+    assert efd_b[k] - top == pytest.approx(cut * (vt_b[k] - 1.0), rel=0.1)   # scales with Vt (Ifd moves too)

@@ -262,16 +262,21 @@ def _vb(D, i, vt, ifd):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
-def _st4(D, i, ef, xf, vt, ifd):
+def _st4(D, i, ef, xf, vt, ifd, hi, lo):
     """The potential-source output stage: (Efd = VB VM, VM, its unlimited sum, VB). The inner PI
     VM = KPM (VA - KG Efd) + xf (xf its integrator, VA the regulator lag `ef`) with Efd = VB VM
     is solved in closed form, then VM limited (the limited VM is the consistent one: the sum
-    falls as VM rises)."""
+    falls as VM rises): to [VMMIN, VMMAX], and to [lo, hi] / VB, the diagnosis' `ceiling_limit`
+    on Efd (`_limits`; +-inf unless that effect is on), so that the effect bounds ESST4B's field
+    voltage the way VB VMMAX does rather than the regulator lag VA."""
     vb = _vb(D, i, vt, ifd)
     kpm = D[D_KPM, i]
     vm = (kpm * ef + xf) / (1.0 + kpm * D[D_KG, i] * vb)
     vm = vm if vm < D[D_VMMAX, i] else D[D_VMMAX, i]
     vm = vm if vm > D[D_VMMIN, i] else D[D_VMMIN, i]
+    vbs = vb if vb > 1.0e-9 else 1.0e-9
+    vm = vm if vm < hi / vbs else hi / vbs
+    vm = vm if vm > lo / vbs else lo / vbs
     fld = vb * vm
     return fld, vm, kpm * (ef - D[D_KG, i] * fld) + xf, vb
 
@@ -322,7 +327,7 @@ def _field(D, i, ef, eqp, eqpp, xf, xe):
     efc = ef + D[D_LIMOUT, i] * (efc - ef)
     if D[D_ST4, i] != 0.0:   # a branch: the loops that record the output do not vectorise
         vt = _vt(D, i, eqp, eqpp)
-        return _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt))[0]
+        return _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt), hi, lo)[0]
     return efc + D[D_DCON, i] * (xe - efc)
 
 
@@ -374,7 +379,7 @@ def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=True):
     # (tracking anti-windup as ANDES' PITrackAW); selected, not branched, so the loop vectorises
     if st4:
         s4 = D[D_ST4, i]
-        f4, vm4, ys4, _vb4 = _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt))
+        f4, vm4, ys4, _vb4 = _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt), hi, lo)
         fld = fld + s4 * (f4 - fld)
         dxf = dxf + s4 * (D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4)) - dxf)
     deqp = (fld - eqp - D[D_KDA, i] * (eqp - eqpp) - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
@@ -435,11 +440,14 @@ def _out_slope(D, i, ef, xf, eqp, eqpp, def_, dxf, other):
     the regulator lag's), or for the potential-source stage VB dVM/dt (VB's own slow change with
     Vt and Ifd left out; 0 while VM is at a limit)."""
     vt = _vt(D, i, eqp, eqpp)
-    f4, vm, ys, vb = _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt))
+    hi, lo = _limits(D, i, eqp, eqpp)
+    f4, vm, ys, vb = _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt), hi, lo)
     kpm = D[D_KPM, i]
     sl = vb * (kpm * def_ + dxf) / (1.0 + kpm * D[D_KG, i] * vb)
     sl = sl if vm < D[D_VMMAX, i] else 0.0   # nested selects: `and` would branch (no vectorising)
     sl = sl if vm > D[D_VMMIN, i] else 0.0
+    sl = sl if f4 < hi else 0.0
+    sl = sl if f4 > lo else 0.0
     return other + D[D_ST4, i] * (sl - other)
 
 

@@ -37,8 +37,9 @@ STRUCTURE = Structure(
         StdParam("THETAP", "deg", "potential circuit phase angle", 0.0, None, None, note=_NL),
     ),
     # the kernel's first lead-lag becomes the PI (KPV > 0), the second is bypassed, the regulator
-    # lag is TA and carries no ceiling of its own
-    settings={"KAVR": 1.0, "TA1": 1.0, "TA2": 1.0, "TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "LIMOUT": 0.0},
+    # lag is TA and carries no ceiling of its own (LIMOUT 1: the kernel's ceilings, which only the
+    # diagnosis' ceiling_limit sets, bound Efd = VB VM through VM, not the lag)
+    settings={"KAVR": 1.0, "TA1": 1.0, "TA2": 1.0, "TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "LIMOUT": 1.0},
     dyr_model="ESST4B",
     source="IEEE Std 421.5-2016 ST4B; PSS/E model library, ESST4B; ANDES andes/models/exciter/esst4b.py "
            "(PI regulators with tracking anti-windup, gain 2; " + _VG + ")",
