@@ -27,6 +27,12 @@ def _strip(d, drop=VOLATILE_KEYS):
 
 @pytest.fixture(scope="module")
 def cluster():
+    # the kernel compiled (or loaded) here first, so the workers load numba's disk cache instead of
+    # compiling it twice at once beside this process (on a fresh checkout that took the test past
+    # its timeout on this 2-core machine with another job running)
+    from bench_ctl.identification.identify import warm_up
+    from bench_ctl.model.unit import reference_unit
+    warm_up(reference_unit())
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   env=WORKER_ENV, silence_logs=logging.WARNING) as c:
         yield c
@@ -70,6 +76,7 @@ def test_manifest_errors_name_line_and_column(tmp_path):
     assert entries[0].overrides == ("KAVR=250", "TR=0.01") and entries[0].name != entries[1].name
 
 
+@pytest.mark.timeout(900)   # a fresh checkout compiles the kernel once (~100-200 s here)
 def test_batch_on_a_cluster_by_address(cluster, fleet, capsys):
     out = fleet / "out"
     rc = main(["batch", str(fleet / "m.csv"), "--out", str(out), "--scheduler", cluster.scheduler_address,
