@@ -274,9 +274,9 @@ def _st4(D, i, ef, xf, vt, ifd, hi, lo):
     vm = (kpm * ef + xf) / (1.0 + kpm * D[D_KG, i] * vb)
     vm = vm if vm < D[D_VMMAX, i] else D[D_VMMAX, i]
     vm = vm if vm > D[D_VMMIN, i] else D[D_VMMIN, i]
-    vbs = vb if vb > 1.0e-9 else 1.0e-9
-    vm = vm if vm < hi / vbs else hi / vbs
-    vm = vm if vm > lo / vbs else lo / vbs
+    r = 1.0 / (vb if vb > 1.0e-9 else 1.0e-9)   # one division for both bounds
+    vm = vm if vm < hi * r else hi * r
+    vm = vm if vm > lo * r else lo * r
     fld = vb * vm
     return fld, vm, kpm * (ef - D[D_KG, i] * fld) + xf, vb
 
