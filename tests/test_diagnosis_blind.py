@@ -60,8 +60,8 @@ def test_andes_cases_withhold_what_the_record_carries():
 
 
 def test_andes_ceiling_withheld_is_found():
-    """ANDES' ESST1A at 20 % rides VRMAX*Vt - KC*Ifd and VRMIN*Vt; the unit's ceilings opened wide,
-    the diagnosis finds ceiling_limit first, with the ceiling ANDES had."""
+    """ANDES' ESST1A at 20 % rides VRMAX*Vt - KC*Ifd and VRMIN*Vt; with the unit's ceilings opened
+    wide, the diagnosis' verdict and first explaining effect are ceiling_limit."""
     from andes_cases import andes_case
 
     case = andes_case("ceiling_limit", 1)

@@ -19,10 +19,10 @@ determined, but the capture fixes their combination better than each one.
 Equivalent sets: the reference AVR's transfer function KAVR (1 + s TA1)(1 + s TA3) /
 ((1 + s TA2)(1 + s TA4)) is unchanged when the lead-lag pairs (TA1, TA2) and (TA3, TA4) trade
 places, and when only the two leads (TA1, TA3) or only the two lags (TA2, TA4) trade places.
-A standard structure adds the near-symmetric pairs it declares
-(`Structure.swaps`, e.g. IEEEX1's TA and TE). Each swapped set is built, checked against the
-bounds and the constraints, simulated, and reported with its MSE and whether it is equivalent (same fit within the noise); a swap the
-constraints or bounds rule out is reported as such.
+A standard structure adds the near-symmetric pairs it declares (`Structure.swaps`, e.g.
+IEEEX1's TA and TE). Each swapped set is built, checked against the bounds and the constraints,
+simulated, and reported with its MSE and whether it is equivalent (same fit within the noise); a
+swap the constraints or bounds rule out is reported as such.
 """
 from __future__ import annotations
 
@@ -193,8 +193,7 @@ def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float
         # a standard structure: the reference's lead-lag swaps where all four are fitted, and the
         # near-symmetric pairs the structure declares (`Structure.swaps`)
         swaps = [(n, m) for n, m in SWAPS if set(m) <= set(names)]
-        swaps += [(n, {a: b, b: a}) for n, (a, b) in problem.unit.structure.kernel_swaps()
-                  if a in names and b in names]
+        swaps += [(n, {a: b, b: a}) for n, a, b in problem.unit.structure.kernel_swaps(names)]
     for note, mapping in swaps:
         if not set(mapping) <= set(names):
             fixed = sorted(set(mapping) - set(names))

@@ -254,8 +254,7 @@ def _swaps(problem: Problem) -> list[tuple[str, int, int]]:
     """The structure's near-symmetric pairs (`Structure.swaps`) whose two parameters are fitted,
     as (note, index, index) into the problem's names."""
     names = list(problem.names)
-    return [(note, names.index(a), names.index(b)) for note, (a, b) in problem.unit.structure.kernel_swaps()
-            if a in names and b in names]
+    return [(note, names.index(a), names.index(b)) for note, a, b in problem.unit.structure.kernel_swaps(names)]
 
 
 def _swap_restarts(problem: Problem, swaps: list[tuple[str, int, int]], max_evals: int, x: np.ndarray,

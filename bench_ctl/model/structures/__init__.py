@@ -18,7 +18,7 @@ from __future__ import annotations
 import importlib
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from typing import Callable, Mapping, Sequence
 
 from ..params import PARAMS
 
@@ -147,9 +147,15 @@ class Structure:
                 out[f] = float(v)
         return out
 
-    def kernel_swaps(self) -> list[tuple[str, tuple[str, str]]]:
-        """`swaps` under the kernel names the two parameters drive."""
-        return [(note, (self.kernel_name(a), self.kernel_name(b))) for note, (a, b) in self.swaps]
+    def kernel_swaps(self, fitted: Sequence[str]) -> list[tuple[str, str, str]]:
+        """`swaps` whose two parameters are both among the `fitted` kernel names, as (note,
+        kernel name, kernel name)."""
+        out = []
+        for note, (a, b) in self.swaps:
+            ka, kb = self.kernel_name(a), self.kernel_name(b)
+            if ka in fitted and kb in fitted:
+                out.append((note, ka, kb))
+        return out
 
     def describe(self) -> str:
         lines = [f"{self.name}: {self.title}", ""]
