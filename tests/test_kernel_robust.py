@@ -5,8 +5,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
-from bench_ctl.model.kernel import run_kernel
+from bench_ctl.model.kernel import CHUNK, run_kernel
 from bench_ctl.model.simulate import param_matrix, pulse_usetp
 from bench_ctl.model.unit import reference_unit
 
@@ -93,3 +94,19 @@ def test_numba_runs_the_optimisation_the_kernel_needs():
     env = {**os.environ, "NUMBA_OPT": "3"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert "NUMBA_OPT='3'" in out.stdout and "2.5x slower" in out.stdout
+
+
+def test_chunks_of_any_size_give_the_same_simulation():
+    """Every chunk is padded to CHUNK columns for the RK4 loops (`kernel._fixed`): chunks of another
+    size give the same simulation, and one larger than the kernel holds is refused."""
+    rng = np.random.default_rng(5)
+    X = np.array([200, 1, 0.2, 0.5, 10, 0.02]) * (1 + 0.3 * (rng.random((CHUNK + 9, 6)) - 0.5))
+    unit = reference_unit()
+    t, u = pulse_usetp(duration=2.0)
+    P = param_matrix(unit.values(), NAMES, X)
+    whole = run_kernel(P, u, 1e-3, 1.0)
+    small = run_kernel(P, u, 1e-3, 1.0, chunk=7)
+    assert np.ptp(whole["efd"], axis=1).min() > 0.1
+    assert np.max(np.abs(small["efd"] - whole["efd"])) < 1e-12
+    with pytest.raises(ValueError, match=f"chunk={CHUNK + 1}"):
+        run_kernel(P, u, 1e-3, 1.0, chunk=CHUNK + 1)

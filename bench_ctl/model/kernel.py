@@ -26,6 +26,10 @@ import os
 import llvmlite.binding as _llvm
 import numba as nb
 import numpy as np
+from numba.core import types
+from numba.core.imputils import impl_ret_borrowed
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array, populate_array
 
 from .edges import EdgeSpec
 from .params import COL, KERNEL_PARAMS, RECORD_PARAMS
@@ -487,14 +491,54 @@ def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, x6, x7, h, st4=True):
             m0, m1)
 
 
+def _fixed_view(rows: int):
+    """An intrinsic: the view of a C-contiguous 2-D float array of `rows` x CHUNK elements with that
+    shape as constants in the code (the caller checks the size). numba indexes a C array by its
+    shape, and LLVM then sees every row a constant distance from the others."""
+    @intrinsic
+    def view(typingctx, ary):
+        if not (isinstance(ary, types.Array) and ary.ndim == 2 and ary.layout == "C"):
+            return None
+
+        def codegen(context, builder, sig, args):
+            src = make_array(ary)(context, builder, args[0])
+            dst = make_array(ary)(context, builder)
+            intp = context.get_value_type(types.intp)
+            item = context.get_abi_sizeof(context.get_data_type(ary.dtype))
+            populate_array(dst, data=src.data, shape=[intp(rows), intp(CHUNK)],
+                           strides=[intp(CHUNK * item), intp(item)], itemsize=src.itemsize,
+                           meminfo=src.meminfo, parent=src.parent)
+            return impl_ret_borrowed(context, builder, ary, dst._getvalue())
+        return ary(ary), codegen
+    return view
+
+
+_view_d, _view_s, _view_u, _view_v = (_fixed_view(r) for r in (N_DERIVED, 10, 2, 3))
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _fixed(D, S, U, V):
+    """The chunk's arrays (derived factors, states, setpoint, delayed VR: N_DERIVED, 10, 2 and 3 rows
+    of CHUNK columns) as views whose shape is a constant of the code. The RK4 loop reads ~50 rows
+    and writes 10: with runtime row strides LLVM checks every written row against every other row
+    for overlap before each call of the vectorised loop (~600 compares, 28 % of an ESST4B run in
+    `perf`, once a step for only 32 candidates); with constant ones it checks each array once.
+    See docs/decisions/0003."""
+    if (D.shape[0] != N_DERIVED or S.shape[0] != 10 or U.shape[0] != 2 or V.shape[0] != 3
+            or D.shape[1] != CHUNK or S.shape[1] != CHUNK or U.shape[1] != CHUNK or V.shape[1] != CHUNK):
+        raise ValueError("kernel chunk arrays of the wrong shape")
+    return _view_d(D), _view_s(S), _view_u(U), _view_v(V)
+
+
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _rk4_all(D, S, U, V, dt, m):
     """One RK4 step for every candidate of a chunk: a branch-free loop LLVM vectorises across c.
 
     Only four arrays take part (D, V read; U = [u at start, u at end] read; S = 8 states plus the
-    output's derivative at both ends, written), so LLVM's runtime alias checks stay under its limit.
-    Kept as its own function: inside the big chunk loop numba's reference counting of the array
-    arguments stops the vectoriser."""
+    output's derivative at both ends, written), each seen with a constant shape (`_fixed`), so
+    LLVM checks them for overlap once per array before the loop. Kept as its own function: inside
+    the big chunk loop numba's reference counting of the array arguments stops the vectoriser."""
+    D, S, U, V = _fixed(D, S, U, V)
     for c in range(m):
         r = _rk4(D, c, U[0, c], U[1, c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
                  S[4, c], S[5, c], S[6, c], S[7, c], dt, False)
@@ -504,12 +548,8 @@ def _rk4_all(D, S, U, V, dt, m):
 
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _rk4_all_st4(D, S, U, V, dt, m):
-    """`_rk4_all` with the potential-source stage (a chunk with an ESST4B candidate). One RK4 step for every candidate of a chunk: a branch-free loop LLVM vectorises across c.
-
-    Only four arrays take part (D, V read; U = [u at start, u at end] read; S = 8 states plus the
-    output's derivative at both ends, written), so LLVM's runtime alias checks stay under its limit.
-    Kept as its own function: inside the big chunk loop numba's reference counting of the array
-    arguments stops the vectoriser."""
+    """`_rk4_all` with the potential-source stage (a chunk with an ESST4B candidate)."""
+    D, S, U, V = _fixed(D, S, U, V)
     for c in range(m):
         r = _rk4(D, c, U[0, c], U[1, c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
                  S[4, c], S[5, c], S[6, c], S[7, c], dt, True)
@@ -593,6 +633,7 @@ def _rk4_ref(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _rk4_all_ref(D, S, U, V, dt, m):
     """`_rk4_all` on the reference blocks only: states 6, 7 (rate feedback, DC exciter) untouched."""
+    D, S, U, V = _fixed(D, S, U, V)
     for c in range(m):
         r = _rk4_ref(D, c, U[0, c], U[1, c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
                      S[4, c], S[5, c], dt)
@@ -676,14 +717,18 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
                eidx, ejump, etn, eslot, ewin):
     T = usetp.shape[0]
     m = hi - lo
-    S = np.zeros((10, m))           # states xm, x1, x2, VR lag, E'q, E''q, rate feedback, DC Efd;
+    # the RK4 loops see every array with CHUNK columns (`_fixed`); columns m.. are never used
+    Dm = D
+    D = np.zeros((Dm.shape[0], CHUNK))
+    D[:, :m] = Dm
+    S = np.zeros((10, CHUNK))       # states xm, x1, x2, VR lag, E'q, E''q, rate feedback, DC Efd;
     #                                 the output's derivative at step start, end
     S0 = np.empty((8, m))           # state at t_k, kept for split steps
     uref = np.empty(m)
-    U = np.empty((2, m))            # setpoint reference at the start and the end of the step
+    U = np.zeros((2, CHUNK))        # setpoint reference at the start and the end of the step
     ua = U[0]
     ub = U[1]
-    V = np.zeros((3, m))            # delayed VR at stage times 0, 1/2, 1
+    V = np.zeros((3, CHUNK))        # delayed VR at stage times 0, 1/2, 1
     failed = np.zeros(m, np.bool_)
     e_first = np.zeros(m); e_last = np.zeros(m)
     out_e = np.zeros(m)
@@ -1005,6 +1050,8 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
         # (vectorised body or remainder loop, which fastmath may round differently) however many
         # threads run, so a result is bit-identical alone, in a batch worker, on any machine
         chunk = CHUNK
+    if not 1 <= int(chunk) <= CHUNK:
+        raise ValueError(f"chunk={chunk!r}: the kernel runs 1 to {CHUNK} candidates a chunk")
     edges = EdgeSpec.none() if edges is None else edges
     if edges.n and int(edges.index.max()) >= T:
         raise ValueError(f"edge at sample {int(edges.index.max())} lies beyond the record ({T} samples)")
