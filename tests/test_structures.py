@@ -290,3 +290,34 @@ def test_ceiling_limit_bounds_esst4bs_field_voltage_not_its_lag():
     efd_b, vt_b, _ = simulate({**bus.values(), **off}, cap.usetp, dt, edges=spec)
     k = int(np.argmax(efd_b))
     assert efd_b[k] - top == pytest.approx(cut * (vt_b[k] - 1.0), rel=0.1)   # scales with Vt (Ifd moves too)
+
+
+def test_esst4b_chunks_alone_and_mixed_agree():
+    """A chunk whose valid candidates are all ESST4B runs the kernel without the DC exciter and the
+    non-windup ceiling; a chunk that mixes structures selects the potential-source stage per
+    candidate. Both give the same ESST4B response (free, and riding the diagnosis' ceiling fixed
+    and bus-fed), and an invalid candidate does not take a chunk off the ESST4B-only path."""
+    from bench_ctl.model.kernel import column, run_kernel
+    from bench_ctl.model.simulate import param_matrix
+    name = "esst4b_20pct"
+    unit = fixture_unit(name, true_values=True)
+    cap = read_fixture(name)
+    spec, off = true_edges(name, cap)
+    dt = float(cap.time[1] - cap.time[0])
+    free = simulate({**unit.values(), **off}, cap.usetp, dt, edges=spec)[0]
+    cut = float(cap.efd[0] + 0.6 * (free.max() - cap.efd[0]))
+    rows = [{**unit.values(), **off},
+            {**unit.with_effects({"ceiling_limit": {"VRMAX": cut, "VRMIN": -20.0}}).values(), **off},
+            {**unit.with_effects({"ceiling_limit": {"VRMAX": cut, "VRMIN": -20.0, "VRVT": 1.0}}).values(), **off}]
+    P4 = np.vstack([param_matrix(r) for r in rows])
+    exst1 = param_matrix({**with_model(reference_unit(), "EXST1").values(), **off})
+    invalid = P4[:1].copy()
+    invalid[0, column("KPM")] = -1.0
+    run = lambda P: run_kernel(P, cap.usetp, dt, float(cap.usetp[0]), edges=spec)  # noqa: E731
+    alone = run(P4)
+    mixed = run(np.vstack([P4, exst1]))
+    with_invalid = run(np.vstack([P4, invalid]))
+    assert np.all(alone["fail_step"] == -1) and np.ptp(alone["efd"][1]) < np.ptp(alone["efd"][0]) - 0.3
+    assert np.max(np.abs(mixed["efd"][:3] - alone["efd"])) < 1e-9
+    assert mixed["fail_step"][3] == -1 and np.ptp(mixed["efd"][3]) > 0.1     # the EXST1 ran too
+    assert np.array_equal(with_invalid["efd"][:3], alone["efd"]) and with_invalid["fail_step"][3] == 0

@@ -73,6 +73,10 @@ def optimisation_note() -> str | None:
 (D_ST4, D_P1, D_KI1, D_Y1MAX, D_Y1MIN, D_KPV, D_VBMAX, D_KPM, D_KIM, D_VMMAX, D_VMMIN, D_KG, D_XF0) = range(
     27 + len(RECORD_PARAMS) + 12, 27 + len(RECORD_PARAMS) + 25)
 N_DERIVED = 27 + len(RECORD_PARAMS) + 25   # D_EDGE0 + slot: offset of setpoint edge `slot` (s)
+#: the potential-source stage in a chunk (`_rhs`'s `st4`, a constant of each RK4 loop): no candidate
+#: has it; some may (selected per candidate); every valid candidate has it (the output is VB VM,
+#: no DC exciter, the ceilings not on the regulator lag: those blocks are left out)
+ST4_NONE, ST4_SOME, ST4_ALL = 0, 1, 2
 #: tracking gain of the anti-windup of the ESST4B's PI regulators (ANDES' PITrackAW default, ks = 2)
 PI_TRACK = 2.0
 #: an edge instant within this many steps of a sample instant is taken to fall on it
@@ -336,17 +340,18 @@ def _field(D, i, ef, eqp, eqpp, xf, xe):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
-def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=True):
+def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
     """Derivatives of (xm, x1, x2, VR lag (efd of a static exciter), E'q, E''q, rate feedback,
-    DC exciter Efd); branch-free so candidate loops vectorise. `st4` (a constant where the caller
-    passes one: the branch then folds away) includes the potential-source stage (ESST4B): a chunk
-    without it does not pay for its square root and divisions (measured: 1.35x of a chunk's time).
+    DC exciter Efd); branch-free so candidate loops vectorise. `st4` (ST4_*, a constant where the
+    caller passes one: the branches then fold away) includes the potential-source stage (ESST4B):
+    a chunk without it does not pay for its square root and divisions (measured: 1.35x of a
+    chunk's time), a chunk of ESST4B alone not for the DC exciter and the non-windup ceiling.
 
     `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1)."""
     tron = D[D_TRON, i]
     vt = _vt(D, i, eqp, eqpp)
     vm = tron * xm + (1.0 - tron) * vt
-    src = ef + D[D_DCON, i] * (xe - ef)
+    src = ef if st4 == ST4_ALL else ef + D[D_DCON, i] * (xe - ef)
     e = uref - vm - D[D_KFT, i] * (src - xf)
     y1, ys1 = _pi1(D, i, e, x1)
     y2 = x2 + D[D_R2, i] * (y1 - x2)
@@ -365,42 +370,52 @@ def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=True):
     # the field voltage: the DC exciter's state, else the regulator output (clamped when the
     # ceilings clamp the output rather than the lag)
     hi, lo = _limits(D, i, eqp, eqpp)
-    limout = D[D_LIMOUT, i]
-    efc = ef if ef > lo else lo
-    efc = efc if efc < hi else hi
-    efc = ef + limout * (efc - ef)
-    dcon = D[D_DCON, i]
-    fld = efc + dcon * (xe - efc)
-    dx = xe - D[D_SEA, i]
-    dx = dx if dx > 0.0 else 0.0
-    dxe = (efc - D[D_KE, i] * xe - D[D_SEB, i] * dx * dx) * D[D_ITEX, i]
     # saturation of E'q (the reference model) or, with a GENROU-like flux share, of Vt = psi''
     satvt = D[D_SATVT, i]
     d = eqp + satvt * (vt - eqp) - D[D_SATA, i]
     d = d if d > 0.0 else 0.0
-    dxf = (src - xf) * D[D_ITF, i]
-    # the potential-source stage (ESST4B): Efd = VB VM, and state 6 is the inner PI's integrator
-    # (tracking anti-windup as ANDES' PITrackAW); selected, not branched, so the loop vectorises
-    if st4:
-        s4 = D[D_ST4, i]
+    limout = D[D_LIMOUT, i]
+    if st4 == ST4_ALL:
+        # the potential-source stage alone (ESST4B): Efd = VB VM, state 6 the inner PI's
+        # integrator (tracking anti-windup as ANDES' PITrackAW); no DC exciter
         f4, vm4, ys4, _vb4 = _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt), hi, lo)
-        fld = fld + s4 * (f4 - fld)
-        dxf = dxf + s4 * (D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4)) - dxf)
+        fld = f4
+        dxf = D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4))
+        dxe = 0.0
+    else:
+        efc = ef if ef > lo else lo
+        efc = efc if efc < hi else hi
+        efc = ef + limout * (efc - ef)
+        dcon = D[D_DCON, i]
+        fld = efc + dcon * (xe - efc)
+        dx = xe - D[D_SEA, i]
+        dx = dx if dx > 0.0 else 0.0
+        dxe = (efc - D[D_KE, i] * xe - D[D_SEB, i] * dx * dx) * D[D_ITEX, i]
+        dxf = (src - xf) * D[D_ITF, i]
+        # the potential-source stage where a candidate has it, selected, not branched, so the
+        # loop vectorises
+        if st4 == ST4_SOME:
+            s4 = D[D_ST4, i]
+            f4, vm4, ys4, _vb4 = _st4(D, i, ef, xf, vt, _ifd(D, i, eqp, eqpp, vt), hi, lo)
+            fld = fld + s4 * (f4 - fld)
+            dxf = dxf + s4 * (D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4)) - dxf)
     deqp = (fld - eqp - D[D_KDA, i] * (eqp - eqpp) - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
     deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
     dvt = deqpp + D[D_KPP, i] * (deqp - deqpp)
     # non-windup ceiling: at a limit efd may not pass it, and follows it where it moves (with Vt
     # for a bus-fed exciter, with Ifd through the commutation drop); fixed limits do not move.
-    # Not when the ceilings clamp the output (the lag winds up beyond them, ESST1A/EXST1)
-    dsc = D[D_VRVT, i] * dvt
-    dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (deqp + D[D_KDA, i] * (deqp - deqpp)
-                                              + 2.0 * D[D_SATB, i] * d * (deqp + satvt * (dvt - deqp)))
-    dlo = D[D_VRMIN, i] * dsc
-    dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
-    dlo = dlo if dlo == dlo else 0.0
-    nw = limout == 0.0
-    de = (de if de < dhi else dhi) if (ef >= hi and nw) else de
-    de = (de if de > dlo else dlo) if (ef <= lo and nw) else de
+    # Not when the ceilings clamp the output (the lag winds up beyond them, ESST1A/EXST1), nor on
+    # ESST4B's regulator lag (its ceilings act on VM)
+    if st4 != ST4_ALL:
+        dsc = D[D_VRVT, i] * dvt
+        dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (deqp + D[D_KDA, i] * (deqp - deqpp)
+                                                  + 2.0 * D[D_SATB, i] * d * (deqp + satvt * (dvt - deqp)))
+        dlo = D[D_VRMIN, i] * dsc
+        dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
+        dlo = dlo if dlo == dlo else 0.0
+        nw = limout == 0.0
+        de = (de if de < dhi else dhi) if (ef >= hi and nw) else de
+        de = (de if de > dlo else dlo) if (ef <= lo and nw) else de
     return dxm, dx1, dx2, de, deqp, deqpp, dxf, dxe
 
 
@@ -439,7 +454,7 @@ def _hermite(y0, m0, y1, m1, s, h):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
-def _out_slope(D, i, ef, xf, eqp, eqpp, def_, dxf, other):
+def _out_slope(D, i, ef, xf, eqp, eqpp, def_, dxf, other, st4):
     """The output's time derivative for the recorder-skew readout: `other` (the DC exciter's or
     the regulator lag's), or for the potential-source stage VB dVM/dt (VB's own slow change with
     Vt and Ifd left out; 0 while VM is at a limit)."""
@@ -452,11 +467,11 @@ def _out_slope(D, i, ef, xf, eqp, eqpp, def_, dxf, other):
     sl = sl if vm > D[D_VMMIN, i] else 0.0
     sl = sl if f4 < hi else 0.0
     sl = sl if f4 > lo else 0.0
-    return other + D[D_ST4, i] * (sl - other)
+    return sl if st4 == ST4_ALL else other + D[D_ST4, i] * (sl - other)
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
-def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, x6, x7, h, st4=True):
+def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, x6, x7, h, st4=ST4_SOME):
     """One RK4 step of length h with input u0 -> u1 (linear) and delayed VR v0, vm, v1. Returns
     the 8 states and the output's derivative at both ends (the DC exciter's Efd, else VR lag)."""
     um = 0.5 * (u0 + u1)
@@ -472,19 +487,20 @@ def _rk4(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, x6, x7, h, st4=True):
     y3 = x3 + h6 * (a[3] + 2 * b[3] + 2 * c[3] + d[3])
     y4 = x4 + h6 * (a[4] + 2 * b[4] + 2 * c[4] + d[4])
     y5 = x5 + h6 * (a[5] + 2 * b[5] + 2 * c[5] + d[5])
-    hi, lo = _limits(D, i, y4, y5)
-    z3 = y3 if y3 > lo else lo
-    z3 = z3 if z3 < hi else hi
-    y3 = z3 + D[D_LIMOUT, i] * (y3 - z3)   # a lag that the ceilings do not limit winds up
+    if st4 != ST4_ALL:   # (ESST4B's lag is not limited)
+        hi, lo = _limits(D, i, y4, y5)
+        z3 = y3 if y3 > lo else lo
+        z3 = z3 if z3 < hi else hi
+        y3 = z3 + D[D_LIMOUT, i] * (y3 - z3)   # a lag that the ceilings do not limit winds up
     dcon = D[D_DCON, i]
     # the output's slope at both ends (for the recorder-skew readout): the DC exciter's or the
     # regulator lag's, or VB dVM/dt of the potential-source stage (at the end: at the state of
     # RK4's last stage, as for the others)
     m0 = a[3] + dcon * (a[7] - a[3])
     m1 = d[3] + dcon * (d[7] - d[3])
-    if st4:
-        m0 = _out_slope(D, i, x3, x6, x4, x5, a[3], a[6], m0)
-        m1 = _out_slope(D, i, x3 + h * c[3], x6 + h * c[6], x4 + h * c[4], x5 + h * c[5], d[3], d[6], m1)
+    if st4 != ST4_NONE:
+        m0 = _out_slope(D, i, x3, x6, x4, x5, a[3], a[6], m0, st4)
+        m1 = _out_slope(D, i, x3 + h * c[3], x6 + h * c[6], x4 + h * c[4], x5 + h * c[5], d[3], d[6], m1, st4)
     return (x0 + h6 * (a[0] + 2 * b[0] + 2 * c[0] + d[0]), x1 + h6 * (a[1] + 2 * b[1] + 2 * c[1] + d[1]),
             x2 + h6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2]), y3, y4, y5,
             x6 + h6 * (a[6] + 2 * b[6] + 2 * c[6] + d[6]), x7 + h6 * (a[7] + 2 * b[7] + 2 * c[7] + d[7]),
@@ -541,18 +557,30 @@ def _rk4_all(D, S, U, V, dt, m):
     D, S, U, V = _fixed(D, S, U, V)
     for c in range(m):
         r = _rk4(D, c, U[0, c], U[1, c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
-                 S[4, c], S[5, c], S[6, c], S[7, c], dt, False)
+                 S[4, c], S[5, c], S[6, c], S[7, c], dt, ST4_NONE)
         S[0, c] = r[0]; S[1, c] = r[1]; S[2, c] = r[2]; S[3, c] = r[3]; S[4, c] = r[4]; S[5, c] = r[5]
         S[6, c] = r[6]; S[7, c] = r[7]; S[8, c] = r[8]; S[9, c] = r[9]
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
 def _rk4_all_st4(D, S, U, V, dt, m):
-    """`_rk4_all` with the potential-source stage (a chunk with an ESST4B candidate)."""
+    """`_rk4_all` with the potential-source stage selected per candidate (a chunk where some valid
+    candidates have it and others not)."""
     D, S, U, V = _fixed(D, S, U, V)
     for c in range(m):
         r = _rk4(D, c, U[0, c], U[1, c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
-                 S[4, c], S[5, c], S[6, c], S[7, c], dt, True)
+                 S[4, c], S[5, c], S[6, c], S[7, c], dt, ST4_SOME)
+        S[0, c] = r[0]; S[1, c] = r[1]; S[2, c] = r[2]; S[3, c] = r[3]; S[4, c] = r[4]; S[5, c] = r[5]
+        S[6, c] = r[6]; S[7, c] = r[7]; S[8, c] = r[8]; S[9, c] = r[9]
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "afn"})
+def _rk4_all_st4_only(D, S, U, V, dt, m):
+    """`_rk4_all` of a chunk whose valid candidates all have the potential-source stage (ESST4B)."""
+    D, S, U, V = _fixed(D, S, U, V)
+    for c in range(m):
+        r = _rk4(D, c, U[0, c], U[1, c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
+                 S[4, c], S[5, c], S[6, c], S[7, c], dt, ST4_ALL)
         S[0, c] = r[0]; S[1, c] = r[1]; S[2, c] = r[2]; S[3, c] = r[3]; S[4, c] = r[4]; S[5, c] = r[5]
         S[6, c] = r[6]; S[7, c] = r[7]; S[8, c] = r[8]; S[9, c] = r[9]
 
@@ -759,14 +787,19 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
         for q in range(Ls):
             ef_h[c, q] = D[D_OUT0, c]
     # the full blocks when some candidate of the chunk uses a block of the standard structures
+    # and the potential-source stage: where some candidate has it, or for all (an invalid candidate,
+    # failed from the start, does not count: what it computes is not used)
     full = False
     st4 = False
+    st4_all = True
     for c in range(m):
         if (D[D_KFT, c] != 0.0 or D[D_DCON, c] != 0.0 or D[D_LIMOUT, c] != 0.0 or D[D_KPP, c] != 0.0
                 or D[D_KDA, c] != 0.0 or D[D_ST4, c] != 0.0):
             full = True
         if D[D_ST4, c] != 0.0:
             st4 = True
+        if D[D_VALID, c] != 0.0 and (D[D_ST4, c] == 0.0 or D[D_LIMOUT, c] == 0.0 or D[D_DCON, c] != 0.0):
+            st4_all = False
     for k in range(T):
         # ---- record sample k (states at t_k); failed candidates hold their last output ----
         if any_skew:
@@ -881,7 +914,9 @@ def _run_chunk(D, lo, hi, usetp, usetp_pre, dt, L, Ls, efd_meas, vt_meas, w_efd,
             for c in range(m):
                 for q in range(8):
                     S0[q, c] = S[q, c]
-        if st4:
+        if st4 and st4_all:
+            _rk4_all_st4_only(D, S, U, V, dt, m)
+        elif st4:
             _rk4_all_st4(D, S, U, V, dt, m)
         elif full:
             _rk4_all(D, S, U, V, dt, m)
