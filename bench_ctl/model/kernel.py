@@ -367,13 +367,13 @@ def _rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
     de = (drive - ef) * D[D_ITE, i]
     de = de if de < rate else rate
     de = de if de > -rate else -rate
-    # the field voltage: the DC exciter's state, else the regulator output (clamped when the
-    # ceilings clamp the output rather than the lag)
     hi, lo = _limits(D, i, eqp, eqpp)
     # saturation of E'q (the reference model) or, with a GENROU-like flux share, of Vt = psi''
     satvt = D[D_SATVT, i]
     d = eqp + satvt * (vt - eqp) - D[D_SATA, i]
     d = d if d > 0.0 else 0.0
+    # the field voltage: VB VM of the potential-source stage, the DC exciter's state, else the
+    # regulator output (clamped when the ceilings clamp the output rather than the lag)
     limout = D[D_LIMOUT, i]
     if st4 == ST4_ALL:
         # the potential-source stage alone (ESST4B): Efd = VB VM, state 6 the inner PI's
