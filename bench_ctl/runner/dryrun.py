@@ -8,8 +8,8 @@ serial path a real recorder uses.
 
 The simulated bench (`simulators.bench.SimBench`) runs in a child process, as a real device
 is a separate box: in the same interpreter its threads and garbage collections stalled the
-host's timed restore write by up to 60 ms in about one run in twenty (measured with
-benchmarks/pulse_dry_runs.py), which is the simulator's cost, not the procedure's.
+host's timed restore write, which is the simulator's cost, not the procedure's
+(docs/decisions/0005).
 """
 from __future__ import annotations
 
