@@ -1,6 +1,6 @@
 """Sim-to-real gap diagnosis of one capture: where the model misses, which effects, how far it shrinks.
 
-`diagnose(capture, unit, holdout=...)` returns the diagnosis JSON (SCHEMA.md, schema
+`diagnose(capture, unit, holdout=...)` returns the diagnosis JSON (docs/formats.md, schema
 "bench-ctl/diagnosis/1"). Every model is fitted on the whole capture with identification's
 objective (`identification.problem`: the unit's identified parameters, the effects' parameters
 and the instant of every setpoint edge, `effect_fits.Views`):

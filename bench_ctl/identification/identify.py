@@ -1,4 +1,4 @@
-"""Identify a unit's AVR parameters from captures and assemble the result JSON (SCHEMA.md).
+"""Identify a unit's AVR parameters from captures and assemble the result JSON (docs/formats.md).
 
 `run_identification` binds the captures and unit into a `Problem`, warms the kernel up (its
 compile / cache-load time is reported as `compile_s`, outside `wall_s`), runs the chosen

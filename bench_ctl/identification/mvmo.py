@@ -1,7 +1,7 @@
 """MVMO / MVMO-SH: Mean-Variance Mapping Optimization with bounds and inequality constraints.
 
 Implemented from the published description (Erlich, Venayagamoorthy & Worawat 2010; Rueda &
-Erlich's swarm-hybrid MVMO-SH, 2013-2015) and the design reference (section 5), not from the
+Erlich's swarm-hybrid MVMO-SH, 2013-2015) and docs/identification.md, not from the
 authors' code. All search happens in ``z``, the variables normalised to ``[0, 1]`` by the
 bounds:
 

@@ -1,4 +1,4 @@
-"""The setpoint edges of a capture as fit parameters (DESIGN.md section 4, "Edge timing").
+"""The setpoint edges of a capture as fit parameters (docs/model.md, "Edge timing").
 
 Every fit (identification, the diagnosis' base and effect fits) carries the instant of each
 setpoint edge as a parameter: `EDGE1`.. hold the fitted instant minus the nominal one (s).

@@ -1,6 +1,6 @@
 """Dry runs: start the embedded simulated bench and point the bench config at it.
 
-The drivers are unchanged; only the addresses in the config change (STYLE.md: a simulated
+The drivers are unchanged; only the addresses in the config change (docs/style.md: a simulated
 device is a different address, never an `if simulated:` branch). The simulators serve the
 profiles the bench config names, so a vendor-profile bench dry-runs against a simulator
 speaking that vendor's register map. The recorder is reached on its pseudo-terminal, the same
