@@ -65,8 +65,8 @@ STRONG = 100.0
 AMBIGUOUS = 6.0
 
 #: the whole-box search of `_global`: independent MVMO runs sharing the budget, and their swarm
-#: (dead-time case from the blind suite, 600 evaluations: one run of 16 particles found the
-#: optimum in 6 of 10 seeds, two runs of 300 with 32 particles in 12 of 12)
+#: (two smaller runs find a narrow basin more often than one: docs/benchmarks.md, "Diagnosis
+#: constants")
 RESTARTS = 2
 GLOBAL_OPTIONS = {"particles": 32}
 
