@@ -1,7 +1,7 @@
 """The `bench-ctl` command line: parses, then dispatches to plain functions.
 
 Each sub-command lives in its own module (imported only when used, so `bench-ctl sim` does not
-pay for compiling the identification kernel). Exit codes (STYLE.md): 0 pass, 1 criteria
+pay for compiling the identification kernel). Exit codes (docs/style.md): 0 pass, 1 criteria
 failed, 2 aborted / safe state reached, 3 communication error.
 """
 from __future__ import annotations

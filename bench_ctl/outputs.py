@@ -1,5 +1,5 @@
-"""Writing what a command produces without losing what it read (DESIGN.md section 7: never
-overwrite a capture; the brief: bad input loses nothing).
+"""Writing what a command produces without losing what it read (docs/safety.md: never
+overwrite a capture; bad input loses nothing).
 
 `guard_outputs` refuses, before any work, an output that is one of the command's inputs (a
 capture, its sidecar, its COMTRADE pair, a result, a unit file), two outputs on one path, an

@@ -1,5 +1,5 @@
 """Device errors people can act on: which device, which register, which value, and the last
-frames on the link (STYLE.md "Errors people can act on").
+frames on the link (docs/style.md, "Errors people can act on").
 
 The classes say what the operator should do next:
 

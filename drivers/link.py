@@ -253,8 +253,8 @@ class ModbusLink:
 @contextlib.contextmanager
 def gc_paused() -> Iterator[None]:
     """Collect garbage now, then keep the collector off for a short timed sequence (a pulse):
-    a full collection stops every thread of the interpreter for tens of ms (measured up to
-    90 ms in a dry-run process), which would land on whatever deadline is running."""
+    a full collection stops every thread of the interpreter for tens of ms, which would land on
+    whatever deadline is running (docs/benchmarks.md, "Timed writes and the garbage collector")."""
     import gc
 
     was_enabled = gc.isenabled()
@@ -270,7 +270,7 @@ def gc_paused() -> Iterator[None]:
 def wait_until(deadline_mono: float) -> None:
     """Return at the monotonic deadline. Plain sleeps: on Linux they wake within ~0.1 ms, and
     unlike a spin they do not hold the GIL against the threads that must serve the request
-    (measured: spinning the last 2 ms made timed writes later, not earlier)."""
+    (docs/benchmarks.md, "Timed writes and the garbage collector")."""
     while (left := deadline_mono - time.monotonic()) > 0:
         time.sleep(left)
 

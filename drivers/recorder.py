@@ -84,7 +84,7 @@ class RawRecord:
         with open(path, "xb") as fh:
             fh.write(self.payload())
             fh.flush()
-            os.fsync(fh.fileno())  # on disk before the capture made from it (DESIGN.md 7)
+            os.fsync(fh.fileno())  # on disk before the capture made from it (docs/safety.md)
         with open(head, "x", encoding="utf-8") as fh:
             json.dump(self.header(), fh, indent=2)
             fh.write("\n")

@@ -22,8 +22,9 @@ While running, the bench lowers the interpreter's thread switch interval to 0.5 
 (`switch_interval_s`, None leaves it alone; restored by `stop()`) so the plant thread keeps
 real time while the server thread is busy. Once started it also freezes the objects that exist
 (`gc.freeze()`, undone by `stop()`): a full collection over everything numba, numpy and pymodbus
-import stops every Python thread of the process for 57-93 ms (measured at start-up here); in a
-long-running bench one would hold a setpoint write back that long, a wider pulse on the wire.
+import stops every Python thread of the process for tens of ms (docs/benchmarks.md, "Timed writes
+and the garbage collector"); in a long-running bench one would hold a setpoint write back that
+long, a wider pulse on the wire.
 Frozen, a full collection walks only what was allocated since.
 """
 from __future__ import annotations

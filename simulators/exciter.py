@@ -1,6 +1,6 @@
 """The simulated excitation system: setpoint, mode, heartbeat watchdog, readings from the plant.
 
-Works on register names (see /work/notes/PROFILES.md); any exciter profile that names the
+Works on register names (see docs/devices.md); any exciter profile that names the
 registers below can be served. Required: setpoint, active_setpoint, vt, efd, ifd, p, mode,
 status, heartbeat. Optional: watchdog_timeout, device_code, firmware. Other writable registers
 a vendor profile adds are stored and read back as written.

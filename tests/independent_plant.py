@@ -1,14 +1,14 @@
-"""An independent plant: the no-load unit of DESIGN.md section 3 written apart from the kernel.
+"""An independent plant: the no-load unit of docs/model.md written apart from the kernel.
 
 Records made here are what every accuracy figure is measured on (tests and benchmarks), so that
 bench-ctl is never judged only against its own model (issue 11). Nothing here imports
-`bench_ctl.model`: the equations are written again from DESIGN.md, integrated by fixed-step RK4
+`bench_ctl.model`: the equations are written again from docs/model.md, integrated by fixed-step RK4
 at `sub` sub-steps per recorder sample, with the integration split exactly at the setpoint
 edges, which may fall anywhere inside a sample interval. A recorder then samples the setpoint
 and efd at the same instants (a change first seen at sample k happened in (t[k-1], t[k]]), adds
 noise (seeded) and quantises (an ADC of `bits` over +-`range_pu`).
 
-Effects (DESIGN.md table, any combination): ceiling_limit (non-windup; `VRVT` = 1 scales both
+Effects (docs/model.md, "The eight effects"; any combination): ceiling_limit (non-windup; `VRVT` = 1 scales both
 limits with Vt, `KC` drops the upper one by KC*Ifd), dead_time (VR delayed, history interpolated
 linearly between sub-steps), transducer_lag, saturation (quadratic through S(1.0), S(1.2)),
 rate_limit, setpoint_ramp, recorder_gain and time_skew (efd read from the sub-step history).

@@ -1,7 +1,7 @@
 """Golden frames: the bytes the drivers put on the wire, pinned by hand.
 
 The expected requests below are written from the Modbus specification and the register
-addresses in the device manuals (here: PROFILES.md and the vendor profile's comments), not
+addresses in the device manuals (here: docs/devices.md), not
 derived from drivers/profile.py, so a wrong address, word order or scale in the shared codec or
 a profile cannot pass by agreeing with itself. A scripted server plays the device: it checks
 nothing, records what it receives and sends the canned replies.

@@ -1,4 +1,4 @@
-"""Setpoint edge instants are fitted, not assumed (DESIGN.md section 4, issue 11).
+"""Setpoint edge instants are fitted, not assumed (docs/model.md, "Edge timing"; issue 11).
 
 The records here put the edges between samples: simulated at 20 kHz with the pulse at an
 instant off the 1 kHz grid, then sampled at 1 kHz (or at a recorder's 208 Hz) as a recorder

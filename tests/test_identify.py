@@ -1,5 +1,5 @@
 """Identification end to end: known parameters recovered from synthetic captures, the result
-JSON (SCHEMA.md) and the `bench-ctl identify` command with its exit codes.
+JSON (docs/formats.md) and the `bench-ctl identify` command with its exit codes.
 
 The truth is chosen so that a 4 s record determines all six parameters (TA3 < TA2, so the lead
 swap is ruled out by TA2 <= TA1; TA4 = 2 s is seen within the record); the noise is the

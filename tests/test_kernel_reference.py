@@ -1,6 +1,6 @@
 """The compiled kernel against an independent high-accuracy integration (scipy solve_ivp).
 
-The reference equations below are written again from DESIGN.md section 3, not imported from the
+The reference equations below are written again from docs/model.md, not imported from the
 kernel: state vector, saturation, limits, ramp, dead time (method of steps with dense output),
 recorder gain and skew. Integration is split at every input discontinuity (pulse edges, ramp
 ends) with tight tolerances. Criterion (issue 2): max |efd error| < 1e-3 pu over the reference
@@ -206,7 +206,7 @@ OFF_GRID = (-0.00037, -0.00081)
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_kernel_edges_between_samples_match_solve_ivp(case):
-    """A setpoint edge inside a sample interval (DESIGN.md section 4): the kernel, told the
+    """A setpoint edge inside a sample interval (docs/model.md, "Edge timing"): the kernel, told the
     edge's offset, integrates the change at that instant as exactly as at a sample."""
     p = {**REF, **NEUTRAL, **CASES[case], "EDGE1": OFF_GRID[0], "EDGE2": OFF_GRID[1]}
     t, u = pulse_usetp(amplitude=AMP, width=WIDTH, start=START, duration=DURATION, rate=RATE_HZ)
@@ -240,7 +240,7 @@ def test_kernel_edge_offsets_batch_like_other_parameters():
 
 
 def test_reference_pulse_shape():
-    """DESIGN.md: the pulse drives efd from 1.0 to about 3.1 pu and down to about -1.0 pu."""
+    """docs/model.md: the pulse drives efd from 1.0 to about 3.1 pu and down to about -1.0 pu."""
     t, u = pulse_usetp(duration=DURATION)
     efd = run_kernel(param_matrix(reference_unit().values()), u, 1e-3, 1.0)["efd"][0]
     assert efd[0] == pytest.approx(1.0)

@@ -1,4 +1,4 @@
-"""The layer rules of DESIGN.md section 2, checked over the whole tree by reading the imports.
+"""The layer rules of docs/architecture.md, checked over the whole tree by reading the imports.
 
 - procedures/ reach devices only through the runner: they import neither drivers nor simulators;
 - drivers/ never imports simulators/ (a simulated device is another address, not a branch);

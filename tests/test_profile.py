@@ -152,7 +152,7 @@ def test_bare_name_resolves_to_profiles_dir():
 
 
 def test_shipped_profiles_match_the_documented_map():
-    """Addresses as written in /work/notes/PROFILES.md (hand-copied, not read from the TOML)."""
+    """Addresses as written in docs/devices.md (hand-copied, not read from the TOML)."""
     e = load_profile("sim-exciter")
     expect = {"setpoint": ("holding", 0, "float32"), "heartbeat": ("holding", 2, "uint16"),
               "mode": ("holding", 3, "uint16"), "active_setpoint": ("input", 0, "float32"),

@@ -1,5 +1,5 @@
 """The simulated excitation system over Modbus TCP (pymodbus client; addresses hand-written
-from /work/notes/PROFILES.md so a wrong map cannot pass by being copied)."""
+from docs/devices.md so a wrong map cannot pass by being copied)."""
 from __future__ import annotations
 
 import struct

@@ -1,5 +1,5 @@
 """Golden frames: the exact bytes on the wire, hand-written from the documented register map
-(/work/notes/PROFILES.md), independent of the profile files and of any Modbus library.
+(docs/devices.md), independent of the profile files and of any Modbus library.
 RTU CRCs were computed by hand-rolled CRC-16/MODBUS, itself checked against the two frames
 every Modbus text quotes (01 03 00 00 00 01 -> 84 0A, 01 03 00 00 00 0A -> C5 CD)."""
 from __future__ import annotations

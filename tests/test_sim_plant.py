@@ -42,7 +42,7 @@ def test_offline_stepping_reproduces_simulate(name):
     if name == "ceiling_limit":
         assert out[:, O_EFD].max() == pytest.approx(2.8)
         assert np.any(out[:, 6].astype(int) & FLAG_CEILING)
-    if name == "none":   # the reference response of DESIGN.md section 3
+    if name == "none":   # the reference response of docs/model.md
         assert 3.0 < efd.max() < 3.2 and -1.1 < efd.min() < -0.9
 
 

@@ -1,6 +1,6 @@
 """The simulated recorder over Modbus RTU: arm, trigger on a usetp step or manually, block
 download with CRC; on the RTU-over-TCP URL and on the pseudo-terminal. Addresses and the
-protocol are hand-written from /work/notes/PROFILES.md."""
+protocol are hand-written from docs/devices.md."""
 from __future__ import annotations
 
 import math

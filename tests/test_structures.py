@@ -85,7 +85,7 @@ def test_with_model_keeps_generator_and_effects_and_back():
 
 def test_reference_structure_is_unchanged_by_the_new_blocks():
     """The blocks the standard structures added are neutral by default: the reference unit's
-    pulse is exactly what the kernel gave before (the DESIGN.md figures: about 3.1 and -1.0 pu)."""
+    pulse is exactly what the kernel gave before (the docs/model.md figures: about 3.1 and -1.0 pu)."""
     u = reference_unit()
     t = np.arange(6001) * 1e-3
     usetp = 1.0 + 0.05 * ((t >= 1.0) & (t < 2.0))

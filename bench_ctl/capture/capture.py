@@ -1,4 +1,4 @@
-"""The capture: what the recorder produced and what identification reads (DESIGN.md section 4).
+"""The capture: what the recorder produced and what identification reads (docs/formats.md).
 
 On disk a capture is `NAME.csv` (UTF-8, comma-separated, one header row; `time` in s with a
 uniform increasing step, `usetp` and `efd` in pu, optional `vt` in pu, other columns kept) and

@@ -1,5 +1,5 @@
 """`bench-ctl batch MANIFEST.csv [--out DIR] [--scheduler ADDRESS] [--workers N]`: identify,
-diagnose and report many captures at once on Dask (DESIGN.md section 8, bench_ctl.fleet).
+diagnose and report many captures at once on Dask (docs/fleets.md, bench_ctl.fleet).
 
 Exit codes: 0 every capture passed, 1 some failed their criteria or errored (see summary.csv),
 2 bad manifest or interrupted.

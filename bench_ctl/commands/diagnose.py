@@ -4,9 +4,10 @@ Example:
   bench-ctl diagnose pulse1s.csv --holdout pulse05s.csv --json diag.json --report diag.html
   bench-ctl diagnose pulse1s.csv --unit unit.toml --set Td0p=6.8 --result result.json
 
-Without --holdout the models are fitted on the record up to one pulse width after the trailing
-edge and checked on the rest (see `bench_ctl.diagnosis.diagnose`). --result warm-starts the base
-fit from an identification result's parameters.
+Every model is fitted on the whole capture and checked where it was not fitted: the leading
+edge, the plateau and the trailing edge each left out in turn, the recorded Vt when the fit did
+not use it, and --holdout when given (see `bench_ctl.diagnosis.diagnose`). --result warm-starts
+the base fit from an identification result's parameters.
 
 Exit codes: 0 the base model fits the capture to its noise floor (verdict none); 1 an unmodelled
 effect was found (the verdict names it); 2 bad input (capture, unit file, --set, option) or the

@@ -1,6 +1,6 @@
 """Sim-to-real gap diagnosis of one capture: where the model misses, which effects, how far it shrinks.
 
-`diagnose(capture, unit, holdout=...)` returns the diagnosis JSON (SCHEMA.md, schema
+`diagnose(capture, unit, holdout=...)` returns the diagnosis JSON (docs/formats.md, schema
 "bench-ctl/diagnosis/1"). Every model is fitted on the whole capture with identification's
 objective (`identification.problem`: the unit's identified parameters, the effects' parameters
 and the instant of every setpoint edge, `effect_fits.Views`):
@@ -25,8 +25,9 @@ and the instant of every setpoint edge, `effect_fits.Views`):
    lies.
 
 The check (`effect_fits.check_parts`): the cross-validation windows of the capture (leading
-edge, plateau, trailing edge, recovery; each left out of a re-fit and scored), and the holdout
-capture when one is given.
+edge, plateau, trailing edge; each left out of a re-fit and scored: `CV_SEGMENTS`, the recovery
+is never one), the recorded Vt when the fit did not use it, and the holdout capture when one is
+given.
 """
 from __future__ import annotations
 
@@ -117,8 +118,7 @@ CHECKED = 4
 
 #: cross-validation windows: the segments of the record (localize.segments) each left out in turn.
 #: Not the recovery: it is most of the record and holds what determines the slow time constants,
-#: so the rest cannot predict it for any model (measured: the leave-out step then decided between
-#: models by the slow lags' extrapolation, 7x vs 60x the floor); it stays in every fit.
+#: so the rest cannot predict it for any model; it stays in every fit (docs/decisions/0010).
 CV_SEGMENTS = ("leading_edge", "plateau", "trailing_edge")
 
 
@@ -172,8 +172,9 @@ def _fit_base(st: _Setup, budget: Budget, seed: int, base_params: Mapping[str, f
     """The base model identified as `bench-ctl identify` does (MVMO on the whole record with the
     edge instants held mid-interval, then one joint least-squares polish, `peers.run_optimizer`),
     from the unit's values (or `base_params`), then the diagnosis' own polish for the standard
-    deviations. (The coarse-record search the effects use reached 1.11x the noise floor on an
-    effect-free record that identification fits to 1.01x, and the ceiling then looked significant.)"""
+    deviations. (The coarse-record search the effects use left an effect-free record further from
+    the noise floor than identification does, and an effect then filled the difference:
+    docs/decisions/0010.)"""
     from bench_ctl.identification.peers import run_optimizer
 
     views = st.views
@@ -369,8 +370,7 @@ def _combine(st: _Setup, current: ModelFit, c: str, single: ModelFit, hints: Map
 KEEP_WITHOUT_CHECK = 10 * STRONG
 #: an effect added to others must explain at least this share of the error left: below it, the
 #: differences between any plant and any model of it (integration, edge timing, a slightly other
-#: limit rule) are of that size, and a flexible effect fits them (measured on the independent
-#: plant: a spurious rate limit or gain after two true effects lowered the MSE by 0.5-1 %)
+#: limit rule) are of that size, and a flexible effect fits them (docs/decisions/0010, appendix)
 STEP_REL = 0.01
 
 

@@ -20,12 +20,12 @@ setpoint edge, fitted together (`Views.problem`). For each effect (`fit_model`):
 The check (`check_parts`), where a fitted model is judged on data it was not fitted to: the
 holdout capture when there is one (the model held, only its own edge instants fitted), the
 recorded terminal voltage when there is one and the fit did not use it, and always the
-cross-validation windows of the capture - the leading edge, the plateau, the
-trailing edge and the recovery in turn: the model is re-fitted with the window left out of the
-objective (the simulation running through it) and scored on it - the re-fit is the Gauss-Newton
-step from the model's fit over the other samples, one Jacobian serving all windows. So an effect
-that acts at the edges (a ceiling, a slew limit, a setpoint ramp, a delay) is judged on an edge
-the fit never saw.
+cross-validation windows of the capture - the leading edge, the plateau and the trailing edge
+in turn (never the recovery: `diagnose.CV_SEGMENTS`): the model is re-fitted with the window left
+out of the objective (the simulation running through it) and scored on it - the re-fit is the
+Gauss-Newton step from the model's fit over the other samples, one Jacobian serving all windows.
+So an effect that acts at the edges (a ceiling, a slew limit, a setpoint ramp, a delay) is judged
+on an edge the fit never saw.
 
 Ranking: BIC on the capture (n ln(mse) + k ln(n), k = added parameters) plus the predictive
 deviance on the check, sum over its parts of n_i ln(mse_i). An effect is significant when it
@@ -65,8 +65,8 @@ STRONG = 100.0
 AMBIGUOUS = 6.0
 
 #: the whole-box search of `_global`: independent MVMO runs sharing the budget, and their swarm
-#: (dead-time case from the blind suite, 600 evaluations: one run of 16 particles found the
-#: optimum in 6 of 10 seeds, two runs of 300 with 32 particles in 12 of 12)
+#: (two smaller runs find a narrow basin more often than one: docs/benchmarks.md, "Diagnosis
+#: constants")
 RESTARTS = 2
 GLOBAL_OPTIONS = {"particles": 32}
 
@@ -481,9 +481,9 @@ def _global(views: Views, effects: Sequence[str], fixed: Mapping[str, float], pc
             floor_tol: float, counter: list[int], held_edges: Mapping[str, float],
             extra: Sequence[str] = ()) -> tuple[float, dict[str, float]]:
     """Step 3 on the coarse problem `pc` from the local fit x0. MVMO must not start from x0 itself:
-    a local minimum in its first population pulls the whole swarm into that basin (measured: a
-    dead-time fit stuck at 16x the noise floor in 5 of 5 seeds from x0, found in 5 of 5 without
-    it). The searches start from the unit file's values with x0's effect values instead:
+    a local minimum in its first population pulls the whole swarm into that basin
+    (docs/benchmarks.md, "Diagnosis constants"). The searches start from the unit file's values
+    with x0's effect values instead:
     a. MVMO over the whole box (`RESTARTS` runs sharing `evals`, 32 particles), then least squares;
     b. unless a reached the floor: MVMO over the model parameters with the effect held at x0's
        values (a profile), then everything free.

@@ -188,9 +188,9 @@ def pre_trigger_level(efd_pre: float, efd_se: float, efd0_model: float) -> Featu
                                                        "efd0_model": efd0_model})
 
 
-#: the measured slope is a sliding least-squares line over this long (s): over 3 ms the recorder
-#: noise alone (0.01 pu at 1 kHz) reads as ~20 pu/s and hid slew limits below that (measured: a
-#: 7.4 pu/s limit read as 19.5); over 15 ms its standard error is ~0.6 pu/s
+#: the measured slope is a sliding least-squares line over this long (s): over a few ms the
+#: recorder noise alone reads as a steep slope and hides slower slew limits (docs/benchmarks.md,
+#: "Diagnosis constants")
 SLOPE_WINDOW_S = 0.015
 
 

@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 
 #: MVMO settings of the diagnosis' searches: the defaults (`mvmo.DEFAULT_OPTIONS`), whose local
 #: searches from good particles late in the run find the AVR model's narrow basins more reliably
-#: than one polish of the final best (profile fit of a ceiling case: 5 of 6 seeds against 2 of 6)
+#: than one polish of the final best (docs/benchmarks.md, "MVMO defaults and MVMO_OPTIONS")
 MVMO_OPTIONS: Mapping = {}
 
 #: objective of a candidate whose simulation blew up (mse units; real MSEs are << 1)
@@ -116,8 +116,7 @@ class Space:
 
 #: below this many candidate-steps a kernel call runs on one thread: waking the worker threads
 #: costs more than it saves for the small batches of the least-squares polish, several times
-#: more when the machine is busy (measured: 1 candidate x 1250 steps 21 ms on 2 threads under
-#: load, 2.6 ms on one)
+#: more when the machine is busy (docs/benchmarks.md, "Diagnosis constants")
 SMALL_CALL = 300_000
 
 

@@ -1,4 +1,4 @@
-"""Fleets: many captures identified, diagnosed and reported at once on Dask (DESIGN.md section 8).
+"""Fleets: many captures identified, diagnosed and reported at once on Dask (docs/fleets.md).
 
 `manifest.read_manifest` reads the CSV that lists the captures; `tasks` runs one step of one
 capture exactly as the single command does (`bench-ctl identify` / `diagnose` / `report`, same

@@ -43,8 +43,8 @@ WORKER_ENV = {"NUMBA_NUM_THREADS": "1"}
 #: started with DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False). No statistical profiler (a
 #: callback that samples the running task's stack every 10 ms, taking the GIL from the fits);
 #: glibc's own trim threshold instead of Dask's MALLOC_TRIM_THRESHOLD_=65536, which fixes the mmap
-#: threshold too, so every array above 64 kB is mapped and faulted in anew (measured: the same 8
-#: captures 30.1 s in a plain process with it, 26.0 s without). The event-loop watchdog (tick)
+#: threshold too, so every array above 64 kB is mapped and faulted in anew (figures:
+#: docs/decisions/0008, appendix). The event-loop watchdog (tick)
 #: and the dashboard's CPU / memory sampler run at 1 s and 2 s instead of 20 ms and 0.5 s: on a
 #: 2-core machine every core is a worker, and their wake-ups came out of the fits' time.
 WORKER_CONFIG = {"distributed.worker.profile.enabled": False,

@@ -74,7 +74,7 @@ def _active(problem: Problem) -> np.ndarray:
 def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
             max_rel_std: float = 0.25, max_corr: float = 0.999, note_corr: float = 0.99, cond_limit: float = 1e-8,
             equivalence_tol: float | None = None) -> dict[str, Any]:
-    """The `identifiability` block of the result (SCHEMA.md) for `problem` at `x`."""
+    """The `identifiability` block of the result (docs/formats.md) for `problem` at `x`."""
     x = np.asarray(x, dtype=float).reshape(-1)
     names = list(problem.names)
     d = len(names)

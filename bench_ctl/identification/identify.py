@@ -1,4 +1,4 @@
-"""Identify a unit's AVR parameters from captures and assemble the result JSON (SCHEMA.md).
+"""Identify a unit's AVR parameters from captures and assemble the result JSON (docs/formats.md).
 
 `run_identification` binds the captures and unit into a `Problem`, warms the kernel up (its
 compile / cache-load time is reported as `compile_s`, outside `wall_s`), runs the chosen
@@ -132,8 +132,7 @@ def _run_summary(problem: Problem, r: OptimResult) -> dict[str, Any]:
 def run_identification(*args: Any, **kwargs: Any) -> Identification:
     """`_run_identification` with BLAS on one thread: the least-squares steps' dot products then
     sum in one order, so a capture gives the same result alone, in a batch worker (where Dask
-    sets one BLAS thread) or on a machine with more cores (measured: 998 vs 968 evaluations and
-    a different KAVR on one capture with 2 BLAS threads against 1)."""
+    sets one BLAS thread) or on a machine with more cores (docs/decisions/0008, appendix)."""
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):

@@ -1,7 +1,7 @@
 """MVMO / MVMO-SH: Mean-Variance Mapping Optimization with bounds and inequality constraints.
 
 Implemented from the published description (Erlich, Venayagamoorthy & Worawat 2010; Rueda &
-Erlich's swarm-hybrid MVMO-SH, 2013-2015) and the design reference (section 5), not from the
+Erlich's swarm-hybrid MVMO-SH, 2013-2015) and docs/identification.md, not from the
 authors' code. All search happens in ``z``, the variables normalised to ``[0, 1]`` by the
 bounds:
 
@@ -45,7 +45,8 @@ the same points are evaluated in the same order either way, so both give the sam
 Choices of this implementation where the literature leaves room or was not at hand to check:
 the ``beta`` range, SLSQP with batched forward differences as the local search and its
 scheduling (one at a time, best unpolished good particle), the penalised ranking of infeasible
-candidates, and the defaults in ``DEFAULT_OPTIONS`` (measured, see :func:`minimize`).
+candidates, and the defaults in ``DEFAULT_OPTIONS`` (docs/benchmarks.md, "MVMO defaults and
+MVMO_OPTIONS").
 """
 
 from __future__ import annotations
@@ -67,8 +68,8 @@ __all__ = ["DEFAULT_OPTIONS", "MVMOResult", "mapping", "minimize"]
 
 ConstraintLike = Union[LinearConstraint, Callable[[np.ndarray], float]]
 
-#: Option defaults (measured choices, see docs of :func:`minimize`). ``None`` means derived
-#: from the number of variables ``d``: ``m_init = ceil(d / 2)``,
+#: Option defaults (why: docs/benchmarks.md, "MVMO defaults and MVMO_OPTIONS"). ``None`` means
+#: derived from the number of variables ``d``: ``m_init = ceil(d / 2)``,
 #: ``local_search_evals = 40 (d + 1)``.
 DEFAULT_OPTIONS: Mapping[str, Any] = MappingProxyType(
     {
@@ -446,14 +447,11 @@ def minimize(fun: Callable[[np.ndarray], Any], bounds: Sequence[Sequence[float]]
     of the initial population (warm start). ``options``: see ``DEFAULT_OPTIONS``; unknown keys
     are errors.
 
-    Default choices, measured with 20 seeds on a 6-parameter lead-lag pulse-response fit
-    (1000 evaluations) and with 10 seeds on sphere / Rosenbrock / Rastrigin / Ackley: 8
-    particles (16 or 32 give fewer generations per particle at this budget: +2-13 % evaluations
-    on the fit and fewer Rastrigin / Ackley runs in the global basin; 4 is no better on the fit
-    and worse on Rastrigin); one local search at a time from the best unpolished good particle
-    after 20 % of the budget (the fit reaches the error of the true parameters after a median
-    of ~400 evaluations, and never within 1000 without local search); ``fs`` 1 -> 20, archive
-    4, ``delta_d`` 0.25, good share 0.7 -> 0.2.
+    Default choices: 8 particles (more give fewer generations per particle at a budget of 1000);
+    one local search at a time from the best unpolished good particle after 20 % of the budget
+    (without local search a pulse-response fit does not reach the true parameters' error);
+    ``fs`` 1 -> 20, archive 4, ``delta_d`` 0.25, good share 0.7 -> 0.2. The figures behind
+    them: docs/benchmarks.md, "MVMO defaults and MVMO_OPTIONS".
     """
     if isinstance(max_evals, bool) or not isinstance(max_evals, (int, np.integer)) or max_evals < 1:
         raise ValueError(f"max_evals={max_evals!r}: need an integer >= 1")

@@ -130,13 +130,8 @@ def run_optimizer(name: str, problem: Problem, *, max_evals: int, seed: int | No
 #: MVMO options used for identification unless overridden (see `mvmo.DEFAULT_OPTIONS`).
 #: particles 32: a generation is one kernel call, and the kernel's cost per candidate falls with
 #: the batch size (candidates are its inner, vectorised loop); local_search_evals 500: longer
-#: polishing along the KAVR-TA4 ridge of this objective. Measured (reference unit, 10 s at
-#: 1 kHz, 1000 evaluations, 2 cores shared with other jobs): benchmarks/identify_speed.py
-#: 1.6-2.0 s with 32 particles against 2.5-3.5 s with mvmo's default 8;
-#: benchmarks/identify_accuracy.py 20/20 (seeds 0-19) and 40/40 (seeds 20-59) random sets
-#: within 5 % of the noise variance (16 or 64 particles: 19/20); against the local
-#: least-squares peer, MVMO's MSE was higher by more than 0.01 % in 8 of 20 sets with the
-#: default local-search budget and in 5 of 20 with 500 (max 0.5 %).
+#: polishing along the KAVR-TA4 ridge of this objective. Figures: docs/benchmarks.md, "MVMO
+#: defaults and MVMO_OPTIONS".
 MVMO_OPTIONS: dict[str, Any] = {"particles": 32, "local_search_evals": 500}
 
 
@@ -189,16 +184,12 @@ def _run_mvmo(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray
     """MVMO; with setpoint edge instants among the names (and the option `edges` = "polish", the
     default), MVMO searches the model parameters with each edge held at the middle of its
     interval, then one least-squares polish moves everything, edges included. The edge offsets
-    barely shape the objective's landscape; searched by MVMO they only thin its budget (measured
-    on the independent plant: 1 in 20 fits of 1000 evaluations stalled at 1.2x the noise floor
-    with them in the search, against none held and polished).
+    barely shape the objective's landscape; searched by MVMO they only thin its budget.
 
     When the unit's structure declares near-symmetric time constants (`Structure.swaps`) and both
     are fitted, the same polish is run again from the point with the two exchanged, and the better
-    end kept (`_swap_restarts`), with the evaluations the polish left unused. Measured on ANDES'
-    IEEEX1 5 % capture, 20 noise seeds, 1000 evaluations: 19/20 within 1.05x the noise floor
-    without the restart, 20/20 with it; with the restart's 200 evaluations taken from MVMO's share
-    instead, another seed stalled (19/20)."""
+    end kept (`_swap_restarts`), with the evaluations the polish left unused. Figures for both:
+    docs/benchmarks.md, "Identification: edge instants held, swap restarts"."""
     opts = dict(options)
     mode = str(opts.pop("edges", "polish"))
     if mode not in ("polish", "search"):
@@ -263,8 +254,7 @@ def _swap_restarts(problem: Problem, swaps: list[tuple[str, int, int]], max_eval
     """For each near-symmetric pair, the polish from x with the pair exchanged (clipped into the
     bounds), sharing the evaluations left of `max_evals`; the better end is kept. MVMO's swarm
     collapses into one basin, and for such a pair the exchanged basin can hold a local optimum
-    (measured on ANDES' IEEEX1: 1 fit in 5 ended at 1.24x the noise floor with TA and TE
-    exchanged)."""
+    (docs/benchmarks.md, "Identification: edge instants held, swap restarts")."""
     tried = []
     for k, (note, i, j) in enumerate(swaps):
         budget = (max_evals - nfev) // (len(swaps) - k)

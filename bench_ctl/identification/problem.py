@@ -8,7 +8,7 @@ population with ONE kernel call per capture:
     OF(x) = sum_k alpha_k * integral sum_n w_n (y_n(x) - y_n,meas)^2 dt   (trapezoidal rule)
 
 over captures k and signals n (efd with the unit's efd weight; vt when the capture has it and
-its weight is > 0), DESIGN.md section 5. Candidates the kernel marks failed (unstable or invalid
+its weight is > 0), docs/identification.md. Candidates the kernel marks failed (unstable or invalid
 parameters) get a penalty larger than any objective a finite simulation can produce, and larger
 the earlier they fail, so every candidate stays rankable.
 

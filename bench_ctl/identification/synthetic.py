@@ -48,7 +48,7 @@ def synthetic_capture(unit: Unit, *, duration: float = 10.0, rate: float = 1000.
 def closed_loop_poles(values: dict[str, float]) -> np.ndarray:
     """Eigenvalues of the linear closed loop (reference model, no effects, TR = 0) at `values`.
 
-    States x1, x2 (lead-lag lags), efd, E'q, E''q; DESIGN.md section 3."""
+    States x1, x2 (lead-lag lags), efd, E'q, E''q; docs/model.md."""
     k, t1, t2, t3, t4, te = (values[n] for n in ("KAVR", "TA1", "TA2", "TA3", "TA4", "TE"))
     tp, tpp = values["Td0p"], values["Td0pp"]
     r1, r2 = t1 / t2, t3 / t4

@@ -1,4 +1,4 @@
-"""The setpoint edges of a capture as fit parameters (DESIGN.md section 4, "Edge timing").
+"""The setpoint edges of a capture as fit parameters (docs/model.md, "Edge timing").
 
 Every fit (identification, the diagnosis' base and effect fits) carries the instant of each
 setpoint edge as a parameter: `EDGE1`.. hold the fitted instant minus the nominal one (s).
@@ -11,8 +11,8 @@ setpoint edge as a parameter: `EDGE1`.. hold the fitted instant minus the nomina
   searched in [-tol, +tol].
 
 `edges_entry` / `edge_spec_of` write and read the per-capture `edges` list of the result and
-diagnosis JSON ({index, jump, nominal_s, fitted_s, std_s, lo_s, hi_s, how}), so a report
-re-simulates with the instants the fit found.
+diagnosis JSON ({index, jump_pu, nominal_s, fitted_s, offset_s, std_s, lo_s, hi_s, how,
+fitted}), so a report re-simulates with the instants the fit found.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Setpoint edges of a record and their fitted instants (DESIGN.md section 4, "Edge timing").
+"""Setpoint edges of a record and their fitted instants (docs/model.md, "Edge timing").
 
 A recorder samples `usetp` and `efd` together: a setpoint change first seen at sample k happened
 somewhere in (t[k-1], t[k]]. The kernel's zero-order hold puts it at t[k]; at 1 kHz with a static

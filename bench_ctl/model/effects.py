@@ -2,7 +2,7 @@
 
 Each effect names its parameters, their neutral values (the model without the effect), the
 bounds a fit may search (physically sensible for a no-load pulse test of a static-excitation
-unit), and any constraint between them. Names are fixed by DESIGN.md section 3.
+unit), and any constraint between them. Names are fixed by docs/model.md ("The eight effects").
 """
 from __future__ import annotations
 

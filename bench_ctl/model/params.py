@@ -1,4 +1,4 @@
-"""The parameter catalogue of the reference unit and its effects (DESIGN.md section 3).
+"""The parameter catalogue of the reference unit and its effects (docs/model.md).
 
 Names follow IEEE 421.5 / the reference paper. Every parameter the kernel knows has a fixed
 column in the kernel's parameter matrix (`KERNEL_PARAMS` order); a `ParamInfo` carries its unit,
@@ -114,13 +114,13 @@ STRUCTURE_PARAMS = ("KPP", "KDA", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "S
 #: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
 RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")
 
-#: Reference values of the simulated unit (DESIGN.md section 3).
+#: Reference values of the simulated unit (docs/model.md).
 REFERENCE_VALUES: dict[str, float] = {
     "KAVR": 200.0, "TA1": 1.0, "TA2": 0.2, "TA3": 0.5, "TA4": 10.0, "TE": 0.02,
     "Td0p": 7.5, "Td0pp": 0.05, "Vt0": 1.0,
 }
 
-#: Suggested identification bounds (DESIGN.md section 3).
+#: Suggested identification bounds (docs/model.md).
 REFERENCE_BOUNDS: dict[str, tuple[float, float]] = {
     "KAVR": (50.0, 800.0), "TA1": (0.05, 5.0), "TA2": (0.01, 2.0),
     "TA3": (0.05, 5.0), "TA4": (1.0, 50.0), "TE": (0.002, 0.2),

@@ -1,4 +1,4 @@
-"""What a procedure needs of the devices, through the runner (DESIGN.md section 2: procedures
+"""What a procedure needs of the devices, through the runner (docs/architecture.md: procedures
 reach devices only through the runner, never `drivers/` directly).
 
 - `CommError`, `DeviceError`: what a device step may raise (a lost link, a refused request).

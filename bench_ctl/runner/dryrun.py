@@ -1,6 +1,6 @@
 """Dry runs: start the embedded simulated bench and point the bench config at it.
 
-The drivers are unchanged; only the addresses in the config change (STYLE.md: a simulated
+The drivers are unchanged; only the addresses in the config change (docs/style.md: a simulated
 device is a different address, never an `if simulated:` branch). The simulators serve the
 profiles the bench config names, so a vendor-profile bench dry-runs against a simulator
 speaking that vendor's register map. The recorder is reached on its pseudo-terminal, the same
@@ -8,8 +8,8 @@ serial path a real recorder uses.
 
 The simulated bench (`simulators.bench.SimBench`) runs in a child process, as a real device
 is a separate box: in the same interpreter its threads and garbage collections stalled the
-host's timed restore write by up to 60 ms in about one run in twenty (measured with
-benchmarks/pulse_dry_runs.py), which is the simulator's cost, not the procedure's.
+host's timed restore write, which is the simulator's cost, not the procedure's
+(docs/decisions/0005).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Safety checks done before the first write (DESIGN.md section 7), and Ctrl-C handling.
+"""Safety checks done before the first write (docs/safety.md), and Ctrl-C handling.
 
 Checks refuse, never clip: every violated limit is listed in one `LimitViolation` (or
 `PreconditionFailed` for the state of the unit), raised before anything is written.

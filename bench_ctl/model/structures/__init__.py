@@ -1,4 +1,4 @@
-"""The model library: the AVR / exciter structures a unit can use (issue 13, DESIGN.md section 3).
+"""The model library: the AVR / exciter structures a unit can use (issue 13, docs/model.md).
 
 Each structure lives in one file of this package and declares, once, its parameters under their
 standard (IEEE 421.5 / PSS/E) names with unit, meaning, typical value and default identification

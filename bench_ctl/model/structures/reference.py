@@ -1,4 +1,4 @@
-"""The reference paper's structure (DESIGN.md section 3): two lead-lags, gain, bridge lag.
+"""The reference paper's structure (docs/model.md): two lead-lags, gain, bridge lag.
 
 The default structure; its parameters are the kernel's own names. It has no PSS/E record of its
 own (`export --dyr` writes it as ESST1A without limits: the same blocks under ESST1A's names)."""
@@ -23,5 +23,5 @@ STRUCTURE = Structure(
     ),
     constraints=("TA2 <= TA1", "TA4 >= TA2"),
     dyr_model="ESST1A",
-    source="the reference paper (DESIGN.md section 3)",
+    source="the reference paper (docs/model.md)",
 )
