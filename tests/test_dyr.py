@@ -106,7 +106,7 @@ def test_identify_export_and_start_again_from_the_record(tmp_path, capsys):
     assert "K = " in text and "identified" in text and "EMAX" in text
     # never over an existing file
     assert main(["export", str(res), "--dyr", str(out)]) == 2
-    assert "never overwritten" in capsys.readouterr().err
+    assert "exists; refusing to replace it" in capsys.readouterr().err
     # the record is a starting point again
     res2 = tmp_path / "again.result.json"
     assert main(["identify", str(cap), "--from-dyr", str(out), "--evals", "50", "--json", str(res2),

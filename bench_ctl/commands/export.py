@@ -5,8 +5,9 @@ The record holds every field of the structure's PSS/E model in the standard orde
 values, the unit's fixed values, and for fields bench-ctl does not simulate (input limiter,
 field current limiter, ...) the unit's value or the library's default; a comment above the
 record says which is which, and where the result came from. An existing file is never
-overwritten. The REFERENCE structure is written as ESST1A (the same blocks; limits wide unless the
-ceiling was modelled). Exit codes: 0 written, 2 bad input (file, key or value named).
+overwritten without --force, never an input. The REFERENCE structure is written as ESST1A (the
+same blocks; limits wide unless the ceiling was modelled). Exit codes: 0 written, 2 bad input
+(file, key or value named) or an output refused.
 """
 from __future__ import annotations
 
@@ -22,17 +23,25 @@ EXIT_BAD_INPUT = 2
 @click.command("export")
 @click.argument("result_path", metavar="RESULT.json", type=click.Path(dir_okay=False))
 @click.option("--dyr", "dyr_out", required=True, type=click.Path(dir_okay=False),
-              help="PSS/E .dyr file to write (never overwritten).")
+              help="PSS/E .dyr file to write (an existing one only with --force, never an input).")
 @click.option("--bus", type=int, default=1, show_default=True, help="Bus number of the record.")
 @click.option("--id", "machine_id", default="1", show_default=True, help="Machine ID of the record.")
-def export(result_path: str, dyr_out: str, bus: int, machine_id: str) -> int:
+@click.option("--force", is_flag=True, help="Replace an existing .dyr (never an input).")
+def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: bool = False) -> int:
     """Write the identified model of RESULT.json as a PSS/E dynamic data record."""
-    from bench_ctl.model.dyr import DyrError, DyrRecord, write_dyr
+    from bench_ctl import outputs
+    from bench_ctl.limits import InputError, read_bounded
+    from bench_ctl.model.dyr import DyrError, DyrRecord, dyr_text
     from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of
     from bench_ctl.model.structures import StructureError
 
     try:
-        result = json.loads(Path(result_path).read_text("utf-8"))
+        out = outputs.guard_outputs({"--dyr": dyr_out}, [result_path], force=force)
+    except outputs.OutputRefused as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    try:
+        result = json.loads(read_bounded(result_path, "a result JSON").decode("utf-8"))
         if not isinstance(result, dict) or "params" not in result:
             raise ValueError("not an identification result (no 'params')")
         st, std = dyr_values_of(result)
@@ -41,10 +50,13 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str) -> int:
         for k, v in values.items():
             if not math.isfinite(v):
                 raise ValueError(f"field {k} = {v} is not finite")
-    except OSError as exc:
-        click.echo(f"error: cannot read {result_path}: {exc.strerror}", err=True)
+    except InputError as exc:
+        click.echo(f"error: {exc}", err=True)
         return EXIT_BAD_INPUT
-    except (ValueError, StructureError, DyrError) as exc:
+    except UnicodeDecodeError as exc:
+        click.echo(f"error: {result_path}: not UTF-8 text (byte {exc.start})", err=True)
+        return EXIT_BAD_INPUT
+    except (ValueError, TypeError, StructureError, DyrError) as exc:
         click.echo(f"error: {result_path}: {exc}", err=True)
         return EXIT_BAD_INPUT
     model = result.get("model") or {}
@@ -68,12 +80,12 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str) -> int:
     icons = {"UEL": 1, "VOS": 1} if st.dyr_model == "ESST1A" else {}
     rec = DyrRecord(bus, st.dyr_model, str(machine_id), values, icons)  # type: ignore[arg-type]
     try:
-        write_dyr(dyr_out, [(rec, "\n".join(notes))], header=header)
-    except FileExistsError as exc:
+        out.write_text(dyr_out, dyr_text([(rec, "\n".join(notes))], header=header))
+    except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
         return EXIT_BAD_INPUT
     except OSError as exc:
-        click.echo(f"error: cannot write {dyr_out}: {exc.strerror}", err=True)
+        click.echo(f"error: {outputs.why_not_written(exc, dyr_out)}", err=True)
         return EXIT_BAD_INPUT
     click.echo(f"wrote {dyr_out}: {st.dyr_model} at bus {bus}, ID {machine_id} "
                f"({len(identified)} identified, {len(fields) - len(identified)} fixed or default)")
