@@ -6,8 +6,11 @@ values, the unit's fixed values, and for fields bench-ctl does not simulate (inp
 field current limiter, ...) the unit's value or the library's default; a comment above the
 record says which is which, and where the result came from. An existing file is never
 overwritten without --force, never an input. The REFERENCE structure is written as ESST1A (the
-same blocks; limits wide unless the ceiling was modelled). Exit codes: 0 written, 2 bad input
-(file, key or value named) or an output refused.
+same blocks). A limit the model leaves open is written as +-999 on its own side (what ANDES uses
+for no limit; `--from-dyr` reads it back as open), every value in full precision, so that
+`--from-dyr` on the export simulates what the result does. What the model has and the record
+cannot hold (a dead time, a rate limit, ...) is named on the console and in the record's
+comment. Exit codes: 0 written, 2 bad input (file, key or value named) or an output refused.
 """
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ from pathlib import Path
 import click
 
 EXIT_BAD_INPUT = 2
+NO_LIMIT = 999.0
 
 
 @click.command("export")
@@ -32,7 +36,7 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
     from bench_ctl import outputs
     from bench_ctl.limits import InputError, read_bounded
     from bench_ctl.model.dyr import DyrError, DyrRecord, dyr_text
-    from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of
+    from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of, not_carried
     from bench_ctl.model.structures import StructureError
 
     try:
@@ -50,6 +54,7 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         for k, v in values.items():
             if not math.isfinite(v):
                 raise ValueError(f"field {k} = {v} is not finite")
+        missing = not_carried(result, st, std)
     except InputError as exc:
         click.echo(f"error: {exc}", err=True)
         return EXIT_BAD_INPUT
@@ -71,9 +76,13 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
             how = "identified"
         elif all(n in typical and std.get(n) == typical[n] for n in names):
             how = "bench-ctl library default"
+        elif any(abs(std.get(n, 0.0)) == NO_LIMIT for n in names):
+            how = "no limit (open in the model)"
         else:
             how = "fixed (unit)"
         notes.append(f"{f} = {values[f]:.6G}: {how}")
+    if missing:
+        notes.append("NOT IN THIS RECORD (the model has them, the record cannot hold them): " + "; ".join(missing))
     header = (f"bench-ctl export of {result_path} (model {model.get('name', st.name)} as PSS/E {st.dyr_model})\n"
               f"command: {result.get('command_line', '')}\n"
               f"fit: mse {result.get('mse')} pu^2 over {len(result.get('captures') or [])} capture(s)")
@@ -89,4 +98,7 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         return EXIT_BAD_INPUT
     click.echo(f"wrote {dyr_out}: {st.dyr_model} at bus {bus}, ID {machine_id} "
                f"({len(identified)} identified, {len(fields) - len(identified)} fixed or default)")
+    if missing:
+        click.echo(f"warning: the {st.dyr_model} record does not hold: {'; '.join(missing)}; a simulation "
+                   "from it differs from the result where these act", err=True)
     return 0

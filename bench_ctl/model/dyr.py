@@ -19,6 +19,7 @@ exists; ANDES' reader builds an ANDES system, it is a benchmark extra): docs/dec
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -147,8 +148,12 @@ def format_record(rec: DyrRecord, comment: str | None = None, per_line: int = 5)
     missing = [k for k in names if k not in rec.values] + [k for k in ICONS.get(rec.model, ()) if k not in rec.icons]
     if missing:
         raise DyrError(f"{rec.model} at bus {rec.bus}: no value for {', '.join(missing)}")
+    bad = [f"{k} = {rec.values[k]}" for k in names if not math.isfinite(float(rec.values[k]))]
+    if bad:
+        raise DyrError(f"{rec.model} at bus {rec.bus}: {', '.join(bad)} cannot be written (a record holds numbers)")
     items = [str(int(rec.icons[k])) for k in ICONS.get(rec.model, ())]
-    items += [f"{float(rec.values[k]):.6G}" for k in names]
+    # the shortest text that reads back as the same float: a record read back simulates the same
+    items += [repr(float(rec.values[k])).upper() for k in names]
     lines = [f"// {c}" for c in (comment.splitlines() if comment else [])]
     head = f"{rec.bus} '{rec.model}' {rec.id}"
     chunks = [items[i:i + per_line] for i in range(0, len(items), per_line)] or [[]]
