@@ -19,6 +19,7 @@ from typing import Any
 
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.capture import sha256_file
+from bench_ctl.capture.plausible import implausible
 from bench_ctl.limits import InputError, read_bounded
 from bench_ctl.model.params import KERNEL_PARAMS, PARAMS, neutral_values
 
@@ -128,8 +129,8 @@ def resolve_capture_path(raw: str, base_dir: Path | None) -> Path:
 
 def load_captures(result: Mapping[str, Any], where: str,
                   base_dir: Path | None = None) -> list[LoadedCapture]:
-    """Read every capture of the result, refusing a missing file or a SHA-256 / n / rate
-    mismatch."""
+    """Read every capture of the result, refusing a missing file, a SHA-256 / n / rate mismatch
+    and a record that is not a plausible setpoint test (`bench_ctl.capture.plausible`)."""
     out = []
     for i, entry in enumerate(result["captures"]):
         key = f"{where}: captures[{i}]"
@@ -155,6 +156,9 @@ def load_captures(result: Mapping[str, Any], where: str,
         if rate is not None and not math.isclose(float(rate), capture.rate_hz, rel_tol=1e-6):
             raise ReportError(f"{key}.rate_hz: result says {rate} Hz, {path} has "
                               f"{capture.rate_hz:g} Hz")
+        err = implausible(capture)
+        if err is not None:   # refused as identify refuses it: no report on a broken record
+            raise ReportError(f"{key}: {err}")
         log.debug("capture %d %s verified (sha256 %s)", i, path, actual)
         out.append(LoadedCapture(i, path, actual, capture, dict(entry)))
     return out
