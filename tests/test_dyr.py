@@ -244,3 +244,16 @@ def test_a_limit_of_999_reads_back_as_no_limit(tmp_path):
     assert u.values()["VRMAX"] == float("inf") and u.values()["VRMIN"] == float("-inf")
     assert main(["simulate", "--from-dyr", str(path), "--set", "KA=150", "-o", str(tmp_path / "s.csv"),
                  "--duration", "3"]) == 0
+
+
+def test_export_names_what_the_record_cannot_hold(tmp_path, capsys):
+    """A dead time (or a non-windup ceiling where ESST1A clamps the output) is not in an ESST1A
+    record: said on the console and in the record, so nobody takes the record for the model."""
+    cap, res, dyr = tmp_path / "c.csv", tmp_path / "r.json", tmp_path / "r.dyr"
+    assert main(["simulate", "-o", str(cap), "--duration", "3", "--rate", "500"]) == 0
+    assert main(["identify", str(cap), "--set", "TD=0.01", "--evals", "64", "--no-progress", "--json", str(res)]) in (0, 1)
+    capsys.readouterr()
+    assert main(["export", str(res), "--dyr", str(dyr)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the ESST1A record does not hold: TD = 0.01 s (read back: 0;" in err
+    assert "NOT IN THIS RECORD" in dyr.read_text() and "TD = 0.01 s" in dyr.read_text()

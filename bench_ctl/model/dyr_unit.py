@@ -269,7 +269,8 @@ _NOT_EXCITER = ("Td0p", "Td0pp", "Vt0", "KPP", "KDA", "S10", "S12", "GAIN", "SKE
 
 def not_carried(result: Mapping[str, Any], st: Structure, std: Mapping[str, float]) -> list[str]:
     """What the result's model has that the record `std` (of structure `st`, as `dyr_values_of`
-    gives it) does not give back when read with `--from-dyr`: 'NAME = value (what it is)'."""
+    gives it) does not give back when read with `--from-dyr`: 'NAME = value (read back: value;
+    what it is)'."""
     from .params import neutral_values
 
     have = dict(neutral_values())
@@ -289,5 +290,6 @@ def not_carried(result: Mapping[str, Any], st: Structure, std: Mapping[str, floa
         b = back[k]
         if a == b or (math.isfinite(a) and math.isfinite(b) and math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-15)):
             continue
-        out.append(f"{k} = {a:g} {PARAMS[k].unit} ({PARAMS[k].info})")
+        unit = "" if PARAMS[k].unit in ("", "1") else f" {PARAMS[k].unit}"
+        out.append(f"{k} = {a:g}{unit} (read back: {b:g}; {PARAMS[k].info})")
     return out
