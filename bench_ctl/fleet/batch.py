@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
+from bench_ctl.limits import InputError, read_bounded
 from bench_ctl.outputs import OutputRefused, Outputs, why_not_written
 
 from . import tasks
@@ -110,10 +111,12 @@ def _report_step(id_row: dict | None, dg_row: dict | None, entry: Entry, folder:
 
 
 def _read(path: Path) -> dict:
+    """A result or diagnosis the batch wrote ({} when absent or unreadable), read bounded."""
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        data = json.loads(read_bounded(path, "a result JSON").decode("utf-8"))
+    except (InputError, ValueError):
         return {}
+    return data if isinstance(data, dict) else {}
 
 
 def summary_row(entry: Entry, folder: Path, steps: dict[str, dict], *, skipped: bool = False) -> dict[str, Any]:

@@ -118,8 +118,12 @@ OUTPUT_OF = {"identify": RESULT, "diagnose": DIAGNOSIS, "report": REPORT}
 
 def is_done(folder: Path, fp: dict[str, Any]) -> bool:
     """The capture's outputs exist and were made from the same inputs and settings."""
+    from bench_ctl.limits import InputError, read_bounded
+
     try:
-        done = json.loads((folder / DONE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        done = json.loads(read_bounded(folder / DONE, "a result JSON").decode("utf-8"))
+    except (InputError, ValueError):
+        return False
+    if not isinstance(done, dict):
         return False
     return done.get("fingerprint") == fp and all((folder / OUTPUT_OF[s]).exists() for s in fp["steps"])
