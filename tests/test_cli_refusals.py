@@ -65,3 +65,41 @@ def test_contradictory_constraints_are_refused_before_the_fit(cap, tmp_path, cap
     rc, err = _run(["identify", str(cap), "--unit", str(tmp_path / "u.toml"), "--evals", "64",
                     "--no-progress"], capsys)
     assert rc == 2 and "contradict each other" in err
+
+
+@pytest.mark.timeout(60)
+def test_every_text_input_is_bounded_before_it_is_read(cap, tmp_path, capsys):
+    """Issue 24 item 17: `batch /dev/zero` read without end. Each kind of input has its own limit,
+    stated in the refusal, and a device is refused before a byte is read."""
+    zero = tmp_path / "zero.json"
+    zero.symlink_to("/dev/zero")
+    for argv in (["export", str(zero), "--dyr", str(tmp_path / "x.dyr")],
+                 ["report", str(zero), "-o", str(tmp_path / "x.html")],
+                 ["diagnose", str(cap), "--result", str(zero)],
+                 ["simulate", "--from-dyr", str(zero), "-o", str(tmp_path / "x.csv")],
+                 ["identify", str(cap), "--unit", str(zero), "--no-progress"]):
+        rc, err = _run(argv, capsys)
+        assert rc == 2 and ("not a regular file" in err or "not a unit file" in err), (argv, err)
+    big = tmp_path / "big.dyr"
+    with open(big, "wb") as f:
+        f.truncate(65 << 20)                       # sparse: more than a .dyr may have
+    rc, err = _run(["simulate", "--from-dyr", str(big), "-o", str(tmp_path / "y.csv")], capsys)
+    assert rc == 2 and "more than the 67108864 bytes a .dyr file may have" in err
+    res = tmp_path / "big.json"
+    with open(res, "wb") as f:
+        f.truncate(65 << 20)
+    rc, err = _run(["export", str(res), "--dyr", str(tmp_path / "z.dyr")], capsys)
+    assert rc == 2 and "more than the 67108864 bytes a result JSON may have" in err
+
+
+def test_identify_evals_help_states_the_swarm_and_refuses_below_it(cap, capsys):
+    """Issue 24 item 20: the help said x >= 1; the minimum is MVMO's swarm (32), de's one population."""
+    from click.testing import CliRunner
+
+    from bench_ctl.cli import cli
+    help_text = CliRunner().invoke(cli, ["identify", "--help"]).output
+    assert "x>=32" in help_text and "at least 32 (MVMO's swarm" in " ".join(help_text.split())
+    rc, err = _run(["identify", str(cap), "--evals", "10", "--no-progress"], capsys)
+    assert rc == 2 and "x>=32" in err
+    rc, err = _run(["identify", str(cap), "--evals", "32", "--optimizer", "de", "--no-progress"], capsys)
+    assert rc == 2 and "de needs at least" in err and "evaluations" in err

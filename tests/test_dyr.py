@@ -106,7 +106,7 @@ def test_identify_export_and_start_again_from_the_record(tmp_path, capsys):
     assert "K = " in text and "identified" in text and "EMAX" in text
     # never over an existing file
     assert main(["export", str(res), "--dyr", str(out)]) == 2
-    assert "never overwritten" in capsys.readouterr().err
+    assert "exists; refusing to replace it" in capsys.readouterr().err
     # the record is a starting point again
     res2 = tmp_path / "again.result.json"
     assert main(["identify", str(cap), "--from-dyr", str(out), "--evals", "50", "--json", str(res2),
@@ -141,3 +141,119 @@ def test_andes_reads_what_bench_ctl_writes(tmp_path, monkeypatch):
             an = names.get(k, k)
             if hasattr(exc, an):
                 assert float(getattr(exc, an).v[0]) == pytest.approx(v), (model, k)
+
+
+# ---- issue 24 items 6 and 7: every export reads back and simulates the same; a record's NaN,
+# negative or zero time constants are refused or simulated as what they mean, never a typical value
+
+STRUCTS = ("REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1", "ESST4B")
+
+
+@pytest.mark.parametrize("model", STRUCTS)
+def test_each_structures_export_reads_back_and_simulates_the_same(model, tmp_path):
+    """identify -> export --dyr -> simulate --from-dyr on the export: the field voltage of the
+    result and of the record read back agree to 1e-6 pu (the REFERENCE export wrote VRMIN = +999
+    and the read-back model was 'unstable at t = 0')."""
+    import numpy as np
+
+    from bench_ctl.capture import read_capture
+    from bench_ctl.model.simulate import simulate
+    from bench_ctl.report.inputs import model_values
+
+    cap, res, dyr, back = (tmp_path / n for n in ("cap.csv", "r.json", "r.dyr", "back.csv"))
+    assert main(["simulate", "--model", model, "-o", str(cap), "--duration", "3", "--rate", "500", "--seed", "1"]) == 0
+    assert main(["identify", str(cap), "--model", model, "--evals", "64", "--json", str(res), "--no-progress"]) in (0, 1)
+    assert main(["export", str(res), "--dyr", str(dyr)]) == 0
+    rec = read_dyr(dyr)[0]
+    for k, v in rec.values.items():     # an open limit is +-999 on its own side, never flipped
+        if abs(v) == 999.0:
+            assert (v < 0) == k.endswith("MIN"), (k, v)
+    assert main(["simulate", "--from-dyr", str(dyr), "-o", str(back), "--duration", "3", "--rate", "500",
+                 "--noise", "0", "--lsb", "0"]) == 0
+    result = json.loads(res.read_text())
+    values = {k: v for k, v in model_values(result, "r.json").items() if not k.startswith("EDGE")}
+    b = read_capture(back)
+    efd, _vt, fail = simulate(values, b.usetp, b.dt)
+    assert fail < 0 and float(np.max(np.abs(efd - b.efd))) <= 1e-6
+    assert float(np.ptp(b.efd)) > 0.05     # the record does respond: not two flat lines agreeing
+
+
+def _esst1a(**change):
+    vals = dict(TR=0.01, VIMAX=0.8, VIMIN=-0.8, TC=1.0, TB=10.0, TC1=0.5, TB1=0.2, KA=200.0, TA=0.02,
+                VAMAX=999.0, VAMIN=-999.0, VRMAX=4.0, VRMIN=-3.0, KC=0.1, KF=0.0, TF=1.0, KLR=0.0, ILR=5.0)
+    vals.update(change)
+    return vals
+
+
+def _file(tmp_path, model, vals, name="x.dyr"):
+    icons = {k: 1 for k in ICONS.get(model, ())}
+    path = tmp_path / name
+    path.write_text("// a record\n" + format_record(DyrRecord(5, model, "1", vals, icons)))
+    return path
+
+
+@pytest.mark.parametrize("change,expect", [
+    ({"TB": "NaN"}, r"x.dyr:2: ESST1A TB = nan: not a number"),
+    ({"TA": "-0.02"}, r"x.dyr:2: ESST1A TA = -0.02 s: a time constant cannot be negative"),
+    ({"TC1": "-1"}, r"x.dyr:2: ESST1A TC1 = -1 s: a time constant cannot be negative"),
+    ({"TA": "0"}, r"x.dyr:2: ESST1A TA = 0 \(no regulator lag\): bench-ctl's simulation kernel has no bypass"),
+    ({"TB": "0"}, r"x.dyr:2: ESST1A TB = 0 with TC = 1 s: a lead without a lag"),
+    ({"KF": "0.05", "TF": "0"}, r"x.dyr:2: ESST1A TF = 0 with rate feedback KF = 0.05: a derivative without a lag"),
+])
+def test_a_records_nan_negative_or_unsimulable_zero_is_refused_naming_line_field_value(tmp_path, change, expect):
+    """--from-dyr replaced them silently with typical values (TC -> 1.0, TB -> 10, TA -> 0.02)."""
+    vals = {k: str(v) for k, v in _esst1a().items()}
+    vals.update(change)
+    path = tmp_path / "x.dyr"
+    path.write_text("// a record\n5 'ESST1A' 1 1 1 " + " ".join(vals[k] for k in FIELDS["ESST1A"]) + " /\n")
+    with pytest.raises(UnitError, match=expect):
+        unit_from_dyr(reference_unit(), path)
+    assert main(["simulate", "--from-dyr", str(path), "-o", str(tmp_path / "s.csv")]) == 2
+
+
+def test_a_bypassed_lead_lag_is_simulated_bypassed_and_zeros_stay_zero(tmp_path):
+    """TC = TB = 0 is PSS/E's bypassed lead-lag (it became TC 1.0, TB 10: typical values); TC = 0
+    under TB > 0 is a lag alone, KIR = 0 no integral; none is replaced by a typical value."""
+    import numpy as np
+
+    from bench_ctl.model.simulate import simulate
+    u = unit_from_dyr(reference_unit(), _file(tmp_path, "ESST1A", _esst1a(TC=0.0, TB=0.0, TC1=0.0, TB1=0.0)))
+    v = u.values()
+    assert v["TA1"] == v["TA2"] and v["TA3"] == v["TA4"]            # (1 + s T)/(1 + s T) = 1
+    assert not {"TA1", "TA2", "TA3", "TA4"} & set(u.identify)        # not identified: the record has none
+    assert {k: u.standard_values()[k] for k in ("TC", "TB", "TC1", "TB1")} == dict.fromkeys(("TC", "TB", "TC1", "TB1"), 0.0)
+    # the same simulation as the structure without lead-lags: KA/(1 + s TA) alone
+    t = np.arange(0, 3.0, 0.002)
+    usetp = np.where((t >= 1.0) & (t < 2.0), 1.05, 1.0)
+    efd, _, fail = simulate(v, usetp, 0.002)
+    plain, _, _ = simulate({**v, "TA1": 3.3, "TA2": 3.3, "TA3": 0.7, "TA4": 0.7}, usetp, 0.002)
+    assert fail < 0 and np.max(np.abs(efd - plain)) < 1e-12
+    lag = unit_from_dyr(reference_unit(), _file(tmp_path, "ESST1A", _esst1a(TC=0.0), "lag.dyr"))
+    assert lag.values()["TA1"] == 0.0 and lag.values()["TA2"] == 10.0
+    st4 = dict(TR=0.01, KPR=3.0, KIR=0.0, VRMAX=1.0, VRMIN=-0.87, TA=0.02, KPM=1.0, KIM=0.0, VMMAX=1.0,
+               VMMIN=-0.87, KG=0.0, KP=6.5, KI=0.0, VBMAX=8.41, KC=0.08, XL=0.0, THETAP=0.0)
+    pi = unit_from_dyr(reference_unit(), _file(tmp_path, "ESST4B", st4, "st4.dyr"))
+    assert pi.values()["KII"] == 0.0 and pi.identify["KII"].value == 0.0
+
+
+def test_a_limit_of_999_reads_back_as_no_limit(tmp_path):
+    """ANDES' and PSS/E's 'no limit' (+-999, +-99) is read as an open limit: a value beyond the
+    kernel's physical range would otherwise refuse every --set on the unit."""
+    path = _file(tmp_path, "ESST1A", _esst1a(VRMAX=999.0, VRMIN=-999.0))
+    u = unit_from_dyr(reference_unit(), path)
+    assert u.values()["VRMAX"] == float("inf") and u.values()["VRMIN"] == float("-inf")
+    assert main(["simulate", "--from-dyr", str(path), "--set", "KA=150", "-o", str(tmp_path / "s.csv"),
+                 "--duration", "3"]) == 0
+
+
+def test_export_names_what_the_record_cannot_hold(tmp_path, capsys):
+    """A dead time (or a non-windup ceiling where ESST1A clamps the output) is not in an ESST1A
+    record: said on the console and in the record, so nobody takes the record for the model."""
+    cap, res, dyr = tmp_path / "c.csv", tmp_path / "r.json", tmp_path / "r.dyr"
+    assert main(["simulate", "-o", str(cap), "--duration", "3", "--rate", "500"]) == 0
+    assert main(["identify", str(cap), "--set", "TD=0.01", "--evals", "64", "--no-progress", "--json", str(res)]) in (0, 1)
+    capsys.readouterr()
+    assert main(["export", str(res), "--dyr", str(dyr)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the ESST1A record does not hold: TD = 0.01 s (read back: 0;" in err
+    assert "NOT IN THIS RECORD" in dyr.read_text() and "TD = 0.01 s" in dyr.read_text()

@@ -87,7 +87,8 @@ def test_cli_end_to_end_writes_json_and_plot(tmp_path, cap):
     assert rc == 0
     r = json.loads(out.read_text())
     assert SCHEMA_KEYS <= set(r)
-    assert r["captures"][0]["path"] == str(csv) and len(r["captures"][0]["sha256"]) == 64
+    # the capture's path relative to the result file (issue 24 item 14)
+    assert r["captures"][0]["path"] == "pulse.csv" and len(r["captures"][0]["sha256"]) == 64
     assert r["command_line"].startswith("bench-ctl identify ") and "--evals 300" in r["command_line"]
     assert r["optimizer"]["seed"] == 3 and r["evaluations"] == 300
     assert png.stat().st_size > 10_000

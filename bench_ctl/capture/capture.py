@@ -17,7 +17,6 @@ import json
 import logging
 import os
 import stat
-import secrets
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +25,8 @@ from typing import Any
 import numpy as np
 
 import bench_ctl
-from bench_ctl.capture.errors import CaptureError
+from bench_ctl import outputs
+from bench_ctl.capture.errors import CaptureError, shown_names
 from bench_ctl.capture.table import decode_utf8, parse_numeric, read_limited, read_text_table, try_numeric
 from bench_ctl.capture.timebase import check_time, step_tolerance
 
@@ -139,7 +139,7 @@ def sidecar_path(csv_path: str | os.PathLike[str]) -> Path:
 
 def _read_sidecar(path: Path) -> dict[str, Any]:
     file = str(path)
-    text = decode_utf8(file, read_limited(path))
+    text = decode_utf8(file, read_limited(path, kind="a sidecar"))
     try:
         meta = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -175,8 +175,10 @@ def _check_rate(meta: Mapping[str, Any], capture: Capture, file: str) -> None:
                            column="rate_hz", column_kind="key")
     tol_hz = step_tolerance(capture.time, capture.dt) / capture.dt**2
     if abs(rate - capture.rate_hz) > tol_hz:
+        ms = rate > 0 and 500.0 < rate / capture.rate_hz < 2000.0
         raise CaptureError(file, f"rate_hz {rate!r} disagrees with the time step of the CSV "
-                           f"({capture.rate_hz!r} Hz)", column="rate_hz", column_kind="key")
+                           f"({capture.rate_hz!r} Hz){' (is the time column in ms?)' if ms else ''}",
+                           column="rate_hz", column_kind="key")
 
 
 def read_capture(path: str | os.PathLike[str]) -> Capture:
@@ -196,7 +198,7 @@ def read_capture(path: str | os.PathLike[str]) -> Capture:
     for name in REQUIRED_COLUMNS:
         if name not in table.header:
             raise CaptureError(file, "missing required column; the header has "
-                               f"{', '.join(table.header)}", row=table.header_line, column=name)
+                               f"{shown_names(table.header)}", row=table.header_line, column=name)
     if table.n_rows == 0:
         raise CaptureError(file, "header only, no data rows")
     arrays = {name: parse_numeric(table, name)
@@ -265,48 +267,21 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"sidecar value of type {type(obj).__name__} is not JSON-serialisable")
 
 
-def _fsync_dir(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def _refuse(target: Path) -> FileExistsError:
     return FileExistsError(errno.EEXIST, "refusing to overwrite an existing capture file",
                            str(target))
 
 
 def _write_new(target: Path, payload: bytes, overwrite: bool) -> None:
-    """Write via a temporary file in the same folder, then link (refusing an existing target)
-    or, with `overwrite`, replace. Readers never see a half-written file."""
-    tmp = target.parent / f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+    """Write through `bench_ctl.outputs` (a temporary file in the same folder, linked into place
+    or, with `overwrite`, renamed over it; never through a symbolic link; permissions as the
+    umask gives). Readers never see a half-written file."""
+    if not overwrite and os.path.lexists(target):
+        raise _refuse(target)
     try:
-        with open(tmp, "xb") as f:
-            f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        if overwrite:
-            os.replace(tmp, target)
-        else:
-            try:
-                os.link(tmp, target)  # atomic and fails when target exists
-            except FileExistsError:
-                raise _refuse(target) from None
-            except OSError:  # file system without hard links: check, then rename
-                if target.exists():
-                    raise _refuse(target) from None
-                os.replace(tmp, target)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    _fsync_dir(target.parent)
+        outputs.write_bytes(target, payload, force=overwrite)
+    except outputs.OutputRefused:
+        raise _refuse(target) from None
 
 
 def write_capture(
@@ -334,7 +309,7 @@ def write_capture(
     json_path = sidecar_path(path)
     if not overwrite:
         for target in (path, json_path):
-            if target.exists():
+            if os.path.lexists(target):
                 raise _refuse(target)
     capture = _as_capture(data, str(path))
     _validate_for_write(capture, str(path))

@@ -20,7 +20,7 @@ import comtrade
 import numpy as np
 
 from bench_ctl.capture.capture import PER_UNIT_SPELLINGS, Capture, sha256_bytes
-from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.errors import CaptureError, shown, shown_names
 from bench_ctl.capture.table import decode_utf8, read_limited
 from bench_ctl.capture.timebase import check_time
 
@@ -77,7 +77,7 @@ def _prescan_ascii(dat: str, text: str, cfg: comtrade.Cfg, total: int) -> None:
                                f"(sample number, timestamp, {cfg.analog_count} analog, "
                                f"{cfg.status_count} status)", row=lineno)
         if not fields[0].isdigit():
-            raise CaptureError(dat, f"sample number {fields[0]!r} is not an integer",
+            raise CaptureError(dat, f"sample number {shown(fields[0])} is not an integer",
                                row=lineno)
         for k, name in enumerate(names):
             if fields[2 + k] == MISSING_ASCII and cfg.rev_year and int(cfg.rev_year) >= 1999:
@@ -85,7 +85,7 @@ def _prescan_ascii(dat: str, text: str, cfg: comtrade.Cfg, total: int) -> None:
                 raise CaptureError(dat, "missing value (99999)", row=lineno, column=name,
                                    column_kind="channel")
             if not _number(fields[2 + k]):
-                raise CaptureError(dat, f"not a number: {fields[2 + k]!r}", row=lineno,
+                raise CaptureError(dat, f"not a number: {shown(fields[2 + k])}", row=lineno,
                                    column=name, column_kind="channel")
     if len(lines) != total:
         raise CaptureError(dat, f"{len(lines)} samples, the .cfg declares {total}")
@@ -184,7 +184,7 @@ def channel_values(table: ComtradeTable, our: str, channel: str, scaled: bool) -
         near = [n for n in table.names if n.lower() == channel.lower()]
         hint = f" (did you mean {near[0]!r}?)" if near else ""
         raise CaptureError(table.file, f"no analog channel of that name for {our!r}{hint}; "
-                           f"available: {', '.join(table.names) or 'none'}",
+                           f"available: {shown_names(tuple(table.names)) if table.names else 'none'}",
                            column=channel, column_kind="channel")
     if len(keys) > 1:
         raise CaptureError(table.file, f"{len(keys)} analog channels have this name; the "

@@ -4,7 +4,9 @@ Maps vendor column names to `usetp` / `efd` / `vt`, builds time from a seconds c
 date + clock-time columns, scales efd from the rated-field base to the model base, synthesises
 `usetp` from a test description when there is no setpoint channel, and resamples (linear
 interpolation) only when asked: jittered time without a resample request is refused with the
-row. The sidecar's `import` block records each of these steps.
+row. The record must pass the plausibility checks identify makes (`bench_ctl.capture.plausible`:
+time unit, physical values, the test description) before it is written; whether it holds a test
+at all is left to the commands that fit it. The sidecar's `import` block records each of these steps.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ import numpy as np
 from bench_ctl.capture import comtrade_io
 from bench_ctl.capture.capture import Capture, read_capture, sha256_file, write_capture
 from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.plausible import implausible
 from bench_ctl.capture.timebase import check_time, resample_linear, step_stats
 from bench_ctl.capture.vendor_csv import RawRecord, read_vendor_csv
 
@@ -242,6 +245,21 @@ def import_export(
     }
     if test is not None:
         meta["test"] = test
+    # the checks identify, diagnose and report make, before anything is written: a time axis in
+    # ms, a broken cell (1e308), a test description that is not this record's (whether the record
+    # holds a test at all, a moving setpoint and a responding efd, is the fits' to refuse)
+    draft = Capture(time=time, usetp=data["usetp"], efd=data["efd"], vt=data.get("vt"), meta=meta,
+                    source=rec.file)
+    n = int(np.asarray(time).size)
+    err = implausible(draft, rows=np.arange(1, n + 1) if resampled else rec.rows,
+                      row_kind="resampled sample" if resampled else rec.row_kind, test_where="--test",
+                      response=False)
+    if err is not None:
+        if err.column in spec.columns:   # the source's column, as every other refusal names it
+            raise CaptureError(err.file, err.reason, row=err.row, column=spec.columns[err.column],
+                               row_kind=rec.row_kind if not resampled else "resampled sample",
+                               column_kind="channel" if source_block.get("format") == "comtrade" else "column")
+        raise err
     csv_path, _ = write_capture(out_csv_path, data, meta)
     log.info("imported %s -> %s (%s)", src, csv_path,
              "resampled" if resampled else "not resampled")

@@ -1,13 +1,27 @@
-"""Is this a record of a setpoint test at all? Checks a capture must pass before it is fitted,
-diagnosed or reported (issue 15 item 4): each names what is wrong and where.
+"""Is this a record of a setpoint test at all? Checks a capture must pass before it is imported,
+fitted, diagnosed or reported (issue 15 item 4, issue 24 items 11-13): each names what is wrong
+and where.
 
-- the sample step lies between 10 us and 0.1 s (a step of 1 "s" is a time column in ms);
+- the time unit, decided from the record as a whole, not from the sample step alone: the step
+  lies between 10 us and 0.1 s; the record lasts at most `MAX_RECORD_S` and its setpoint edges lie
+  at most `MAX_EDGE_GAP_S` apart (a 10 s record at 20 kHz with a time axis in ms has a fine step
+  of 0.05 "s" but lasts 10 000 "s", its 1 s pulse 1000 "s"); the sidecar's rate must match the
+  step (`read_capture`) and its test description the setpoint edges (below);
 - efd, usetp and vt are physical: |efd| <= 100 pu, 0 < usetp, vt <= 5 pu (1e308 is a broken cell);
 - the setpoint changes (a step or pulse test), and efd responds to the change: after it, efd
   leaves its pre-trigger level by more than 5 standard deviations of the pre-trigger noise and
-  1 mpu (a flat efd is a dead channel or the wrong one).
+  1 mpu (a flat efd is a dead channel or the wrong one);
+- the sidecar's test description, when there is one, is a test and the one recorded: `kind` pulse
+  or step; `amplitude_pu` finite, at most `MAX_AMPLITUDE_PU` and the setpoint's recorded jump
+  (sign, and size within `AMPLITUDE_REL_TOL`); `width_s` > 0 and the recorded pulse's width;
+  `start_s` inside the record and at the recorded first edge (counted from the record's start or
+  in its own time). The report copies this description: a wrong one is refused, not reported.
 """
 from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -16,12 +30,29 @@ from bench_ctl.capture.errors import CaptureError
 
 MIN_STEP_S = 1.0e-5
 MAX_STEP_S = 0.1
+#: the longest record of a setpoint test: a pulse or step and the generator's settling (T'd0 up to
+#: ~15 s, a few times over) with a pre-trigger take a minute or two; ten minutes is far beyond
+MAX_RECORD_S = 600.0
+#: the longest time between two setpoint edges (a pulse's width, a step held before the return)
+MAX_EDGE_GAP_S = 60.0
 EFD_MAX_PU = 100.0
 SIGNAL_MAX_PU = 5.0
 RESPONSE_SIGMAS = 5.0
 RESPONSE_MIN_PU = 1.0e-3
+#: a setpoint test moves the setpoint by a few per cent; half of the rated voltage is no test
+MAX_AMPLITUDE_PU = 0.5
+#: the recorded jump and pulse width may differ this much (relative) from the described ones
+AMPLITUDE_REL_TOL = 0.2
+WIDTH_REL_TOL = 0.2
+#: ... plus this much for the recorder's quantisation of usetp (pu) and its sampling (samples)
+AMPLITUDE_ABS_TOL_PU = 2.0e-3
+EDGE_TOL_SAMPLES = 5
+#: the described start may lie this far from the recorded first edge (s), or 5 samples
+START_TOL_S = 0.5
 
-__all__ = ["check_plausible", "implausible"]
+__all__ = ["check_plausible", "implausible", "setpoint_edges"]
+
+_MS_HINT = " (is the time column in ms?)"
 
 
 def _first_bad(values: np.ndarray, ok: np.ndarray) -> int | None:
@@ -29,15 +60,115 @@ def _first_bad(values: np.ndarray, ok: np.ndarray) -> int | None:
     return int(bad[0]) if bad.size else None
 
 
-def implausible(capture: Capture) -> CaptureError | None:
-    """The first reason `capture` is not a plausible setpoint-test record (None: plausible).
-    Rows are the 1-based lines of the capture CSV (header = line 1)."""
-    file = capture.source or "<capture in memory>"
+def setpoint_edges(usetp: np.ndarray) -> np.ndarray:
+    """Indices of the first sample after each setpoint edge: a change of more than 30 % of the
+    setpoint's span from one sample to the next (a change spread over adjacent samples is one
+    edge)."""
+    u = np.asarray(usetp, float)
+    span = float(np.max(u) - np.min(u)) if u.size else 0.0
+    if not span > 0.0:
+        return np.zeros(0, dtype=np.int64)
+    big = np.flatnonzero(np.abs(np.diff(u)) > 0.3 * span) + 1
+    if big.size == 0:
+        return big
+    keep = np.concatenate([[True], np.diff(big) > 1])
+    return big[keep]
+
+
+def _num(v: Any) -> float | None:
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+
+def _test_meta(capture: Capture, file: str, where: str | None) -> CaptureError | None:
+    """The sidecar's test description against the record (see the module docstring); `where`
+    names the description (default: the capture's sidecar)."""
+    test = capture.meta.get("test") if isinstance(capture.meta, Mapping) else None
+    if test is None:
+        return None
+    side = where or (f"{file.rsplit('.', 1)[0]}.json" if file.lower().endswith(".csv") else f"{file} (sidecar)")
+
+    def bad(key: str, why: str) -> CaptureError:
+        return CaptureError(side, why, column=f"test.{key}", column_kind="key")
+
+    if not isinstance(test, Mapping):
+        return bad("", f"the test description must be an object, got {type(test).__name__}")
+    kind = test.get("kind")
+    if kind is not None and kind not in ("pulse", "step"):
+        return bad("kind", f"{kind!r} is not a test bench-ctl knows (pulse, step)")
+    t, u = np.asarray(capture.time, float), np.asarray(capture.usetp, float)
     dt = float(capture.dt)
+    edges = setpoint_edges(u)
+    values = {}
+    for key in ("amplitude_pu", "width_s", "start_s"):
+        if test.get(key) is not None:   # null: not described
+            v = _num(test[key])
+            if v is None or not math.isfinite(v):
+                return bad(key, f"{test[key]!r} is not a finite number")
+            values[key] = v
+    a = values.get("amplitude_pu")
+    if a is not None:
+        if a == 0.0 or abs(a) > MAX_AMPLITUDE_PU:
+            return bad("amplitude_pu", f"{a:g} pu is not a setpoint test's step (0 < |amplitude| <= "
+                       f"{MAX_AMPLITUDE_PU:g} pu)")
+        if edges.size:
+            k = int(edges[0])
+            jump = float(np.median(u[k:min(u.size, k + EDGE_TOL_SAMPLES)]) - np.median(u[max(0, k - EDGE_TOL_SAMPLES):k]))
+            if abs(jump - a) > AMPLITUDE_REL_TOL * abs(a) + AMPLITUDE_ABS_TOL_PU:
+                return bad("amplitude_pu", f"{a:g} pu, but usetp steps by {jump:.4g} pu at t = "
+                           f"{t[k] - t[0]:.6g} s: the description is not this record's")
+    w = values.get("width_s")
+    if w is not None:
+        if not w > 0.0:
+            return bad("width_s", f"{w:g} s: a pulse's width must be > 0")
+        if kind != "step" and edges.size:
+            if edges.size < 2:
+                return bad("width_s", f"{w:g} s, but usetp does not return within the record (one edge, at "
+                           f"t = {t[edges[0]] - t[0]:.6g} s)")
+            got = float(t[edges[1]] - t[edges[0]])
+            if abs(got - w) > max(WIDTH_REL_TOL * w, EDGE_TOL_SAMPLES * dt):
+                hint = _MS_HINT if 500.0 < got / w < 2000.0 else ""
+                return bad("width_s", f"{w:g} s, but the usetp pulse lasts {got:.6g} s: the description "
+                           f"is not this record's{hint}")
+    s = values.get("start_s")
+    if s is not None:
+        dur = float(t[-1] - t[0])
+        inside = (0.0 <= s <= dur) or (float(t[0]) <= s <= float(t[-1]))
+        if not inside:
+            return bad("start_s", f"{s:g} s lies outside the record (0 .. {dur:.6g} s)")
+        if edges.size:
+            k = int(edges[0])
+            tol = max(START_TOL_S, EDGE_TOL_SAMPLES * dt)
+            if min(abs(s - (t[k] - t[0])), abs(s - t[k])) > tol:
+                return bad("start_s", f"{s:g} s, but usetp first changes at t = {t[k] - t[0]:.6g} s: the "
+                           "description is not this record's")
+    return None
+
+
+def implausible(capture: Capture, *, rows: np.ndarray | None = None, row_kind: str = "row",
+                file: str | None = None, test_where: str | None = None,
+                response: bool = True) -> CaptureError | None:
+    """The first reason `capture` is not a plausible setpoint-test record (None: plausible).
+    Rows are the 1-based lines of the capture CSV (header = line 1), or `rows[k]` (of kind
+    `row_kind`) for sample k when given (an import names the source's rows); `file` the name to
+    give (default: the capture's source); `test_where` where the test description came from
+    (default: the sidecar beside the capture). `response=False` leaves out whether the record
+    holds a test at all (the setpoint moves, efd responds): an import converts any record of the
+    recorder, the fits refuse one that is no test."""
+    file = file or capture.source or "<capture in memory>"
+    dt = float(capture.dt)
+    t = np.asarray(capture.time, float)
+
+    def row(k: int) -> int:
+        return int(rows[k]) if rows is not None else k + 2
+
     if not MIN_STEP_S <= dt <= MAX_STEP_S:
-        hint = " (is the time column in ms?)" if dt > MAX_STEP_S else ""
+        hint = _MS_HINT if dt > MAX_STEP_S else ""
         return CaptureError(file, f"sample step {dt:.6g} s is outside {MIN_STEP_S:g}..{MAX_STEP_S:g} s for "
                             f"a recorder of a setpoint test{hint}", column="time")
+    duration = float(t[-1] - t[0])
+    if duration > MAX_RECORD_S:
+        return CaptureError(file, f"the record lasts {duration:.6g} s, longer than a setpoint test's "
+                            f"record ({MAX_RECORD_S:g} s at most){_MS_HINT}", column="time")
     checks = [("efd", capture.efd, lambda x: np.abs(x) <= EFD_MAX_PU, f"|efd| <= {EFD_MAX_PU:g} pu"),
               ("usetp", capture.usetp, lambda x: (x > 0) & (x <= SIGNAL_MAX_PU), f"0 < usetp <= {SIGNAL_MAX_PU:g} pu")]
     if capture.vt is not None:
@@ -45,11 +176,23 @@ def implausible(capture: Capture) -> CaptureError | None:
     for name, x, rule, text in checks:
         k = _first_bad(x, rule(np.asarray(x)))
         if k is not None:
-            return CaptureError(file, f"{float(x[k])!r} is not a physical value ({text})", row=k + 2, column=name)
+            return CaptureError(file, f"{float(x[k])!r} at t = {t[k] - t[0]:.6g} s is not a physical value ({text})",
+                                row=row(k), row_kind=row_kind, column=name)
     u = np.asarray(capture.usetp)
     moved = np.flatnonzero(np.abs(u - u[0]) > 1e-9)
-    if not moved.size:
+    if not moved.size and response:
         return CaptureError(file, "usetp never changes: not a step or pulse test", column="usetp")
+    edges = setpoint_edges(u)
+    if edges.size > 1:
+        gaps = np.diff(t[edges])
+        i = int(np.argmax(gaps))
+        if gaps[i] > MAX_EDGE_GAP_S:
+            return CaptureError(file, f"the setpoint holds {gaps[i]:.6g} s between its edges at t = "
+                                f"{t[edges[i]] - t[0]:.6g} s and {t[edges[i + 1]] - t[0]:.6g} s, longer than a "
+                                f"setpoint test holds it ({MAX_EDGE_GAP_S:g} s at most){_MS_HINT}",
+                                column="time")
+    if not response or not moved.size:
+        return _test_meta(capture, file, test_where)
     k0 = int(moved[0])
     efd = np.asarray(capture.efd)
     pre = efd[: max(1, k0 - 1)]
@@ -59,7 +202,7 @@ def implausible(capture: Capture) -> CaptureError | None:
         return CaptureError(file, f"efd does not respond to the setpoint change at t = "
                             f"{capture.time[k0] - capture.time[0]:.6g} s: it stays within {dev:.3g} pu of its "
                             f"pre-trigger level (noise {noise:.3g} pu); a dead or wrong channel?", column="efd")
-    return None
+    return _test_meta(capture, file, test_where)
 
 
 def check_plausible(capture: Capture) -> None:

@@ -12,12 +12,12 @@ import io
 import logging
 import os
 import re
-import stat
 from dataclasses import dataclass
 
 import numpy as np
 
-from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.errors import _SHOWABLE, CaptureError, shown
+from bench_ctl.limits import LIMITS, InputError, read_bounded
 
 log = logging.getLogger(__name__)
 
@@ -26,28 +26,20 @@ _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _NONFINITE = {"nan", "+nan", "-nan", "inf", "+inf", "-inf", "infinity", "+infinity", "-infinity"}
 
 
-#: the largest input file read (bytes): a 10 s record at 1 kHz is about 0.5 MB, a 10 min record of
-#: eight channels at 10 kHz about 400 MB; beyond, a wrong file (or a link to a device) is likelier
-MAX_INPUT_BYTES = 1 << 29
+#: the largest capture file read (bytes): see `bench_ctl.limits`
+MAX_INPUT_BYTES = LIMITS["a capture"]
 
 
-def read_limited(path: "str | os.PathLike[str]", limit: int = MAX_INPUT_BYTES) -> bytes:
-    """The bytes of a regular file of at most `limit` bytes; anything else (a device such as
-    /dev/zero, a pipe, a folder, a larger file) is refused naming the file, before it is read."""
-    file = os.fspath(path)
+def read_limited(path: "str | os.PathLike[str]", limit: int | None = None, kind: str = "a capture") -> bytes:
+    """The bytes of a regular file of at most `limit` bytes (default: the limit of `kind`, see
+    `bench_ctl.limits`); anything else (a device such as /dev/zero, a pipe, a folder, a larger
+    file) is refused naming the file, before it is read."""
     try:
-        st = os.stat(file)
-    except OSError as exc:
-        raise CaptureError(file, f"cannot read: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise CaptureError(file, "not a regular file (a device, pipe or folder): inputs are read from files")
-    if st.st_size > limit:
-        raise CaptureError(file, f"{st.st_size} bytes, more than the {limit} bytes an input may have")
-    with open(file, "rb") as f:
-        data = f.read(limit + 1)
-    if len(data) > limit:
-        raise CaptureError(file, f"more than the {limit} bytes an input may have (it grew while read)")
-    return data
+        return read_bounded(path, kind, limit)
+    except InputError as exc:
+        file = os.fspath(path)
+        raise CaptureError(file, str(exc).removeprefix(f"{file}: ")) from None
+
 
 def delimiter_name(delimiter: str) -> str:
     """'comma' for ',' and so on; the character itself (quoted) for anything else."""
@@ -116,7 +108,7 @@ def read_text_table(
                 raise CaptureError(
                     file,
                     f"{expected}; the header looks {delimiter_name(foreign)}-separated: "
-                    f"{header_row[0]!r}",
+                    f"{shown(header_row[0])}",
                     row=reader.line_num,
                 )
         seen: set[str] = set()
@@ -125,7 +117,7 @@ def read_text_table(
                 raise CaptureError(file, "empty column name in the header", row=reader.line_num)
             if name in seen:
                 raise CaptureError(file, "column name repeated in the header",
-                                   row=reader.line_num, column=name)
+                                   row=reader.line_num, column=name if _SHOWABLE.fullmatch(name) else None)
             seen.add(name)
         actual_header_line = reader.line_num
         lines: list[int] = []
@@ -184,14 +176,14 @@ def parse_numeric(
             continue
         if cell.lower() in _NONFINITE:
             if finite:
-                raise CaptureError(table.file, f"value {cell!r} is not finite",
+                raise CaptureError(table.file, f"value {shown(cell)} is not finite",
                                    row=int(table.lines[i]), column=column)
             out[i] = float(cell)
             continue
         if not cell:
             reason = "empty cell, expected a number"
         else:
-            reason = f"not a number: {cell!r}"
+            reason = f"not a number: {shown(cell)}"
             if decimal == "." and re.fullmatch(r"[+-]?\d*,\d+", cell):
                 reason += " (a decimal comma? it must be asked for explicitly)"
         raise CaptureError(table.file, reason, row=int(table.lines[i]), column=column)

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.errors import CaptureError, shown, shown_names
 from bench_ctl.capture.table import TextTable, decode_utf8, parse_numeric, read_limited, read_text_table
 
 log = logging.getLogger(__name__)
@@ -42,7 +42,7 @@ class RawRecord:
 def _require(table: TextTable, name: str, role: str) -> None:
     if name not in table.header:
         raise CaptureError(table.file, f"no column of that name ({role}); the header has "
-                           f"{', '.join(table.header)}", row=table.header_line, column=name)
+                           f"{shown_names(table.header)}", row=table.header_line, column=name)
 
 
 def _clock_ns(table: TextTable, column: str, decimal: str) -> np.ndarray:
@@ -53,7 +53,7 @@ def _clock_ns(table: TextTable, column: str, decimal: str) -> np.ndarray:
         m = pattern.fullmatch(cell)
         h, mi, s = (int(m.group(k)) for k in (1, 2, 3)) if m else (99, 99, 99)
         if m is None or h > 23 or mi > 59 or s > 59:
-            raise CaptureError(table.file, f"clock time {cell!r} is not HH:MM:SS[.fraction] "
+            raise CaptureError(table.file, f"clock time {shown(cell)} is not HH:MM:SS[.fraction] "
                                "(up to 9 fraction digits)", row=int(table.lines[i]),
                                column=column)
         frac = m.group(4) or ""
@@ -69,7 +69,7 @@ def _date_days(table: TextTable, column: str, date_format: str) -> tuple[np.ndar
             try:
                 cache[cell] = dt.datetime.strptime(cell, date_format).date().toordinal()
             except ValueError:
-                raise CaptureError(table.file, f"date {cell!r} does not match the format "
+                raise CaptureError(table.file, f"date {shown(cell)} does not match the format "
                                    f"{date_format!r}", row=int(table.lines[i]),
                                    column=column) from None
         out[i] = cache[cell]

@@ -1,8 +1,13 @@
 """`bench-ctl batch MANIFEST.csv [--out DIR] [--scheduler ADDRESS] [--workers N]`: identify,
 diagnose and report many captures at once on Dask (docs/fleets.md, bench_ctl.fleet).
 
+Rows resolve inside the manifest's folder unless --allow-outside; a row that cannot run (a file
+missing, outside that folder, not a capture) is an error row of summary.csv and the others run;
+nothing of a refused file is shown. Our LocalCluster (scheduler, workers, dashboard) listens on
+127.0.0.1 unless --host names another address.
+
 Exit codes: 0 every capture passed, 1 some failed their criteria or errored (see summary.csv),
-2 bad manifest or interrupted.
+2 bad manifest, an output folder that cannot be written, or interrupted.
 """
 from __future__ import annotations
 
@@ -18,16 +23,25 @@ from bench_ctl.fleet.manifest import ManifestError
 @click.option("--scheduler", default=None, help="Address of an existing Dask scheduler (tcp://HOST:PORT); "
               "default: a LocalCluster sized to this machine, started and closed here.")
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="LocalCluster worker processes.")
-@click.option("--evals", type=click.IntRange(min=100), default=1000, show_default=True)
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address our LocalCluster's scheduler, workers and dashboard listen on (default: this "
+                   "machine only).")
+@click.option("--evals", type=click.IntRange(min=100), default=1000, show_default=True,
+              help="Identification budget of each capture: at least 100 (a few generations of MVMO's swarm "
+                   "of 32).")
 @click.option("--seed", type=int, default=0, show_default=True)
-def batch(manifest: str, out_dir: str, scheduler: str | None, workers: int | None, evals: int, seed: int) -> int:
+@click.option("--allow-outside", is_flag=True,
+              help="Read rows that name files outside the manifest's folder (refused by default).")
+def batch(manifest: str, out_dir: str, scheduler: str | None, workers: int | None, host: str, evals: int,
+          seed: int, allow_outside: bool = False) -> int:
     """Run identify + diagnose + report for every capture listed in MANIFEST (CSV)."""
     from bench_ctl.fleet.batch import run_batch
+    from bench_ctl.outputs import OutputRefused
 
     try:
         outcome = run_batch(manifest, out_dir, scheduler=scheduler, workers=workers, evals=evals, seed=seed,
-                            echo=click.echo)
-    except ManifestError as exc:
+                            echo=click.echo, allow_outside=allow_outside, host=host)
+    except (ManifestError, OutputRefused) as exc:
         click.echo(f"error: {exc}", err=True)
         return 2
     counts: dict[str, int] = {}

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import shlex
 from pathlib import Path
 from typing import Any, Sequence
@@ -28,6 +29,7 @@ import numpy as np
 from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
+from bench_ctl.limits import InputError, read_bounded
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
@@ -79,9 +81,25 @@ def summary(d: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_json(path: str | Path, data: dict[str, Any]) -> None:
-    """Write JSON via a temporary file and rename (no NaN / inf: they become null)."""
-    outputs.write_json(path, _clean(data))
+def write_json(path: str | Path, data: dict[str, Any], *, force: bool = False) -> None:
+    """Write JSON through the output guard (atomic; NaN / inf become null)."""
+    outputs.write_json(path, _clean(data), force=force)
+
+
+def for_file(d: dict[str, Any], path: str | Path) -> dict[str, Any]:
+    """The diagnosis as written to `path`: the capture and holdout paths relative to its folder
+    (as a result's, issue 24 item 14)."""
+    folder = Path(os.path.abspath(path)).parent
+    out = dict(d)
+    for key in ("capture", "holdout"):
+        ref = d.get(key)
+        if isinstance(ref, dict) and isinstance(ref.get("path"), str) and ref["path"]:
+            try:
+                rel = Path(os.path.relpath(os.path.abspath(ref["path"]), folder)).as_posix()
+            except ValueError:
+                rel = os.path.abspath(ref["path"])
+            out[key] = {**ref, "path": rel}
+    return out
 
 
 def _clean(x: Any) -> Any:
@@ -118,7 +136,8 @@ def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, An
     return {
         "schema": "bench-ctl/result/1", "software_version": d["software_version"],
         "command_line": d["command_line"], "created_utc": d["created_utc"], "unit": unit.to_dict(),
-        "captures": [{"path": d["capture"]["path"], "sha256": d["capture"]["sha256"], "n": capture.n,
+        "captures": [{"path": os.path.abspath(capture.source) if capture.source else d["capture"]["path"],
+                      "sha256": d["capture"]["sha256"], "n": capture.n,
                       "rate_hz": capture.rate_hz, "meta": capture.meta, "mse": d["base"]["mse"],
                       "objective": objective, "weight": 1.0, "edges": edges}],
         "params": dict(d["base"]["params"]),
@@ -188,7 +207,7 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
                 check_plausible(c)
         base_params = None
         if result_path:
-            data = json.loads(Path(result_path).read_text("utf-8"))
+            data = json.loads(read_bounded(result_path, "a result JSON").decode("utf-8"))
             params = data.get("params") if isinstance(data, dict) else None
             if not isinstance(params, dict):
                 raise UnitError(f"{result_path}: not an identification result (no 'params' table)")
@@ -200,15 +219,24 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
                     base_params[k] = float(v)
             if not base_params:
                 raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
-    except (CaptureError, UnitError, ConstraintError, json.JSONDecodeError, ValueError) as exc:
+    except UnicodeDecodeError as exc:
+        click.echo(f"error: {result_path}: not UTF-8 text (byte {exc.start})", err=True)
+        return EXIT_BAD_INPUT
+    except json.JSONDecodeError as exc:
+        click.echo(f"error: {result_path}: invalid JSON: {exc.msg} (line {exc.lineno})", err=True)
+        return EXIT_BAD_INPUT
+    except (CaptureError, UnitError, ConstraintError, InputError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
         return EXIT_BAD_INPUT
     except OSError as exc:
         click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
         return EXIT_BAD_INPUT
     try:
-        outputs.guard_outputs({"--json": json_out, "--report": report_out},
-                              [capture_path, holdout_path, unit_path, result_path], force=force)
+        out = outputs.Outputs([capture_path, holdout_path, unit_path, result_path, from_dyr], force=force)
+        out.claim("--json", json_out)
+        if report_out:
+            from bench_ctl.report import claim_report
+            claim_report(out, report_out)   # the HTML and every figure it may draw beside it
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
         return EXIT_BAD_INPUT
@@ -222,19 +250,21 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     click.echo(summary(d))
     try:
         if json_out:
-            write_json(json_out, d)
+            out.write_json(json_out, _clean(for_file(d, json_out)))
             click.echo(f"diagnosis written to {json_out}")
         if report_out:
             from bench_ctl.report import ReportError, render_report
             try:
                 written = render_report(base_result(d, capture, unit), report_out, diagnosis=_clean(d),
-                                        base_dir=Path(capture_path).resolve().parent,
-                                        report_command=command_line)
+                                        report_command=command_line, outputs=out)
             except ReportError as exc:
                 click.echo(f"error: report not written: {exc}", err=True)
                 return EXIT_BAD_INPUT
             click.echo(f"report written to {written[0]}")
+    except outputs.OutputRefused as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
     except OSError as exc:
-        click.echo(f"error: cannot write {exc.filename}: {exc.strerror}", err=True)
+        click.echo(f"error: {outputs.why_not_written(exc, json_out or report_out or '')}", err=True)
         return EXIT_BAD_INPUT
     return EXIT_NONE if d["verdict"] == "none" else EXIT_EFFECT

@@ -5,8 +5,12 @@ The record holds every field of the structure's PSS/E model in the standard orde
 values, the unit's fixed values, and for fields bench-ctl does not simulate (input limiter,
 field current limiter, ...) the unit's value or the library's default; a comment above the
 record says which is which, and where the result came from. An existing file is never
-overwritten. The REFERENCE structure is written as ESST1A (the same blocks; limits wide unless the
-ceiling was modelled). Exit codes: 0 written, 2 bad input (file, key or value named).
+overwritten without --force, never an input. The REFERENCE structure is written as ESST1A (the
+same blocks). A limit the model leaves open is written as +-999 on its own side (what ANDES uses
+for no limit; `--from-dyr` reads it back as open), every value in full precision, so that
+`--from-dyr` on the export simulates what the result does. What the model has and the record
+cannot hold (a dead time, a rate limit, ...) is named on the console and in the record's
+comment. Exit codes: 0 written, 2 bad input (file, key or value named) or an output refused.
 """
 from __future__ import annotations
 
@@ -17,22 +21,31 @@ from pathlib import Path
 import click
 
 EXIT_BAD_INPUT = 2
+NO_LIMIT = 999.0
 
 
 @click.command("export")
 @click.argument("result_path", metavar="RESULT.json", type=click.Path(dir_okay=False))
 @click.option("--dyr", "dyr_out", required=True, type=click.Path(dir_okay=False),
-              help="PSS/E .dyr file to write (never overwritten).")
+              help="PSS/E .dyr file to write (an existing one only with --force, never an input).")
 @click.option("--bus", type=int, default=1, show_default=True, help="Bus number of the record.")
 @click.option("--id", "machine_id", default="1", show_default=True, help="Machine ID of the record.")
-def export(result_path: str, dyr_out: str, bus: int, machine_id: str) -> int:
+@click.option("--force", is_flag=True, help="Replace an existing .dyr (never an input).")
+def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: bool = False) -> int:
     """Write the identified model of RESULT.json as a PSS/E dynamic data record."""
-    from bench_ctl.model.dyr import DyrError, DyrRecord, write_dyr
-    from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of
+    from bench_ctl import outputs
+    from bench_ctl.limits import InputError, read_bounded
+    from bench_ctl.model.dyr import DyrError, DyrRecord, dyr_text
+    from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of, not_carried
     from bench_ctl.model.structures import StructureError
 
     try:
-        result = json.loads(Path(result_path).read_text("utf-8"))
+        out = outputs.guard_outputs({"--dyr": dyr_out}, [result_path], force=force)
+    except outputs.OutputRefused as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    try:
+        result = json.loads(read_bounded(result_path, "a result JSON").decode("utf-8"))
         if not isinstance(result, dict) or "params" not in result:
             raise ValueError("not an identification result (no 'params')")
         st, std = dyr_values_of(result)
@@ -41,10 +54,14 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str) -> int:
         for k, v in values.items():
             if not math.isfinite(v):
                 raise ValueError(f"field {k} = {v} is not finite")
-    except OSError as exc:
-        click.echo(f"error: cannot read {result_path}: {exc.strerror}", err=True)
+        missing = not_carried(result, st, std)
+    except InputError as exc:
+        click.echo(f"error: {exc}", err=True)
         return EXIT_BAD_INPUT
-    except (ValueError, StructureError, DyrError) as exc:
+    except UnicodeDecodeError as exc:
+        click.echo(f"error: {result_path}: not UTF-8 text (byte {exc.start})", err=True)
+        return EXIT_BAD_INPUT
+    except (ValueError, TypeError, StructureError, DyrError) as exc:
         click.echo(f"error: {result_path}: {exc}", err=True)
         return EXIT_BAD_INPUT
     model = result.get("model") or {}
@@ -59,22 +76,29 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str) -> int:
             how = "identified"
         elif all(n in typical and std.get(n) == typical[n] for n in names):
             how = "bench-ctl library default"
+        elif any(abs(std.get(n, 0.0)) == NO_LIMIT for n in names):
+            how = "no limit (open in the model)"
         else:
             how = "fixed (unit)"
         notes.append(f"{f} = {values[f]:.6G}: {how}")
+    if missing:
+        notes.append("NOT IN THIS RECORD (the model has them, the record cannot hold them): " + "; ".join(missing))
     header = (f"bench-ctl export of {result_path} (model {model.get('name', st.name)} as PSS/E {st.dyr_model})\n"
               f"command: {result.get('command_line', '')}\n"
               f"fit: mse {result.get('mse')} pu^2 over {len(result.get('captures') or [])} capture(s)")
     icons = {"UEL": 1, "VOS": 1} if st.dyr_model == "ESST1A" else {}
     rec = DyrRecord(bus, st.dyr_model, str(machine_id), values, icons)  # type: ignore[arg-type]
     try:
-        write_dyr(dyr_out, [(rec, "\n".join(notes))], header=header)
-    except FileExistsError as exc:
+        out.write_text(dyr_out, dyr_text([(rec, "\n".join(notes))], header=header))
+    except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
         return EXIT_BAD_INPUT
     except OSError as exc:
-        click.echo(f"error: cannot write {dyr_out}: {exc.strerror}", err=True)
+        click.echo(f"error: {outputs.why_not_written(exc, dyr_out)}", err=True)
         return EXIT_BAD_INPUT
     click.echo(f"wrote {dyr_out}: {st.dyr_model} at bus {bus}, ID {machine_id} "
                f"({len(identified)} identified, {len(fields) - len(identified)} fixed or default)")
+    if missing:
+        click.echo(f"warning: the {st.dyr_model} record does not hold: {'; '.join(missing)}; a simulation "
+                   "from it differs from the result where these act", err=True)
     return 0

@@ -26,8 +26,8 @@ from bench_ctl import outputs
 from bench_ctl.capture import CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.identification.constraints import ConstraintError
-from bench_ctl.identification.identify import Identification, run_identification
-from bench_ctl.identification.peers import OPTIMIZERS
+from bench_ctl.identification.identify import Identification, result_for_file, run_identification
+from bench_ctl.identification.peers import MVMO_OPTIONS, OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.model.unit import UnitError
 
@@ -37,6 +37,11 @@ from .options import model_args, model_options, resolve_unit
 log = logging.getLogger(__name__)
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+
+#: the smallest --evals: MVMO evaluates its whole swarm in the first generation
+MIN_EVALS = int(MVMO_OPTIONS["particles"])
+#: differential evolution's population: this many candidates per identified parameter (peers._run_de)
+DE_POPSIZE = 5
 
 
 def _kernel_names(r: dict) -> list[str]:
@@ -90,22 +95,31 @@ def summary(ident: Identification) -> str:
     return "\n".join(lines)
 
 
-def write_json(path: str | Path, data: dict[str, Any]) -> None:
-    """Write `data` as JSON atomically (temporary file + rename)."""
-    outputs.write_json(path, data)
+def write_json(path: str | Path, data: dict[str, Any], *, force: bool = False) -> None:
+    """Write `data` as JSON through the output guard (atomic; an existing file only with force)."""
+    outputs.write_json(path, data, force=force)
 
 
-def plot_fit(ident: Identification, path: str | Path) -> None:
-    """Measured vs simulated efd (and usetp) per capture, PNG via matplotlib's Agg backend."""
-    import matplotlib
-    matplotlib.use("Agg")
-    from matplotlib import pyplot as plt
+def min_evals(optimizer: str, n_params: int) -> int:
+    """The smallest budget `optimizer` can run on `n_params` parameters."""
+    if optimizer == "de":
+        return DE_POPSIZE * n_params
+    return MIN_EVALS if optimizer == "mvmo" else 1
+
+
+def plot_fit(ident: Identification, path: str | Path, out: outputs.Outputs | None = None) -> None:
+    """Measured vs simulated efd (and usetp) per capture, PNG via matplotlib's Agg backend,
+    written through `out` (default: the guard of `bench_ctl.outputs`, nothing replaced)."""
+    import io
+
+    from matplotlib.figure import Figure
 
     prob, x = ident.problem, ident.best.x
     sims = prob.simulate(x)
     mses = prob.mse(x)
     n = len(prob.captures)
-    fig, axes = plt.subplots(n, 1, figsize=(9, 3.2 * n), squeeze=False)
+    fig = Figure(figsize=(9, 3.2 * n))
+    axes = fig.subplots(n, 1, squeeze=False)
     for ax, cap, sim, m in zip(axes[:, 0], prob.captures, sims, mses):
         t = cap.time - cap.time[0]
         ax.plot(t, cap.efd, color="0.6", lw=0.8, label="efd measured")
@@ -121,8 +135,9 @@ def plot_fit(ident: Identification, path: str | Path) -> None:
         ax.legend(h1 + h2, l1 + l2, loc="upper right", fontsize=8)
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    (out or outputs.Outputs()).write_bytes(path, buf.getvalue())
 
 
 @click.command("identify")
@@ -135,8 +150,9 @@ def plot_fit(ident: Identification, path: str | Path) -> None:
 @click.option("--optimizer", "optimizers", multiple=True, type=click.Choice(OPTIMIZERS),
               help="Optimizer (repeat to compare several; the first gives the result). Default mvmo.")
 @click.option("--compare", is_flag=True, help="Also run every other optimizer and fill 'comparison'.")
-@click.option("--evals", type=click.IntRange(min=1), default=1000, show_default=True,
-              help="Evaluation budget of each optimizer.")
+@click.option("--evals", type=click.IntRange(min=MIN_EVALS), default=1000, show_default=True,
+              help=f"Evaluation budget of each optimizer: at least {MIN_EVALS} (MVMO's swarm: one "
+                   "generation); de needs one population, 5 x the number of identified parameters.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
               help="Write the result JSON (bench-ctl/result/1) here.")
@@ -163,12 +179,18 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
         return EXIT_BAD_INPUT
     try:
-        outputs.guard_outputs({"--json": json_out, "--plot": plot_out}, [*captures, unit_path], force=force)
+        out = outputs.guard_outputs({"--json": json_out, "--plot": plot_out},
+                                    [*captures, unit_path, from_dyr], force=force)
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
         return EXIT_BAD_INPUT
     chosen = list(dict.fromkeys(optimizers or ("mvmo",)))
     others = chosen[1:] + ([n for n in OPTIMIZERS if n not in chosen] if compare else [])
+    short = [f"{n} needs at least {min_evals(n, problem.d)}" for n in chosen + others
+             if evals < min_evals(n, problem.d)]
+    if short:
+        click.echo(f"error: --evals {evals}: {'; '.join(short)} evaluations ({problem.d} parameters)", err=True)
+        return EXIT_BAD_INPUT
 
     bars: list[Any] = []
 
@@ -202,12 +224,19 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
     for b in bars:
         b.close()
     click.echo(summary(ident))
-    if json_out:
-        write_json(json_out, ident.result)
-        click.echo(f"result written to {json_out}")
-    if plot_out:
-        plot_fit(ident, plot_out)
-        click.echo(f"plot written to {plot_out}")
+    try:
+        if json_out:
+            out.write_json(json_out, result_for_file(ident.result, json_out))
+            click.echo(f"result written to {json_out}")
+        if plot_out:
+            plot_fit(ident, plot_out, out)
+            click.echo(f"plot written to {plot_out}")
+    except outputs.OutputRefused as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        click.echo(f"error: {outputs.why_not_written(exc, json_out or plot_out or '')}", err=True)
+        return EXIT_BAD_INPUT
     if not ident.ok:
         bad = [c["expr"] for c in ident.result["constraints"] if not c["satisfied"]]
         why = [f"constraint(s) violated: {', '.join(bad)}"] if bad else []

@@ -6,12 +6,18 @@ Example:
   bench-ctl import rec.csv -o cap.csv --map efd=EFD_V --time-column t \\
       --test pulse:start=1.0,amplitude=0.05,width=1.0
 
+The record must pass the checks identify makes on its values (a time axis in ms, a broken cell
+such as 1e308, a test description that is not the record's are refused before anything is
+written); whether it holds a test at all (a moving setpoint, a responding efd) is judged when it
+is fitted.
+
 Exit codes: 0 written; 2 the input was refused (message on stderr: file, row, column), the
-output exists, or the options are malformed (as every command: 2 is bad input).
+output exists or cannot be written, or the options are malformed (2 is bad input).
 """
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import click
 
@@ -108,13 +114,16 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     try:
-        outputs.guard_outputs({"-o": out}, [src])
+        if not str(out).lower().endswith(".csv"):
+            raise ValueError(f"-o {out}: a capture file name must end in .csv")
+        outputs.guard_outputs({"-o": out, "-o (its sidecar)": Path(out).with_suffix(".json")}, [src],
+                              replace_hint="captures are never overwritten: choose another name")
         capture = run_import(src, spec, out)
     except (CaptureError, FileExistsError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
         return 2
     except OSError as exc:
-        click.echo(f"error: cannot write {exc.filename or out}: {exc.strerror}", err=True)
+        click.echo(f"error: {outputs.why_not_written(exc, out)}", err=True)
         return 2
     click.echo(f"wrote {capture.source} ({capture.n} samples at {capture.rate_hz:g} Hz)")
     return 0

@@ -5,13 +5,16 @@ Example:
 
 Writes one self-contained HTML page (figures embedded, nothing fetched), each figure as
 `<stem>_<name>.png` beside it, and the PDF (matplotlib PdfPages) when asked. Capture paths in
-the result are used as written, else relative to the result file's folder.
+the result are relative to the result file's folder (absolute ones used as written). Every file
+goes through the output guard (`bench_ctl.outputs`): the PNGs too are never an input, never an
+existing file without --force, never written through a symbolic link. A diagnosis of another
+capture is shown, with a warning on the console, and its noise floor is not used.
 
 Exit codes: 0 report written, no check failed (PASS, or PASS WITH WARNINGS: a fit well above
 the noise floor, undetermined parameters, a value on a bound); 1 report written, a check failed (constraint
 violated, reported MSE not reproduced, model blew up); 2 nothing written: the result, the
-diagnosis or a capture was refused (missing file, SHA-256 mismatch, malformed JSON) or the
-output could not be written.
+diagnosis or a capture was refused (missing file, SHA-256 mismatch, malformed JSON, a record
+that is not a plausible setpoint test) or an output was refused or could not be written.
 """
 from __future__ import annotations
 
@@ -22,7 +25,7 @@ from pathlib import Path
 import click
 
 from bench_ctl import outputs
-from bench_ctl.report import ReportError, analyse, load_json, write_report
+from bench_ctl.report import ReportError, analyse, claim_report, load_json, write_report
 from bench_ctl.report.checks import DEFAULT_NOISE_RATIO_LIMIT, FAIL
 from bench_ctl.report.inputs import DIAGNOSIS_SCHEMA, RESULT_SCHEMA, resolve_capture_path
 from bench_ctl.report.metrics import DEFAULT_EDGE_WINDOW_S
@@ -71,10 +74,10 @@ def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | No
         named = [c.get("path") for c in result.get("captures", []) if isinstance(c, dict)]
         base = Path(result_json).resolve().parent
         caps = [str(resolve_capture_path(p, base)) for p in named if isinstance(p, str)]
-        outputs.guard_outputs({"-o": out, "--pdf": pdf}, [result_json, diagnosis_json, *caps], force=force,
-                              make_folders=True)
+        out_set = outputs.Outputs([result_json, diagnosis_json, *caps], force=force, make_folders=True)
+        claim_report(out_set, out, n_captures=max(1, len(named)), pdf=pdf)
         diagnosis = load_json(diagnosis_json, DIAGNOSIS_SCHEMA) if diagnosis_json else None
-        data = analyse(result, diagnosis=diagnosis, base_dir=Path(result_json).resolve().parent,
+        data = analyse(result, diagnosis=diagnosis, base_dir=base,
                        where=result_json, window_s=edge_window,
                        noise_ratio_limit=noise_ratio_limit,
                        report_command=_command_line(result_json, diagnosis_json, out, pdf,
@@ -82,10 +85,16 @@ def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | No
     except (ReportError, outputs.OutputRefused) as exc:
         click.echo(f"error: {exc}", err=True)
         return EXIT_REFUSED
+    for c in data.checks:
+        if c.name == "diagnosis of this record" and c.status == "warn":
+            click.echo(f"WARNING: --diagnosis {diagnosis_json}: {c.detail}", err=True)
     try:
-        written = write_report(data, out, pdf=pdf)
+        written = write_report(data, out, pdf=pdf, outputs=out_set)
+    except outputs.OutputRefused as exc:
+        click.echo(f"error: {exc}", err=True)
+        return EXIT_REFUSED
     except OSError as exc:
-        click.echo(f"error: cannot write the report: {exc}", err=True)
+        click.echo(f"error: the report was not written: {outputs.why_not_written(exc, out)}", err=True)
         return EXIT_REFUSED
     for path in written:
         click.echo(f"wrote {path}")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from bench_ctl import __version__
+from bench_ctl import __version__, outputs
 from bench_ctl.capture import write_capture
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, synthetic_record
 from bench_ctl.model.unit import UnitError
@@ -52,10 +52,15 @@ def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, am
             raise UnitError(f"--rate {rate:g} Hz over --duration {duration:g} s gives fewer than 2 samples")
         if start < 0 or width <= 0 or start + width >= duration:
             raise UnitError(f"pulse start {start} s + width {width} s must lie inside the record of {duration} s")
+        # the capture and its sidecar, before the simulation: never an input, never an existing
+        # file, never through a link, a folder that can be written
+        outputs.guard_outputs({"-o": output, "-o (its sidecar)": Path(output).with_suffix(".json")},
+                              [unit_path, from_dyr], make_folders=True,
+                              replace_hint="captures are never overwritten: choose another name")
         t, usetp = pulse_usetp(amplitude=amplitude, width=width, start=start, duration=duration, rate=rate,
                                usetp0=unit.generator["Vt0"])
         rec = synthetic_record(unit, t, usetp, RecorderModel(noise, lsb), seed)
-    except (UnitError, ValueError) as exc:
+    except (UnitError, ValueError) as exc:   # OutputRefused is a ValueError
         click.echo(f"error: {exc}", err=True)
         return 2
     meta = {
@@ -76,7 +81,7 @@ def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, am
         click.echo(f"error: {exc} (captures are never overwritten)", err=True)
         return 2
     except OSError as exc:
-        click.echo(f"error: cannot write {output}: {exc.strerror}", err=True)
+        click.echo(f"error: {outputs.why_not_written(exc, output)}", err=True)
         return 2
     click.echo(f"capture: {csv_path}")
     click.echo(f"sidecar: {json_path}")

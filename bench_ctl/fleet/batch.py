@@ -1,6 +1,7 @@
 """`run_batch`: the steps of every capture of a manifest on a Dask cluster, then the summary.
 
-Cluster: a LocalCluster sized to the machine (one single-threaded worker process per core; the
+Cluster: a LocalCluster sized to the machine, listening on loopback only unless another host is
+named (one single-threaded worker process per core; the
 kernel's own threads are kept to one per worker, `NUMBA_NUM_THREADS=1`, so workers do not fight
 over the cores), started and closed here; or an existing cluster by scheduler address. Every
 worker loads the compiled kernel once (a worker plugin, numba's disk cache) before its first
@@ -25,7 +26,8 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from bench_ctl.outputs import write_text
+from bench_ctl.limits import InputError, read_bounded
+from bench_ctl.outputs import OutputRefused, Outputs, why_not_written
 
 from . import tasks
 from .manifest import Entry, read_manifest
@@ -53,14 +55,25 @@ WORKER_CONFIG = {"distributed.worker.profile.enabled": False,
                  "distributed.admin.system-monitor.interval": "2s"}
 
 
-def local_cluster(n_workers: int) -> "LocalCluster":
-    """A LocalCluster of `n_workers` single-threaded worker processes set up for the fits."""
+#: where our LocalCluster listens unless the user names another address: this machine only
+LOOPBACK = "127.0.0.1"
+
+
+def _with_port(host: str, port: int) -> str:
+    return f"[{host}]:{port}" if ":" in host and not host.startswith("[") else f"{host}:{port}"
+
+
+def local_cluster(n_workers: int, host: str = LOOPBACK) -> "LocalCluster":
+    """A LocalCluster of `n_workers` single-threaded worker processes set up for the fits. Its
+    scheduler, workers, nannies and dashboard all listen on `host` (default: loopback only; the
+    dashboard on ':0' alone would listen on every interface)."""
     import dask
     from distributed import LocalCluster
 
     with dask.config.set(WORKER_CONFIG):   # read by each nanny when it is made, here
-        return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                            env=WORKER_ENV, silence_logs=logging.WARNING)
+        return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host=host,
+                            dashboard_address=_with_port(host, 0), env=WORKER_ENV,
+                            silence_logs=logging.WARNING)
 
 SUMMARY_COLUMNS = ("capture", "status", "mse", "noise_floor", "mse_over_floor", "verdict", "explained_by",
                    "warnings", "result", "diagnosis", "report", "error", "wall_s")
@@ -98,10 +111,12 @@ def _report_step(id_row: dict | None, dg_row: dict | None, entry: Entry, folder:
 
 
 def _read(path: Path) -> dict:
+    """A result or diagnosis the batch wrote ({} when absent or unreadable), read bounded."""
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        data = json.loads(read_bounded(path, "a result JSON").decode("utf-8"))
+    except (InputError, ValueError):
         return {}
+    return data if isinstance(data, dict) else {}
 
 
 def summary_row(entry: Entry, folder: Path, steps: dict[str, dict], *, skipped: bool = False) -> dict[str, Any]:
@@ -126,16 +141,36 @@ def summary_row(entry: Entry, folder: Path, steps: dict[str, dict], *, skipped: 
             "unit": str(entry.unit or "reference unit"), "model": entry.model or "reference"}
 
 
-def write_summary(out: Path, rows: list[dict[str, Any]]) -> tuple[Path, Path]:
+def problem_row(entry: Entry, problem: str) -> dict[str, Any]:
+    """The summary row of a capture that could not run (a file missing, outside the manifest's
+    folder, unreadable): an error, its steps not run, nothing of its files shown."""
+    return {"capture": str(entry.capture), "status": "error", "mse": None, "noise_floor": None,
+            "mse_over_floor": None, "verdict": "", "explained_by": "", "warnings": "", "result": "",
+            "diagnosis": "", "report": "", "error": problem, "wall_s": 0.0,
+            "unit": str(entry.unit or "reference unit"), "model": entry.model or "reference"}
+
+
+def summary_outputs(out: Path, inputs: list[Path | None]) -> Outputs:
+    """The guard of the batch's own summary files: never an input (the manifest, a capture), never
+    through a link, a folder that can be written. They are the batch's to replace: each run (a
+    resumed one too) writes them anew."""
+    guard = Outputs(inputs, force=True)
+    guard.claim("summary", out / "summary.csv")
+    guard.claim("index", out / "index.html")
+    return guard
+
+
+def write_summary(out: Path, rows: list[dict[str, Any]], guard: Outputs | None = None) -> tuple[Path, Path]:
     """summary.csv and index.html (sortable by clicking a column head), each written atomically."""
     import io
 
+    guard = guard or summary_outputs(out, [])
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(SUMMARY_COLUMNS), extrasaction="ignore", lineterminator="\n")
     w.writeheader()
     w.writerows(rows)
-    write_text(out / "summary.csv", buf.getvalue())
-    write_text(out / "index.html", _index_html(rows))
+    guard.write_text(out / "summary.csv", buf.getvalue())
+    guard.write_text(out / "index.html", _index_html(rows))
     return out / "summary.csv", out / "index.html"
 
 
@@ -186,19 +221,32 @@ def _kernel_ready(dask_worker: Any = None) -> float:
 
 def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | None = None,
               workers: int | None = None, evals: int = 1000, seed: int = 0, progress: bool = True,
-              echo: Callable[[str], None] = print) -> BatchOutcome:
+              echo: Callable[[str], None] = print, allow_outside: bool = False,
+              host: str = LOOPBACK) -> BatchOutcome:
+    """Run the manifest (see the module docstring). A row that cannot run (`Entry.problem`, or a
+    file gone before it is hashed) is an error row; the others run. Raises ManifestError for a
+    manifest that cannot be read, OutputRefused for an output folder that cannot be written
+    (both before the cluster starts)."""
     from distributed import Client, as_completed
 
     t0, t0_unix = time.perf_counter(), time.time()
-    entries = read_manifest(manifest)
+    notes: list[str] = []
+    entries = read_manifest(manifest, allow_outside=allow_outside, notes=notes)
+    for note in notes:
+        echo(f"note: {note}")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputRefused(f"--out {out}: {why_not_written(exc, out)}") from None
+    guard = summary_outputs(out, [Path(manifest)] + [p for e in entries for p in (e.capture, e.holdout, e.unit)
+                                                      if not e.problem])
     cluster = None
     if scheduler:
         client = Client(scheduler)
     else:
         n = workers or os.cpu_count() or 1
-        cluster = local_cluster(n)
+        cluster = local_cluster(n, host)
         client = Client(cluster)
     rows: dict[str, dict[str, Any]] = {}
     steps: dict[str, dict[str, dict]] = {e.name: {} for e in entries}
@@ -213,7 +261,15 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
         fps = {}
         for e in entries:
             folder = out / e.name
-            fp = tasks.fingerprint(e, evals, seed)
+            if e.problem:
+                rows[e.name] = problem_row(e, e.problem)
+                continue
+            try:
+                fp = tasks.fingerprint(e, evals, seed)
+            except OSError as exc:   # gone or unreadable since the manifest was read
+                rows[e.name] = problem_row(e, f"{Path(exc.filename or e.capture).name}: "
+                                              f"{exc.strerror or exc}")
+                continue
             fps[e.name] = fp
             if tasks.is_done(folder, fp):
                 rows[e.name] = summary_row(e, folder, {}, skipped=True)
@@ -266,6 +322,6 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
             cluster.close()
     ordered = [rows.get(e.name) or summary_row(e, out / e.name, steps[e.name]) | {"status": "not run"}
                for e in entries]
-    csv_path, index = write_summary(out, ordered)
+    csv_path, index = write_summary(out, ordered, guard)
     return BatchOutcome(ordered, csv_path, index, time.perf_counter() - t0, warm, interrupted,
                         [r for s in steps.values() for r in s.values()], t0_unix)

@@ -1,18 +1,33 @@
 """The batch manifest: a CSV with a header; `capture` required (a path relative to the manifest),
 optional `holdout`, `unit`, `model`, `set` (`NAME=VALUE` items separated by `;`) and `steps`
 (`identify+diagnose+report`, the default; any of the three joined by `+`). Unknown columns and
-bad values are refused naming the file, line and column."""
+bad values are refused naming the file, line and column. UTF-8, with or without the byte-order
+mark Excel writes; at most the manifest limit of `bench_ctl.limits` (a device such as /dev/zero is
+refused before it is read).
+
+Each file a row names resolves inside the manifest's folder (links followed) unless
+`allow_outside`: a row `../../../../etc/passwd` or `/etc/shadow` is not read. A row whose file lies
+outside, is missing, is not a regular file or is too large stays in the list with its `problem`
+(the batch reports it as an error row and runs the others); nothing of such a file is read. A row
+that repeats an earlier one exactly (same capture, holdout, unit, model, set and steps) is run
+once: the second would compute the same result into a second folder; `notes` says which.
+"""
 from __future__ import annotations
 
 import csv
+import os
 import re
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench_ctl.limits import LIMITS, InputError, read_bounded
 from bench_ctl.model.structures import StructureError, structure
 
 STEPS = ("identify", "diagnose", "report")
 COLUMNS = ("capture", "holdout", "unit", "model", "set", "steps")
+#: the kind (`bench_ctl.limits`) of the file each column names
+_KIND = {"capture": "a capture", "holdout": "a capture", "unit": "a unit file"}
 
 
 class ManifestError(ValueError):
@@ -29,6 +44,8 @@ class Entry:
     model: str | None = None
     overrides: tuple[str, ...] = ()
     steps: tuple[str, ...] = STEPS
+    #: why the row cannot run (a file outside the folder, missing, ...); "" when it can
+    problem: str = ""
 
 
 def _name(capture: str, taken: set[str]) -> str:
@@ -40,12 +57,40 @@ def _name(capture: str, taken: set[str]) -> str:
     return name
 
 
-def read_manifest(path: str | Path) -> list[Entry]:
+def _file(manifest: Path, base: Path, line: int, column: str, cell: str,
+          allow_outside: bool) -> tuple[Path, str]:
+    """The file a cell names (relative to the manifest's folder) and why it cannot be used ("" if
+    it can). Only the file's metadata is looked at, never its content."""
+    raw = Path(cell)
+    path = raw if raw.is_absolute() else base / raw
+    where = f"{manifest}, line {line}, column '{column}'"
+    resolved = path.resolve()
+    if not allow_outside and not resolved.is_relative_to(base):
+        return path, (f"{where}: {cell} lies outside the manifest's folder {base}; not read (give "
+                      "--allow-outside to read files elsewhere)")
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        return path, f"{where}: {cell}: {'not found' if isinstance(exc, FileNotFoundError) else exc.strerror}"
+    if not stat.S_ISREG(st.st_mode):
+        return path, f"{where}: {cell} is not a regular file (a device, pipe or folder)"
+    limit = LIMITS[_KIND[column]]
+    if st.st_size > limit:
+        return path, f"{where}: {cell} has {st.st_size} bytes, more than the {limit} bytes {_KIND[column]} may have"
+    return path, ""
+
+
+def read_manifest(path: str | Path, *, allow_outside: bool = False,
+                  notes: list[str] | None = None) -> list[Entry]:
+    """The entries of the manifest at `path` (see the module docstring); `notes` (when given)
+    receives a line for each repeated row run once."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ManifestError(f"{path}: cannot read: {exc.strerror or exc}") from None
+        data = read_bounded(path, "a manifest")
+    except InputError as exc:
+        raise ManifestError(str(exc)) from None
+    try:
+        text = data.decode("utf-8-sig")    # Excel's "CSV UTF-8" starts with a byte-order mark
     except UnicodeDecodeError as exc:
         raise ManifestError(f"{path}: not UTF-8 text (byte {exc.start})") from None
     rows = list(csv.reader(text.splitlines()))
@@ -60,6 +105,7 @@ def read_manifest(path: str | Path) -> list[Entry]:
     base = path.resolve().parent
     out: list[Entry] = []
     taken: set[str] = set()
+    seen: dict[tuple, int] = {}
     for i, row in enumerate(rows[1:], start=2):
         if not any(c.strip() for c in row):
             continue
@@ -77,15 +123,32 @@ def read_manifest(path: str | Path) -> list[Entry]:
         for s in sets:
             if "=" not in s:
                 raise ManifestError(f"{path}, line {i}, column 'set': {s!r} is not NAME=VALUE")
+        model = None
         if cell.get("model"):
             try:
-                structure(cell["model"])
+                model = structure(cell["model"]).name
             except StructureError as exc:
                 raise ManifestError(f"{path}, line {i}, column 'model': {exc}") from None
-        opt = lambda key: (base / cell[key]) if cell.get(key) else None  # noqa: E731
-        out.append(Entry(line=i, name=_name(cell["capture"], taken), capture=base / cell["capture"],
-                         holdout=opt("holdout"), unit=opt("unit"), model=cell.get("model") or None,
-                         overrides=sets, steps=tuple(s for s in STEPS if s in steps)))
+        files: dict[str, Path | None] = {}
+        problems = []
+        for column in ("capture", "holdout", "unit"):
+            if cell.get(column):
+                files[column], problem = _file(path, base, i, column, cell[column], allow_outside)
+                if problem:
+                    problems.append(problem)
+            else:
+                files[column] = None
+        steps = tuple(s for s in STEPS if s in steps)
+        key = (*(str(f.resolve()) if f else None for f in files.values()), model, sets, steps)
+        if key in seen:
+            if notes is not None:
+                notes.append(f"{path}, line {i} repeats line {seen[key]} (the same capture, holdout, unit, model, "
+                             "set and steps): run once, the second would give the same result")
+            continue
+        seen[key] = i
+        out.append(Entry(line=i, name=_name(cell["capture"], taken), capture=files["capture"],  # type: ignore[arg-type]
+                         holdout=files["holdout"], unit=files["unit"], model=model,
+                         overrides=sets, steps=steps, problem="; ".join(problems)))
     if not out:
         raise ManifestError(f"{path}: no capture listed")
     return out

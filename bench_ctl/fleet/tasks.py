@@ -10,10 +10,12 @@ renamed when the command has ended, so an interrupted batch leaves no half-writt
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import io
 import json
 import os
+import stat
 import time
 import traceback
 from pathlib import Path
@@ -27,8 +29,11 @@ VOLATILE_KEYS = ("wall_s", "compile_s", "created_utc", "command_line", "seconds"
 
 
 def sha256_of(path: Path | None) -> str | None:
+    """SHA-256 of a regular file (OSError for anything else: a device is never read to its end)."""
     if path is None:
         return None
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        raise OSError(errno.EINVAL, "not a regular file", str(path))
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -104,7 +109,8 @@ def write_done(folder: Path, fp: dict[str, Any], rows: list[dict[str, Any]]) -> 
     """Mark a capture complete (last, atomically): its fingerprint and step exit codes."""
     from bench_ctl.outputs import write_json
 
-    write_json(folder / DONE, {"fingerprint": fp, "steps": {r["step"]: r["rc"] for r in rows}})
+    # the batch's own marker, replaced when the capture is done again (never through a link)
+    write_json(folder / DONE, {"fingerprint": fp, "steps": {r["step"]: r["rc"] for r in rows}}, force=True)
 
 
 OUTPUT_OF = {"identify": RESULT, "diagnose": DIAGNOSIS, "report": REPORT}
@@ -112,8 +118,12 @@ OUTPUT_OF = {"identify": RESULT, "diagnose": DIAGNOSIS, "report": REPORT}
 
 def is_done(folder: Path, fp: dict[str, Any]) -> bool:
     """The capture's outputs exist and were made from the same inputs and settings."""
+    from bench_ctl.limits import InputError, read_bounded
+
     try:
-        done = json.loads((folder / DONE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        done = json.loads(read_bounded(folder / DONE, "a result JSON").decode("utf-8"))
+    except (InputError, ValueError):
+        return False
+    if not isinstance(done, dict):
         return False
     return done.get("fingerprint") == fp and all((folder / OUTPUT_OF[s]).exists() for s in fp["steps"])

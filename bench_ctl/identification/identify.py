@@ -11,6 +11,7 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,6 +99,27 @@ def _capture_entry(c: Capture, mse: float, obj: float, weight: float,
     return {"path": c.source, "sha256": sha, "n": int(c.n), "rate_hz": float(c.rate_hz),
             "meta": dict(c.meta), "mse": _none_if_inf(mse), "objective": _none_if_inf(obj),
             "weight": float(weight), "edges": edges}
+
+
+def result_for_file(result: Mapping[str, Any], result_path: str | os.PathLike[str]) -> dict[str, Any]:
+    """`result` as written to `result_path`: each capture path relative to the result file's
+    folder (issue 24 item 14), so the result still finds its captures from any working directory
+    and when the folder is moved as a whole. A path with no relative form (another drive) stays
+    absolute; a capture held in memory (no path) stays so."""
+    folder = Path(os.path.abspath(result_path)).parent
+    out = dict(result)
+    caps = []
+    for c in result.get("captures") or []:
+        c = dict(c)
+        if isinstance(c.get("path"), str) and c["path"]:
+            absolute = os.path.abspath(c["path"])
+            try:
+                c["path"] = Path(os.path.relpath(absolute, folder)).as_posix()
+            except ValueError:
+                c["path"] = absolute
+        caps.append(c)
+    out["captures"] = caps
+    return out
 
 
 def _model_only(ident: dict[str, Any]) -> dict[str, Any]:

@@ -19,9 +19,9 @@ exists; ANDES' reader builds an ANDES system, it is a benchmark extra): docs/dec
 """
 from __future__ import annotations
 
+import math
 import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
@@ -125,13 +125,19 @@ def parse_dyr(text: str, name: str = "<dyr>") -> list[DyrRecord]:
 
 
 def read_dyr(path: str | os.PathLike[str]) -> list[DyrRecord]:
+    """The records of a .dyr file (a regular file within the limit of `bench_ctl.limits`; UTF-8,
+    else Latin-1 as older PSS/E files are written)."""
+    from bench_ctl.limits import InputError, read_bounded
+
     p = Path(path)
-    if not p.is_file() or p.stat().st_size > (64 << 20):
-        raise DyrError(f"{p}: not a .dyr file (a regular file of at most 64 MiB)")
     try:
-        text = p.read_text("utf-8", errors="strict")
+        data = read_bounded(p, "a .dyr file")
+    except InputError as exc:
+        raise DyrError(str(exc)) from None
+    try:
+        text = data.decode("utf-8")
     except UnicodeDecodeError:
-        text = p.read_text("latin-1")
+        text = data.decode("latin-1")
     return parse_dyr(text, str(p))
 
 
@@ -142,8 +148,12 @@ def format_record(rec: DyrRecord, comment: str | None = None, per_line: int = 5)
     missing = [k for k in names if k not in rec.values] + [k for k in ICONS.get(rec.model, ()) if k not in rec.icons]
     if missing:
         raise DyrError(f"{rec.model} at bus {rec.bus}: no value for {', '.join(missing)}")
+    bad = [f"{k} = {rec.values[k]}" for k in names if not math.isfinite(float(rec.values[k]))]
+    if bad:
+        raise DyrError(f"{rec.model} at bus {rec.bus}: {', '.join(bad)} cannot be written (a record holds numbers)")
     items = [str(int(rec.icons[k])) for k in ICONS.get(rec.model, ())]
-    items += [f"{float(rec.values[k]):.6G}" for k in names]
+    # the shortest text that reads back as the same float: a record read back simulates the same
+    items += [repr(float(rec.values[k])).upper() for k in names]
     lines = [f"// {c}" for c in (comment.splitlines() if comment else [])]
     head = f"{rec.bus} '{rec.model}' {rec.id}"
     chunks = [items[i:i + per_line] for i in range(0, len(items), per_line)] or [[]]
@@ -153,28 +163,27 @@ def format_record(rec: DyrRecord, comment: str | None = None, per_line: int = 5)
     return "\n".join(lines) + "\n"
 
 
+def dyr_text(records: Iterable[tuple[DyrRecord, str | None]], header: str | None = None) -> str:
+    """The text of a .dyr file: `header` as comment lines, then each record with its comment."""
+    text = "".join(f"// {h}\n" for h in (header.splitlines() if header else []))
+    return text + "".join(format_record(r, c) for r, c in records)
+
+
 def write_dyr(path: str | os.PathLike[str], records: Iterable[tuple[DyrRecord, str | None]], *,
               header: str | None = None, overwrite: bool = False) -> None:
-    """Write `records` (each with its comment) to `path`: never over an existing file unless
-    `overwrite`, through a temporary file in the same folder renamed into place."""
+    """Write `records` (each with its comment) to `path` through `bench_ctl.outputs`: never over an
+    existing file unless `overwrite`, never through a symbolic link, a temporary file in the same
+    folder linked (or renamed) into place."""
+    from bench_ctl import outputs
+
     p = Path(path)
-    if p.exists() and not overwrite:
+    if os.path.lexists(p) and not overwrite:
         raise FileExistsError(f"{p}: exists; the .dyr is never overwritten (choose another name)")
-    text = "".join(f"// {h}\n" for h in (header.splitlines() if header else []))
-    text += "".join(format_record(r, c) for r, c in records)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=str(p.parent or Path(".")))
+    text = dyr_text(records, header)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        if not overwrite:
-            os.link(tmp, p)      # fails if the name appeared meanwhile
-            os.unlink(tmp)
-        else:
-            os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        outputs.write_text(p, text, force=overwrite)
+    except outputs.OutputRefused as exc:
+        raise FileExistsError(f"{exc}; the .dyr is never overwritten (choose another name)") from None
 
 
 def find(records: Iterable[DyrRecord], models: set[str] | str, bus: int | None = None,

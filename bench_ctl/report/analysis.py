@@ -17,14 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.capture.plausible import implausible
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.acceptance import Acceptance, AcceptanceError, acceptance_limits, evaluate
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import outside_bounds
 from bench_ctl.report import checks as chk
 from bench_ctl.report.inputs import (DIAGNOSIS_SCHEMA, LoadedCapture, ReportError, check_result,
-                                     check_schema, load_captures, model_values)
+                                     check_schema, load_captures, model_values, same_file)
 from bench_ctl.report.metrics import (DEFAULT_EDGE_WINDOW_S, ErrorFigures, PulseEdges,
                                       error_figures, find_edges, trapezoid_sq, window_slice)
 
@@ -120,11 +119,8 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
     if cons_ok and not constraints and isinstance(unit_cons, list) and unit_cons:
         failures.append(f"the unit has constraints ({', '.join(map(str, unit_cons))}) but the result "
                         "reports none: they cannot be checked")
-    for a in analyses:
-        err = implausible(a.loaded.capture)
-        if err is not None:
-            failures.append(f"{a.loaded.path.name}: {err.reason}")
-    noise_floor, noise_source = _noise_floor(diagnosis, analyses)
+    other = _diagnosis_of_another(diagnosis, loaded)
+    noise_floor, noise_source = _noise_floor(None if other else diagnosis, analyses)
     ident = result.get("identifiability") if isinstance(result.get("identifiability"), Mapping) else {}
     if result.get("failed") is True:
         failures.insert(0, f"identification reported a failed fit: {result.get('message', '')}")
@@ -137,6 +133,8 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
         outside_bounds=outside_bounds(dict(result.get("params") or {}), dict(result.get("bounds") or {})),
         n_captures=len(analyses))
     checks.append(_acceptance_check(analyses))
+    if other:
+        checks.append(chk.Check("diagnosis of this record", "warn", other))
     return ReportData(result=result, diagnosis=diagnosis, values=values,
                       captures=tuple(analyses), mse=mse, objective=objective, fit_window=window,
                       constraints=constraints, checks=checks, verdict=chk.overall(checks),
@@ -199,6 +197,20 @@ def _fit_window(value: Any, where: str) -> tuple[float, float] | None:
         raise ReportError(f"{where}: fit_window must be null or [t0, t1] in s with t0 < t1, "
                           f"got {value!r}")
     return vals[0], vals[1]
+
+
+def _diagnosis_of_another(diagnosis: Mapping[str, Any] | None, loaded: list[LoadedCapture]) -> str:
+    """'' when there is no diagnosis or it was made on a capture of the result (by SHA-256), else
+    what the reader must be told: its noise floor and effects describe another record."""
+    if diagnosis is None:
+        return ""
+    cap = diagnosis.get("capture") if isinstance(diagnosis.get("capture"), Mapping) else {}
+    if any(same_file(cap, lc) for lc in loaded):
+        return ""
+    sha = str(cap.get("sha256", "?"))
+    return (f"the diagnosis was made on {cap.get('path', '?')} (SHA-256 {sha[:16]}...), not on a capture "
+            "of this result: its verdict and effects describe another record, and its noise floor is "
+            "not used here")
 
 
 def _noise_floor(diagnosis: Mapping[str, Any] | None,

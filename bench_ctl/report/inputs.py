@@ -19,7 +19,8 @@ from typing import Any
 
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.capture import sha256_file
-from bench_ctl.capture.table import read_limited
+from bench_ctl.capture.plausible import implausible
+from bench_ctl.limits import InputError, read_bounded
 from bench_ctl.model.params import KERNEL_PARAMS, PARAMS, neutral_values
 
 log = logging.getLogger(__name__)
@@ -36,12 +37,11 @@ class ReportError(ValueError):
 def load_json(path: str | os.PathLike[str], schema: str) -> dict[str, Any]:
     """Read a result or diagnosis JSON file and check its `schema` tag."""
     path = Path(path)
+    kind = "a diagnosis JSON" if schema == DIAGNOSIS_SCHEMA else "a result JSON"
     try:
-        text = read_limited(path).decode("utf-8")
-    except CaptureError as exc:
+        text = read_bounded(path, kind).decode("utf-8")
+    except InputError as exc:
         raise ReportError(str(exc)) from None
-    except OSError as exc:
-        raise ReportError(f"{path}: cannot read: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
         raise ReportError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     try:
@@ -115,18 +115,22 @@ class LoadedCapture:
 
 
 def resolve_capture_path(raw: str, base_dir: Path | None) -> Path:
-    """A capture path as written in the result: absolute, or relative to the current directory,
-    else relative to the result file's folder."""
+    """A capture path as written in the result: absolute; or relative to the result file's folder
+    `base_dir` (as `identify --json` writes it); else, for a result written before that, relative
+    to the current directory."""
     path = Path(raw)
-    if path.is_absolute() or path.exists() or base_dir is None:
+    if path.is_absolute() or base_dir is None:
         return path
-    return base_dir / path
+    beside = base_dir / path
+    if beside.exists() or not path.exists():
+        return beside
+    return path
 
 
 def load_captures(result: Mapping[str, Any], where: str,
                   base_dir: Path | None = None) -> list[LoadedCapture]:
-    """Read every capture of the result, refusing a missing file or a SHA-256 / n / rate
-    mismatch."""
+    """Read every capture of the result, refusing a missing file, a SHA-256 / n / rate mismatch
+    and a record that is not a plausible setpoint test (`bench_ctl.capture.plausible`)."""
     out = []
     for i, entry in enumerate(result["captures"]):
         key = f"{where}: captures[{i}]"
@@ -152,6 +156,9 @@ def load_captures(result: Mapping[str, Any], where: str,
         if rate is not None and not math.isclose(float(rate), capture.rate_hz, rel_tol=1e-6):
             raise ReportError(f"{key}.rate_hz: result says {rate} Hz, {path} has "
                               f"{capture.rate_hz:g} Hz")
+        err = implausible(capture)
+        if err is not None:   # refused as identify refuses it: no report on a broken record
+            raise ReportError(f"{key}: {err}")
         log.debug("capture %d %s verified (sha256 %s)", i, path, actual)
         out.append(LoadedCapture(i, path, actual, capture, dict(entry)))
     return out

@@ -3,6 +3,7 @@ no browser needed): A4 text pages carrying every section's tables, then the figu
 """
 from __future__ import annotations
 
+import io
 import textwrap
 from collections.abc import Sequence
 from pathlib import Path
@@ -127,7 +128,14 @@ def _text_page(pdf: PdfPages, title: str, lines: Sequence[Line], page: int) -> N
     pdf.savefig(fig)
 
 
-def write_pdf(path: Path, title: str, subtitle: str, sections: Sequence[Section]) -> None:
+def pdf_bytes(title: str, subtitle: str, sections: Sequence[Section]) -> bytes:
+    """The PDF's bytes (written to a file by the caller, through `bench_ctl.outputs`)."""
+    buf = io.BytesIO()
+    write_pdf(buf, title, subtitle, sections)
+    return buf.getvalue()
+
+
+def write_pdf(path: "Path | io.BytesIO", title: str, subtitle: str, sections: Sequence[Section]) -> None:
     pages = paginate([[(subtitle, "")]] + section_groups(sections))
     figs = [b for s in sections for b in s.blocks if isinstance(b, Fig)]
     page = 0

@@ -18,6 +18,7 @@ STRUCTURE = Structure(
         StdParam("EMAX", "pu", "maximum exciter output", 4.5, None, "VRMAX"),
     ),
     settings={"TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "KC": 0.0, "LIMOUT": 0.0, "TR": 0.0},
+    lead_lags=(("TA1", "TA2"),),   # TA = TB = 0 (a record's TB = 0): no lead-lag
     dyr_model="SEXS",
     dyr_special={"TA/TB": (lambda v: v["TA"] / v["TB"], lambda f: ("TA", f["TA/TB"] * f["TB"]))},
     source="PSS/E model library, SEXS; ANDES andes/models/exciter/sexs.py",
