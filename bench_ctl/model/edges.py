@@ -144,7 +144,7 @@ class FoundEdge:
     index: int
     sign: int              # +1 up, -1 down
     level_before: float    # mean of the steady window before it (channel units)
-    departure: float       # largest departure from level_before within SIZE_S, signed
+    departure: float       # farthest from level_before within SIZE_S and before the next departure, signed
     level_after: float     # median of the second half of the stretch up to the next edge
     lo_s: float
     hi_s: float
