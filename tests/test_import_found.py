@@ -126,7 +126,7 @@ def test_no_edge_of_the_stated_amplitude_is_refused(tmp_path, capsys):
 def test_efd_base_auto_takes_the_units_saturation(tmp_path, capsys):
     """The plant saturates (S10 0.08, S12 0.3): its pre-step efd is Vt0 + Sat(Vt0) = 1.08 pu. With
     the unit's saturation the auto base finds the export's 2.7; without it, 2.7 x 1/1.08."""
-    src, _ = export(tmp_path, s10=0.08, s12=0.3)
+    src, truth = export(tmp_path, s10=0.08, s12=0.3)
     out = tmp_path / "cap.csv"
     assert run_import(src, out, *MAPS, "--test", "pulse:amplitude=0.05", "--efd-base", "auto",
                       "--scale", "ifd=auto", "--set", "S10=0.08", "--set", "S12=0.3") == 0
@@ -141,6 +141,12 @@ def test_efd_base_auto_takes_the_units_saturation(tmp_path, capsys):
     plain = tmp_path / "plain.csv"
     assert run_import(src, plain, *MAPS, "--test", "pulse:amplitude=0.05", "--efd-base", "auto") == 0
     assert read_capture(plain).meta["import"]["efd_base"]["factor"] == pytest.approx(RATED / 1.08, rel=2e-3)
+    described = tmp_path / "described.csv"     # a described start: the pre-step part ends there
+    assert run_import(src, described, *MAPS, "--test", f"pulse:start={truth[0]:.4f},amplitude=0.05,width=1.5",
+                      "--efd-base", "auto", "--set", "S10=0.08", "--set", "S12=0.3") == 0
+    cap = read_capture(described)
+    assert "edges_found" not in cap.meta["import"] and cap.meta["test"]["source"] == "user description"
+    assert cap.meta["import"]["efd_base"]["factor"] == pytest.approx(RATED, rel=2e-3)
 
 
 def test_efd_base_in_volts_or_rated_field_units(tmp_path, capsys):
@@ -206,3 +212,28 @@ def test_named_channels_arrive_with_their_unit(tmp_path):
     (tmp_path / "c.json").write_text(json.dumps(side))
     with pytest.raises(CaptureError, match="unit 'A' for 'ifd': a capture holds ifd in pu"):
         read_capture(tmp_path / "c.csv")
+
+
+def test_a_comtrade_record_without_setpoint_channel_and_its_field_current_in_amperes(tmp_path):
+    """COMTRADE: the edges found in efd (sample numbers as rows), the field current in A mapped
+    to ifd and put on the no-load base from its pre-step level (a unit without saturation)."""
+    from bench_ctl.capture.field_base import NoLoad
+    from bench_ctl.capture.importer import ImportSpec, TestDescription, import_export
+    from test_capture_comtrade import Analog, write_comtrade_1999
+
+    t, ch, truth = sampled(fine_response(0.05, 1.5), seed=5, rate_hz=1000.0, jitter=0.0)
+    t = np.arange(t.size) / 1000.0                       # the record's own uniform time
+    counts = (lambda x, a: np.round(x / a).astype(np.int64))
+    analog = [Analog("EFD", "pu", 2e-4, 0.0, counts(ch["efd"], 2e-4)),
+              Analog("IF", "A", 0.05, 0.0, counts(ch["ifd"] * 480.0, 0.05))]
+    cfg = write_comtrade_1999(tmp_path, "rec", ft="BINARY", analog=analog, rate_hz=1000.0)
+    no_load = NoLoad(vt0_pu=1.0, s10=0.0, s12=0.0, saturation=lambda x: 0.0, source="test")
+    spec = ImportSpec(columns={"efd": "EFD", "ifd": "IF"}, ifd_auto=True, no_load=no_load,
+                      test=TestDescription("pulse", amplitude_pu=0.05))
+    cap = import_export(cfg, spec, tmp_path / "cap.csv")
+    found = cap.meta["import"]["edges_found"]
+    assert found["channel"] == "efd" and found["amplitude_check"]["channel"] is None
+    for e, true_s in zip(found["edges"], truth):
+        assert e["lo_s"] <= true_s <= e["hi_s"] and e["row"] == int(np.searchsorted(t, e["hi_s"])) + 1
+    assert cap.meta["import"]["ifd_base"]["factor"] == pytest.approx(1 / 480.0, rel=1e-3)
+    assert cap.unit("ifd") == "pu" and np.mean(cap.channel("ifd")[:300]) == pytest.approx(1.0, rel=1e-3)

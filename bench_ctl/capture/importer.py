@@ -6,9 +6,10 @@ model's base (a factor, a base in volts or rated-field units, or `auto` from the
 `field_base`), synthesises `usetp` from a test description when there is no setpoint channel -
 with its edges found in the record when the description has no start (`found_test`) - and
 resamples (linear interpolation) only when asked: jittered time without a resample request is
-refused with the row. The record must pass the plausibility checks identify makes (`bench_ctl.capture.plausible`:
-time unit, physical values, the test description) before it is written; whether it holds a test
-at all is left to the commands that fit it. The sidecar's `import` block records each of these steps.
+refused with the row. The record must pass the plausibility checks identify makes
+(`bench_ctl.capture.plausible`: time unit, physical values, the test description) before it is
+written; whether it holds a test at all is left to the commands that fit it. The sidecar's
+`import` block records each of these steps.
 """
 from __future__ import annotations
 
