@@ -1,7 +1,8 @@
 """The capture: what the recorder produced and what identification reads (docs/formats.md).
 
 On disk a capture is `NAME.csv` (UTF-8, comma-separated, one header row; `time` in s with a
-uniform increasing step, `usetp` and `efd` in pu, optional `vt` in pu, other columns kept) and
+uniform increasing step, `usetp` and `efd` in pu, optional `vt` in pu, the optional named
+channels `ifd`, `p`, `q`, `vr` in pu, other columns kept) and
 an optional `NAME.json` sidecar whose `csv_sha256` pins the CSV. `read_capture` refuses bad
 input with a `CaptureError` naming file, row and column, and repairs nothing; `write_capture`
 never overwrites an existing capture and writes each file atomically.
@@ -36,6 +37,11 @@ SCHEMA = "bench-ctl/capture/1"
 REQUIRED_COLUMNS = ("time", "usetp", "efd")
 OPTIONAL_COLUMNS = ("vt",)
 CAPTURE_UNITS = {"time": "s", "usetp": "pu", "efd": "pu", "vt": "pu"}
+#: optional named channels, kept in `Capture.extra` but numeric, finite and per unit like the
+#: capture columns: the field current (air-gap-line base), active and reactive power (machine
+#: base), the regulator output (the regulator's own base; used to find edges, not fitted)
+CHANNEL_UNITS = {"ifd": "pu", "p": "pu", "q": "pu", "vr": "pu"}
+NAMED_UNITS = {**CAPTURE_UNITS, **CHANNEL_UNITS}
 PER_UNIT_SPELLINGS = {"pu", "p.u.", "p.u", "pu."}
 # sidecar keys write_capture computes itself (values passed in `meta` are replaced)
 COMPUTED_META_KEYS = ("schema", "software_version", "created_utc", "csv_sha256", "rate_hz",
@@ -90,6 +96,18 @@ class Capture:
                 raise CaptureError(owner, f"{arr.size} samples, time has {n}", column=name)
         if n < 2:
             raise CaptureError(owner, f"{n} sample(s); a capture needs at least 2")
+
+    def channel(self, name: str) -> np.ndarray | None:
+        """A capture column or named channel (`ifd`, `p`, `q`, `vr`), None when not recorded."""
+        return self.columns().get(name)
+
+    def unit(self, name: str) -> str | None:
+        """The unit of a column: the sidecar's, else the capture's own (pu for the named
+        channels), None for an extra column of unknown unit."""
+        units = self.meta.get("units") if isinstance(self.meta.get("units"), Mapping) else {}
+        if name in units:
+            return str(units[name])
+        return NAMED_UNITS.get(name) if name in self.columns() else None
 
     @property
     def n(self) -> int:
@@ -159,7 +177,7 @@ def _check_units(meta: Mapping[str, Any], file: str) -> None:
         raise CaptureError(file, f"units must be an object, got {units!r}",
                            column="units", column_kind="key")
     for name, unit in units.items():
-        expected = CAPTURE_UNITS.get(name)
+        expected = NAMED_UNITS.get(name)
         accepted = {"s"} if expected == "s" else PER_UNIT_SPELLINGS
         if expected is not None and str(unit).strip().lower() not in accepted:
             raise CaptureError(file, f"unit {unit!r} for {name!r}: a capture holds {name} in "
@@ -203,9 +221,10 @@ def read_capture(path: str | os.PathLike[str]) -> Capture:
         raise CaptureError(file, "header only, no data rows")
     arrays = {name: parse_numeric(table, name)
               for name in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if name in table.header}
-    extra: dict[str, np.ndarray] = {}
+    extra: dict[str, np.ndarray] = {name: parse_numeric(table, name)
+                                    for name in CHANNEL_UNITS if name in table.header}
     for name in table.header:
-        if name not in arrays:
+        if name not in arrays and name not in extra:
             values = try_numeric(table, name)
             extra[name] = values if values is not None else np.array(table.cells[name])
     check_time(arrays["time"], file=file, rows=table.lines)
@@ -230,10 +249,12 @@ def _as_capture(data: Capture | Mapping[str, Any], source: str) -> Capture:
 
 def _validate_for_write(capture: Capture, file: str) -> None:
     rows = np.arange(capture.n) + 2  # the line each sample will have in the file
-    for name in REQUIRED_COLUMNS + OPTIONAL_COLUMNS:
-        arr = getattr(capture, name)
+    for name in REQUIRED_COLUMNS + OPTIONAL_COLUMNS + tuple(CHANNEL_UNITS):
+        arr = capture.channel(name)
         if arr is None:
             continue
+        if arr.dtype.kind not in "biuf":
+            raise CaptureError(file, "a named channel must be numeric", column=name)
         bad = np.flatnonzero(~np.isfinite(arr))
         if bad.size:
             i = int(bad[0])
@@ -319,7 +340,7 @@ def write_capture(
     if "rate_hz" in meta:
         _check_rate(meta, capture, given)
     _check_units(meta, given)
-    units = {name: unit for name, unit in CAPTURE_UNITS.items() if name in capture.columns()}
+    units = {name: unit for name, unit in NAMED_UNITS.items() if name in capture.columns()}
     units.update({k: v for k, v in dict(meta.get("units") or {}).items() if k not in units})
     payload = _csv_bytes(capture)
     sidecar: dict[str, Any] = {

@@ -1,12 +1,15 @@
 """Import of a real recorder export (vendor CSV, or COMTRADE .cfg + .dat) as a capture.
 
-Maps vendor column names to `usetp` / `efd` / `vt`, builds time from a seconds column or from
-date + clock-time columns, scales efd from the rated-field base to the model base, synthesises
-`usetp` from a test description when there is no setpoint channel, and resamples (linear
-interpolation) only when asked: jittered time without a resample request is refused with the
-row. The record must pass the plausibility checks identify makes (`bench_ctl.capture.plausible`:
-time unit, physical values, the test description) before it is written; whether it holds a test
-at all is left to the commands that fit it. The sidecar's `import` block records each of these steps.
+Maps vendor column names to `usetp` / `efd` / `vt` and the named channels `ifd`, `p`, `q`, `vr`,
+builds time from a seconds column or from date + clock-time columns, puts efd (and ifd) on the
+model's base (a factor, a base in volts or rated-field units, or `auto` from the pre-step level:
+`field_base`), synthesises `usetp` from a test description when there is no setpoint channel -
+with its edges found in the record when the description has no start (`found_test`) - and
+resamples (linear interpolation) only when asked: jittered time without a resample request is
+refused with the row. The record must pass the plausibility checks identify makes
+(`bench_ctl.capture.plausible`: time unit, physical values, the test description) before it is
+written; whether it holds a test at all is left to the commands that fit it. The sidecar's
+`import` block records each of these steps.
 """
 from __future__ import annotations
 
@@ -22,11 +25,14 @@ from typing import Any, Literal
 import numpy as np
 
 from bench_ctl.capture import comtrade_io
-from bench_ctl.capture.capture import Capture, read_capture, sha256_file, write_capture
+from bench_ctl.capture.capture import CHANNEL_UNITS, Capture, read_capture, sha256_file, write_capture
 from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.field_base import EfdBase, NoLoad, auto_factor, explicit_block, pre_step
+from bench_ctl.capture.found_test import FoundTest, find_test, tolerance_on
 from bench_ctl.capture.plausible import implausible
 from bench_ctl.capture.timebase import check_time, resample_linear, step_stats
 from bench_ctl.capture.vendor_csv import RawRecord, read_vendor_csv
+from bench_ctl.model.edges import SETPOINT, find_edges
 
 log = logging.getLogger(__name__)
 
@@ -50,13 +56,15 @@ class TestDescription:
     usetp = usetp0_pu, + amplitude_pu from start_s (capture time) on; for a pulse, back to
     usetp0_pu at start_s + width_s. A sample within 1e-6 steps of an edge counts as after it.
     The stated instants are nominal: fits search each edge within `edge_tolerance_s`.
+    Without `start_s` the edges are found in the record (`found_test`; a pulse's width may then
+    be left out too, or is checked against the found one).
     """
 
     __test__ = False  # not a pytest test class
 
     kind: Literal["step", "pulse"]
-    start_s: float
     amplitude_pu: float
+    start_s: float | None = None
     width_s: float | None = None
     usetp0_pu: float = 1.0
     #: how far each edge may lie from the stated instant (s); None: one source sample. Every fit
@@ -66,13 +74,15 @@ class TestDescription:
     def __post_init__(self) -> None:
         if self.kind not in ("step", "pulse"):
             raise ValueError(f"test kind must be 'step' or 'pulse', got {self.kind!r}")
-        _finite(self.start_s, "test start_s")
+        if self.start_s is not None:
+            _finite(self.start_s, "test start_s")
         _finite(self.amplitude_pu, "test amplitude_pu", nonzero=True)
         _finite(self.usetp0_pu, "test usetp0_pu")
         if self.kind == "pulse":
-            if self.width_s is None:
-                raise ValueError("a pulse test needs width_s")
-            _finite(self.width_s, "test width_s", positive=True)
+            if self.width_s is None and self.start_s is not None:
+                raise ValueError("a pulse test needs width_s (or neither start nor width: both found)")
+            if self.width_s is not None:
+                _finite(self.width_s, "test width_s", positive=True)
         elif self.width_s is not None:
             raise ValueError("a step test has no width_s")
         if self.edge_tolerance_s is not None:
@@ -80,6 +90,8 @@ class TestDescription:
 
     def usetp(self, time: np.ndarray, *, file: str = "<test description>") -> np.ndarray:
         """The setpoint on `time` (uniform). Refuses edges outside the record."""
+        if self.start_s is None:
+            raise ValueError("the test's start is not known yet: find it in the record first")
         step = float(time[1] - time[0])
         tol = 1e-6 * step
         t0, t1 = float(time[0]), float(time[-1])
@@ -99,12 +111,16 @@ class TestDescription:
 class ImportSpec:
     """What to do with a recorder export. Nothing here is guessed from the file.
 
-    columns: capture name (`efd` required, `usetp`, `vt`) -> source column / channel name.
+    columns: capture name (`efd` required, `usetp`, `vt`, `ifd`, `p`, `q`, `vr`) -> source column /
+    channel name.
     Time: `time_column` (s), or `clock_column` (HH:MM:SS.ffff) with an optional `date_column`
     (`date_format`, strptime); CSV only - COMTRADE brings its own time.
     delimiter / decimal (`.` or `,`) / header_line: how the CSV is written.
     efd_base_scale: efd is multiplied by it (rated-field base -> model base).
-    scale: factors for `usetp` / `vt` (e.g. kV -> pu).
+    efd_base: or the base: auto (from the pre-step level and `no_load`), volts or rated-field units.
+    scale: factors for the other mapped channels (e.g. kV -> pu).
+    ifd_auto: put ifd on the model's base from its pre-step level, as efd_base auto (`no_load`).
+    no_load: the model's no-load field (Vt0, Sat) from the unit, needed by `auto`.
     resample_hz: resample onto this rate (linear interpolation); None refuses jitter.
     test: the test, needed when `usetp` is not mapped (then synthesised), recorded always.
     keep_columns: other source columns to keep as extra capture columns (numeric).
@@ -119,7 +135,10 @@ class ImportSpec:
     decimal: str = "."
     header_line: int = 1
     efd_base_scale: float = 1.0
+    efd_base: EfdBase | None = None
     scale: Mapping[str, float] = field(default_factory=dict)
+    ifd_auto: bool = False
+    no_load: NoLoad | None = None
     resample_hz: float | None = None
     test: TestDescription | None = None
     keep_columns: tuple[str, ...] = ()
@@ -135,6 +154,13 @@ class ImportSpec:
         if self.decimal == self.delimiter:
             raise ValueError("a decimal comma needs a delimiter other than ','")
         _finite(self.efd_base_scale, "efd_base_scale", nonzero=True)
+        if self.efd_base is not None and self.efd_base_scale != 1.0:
+            raise ValueError("give either the efd base or efd_base_scale, not both")
+        if self.ifd_auto and ("ifd" not in self.columns or "ifd" in self.scale):
+            raise ValueError("ifd auto needs ifd mapped and no other scale for it")
+        if (self.ifd_auto or (self.efd_base is not None and self.efd_base.mode == "auto")) \
+                and self.no_load is None:
+            raise ValueError("an auto base needs the unit's no-load field (no_load)")
         for our, factor in self.scale.items():
             if our == "efd":
                 raise ValueError("scale efd with efd_base_scale")
@@ -143,8 +169,8 @@ class ImportSpec:
             _finite(factor, f"scale for {our!r}", nonzero=True)
         if self.resample_hz is not None:
             _finite(self.resample_hz, "resample_hz", positive=True)
-        clash = set(self.keep_columns) & (set(self.columns.values()) | {"time", "usetp", "efd",
-                                                                          "vt"})
+        clash = set(self.keep_columns) & (set(self.columns.values()) | {"time", "usetp", "efd", "vt",
+                                                                          *CHANNEL_UNITS})
         if clash:
             raise ValueError(f"keep_columns {sorted(clash)} are mapped or capture names")
         object.__setattr__(self, "columns", MappingProxyType(dict(self.columns)))
@@ -159,7 +185,8 @@ def _read_source(src: Path, spec: ImportSpec) -> tuple[RawRecord, dict[str, Any]
         if spec.time_column or spec.date_column or spec.clock_column:
             raise ValueError("a COMTRADE record brings its own time: no time/date/clock column")
         table = comtrade_io.load_comtrade_table(src, uniform=False)  # checked below, or resampled
-        scaled = {"efd"} if spec.efd_base_scale != 1.0 else set()
+        scaled = ({"efd"} if spec.efd_base_scale != 1.0 or spec.efd_base is not None else set()) \
+            | ({"ifd"} if spec.ifd_auto else set())
         cols = {ch: comtrade_io.channel_values(table, our, ch, our in scaled | set(spec.scale))
                 for our, ch in spec.columns.items()}
         for name in spec.keep_columns:
@@ -196,12 +223,75 @@ def _resample(rec: RawRecord, rate_hz: float) -> tuple[np.ndarray, dict[str, np.
     return resample_linear(rec.time, rec.columns, rate_hz)
 
 
+def _the_test(file: str, spec: ImportSpec, rec: RawRecord, raw: Mapping[str, np.ndarray],
+              grid: np.ndarray) -> tuple[TestDescription | None, FoundTest | None]:
+    """The test to synthesise usetp from: as described, or with its edges found in the record
+    (no start given); None when usetp is recorded."""
+    test = spec.test
+    if "usetp" in spec.columns or test is None or test.start_s is not None:
+        return test, None
+    channels = {k: v for k, v in raw.items() if k in ("vr", "efd", "vt")}
+    found = find_test(file, rec.time, channels, kind=test.kind, amplitude_pu=test.amplitude_pu,
+                      width_s=test.width_s, columns=spec.columns, rows=rec.rows)
+    tol = max(tolerance_on(grid, found.edges), test.edge_tolerance_s or 0.0)
+    found.block["tolerance_s"] = tol
+    found.block["tolerance_given_s"] = test.edge_tolerance_s
+    return TestDescription(kind=found.kind, amplitude_pu=test.amplitude_pu,  # type: ignore[arg-type]
+                           start_s=found.start_s, width_s=found.width_s, usetp0_pu=test.usetp0_pu,
+                           edge_tolerance_s=tol), found
+
+
+def _first_edge_lo(test: TestDescription | None, found: FoundTest | None, rec: RawRecord,
+                   raw: Mapping[str, np.ndarray], source_step: float) -> float | None:
+    """The earliest instant of the first setpoint edge: found, described, or in the recorded usetp."""
+    if found is not None:
+        return found.first_lo_s
+    if "usetp" in raw:
+        lead, _ = find_edges(rec.time, raw["usetp"], kind=SETPOINT).pulse()
+        return None if lead is None else lead.lo_s
+    if test is not None and test.start_s is not None:
+        return test.start_s - (test.edge_tolerance_s or source_step)
+    return None
+
+
+def _field_factors(file: str, spec: ImportSpec, rec: RawRecord, raw: Mapping[str, np.ndarray],
+                   edge_lo: float | None) -> tuple[dict[str, float], dict[str, Any], dict[str, Any] | None]:
+    """The factors of efd (and ifd when auto) and the sidecar blocks saying how they were found."""
+    auto = spec.efd_base is not None and spec.efd_base.mode == "auto"
+    if (auto or spec.ifd_auto) and edge_lo is None:
+        raise CaptureError(file, "no setpoint edge in the record: an auto base needs the pre-step part")
+    vt_pre = None
+    if "vt" in raw and edge_lo is not None:
+        try:
+            vt_pre = float(np.mean(pre_step(file, rec.time, raw["vt"], edge_lo, "vt")))
+        except CaptureError:
+            if auto or spec.ifd_auto:
+                raise
+    col = spec.columns
+    if auto:
+        assert spec.no_load is not None and edge_lo is not None
+        efd, efd_block = auto_factor(file, "efd", col["efd"], rec.time, raw["efd"], edge_lo, spec.no_load, vt_pre)
+    else:
+        base = spec.efd_base
+        efd = spec.efd_base_scale if base is None else 1.0 / float(base.value)  # type: ignore[arg-type]
+        efd_block = explicit_block(base, efd, file=file, time=rec.time, x=rec.columns[col["efd"]], edge_lo_s=edge_lo,
+                                   no_load=spec.no_load, vt_pre=vt_pre)
+    factors = {"efd": efd}
+    ifd_block = None
+    if spec.ifd_auto:
+        assert spec.no_load is not None and edge_lo is not None
+        factors["ifd"], ifd_block = auto_factor(file, "ifd", col["ifd"], rec.time, raw["ifd"], edge_lo,
+                                                spec.no_load, vt_pre)
+    return factors, efd_block, ifd_block
+
+
 def import_export(
     src_path: str | os.PathLike[str], spec: ImportSpec, out_csv_path: str | os.PathLike[str]
 ) -> Capture:
     """Import `src_path` as described by `spec`, write the capture to `out_csv_path` (+ its
     sidecar; never over an existing one) and return it as read back from disk."""
     src = Path(src_path)
+    file = str(src)
     rec, source_block = _read_source(src, spec)
     where = {"file": rec.file, "rows": rec.rows, "row_kind": rec.row_kind,
              "column": rec.time_column}
@@ -216,18 +306,26 @@ def import_export(
     else:
         check_time(rec.time, **where)
         time, cols = rec.time, dict(rec.columns)
+    # the mapped channels on the source's own time stamps, scaled (efd and ifd only by the sign
+    # of their factor: their base is found below): where the edges are found
+    raw = {our: rec.columns[name] * spec.scale.get(our, 1.0) for our, name in spec.columns.items()}
+    raw["efd"] = raw["efd"] * math.copysign(1.0, spec.efd_base_scale)
+    test, found = _the_test(file, spec, rec, raw, time)
+    edge_lo = _first_edge_lo(test, found, rec, raw, stats["median_s"])
+    factors, efd_block, ifd_block = _field_factors(file, spec, rec, raw, edge_lo)
     data: dict[str, np.ndarray] = {"time": time}
     for our, name in spec.columns.items():
-        factor = spec.efd_base_scale if our == "efd" else spec.scale.get(our, 1.0)
-        data[our] = cols[name] * factor
+        data[our] = cols[name] * factors.get(our, spec.scale.get(our, 1.0))
     if "usetp" not in data:
-        assert spec.test is not None
-        data["usetp"] = spec.test.usetp(time, file=str(src))
+        assert test is not None
+        data["usetp"] = test.usetp(time, file=file)
     for name in spec.keep_columns:
         data[name] = cols[name]
-    test = None if spec.test is None else {**asdict(spec.test), "source": "user description"}
+    source = "found in the record" if found is not None else "user description"
+    test_meta = None if test is None else {**asdict(test), "source": source}
     meta: dict[str, Any] = {
-        "units": {"time": "s", **{our: "pu" for our in ("usetp", "efd", "vt") if our in data}},
+        "units": {"time": "s", **{our: "pu" for our in ("usetp", "efd", "vt", *CHANNEL_UNITS)
+                                  if our in data}},
         "import": {
             "source": source_block,
             "columns": dict(spec.columns),
@@ -236,15 +334,20 @@ def import_export(
                                     if c not in spec.keep_columns),
             "time": rec.time_info,
             "source_step_s": stats,
-            "efd_base_scale": spec.efd_base_scale,
-            "scale": {"efd": spec.efd_base_scale, **spec.scale},
+            "efd_base_scale": factors["efd"],
+            "efd_base": efd_block,
+            "scale": {**spec.scale, **factors},
             "resampled": resampled,
             "usetp_synthesised": "usetp" not in spec.columns,
-            "test": test,
+            "test": test_meta,
         },
     }
-    if test is not None:
-        meta["test"] = test
+    if ifd_block is not None:
+        meta["import"]["ifd_base"] = ifd_block
+    if found is not None:
+        meta["import"]["edges_found"] = found.block
+    if test_meta is not None:
+        meta["test"] = test_meta
     # the checks identify, diagnose and report make, before anything is written: a time axis in
     # ms, a broken cell (1e308), a test description that is not this record's (whether the record
     # holds a test at all, a moving setpoint and a responding efd, is the fits' to refuse)

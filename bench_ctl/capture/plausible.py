@@ -27,6 +27,7 @@ import numpy as np
 
 from bench_ctl.capture.capture import Capture
 from bench_ctl.capture.errors import CaptureError
+from bench_ctl.model.edges import SETPOINT, find_edges
 
 MIN_STEP_S = 1.0e-5
 MAX_STEP_S = 0.1
@@ -61,18 +62,11 @@ def _first_bad(values: np.ndarray, ok: np.ndarray) -> int | None:
 
 
 def setpoint_edges(usetp: np.ndarray) -> np.ndarray:
-    """Indices of the first sample after each setpoint edge: a change of more than 30 % of the
-    setpoint's span from one sample to the next (a change spread over adjacent samples is one
-    edge)."""
+    """Indices of the first sample showing each setpoint edge (the shared finder,
+    `bench_ctl.model.edges.find_edges`: a change spread over adjacent samples is one edge)."""
     u = np.asarray(usetp, float)
-    span = float(np.max(u) - np.min(u)) if u.size else 0.0
-    if not span > 0.0:
-        return np.zeros(0, dtype=np.int64)
-    big = np.flatnonzero(np.abs(np.diff(u)) > 0.3 * span) + 1
-    if big.size == 0:
-        return big
-    keep = np.concatenate([[True], np.diff(big) > 1])
-    return big[keep]
+    found = find_edges(np.arange(u.size, dtype=float), u, kind=SETPOINT)
+    return np.array([e.index for e in found.edges], dtype=np.int64)
 
 
 def _num(v: Any) -> float | None:

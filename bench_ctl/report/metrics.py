@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench_ctl.model import edges as edge_finder
 from bench_ctl.model.simulate import pre_trigger_mean
 
 DEFAULT_EDGE_WINDOW_S = 0.2
@@ -24,8 +25,9 @@ MIN_NOISE_SAMPLES = 20
 
 @dataclass(frozen=True)
 class PulseEdges:
-    """Setpoint edges found in usetp: the first sample past half the largest excursion from the
-    pre-trigger mean (leading), the first sample back below it (trailing; None for a step)."""
+    """Setpoint edges found in usetp by the shared finder (`bench_ctl.model.edges.find_edges`):
+    the first sample showing the first change (leading), the first showing the change back
+    (trailing; None for a step); `amplitude` the settled change at the leading edge."""
     usetp_pre: float
     amplitude: float
     leading_index: int | None
@@ -39,16 +41,11 @@ def find_edges(time: np.ndarray, usetp: np.ndarray) -> PulseEdges:
     usetp = np.asarray(usetp, float)
     dt = float(time[1] - time[0])
     pre = pre_trigger_mean(usetp, dt)
-    dev = usetp - pre
-    k_max = int(np.argmax(np.abs(dev)))
-    amp = float(dev[k_max])
-    if abs(amp) < 1e-9:
+    lead, trail = edge_finder.find_edges(time, usetp, kind=edge_finder.SETPOINT).pulse()
+    if lead is None:
         return PulseEdges(pre, 0.0, None, None, None, None)
-    on = np.sign(amp) * dev > 0.5 * abs(amp)
-    k0 = int(np.argmax(on))
-    off = np.flatnonzero(~on[k0:])
-    k1 = int(k0 + off[0]) if off.size else None
-    return PulseEdges(pre, amp, k0, k1, float(time[k0]),
+    k0, k1 = lead.index, None if trail is None else trail.index
+    return PulseEdges(pre, lead.jump, k0, k1, float(time[k0]),
                       None if k1 is None else float(time[k1]))
 
 

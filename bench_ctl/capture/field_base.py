@@ -1,0 +1,161 @@
+"""The field quantities on the model's base (docs/formats.md, "The efd base").
+
+A recorder gives the field voltage (and current) in its own unit: volts, or per unit of the rated
+field (`UfRel`, `IfRel`). The model's efd is per unit of the field voltage that gives 1 pu terminal
+voltage on the air-gap line at no load (docs/model.md), so at no load in steady state
+
+    efd0 = ifd0 = Vt0 + Sat(Vt0) = Vt0 (1 + S(Vt0)),   S(Vt0) = Sat(Vt0) / Vt0
+
+with the generator's saturation (S10, S12). `--efd-base` says how the recorded efd reaches that
+base:
+
+- `auto`: the factor that puts the mean of the pre-step efd on Vt0 + Sat(Vt0), with Vt0 the mean
+  of the pre-step vt when the record has vt, else the unit's Vt0. Refused when the pre-step part
+  is not steady (the means of its four quarters spread more than STEADY_REL_SPREAD of its level),
+  too short (MIN_PRE_SAMPLES) or not positive.
+- `<X>V`: the channel records volts and X volts are 1 pu of the model's efd (factor 1/X).
+- `<X>rf`: the channel records per unit of the rated field voltage and X of it is 1 pu of the
+  model's efd (factor 1/X).
+
+`--scale ifd=auto` does the same for the field current (ifd0 = Vt0 + Sat(Vt0) at no load).
+`NoLoad` carries Vt0 and Sat from the unit; the caller (the import command) builds it.
+"""
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bench_ctl.capture.errors import CaptureError
+
+MIN_PRE_SAMPLES = 20
+#: samples left out at the end of the pre-step part (the change may start there)
+PRE_GUARD = 2
+#: the means of the pre-step part's four quarters may spread at most this share of its level
+STEADY_REL_SPREAD = 0.02
+UNITS = {"v": ("volts", "V"), "rf": ("rated", "rated-field units")}
+_SYNTAX = re.compile(r"([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-z]+)?")
+
+
+@dataclass(frozen=True)
+class EfdBase:
+    """How the recorded efd reaches the model's base: `auto`, or 1 pu of the model = `value`
+    volts (`volts`) / rated-field units (`rated`)."""
+
+    mode: str
+    value: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("auto", "volts", "rated"):
+            raise ValueError(f"efd base mode {self.mode!r}: expected auto, volts or rated")
+        if self.mode != "auto" and not (isinstance(self.value, (int, float)) and math.isfinite(self.value)
+                                        and self.value > 0):
+            raise ValueError(f"efd base {self.value!r}: a positive finite number")
+
+    def text(self) -> str:
+        if self.mode == "auto":
+            return "auto"
+        return f"{self.value:g}{'V' if self.mode == 'volts' else 'rf'}"
+
+
+def parse_efd_base(text: str) -> EfdBase:
+    """`auto`, `95V` (volts) or `0.34rf` (rated-field units): what 1 pu of the model's efd is in
+    the recorded channel's unit. A bare number is refused: it says neither."""
+    t = text.strip()
+    if t.lower() == "auto":
+        return EfdBase("auto")
+    m = _SYNTAX.fullmatch(t)
+    if m is None:
+        raise ValueError(f"{text!r}: expected auto, <X>V or <X>rf (e.g. 95V, 0.34rf)")
+    value, unit = float(m.group(1)), (m.group(2) or "").lower()
+    if not unit:
+        raise ValueError(f"{text!r}: say what the efd channel records: {t}V (it records volts, {t} V are "
+                         f"1 pu of the model's efd) or {t}rf (it records rated-field units, {t} of them are "
+                         "1 pu); a plain factor is --efd-scale")
+    if unit not in UNITS:
+        raise ValueError(f"{text!r}: unit {m.group(2)!r}: expected V (volts) or rf (rated-field units)")
+    return EfdBase(UNITS[unit][0], value)
+
+
+@dataclass(frozen=True)
+class NoLoad:
+    """The model's no-load field: efd0(vt) = ifd0(vt) = vt + Sat(vt)."""
+
+    vt0_pu: float                            # the unit's Vt0
+    s10: float
+    s12: float
+    saturation: Callable[[float], float]     # Sat(x) in pu (the kernel's quadratic)
+    source: str                              # where the values came from (the unit)
+
+    def efd0(self, vt: float) -> float:
+        return vt + self.saturation(vt)
+
+
+def pre_step(file: str, time: np.ndarray, x: np.ndarray, edge_lo_s: float, what: str) -> np.ndarray:
+    """The samples of `x` before the first edge (less PRE_GUARD); refused when fewer than
+    MIN_PRE_SAMPLES."""
+    n = int(np.count_nonzero(np.asarray(time) < edge_lo_s)) - PRE_GUARD
+    if n < MIN_PRE_SAMPLES:
+        raise CaptureError(file, f"only {max(n, 0)} samples of {what} before the first edge at t = {edge_lo_s:.4f} s: "
+                           f"at least {MIN_PRE_SAMPLES} are needed to put it on the model's base")
+    return np.asarray(x[:n], float)
+
+
+def quarter_spread(values: np.ndarray) -> float:
+    """(max - min) of the means of the four quarters of `values`, over |their mean|."""
+    means = [float(np.mean(q)) for q in np.array_split(np.asarray(values, float), 4)]
+    level = float(np.mean(values))
+    return (max(means) - min(means)) / abs(level) if level else math.inf
+
+
+def auto_factor(file: str, what: str, column: str | None, time: np.ndarray, x: np.ndarray, edge_lo_s: float,
+                no_load: NoLoad, vt_pre: float | None) -> tuple[float, dict[str, Any]]:
+    """The factor that puts the pre-step mean of `x` (efd or ifd, source units) on the model's
+    no-load value Vt0 + Sat(Vt0), and the sidecar block that says how."""
+    pre = pre_step(file, time, x, edge_lo_s, what)
+    level = float(np.mean(pre))
+    where = f"column {column!r}" if column else what
+    if not level > 0.0:
+        raise CaptureError(file, f"the pre-step {what} ({where}) averages {level:.4g}: not a positive field "
+                           "to put on the model's no-load base (a sign or an offset to correct first?)")
+    spread = quarter_spread(pre)
+    if spread > STEADY_REL_SPREAD:
+        raise CaptureError(file, f"the pre-step {what} ({where}) is not steady: the means of its four quarters "
+                           f"(t = {float(time[0]):.3f} .. {float(time[pre.size - 1]):.3f} s) spread "
+                           f"{100 * spread:.2f} % of its level {level:.4g} (at most {100 * STEADY_REL_SPREAD:g} % "
+                           f"for --efd-base auto); give the base instead")
+    vt0 = no_load.vt0_pu if vt_pre is None else float(vt_pre)
+    target = no_load.efd0(vt0)
+    factor = target / level
+    return factor, {
+        "mode": "auto", "factor": factor, "channel": what, "column": column,
+        "pre_step": {"t0_s": float(time[0]), "t1_s": float(time[pre.size - 1]), "samples": int(pre.size),
+                     "mean_source_units": level, "quarter_spread_rel": spread},
+        "vt0_pu": vt0, "vt0_from": "the record's pre-step vt" if vt_pre is not None else "the unit's Vt0",
+        "unit_vt0_pu": no_load.vt0_pu,
+        "S10": no_load.s10, "S12": no_load.s12, "sat_at_vt0_pu": no_load.saturation(vt0),
+        "no_load_pu": target, "formula": "Vt0 + Sat(Vt0) = Vt0 (1 + S(Vt0))", "unit": no_load.source,
+    }
+
+
+def explicit_block(base: EfdBase | None, factor: float, *, file: str, time: np.ndarray, x: np.ndarray,
+                   edge_lo_s: float | None, no_load: NoLoad | None, vt_pre: float | None) -> dict[str, Any]:
+    """The sidecar block of a base the user gave (None: the plain factor of --efd-scale), with
+    what the pre-step efd becomes on the model's base beside the model's no-load efd, when both
+    are known."""
+    block: dict[str, Any] = ({"mode": base.mode, "given": base.text(), "factor": factor} if base is not None
+                             else {"mode": "scale", "given": f"{factor:g}", "factor": factor})
+    if edge_lo_s is None or no_load is None:
+        return block
+    try:
+        pre = pre_step(file, time, x, edge_lo_s, "efd")
+    except CaptureError:
+        return block
+    vt0 = no_load.vt0_pu if vt_pre is None else float(vt_pre)
+    block.update(pre_step_pu=float(np.mean(pre)) * factor, vt0_pu=vt0, no_load_pu=no_load.efd0(vt0),
+                 unit=no_load.source)
+    return block
