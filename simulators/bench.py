@@ -115,6 +115,20 @@ def _thaw() -> None:
         if _freeze_users == 0:
             gc.unfreeze()
 
+async def _drain_tasks(rounds: int = 3) -> None:
+    """End what a client's last requests left on the loop, so stopping while a client is
+    connected is silent: let scheduled callbacks run (pymodbus hands each request to a task
+    two callbacks later), then cancel and await every task still pending (asyncio reports a
+    task destroyed while pending, and a coroutine never awaited, as errors at exit)."""
+    for _ in range(rounds):
+        await asyncio.sleep(0)
+    me = asyncio.current_task()
+    pending = [t for t in asyncio.all_tasks() if t is not me and not t.done()]
+    for task in pending:
+        task.cancel()
+    await asyncio.gather(*pending, return_exceptions=True)
+
+
 class SimBench:
     """Both simulated devices around one real-time plant (see the module docstring)."""
 
@@ -185,6 +199,7 @@ class SimBench:
             if ready.exception() is None:
                 loop.run_forever()
             loop.run_until_complete(self._astop())
+            loop.run_until_complete(loop.shutdown_asyncgens())
         finally:
             loop.close()
 
@@ -223,6 +238,7 @@ class SimBench:
             await srv.shutdown()
         self._servers = []
         self.plant.stop()
+        await _drain_tasks()
 
     def stop(self) -> None:
         """Stop servers, serial line and plant (idempotent)."""
