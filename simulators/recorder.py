@@ -1,6 +1,6 @@
 """The simulated transient recorder: samples usetp, efd and vt of the shared plant.
 
-State machine (status values from the profile, see /work/notes/PROFILES.md):
+State machine (status values from the profile, see docs/devices.md):
 idle -> (arm = 1) recording (pre-trigger filling, triggers not accepted) -> armed (waiting)
 -> (manual trigger, or |usetp - usetp at armed| >= threshold) triggered -> done.
 

@@ -9,7 +9,11 @@ serial path a real recorder uses.
 The simulated bench (`simulators.bench.SimBench`) runs in a child process, as a real device
 is a separate box: in the same interpreter its threads and garbage collections stalled the
 host's timed restore write by up to 60 ms in about one run in twenty (measured with
-benchmarks/pulse_dry_runs.py), which is the simulator's cost, not the procedure's.
+benchmarks/pulse_dry_runs.py), which is the simulator's cost, not the procedure's. Like a real
+device, it does not share the operator's terminal: the child runs in its own session, so a
+Ctrl-C, Ctrl-\\ or hang-up of the terminal reaches only the run, which then restores the
+setpoint against a simulator that is still there. The child ends when the run closes its
+standard input (also when the run dies).
 """
 from __future__ import annotations
 
@@ -78,7 +82,8 @@ def simulated_bench(config: BenchConfig, *, recorder_link: str = "serial",
                "recorder_profile": config.recorder.profile, **sim_options}
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     proc = subprocess.Popen([sys.executable, "-m", "bench_ctl.runner.dryrun"],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+                            start_new_session=True)   # the terminal's signals reach the run only
     assert proc.stdin is not None
     try:
         proc.stdin.write(pickle.dumps(options))
