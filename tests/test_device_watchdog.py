@@ -176,3 +176,18 @@ def test_a_tripped_watchdog_is_named_when_the_device_refuses_a_write():
                 "heartbeat change within 0.300 s and dropped remote")
         finally:
             ex.close()
+
+
+def test_the_watchdog_limit_in_the_bench_config():
+    from bench_ctl.runner.config import ConfigError, config_from_dict
+    from test_procedure_pulse import config_doc
+
+    assert config_from_dict(config_doc(), source="b.toml").limits.watchdog_limit_s == 3.0
+    assert config_from_dict(config_doc(pulse_width_max_s=1.0), source="b.toml").limits \
+        .watchdog_limit_s == 2.5
+    assert config_from_dict(config_doc(watchdog_max_s=4), source="b.toml").limits.watchdog_limit_s == 4.0
+    for bad in (0, -1.0):
+        with pytest.raises(ConfigError, match=f"limits.watchdog_max_s = {bad!r} must be > 0"):
+            config_from_dict(config_doc(watchdog_max_s=bad), source="b.toml")
+    with pytest.raises(ConfigError, match="limits.watchdog_max_s = 'long' must be a float"):
+        config_from_dict(config_doc(watchdog_max_s="long"), source="b.toml")
