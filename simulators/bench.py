@@ -29,6 +29,7 @@ Frozen, a full collection walks only what was allocated since.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import logging
 import sys
@@ -165,6 +166,7 @@ class SimBench:
         self.control = control
         self.control_address: tuple[str, int] | None = None
         self._control_server: asyncio.AbstractServer | None = None
+        self._stop_requested: asyncio.Event | None = None
         self._frozen = False
 
     # ---------------------------------------------------------------- life cycle
@@ -178,6 +180,7 @@ class SimBench:
             # switch interval (5 ms) lets a busy server thread hold it for several steps
             self._old_switch = sys.getswitchinterval()
             sys.setswitchinterval(self.switch_interval_s)
+        self._stop_requested = asyncio.Event()   # bound to the bench's loop on first use
         self._thread = threading.Thread(target=self._run_loop, args=(ready,), name="sim-bench",
                                         daemon=True)
         self._thread.start()
@@ -195,13 +198,20 @@ class SimBench:
         self._loop = loop
         asyncio.set_event_loop(loop)
         try:
-            loop.run_until_complete(self._astart(ready))
-            if ready.exception() is None:
-                loop.run_forever()
-            loop.run_until_complete(self._astop())
+            loop.run_until_complete(self._serve(ready))
             loop.run_until_complete(loop.shutdown_asyncgens())
         finally:
             loop.close()
+
+    async def _serve(self, ready: Future) -> None:
+        """Start, serve until stop() asks, then shut down, all in one task: a stop() that
+        arrives while starting or shutting down (a failed start) cannot cut the shutdown short."""
+        try:
+            await self._astart(ready)
+            if ready.exception() is None:
+                await self._stop_requested.wait()
+        finally:
+            await self._astop()
 
     async def _astart(self, ready: Future) -> None:
         try:
@@ -244,7 +254,8 @@ class SimBench:
         """Stop servers, serial line and plant (idempotent)."""
         loop, thread = self._loop, self._thread
         if loop is not None and thread is not None and thread.is_alive():
-            loop.call_soon_threadsafe(loop.stop)
+            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+                loop.call_soon_threadsafe(self._stop_requested.set)
             thread.join(timeout=10)
         self.plant.stop()
         self._thread = None

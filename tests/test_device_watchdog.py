@@ -187,7 +187,7 @@ def test_the_watchdog_limit_in_the_bench_config():
         .watchdog_limit_s == 2.5
     assert config_from_dict(config_doc(watchdog_max_s=4), source="b.toml").limits.watchdog_limit_s == 4.0
     for bad in (0, -1.0):
-        with pytest.raises(ConfigError, match=f"limits.watchdog_max_s = {bad!r} must be > 0"):
+        with pytest.raises(ConfigError, match=f"limits.watchdog_max_s = {float(bad)!r} must be > 0"):
             config_from_dict(config_doc(watchdog_max_s=bad), source="b.toml")
     with pytest.raises(ConfigError, match="limits.watchdog_max_s = 'long' must be a float"):
         config_from_dict(config_doc(watchdog_max_s="long"), source="b.toml")
