@@ -83,7 +83,7 @@ class RawRecord:
         full disk leaves no half download under the name."""
         path = Path(path)
         head = path.with_name(path.name + ".json")
-        _write_whole(path, self.payload())   # on disk before the capture made from it (DESIGN.md 7)
+        _write_whole(path, self.payload())   # on disk before the capture made from it (docs/safety.md)
         _write_whole(head, (json.dumps(self.header(), indent=2) + "\n").encode("utf-8"))
         return path, head
 

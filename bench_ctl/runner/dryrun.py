@@ -1,6 +1,6 @@
 """Dry runs: start the embedded simulated bench and point the bench config at it.
 
-The drivers are unchanged; only the addresses in the config change (STYLE.md: a simulated
+The drivers are unchanged; only the addresses in the config change (docs/style.md: a simulated
 device is a different address, never an `if simulated:` branch). The simulators serve the
 profiles the bench config names, so a vendor-profile bench dry-runs against a simulator
 speaking that vendor's register map. The recorder is reached on its pseudo-terminal, the same
@@ -8,12 +8,8 @@ serial path a real recorder uses.
 
 The simulated bench (`simulators.bench.SimBench`) runs in a child process, as a real device
 is a separate box: in the same interpreter its threads and garbage collections stalled the
-host's timed restore write by up to 60 ms in about one run in twenty (measured with
-benchmarks/pulse_dry_runs.py), which is the simulator's cost, not the procedure's. Like a real
-device, it does not share the operator's terminal: the child runs in its own session, so a
-Ctrl-C, Ctrl-\\ or hang-up of the terminal reaches only the run, which then restores the
-setpoint against a simulator that is still there. The child ends when the run closes its
-standard input (also when the run dies).
+host's timed restore write, which is the simulator's cost, not the procedure's
+(docs/decisions/0005).
 """
 from __future__ import annotations
 
@@ -83,7 +79,10 @@ def simulated_bench(config: BenchConfig, *, recorder_link: str = "serial",
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     proc = subprocess.Popen([sys.executable, "-m", "bench_ctl.runner.dryrun"],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
-                            start_new_session=True)   # the terminal's signals reach the run only
+                            # its own session, as a real device does not share the operator's
+                            # terminal: a Ctrl-C, Ctrl-\ or hang-up reaches the run only, which
+                            # then restores against a living simulator (docs/decisions/0014)
+                            start_new_session=True)
     assert proc.stdin is not None
     try:
         proc.stdin.write(pickle.dumps(options))
