@@ -112,14 +112,16 @@ class RegisterDevice:
     def register(self, name: str) -> Register:
         return self.profile[name]
 
-    def read_words(self, name: str) -> list[int]:
+    def read_words(self, name: str, *, attempts: int | None = None) -> list[int]:
         reg = self.register(name)
-        return self.link.read(reg.table, reg.address, reg.count, register=self._label(reg))
+        return self.link.read(reg.table, reg.address, reg.count, register=self._label(reg),
+                              attempts=attempts)
 
-    def read(self, name: str) -> float:
-        """Engineering value of one register."""
+    def read(self, name: str, *, attempts: int | None = None) -> float:
+        """Engineering value of one register (`attempts`: tries on a link error, default the
+        link's; 1 where a read must never hold the link longer than one request timeout)."""
         reg = self.register(name)
-        return reg.decode(self.read_words(name))
+        return reg.decode(self.read_words(name, attempts=attempts))
 
     def read_all(self) -> dict[str, float]:
         """Every register of the profile once, in table and address order."""

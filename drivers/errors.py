@@ -36,15 +36,19 @@ class DeviceError(Exception):
     """A device operation failed. `str()` is the full operator message."""
 
     def __init__(self, message: str, *, device: str = "", register: str | None = None,
-                 value: Any = None, frames: Sequence[str] = ()) -> None:
+                 value: Any = None, frames: Sequence[str] = (), hint: str = "") -> None:
         self.message = message
         self.device = device
         self.register = register
         self.value = value
         self.frames = list(frames)
+        self.hint = hint      # what the device's own state says about it (e.g. watchdog tripped)
         super().__init__(self._compose())
 
-    def _compose(self) -> str:
+    @property
+    def summary(self) -> str:
+        """The operator's line: device, what failed, register and value, the device's state;
+        without the raw frames (those go to the audit and the -vv log)."""
         head = f"{self.device}: " if self.device else ""
         context = []
         if self.register is not None:
@@ -54,6 +58,12 @@ class DeviceError(Exception):
         text = head + self.message
         if context:
             text += " (" + ", ".join(context) + ")"
+        if self.hint:
+            text += f"; {self.hint}"
+        return text
+
+    def _compose(self) -> str:
+        text = self.summary
         if self.frames:
             text += "\n  last frames on the link:\n    " + "\n    ".join(self.frames)
         return text
@@ -61,7 +71,8 @@ class DeviceError(Exception):
     def to_dict(self) -> dict[str, Any]:
         """For the audit log."""
         return {"error": type(self).__name__, "message": self.message, "device": self.device,
-                "register": self.register, "value": self.value, "frames": self.frames}
+                "register": self.register, "value": self.value, "hint": self.hint,
+                "frames": self.frames}
 
 
 class CommError(DeviceError):
@@ -78,8 +89,15 @@ class ExceptionReply(DeviceError):
 
     def __init__(self, message: str, *, code: int, **kwargs: Any) -> None:
         self.code = code
+        self.request = message
         name = EXCEPTION_NAMES.get(code, "unknown exception")
         super().__init__(f"{message}: device replied with exception {code} ({name})", **kwargs)
+
+    def with_hint(self, hint: str) -> "ExceptionReply":
+        """The same reply, explained by the device's state (read after the refusal)."""
+        return ExceptionReply(self.request, code=self.code, device=self.device,
+                              register=self.register, value=self.value, frames=self.frames,
+                              hint=hint)
 
 
 class ReadbackMismatch(DeviceError):

@@ -2,9 +2,12 @@
 
 The test sequence it supports, in order:
 
+0. `read_watchdog()` - the device's heartbeat watchdog period, read from the register the
+   profile names (settings.watchdog_register); the runner refuses a run on it before any
+   write (docs/decisions/0011); `remote_holder()` - whether another master holds remote;
 1. `snapshot()` - read the pre-test setpoint and mode (nothing written);
-2. `take_remote()` - start the heartbeat, then set the profile's `remote` mode bit (when the
-   profile has one);
+2. `take_remote()` - start the heartbeat (refused when it is too slow for the watchdog read),
+   then set the profile's `remote` mode bit (when the profile has one);
 3. `write_setpoint(value, at_mono=...)` - timed, read back and compared;
 4. `safe_state(reason)` - restore the pre-test setpoint, give remote back, stop the heartbeat;
    reconnecting and retrying within a deadline when the link is lost. It reports which way the
@@ -103,27 +106,67 @@ class Heartbeat:
             self._stop.wait(self.period_s)
 
 
-def watchdog_s(profile: Profile) -> float | None:
-    """The device's heartbeat watchdog period from its profile (None when it does not say)."""
-    timeout = profile.settings.get("heartbeat_timeout_s")
-    return float(timeout) if isinstance(timeout, (int, float)) and not isinstance(timeout, bool) else None
+#: profile setting naming the register that holds the device's heartbeat watchdog period
+WATCHDOG_REGISTER = "watchdog_register"
+#: the profile's status bit the device sets while another master holds remote
+OTHER_MASTER_BIT = "remote_other_master"
 
 
-def check_heartbeat_timing(profile: Profile, heartbeat_period_s: float, request_timeout_s: float) -> None:
-    """Refuse (ValueError) a heartbeat too slow for the device watchdog: beats at least twice per
-    watchdog period, and a timed write (which holds the link for up to one request timeout plus
-    the guard) must not hold the beats off for a whole period."""
-    timeout = watchdog_s(profile)
-    if timeout is None:
-        return
-    if heartbeat_period_s > timeout / 2:
-        raise ValueError(f"heartbeat_period_s {heartbeat_period_s} s is more than half the "
-                         f"device watchdog ({timeout} s, profile {profile.name!r})")
+@dataclass(frozen=True)
+class WatchdogReading:
+    """The device's heartbeat watchdog period as read from it (never taken from the profile).
+    `value_s` is None when the profile names no register or the read failed (`error`)."""
+
+    value_s: float | None
+    register: str | None = None     # e.g. "watchdog_timeout (input 11)"
+    error: str = ""
+
+    def text(self) -> str:
+        """How the operator reads it: `2.000 s (read from input register watchdog_timeout 11)`."""
+        if self.value_s is not None:
+            return f"{self.value_s:.3f} s (read from the device, register {self.register})"
+        return f"unknown ({self.error})"
+
+    def to_dict(self) -> dict[str, object]:
+        return {"value_s": self.value_s, "register": self.register, "error": self.error}
+
+
+def watchdog_register(profile: Profile) -> str | None:
+    """The register the profile names for the device's watchdog period (None: it names none).
+    ValueError when the named register is not in the profile."""
+    name = profile.settings.get(WATCHDOG_REGISTER)
+    if name is None:
+        return None
+    if not isinstance(name, str) or name not in profile.registers:
+        raise ValueError(f"profile {profile.name!r}: settings.{WATCHDOG_REGISTER} = {name!r} is not "
+                         "a register of the profile")
+    return name
+
+
+def heartbeat_problems(watchdog_s: float, heartbeat_period_s: float, request_timeout_s: float,
+                       *, timed_writes: bool = True) -> list[str]:
+    """What is wrong with this host's heartbeat for a device watchdog of `watchdog_s` (the value
+    read from the device): beats at least twice per watchdog period, and (with `timed_writes`) a
+    timed write, which holds the link for up to one request timeout plus the guard, must not
+    hold the beats off for a whole period. Empty when fine."""
+    if heartbeat_period_s >= watchdog_s:
+        return [f"the device's watchdog ({watchdog_s:.3f} s) is shorter than the heartbeat period "
+                f"exciter.heartbeat_period_s = {heartbeat_period_s:.3f} s: the device would trip "
+                "between two beats and drop remote"]
+    problems = []
+    if heartbeat_period_s > watchdog_s / 2:
+        problems.append(f"exciter.heartbeat_period_s = {heartbeat_period_s:.3f} s is more than half "
+                        f"the device watchdog ({watchdog_s:.3f} s): one late beat would trip it")
     gap = heartbeat_period_s + request_timeout_s + TIMED_WRITE_GUARD_S
-    if gap >= timeout:
-        raise ValueError(f"the exciter's request timeout {request_timeout_s} s is too long "
-                         f"for its watchdog ({timeout} s, profile {profile.name!r}): a timed write "
-                         f"can hold the heartbeat off for {gap:.2f} s")
+    if timed_writes and gap >= watchdog_s:
+        problems.append(f"exciter.timeout_s = {request_timeout_s:.3f} s is too long for the device "
+                        f"watchdog ({watchdog_s:.3f} s): a timed write can hold the heartbeat off "
+                        f"for {gap:.3f} s")
+    return problems
+
+
+class WatchdogError(DeviceError):
+    """The device's watchdog (as read) does not allow this host's heartbeat; nothing was written."""
 
 
 class Exciter(RegisterDevice):
@@ -137,7 +180,7 @@ class Exciter(RegisterDevice):
                              "not an exciter")
         for name in (SETPOINT, HEARTBEAT):
             profile[name]  # KeyError naming the profile when missing
-        check_heartbeat_timing(profile, heartbeat_period_s, link.endpoint.timeout_s)
+        watchdog_register(profile)  # ValueError when the profile names a register it lacks
         super().__init__(link, profile, guard=guard, listener=listener)
         self.heartbeat = Heartbeat(self, heartbeat_period_s)
         self.restore_deadline_s = restore_deadline_s
@@ -147,6 +190,7 @@ class Exciter(RegisterDevice):
         # have reached the device; exception replies (refused, nothing changed) do not count
         self._last_setpoint: tuple[tuple[int, ...], str] | None = None
         self._setpoint_attempted = False  # this run sent (or began to send) a setpoint write
+        self.watchdog: WatchdogReading | None = None   # read by read_watchdog()
 
     # -- reads -------------------------------------------------------------------------------
     def bit(self, register: str, name: str) -> bool | None:
@@ -155,6 +199,37 @@ class Exciter(RegisterDevice):
         if reg is None or name not in reg.bits:
             return None
         return bool(int(self.read(register)) >> reg.bits[name] & 1)
+
+    def read_watchdog(self) -> WatchdogReading:
+        """Read the device's heartbeat watchdog period from the register the profile names
+        (settings.watchdog_register); kept in `self.watchdog`. A read the device refuses is a
+        reading with an error, not an exception (a comms check still runs); a lost link raises."""
+        name = watchdog_register(self.profile)
+        if name is None:
+            reading = WatchdogReading(None, None, f"profile {self.profile.name!r} names no watchdog "
+                                      f"register (settings.{WATCHDOG_REGISTER})")
+        else:
+            label = self._label(self.register(name))
+            try:
+                reading = WatchdogReading(float(self.read(name)), label)
+            except CommError:
+                raise
+            except DeviceError as exc:
+                reading = WatchdogReading(None, label, f"reading {label} failed: {exc.summary}")
+        self.watchdog = reading
+        return reading
+
+    def remote_holder(self) -> str | None:
+        """Why remote is not free for this host, read from the device (None when it is free):
+        the status bit `remote_other_master` (where the profile has one), or the mode's remote
+        bit already set before this run took it."""
+        if self.bit(STATUS, OTHER_MASTER_BIT):
+            return (f"the exciter reports remote owned by another master (status.{OTHER_MASTER_BIT} "
+                    "set): another controller holds this unit")
+        if not self._took_remote and self.bit(MODE, "remote"):
+            return ("the exciter is already in remote (mode bit remote set) before this run took it: "
+                    "another master may be controlling it")
+        return None
 
     # -- test sequence -----------------------------------------------------------------------
     def snapshot(self) -> PreTest:
@@ -176,6 +251,13 @@ class Exciter(RegisterDevice):
         """Start the heartbeat, then set the remote bit (if the profile has one)."""
         if self.pretest is None:
             raise RuntimeError("snapshot() before take_remote(): nothing to restore to")
+        reading = self.watchdog or self.read_watchdog()
+        if reading.value_s is not None:
+            problems = heartbeat_problems(reading.value_s, self.heartbeat.period_s,
+                                          self.link.endpoint.timeout_s, timed_writes=False)
+            if problems:
+                raise WatchdogError("remote not taken: " + "; ".join(problems), device=self.name,
+                                    register=reading.register, value=reading.value_s)
         self.heartbeat.start()
         value = self._remote_mode_value()
         if value is None or value == self.pretest.mode:
@@ -298,9 +380,15 @@ class Exciter(RegisterDevice):
 
     def write(self, name: str, value: float, *, purpose: str = "",
               at_mono: float | None = None) -> WriteRecord:
-        """RegisterDevice.write, remembering what the last setpoint write did to the device."""
+        """RegisterDevice.write, remembering what the last setpoint write did to the device; a
+        setpoint or mode write the device refuses is explained by the device's state."""
         if name != SETPOINT:
-            return super().write(name, value, purpose=purpose, at_mono=at_mono)
+            try:
+                return super().write(name, value, purpose=purpose, at_mono=at_mono)
+            except ExceptionReply as exc:
+                if name != MODE:
+                    raise
+                raise self._explained(exc) from None
         words = tuple(self.encode(name, value))
         self._setpoint_attempted = True  # before sending: a Ctrl-C inside the write skips the handlers
         try:
@@ -308,13 +396,36 @@ class Exciter(RegisterDevice):
         except WriteUncertain:
             self._last_setpoint = (words, "uncertain")
             raise
-        except ExceptionReply:
-            raise  # refused by the device: nothing changed
+        except ExceptionReply as exc:
+            raise self._explained(exc) from None  # refused by the device: nothing changed
         except DeviceError:
             self._last_setpoint = (words, "uncertain")
             raise
         self._last_setpoint = (record.readback, "confirmed")
         return record
+
+    def _explained(self, exc: ExceptionReply) -> ExceptionReply:
+        """`exc` with what the device's status says about an "illegal function" refusal (the
+        device's way to say "not now": watchdog tripped, remote held by another master, not in
+        remote); `exc` itself for other codes (nothing more is sent after those) and when the
+        status says nothing or cannot be read."""
+        if exc.code != 1:
+            return exc
+        hints = []
+        try:
+            if self.bit(STATUS, "watchdog_tripped"):
+                wd = self.watchdog.value_s if self.watchdog else None
+                within = f" within {wd:.3f} s" if wd is not None else ""
+                hints.append(f"the device's watchdog has tripped (status.watchdog_tripped): it saw no "
+                             f"heartbeat change{within} and dropped remote")
+            if self.bit(STATUS, OTHER_MASTER_BIT):
+                hints.append(f"remote is owned by another master (status.{OTHER_MASTER_BIT})")
+            if not hints and self.bit(MODE, "remote") is False and exc.register \
+                    and exc.register.startswith(SETPOINT):
+                hints.append("the exciter is not in remote (mode bit remote = 0)")
+        except DeviceError:
+            return exc
+        return exc.with_hint("; ".join(hints)) if hints else exc
 
     def _how_restored(self, reconnected: bool) -> str:
         """Why the setpoint reads the pre-test value although safe_state did not write it."""

@@ -240,7 +240,9 @@ class ModbusLink:
               value: Any = None) -> float:
         """Write holding registers (function 16) once, never re-sent; returns the monotonic time
         the request frame left. WriteUncertain when the reply is lost."""
-        what = f"writing {words} to holding register(s) at {address}"
+        # the words are in the frames (audit, -vv log), not in the operator's message
+        what = f"writing {len(words)} holding register(s) at {address}"
+        log.debug("%s: writing %s to holding register(s) at %d", self.device, words, address)
         with self._lock:
             self.frames.last_tx_mono = None
             self._call(what, register, value, self._client.write_registers, write=True,

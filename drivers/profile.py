@@ -263,16 +263,32 @@ def resolve_profile_path(name_or_path: str | Path) -> Path:
     return Path(text)
 
 
+#: a profile is a page of TOML; anything larger is not one (and /dev/zero never ends)
+MAX_PROFILE_BYTES = 1 << 20
+
+
 def load_profile(name_or_path: str | Path) -> Profile:
-    """Read and validate a profile TOML; errors name the file and the offending key."""
+    """Read and validate a profile TOML; errors name the file and the offending key. Only a
+    regular file of at most MAX_PROFILE_BYTES is read (a device or a pipe is refused unread)."""
     path = resolve_profile_path(name_or_path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"profile {path}: no such file")
-    with path.open("rb") as fh:
-        try:
-            doc = tomllib.load(fh)
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"profile {path}: {exc}") from exc
+    if not path.is_file():
+        raise ValueError(f"profile {path}: not a regular file (a device, a folder or a pipe); "
+                         "a profile is a TOML file")
+    try:
+        with path.open("rb") as fh:
+            data = fh.read(MAX_PROFILE_BYTES + 1)
+    except OSError as exc:
+        raise ValueError(f"profile {path}: cannot read it: {exc.strerror}") from None
+    if len(data) > MAX_PROFILE_BYTES:
+        raise ValueError(f"profile {path}: larger than {MAX_PROFILE_BYTES // 1024} KiB; not a profile")
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"profile {path}: not a UTF-8 text file (byte {exc.start})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"profile {path}: {exc}") from None
     return profile_from_dict(doc, source=str(path))
 
 

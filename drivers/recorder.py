@@ -78,18 +78,13 @@ class RawRecord:
                 "download_s": self.download_s}
 
     def save(self, path: str | Path) -> tuple[Path, Path]:
-        """Write PATH (raw bytes) and PATH.json (header); refuses to overwrite either."""
+        """Write PATH (raw bytes) and PATH.json (header); refuses to overwrite either. Each file
+        appears whole or not at all (written beside it, fsynced, then linked to its name), so a
+        full disk leaves no half download under the name."""
         path = Path(path)
         head = path.with_name(path.name + ".json")
-        with open(path, "xb") as fh:
-            fh.write(self.payload())
-            fh.flush()
-            os.fsync(fh.fileno())  # on disk before the capture made from it (docs/safety.md)
-        with open(head, "x", encoding="utf-8") as fh:
-            json.dump(self.header(), fh, indent=2)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
+        _write_whole(path, self.payload())   # on disk before the capture made from it (docs/safety.md)
+        _write_whole(head, (json.dumps(self.header(), indent=2) + "\n").encode("utf-8"))
         return path, head
 
     def convert(self) -> dict[str, np.ndarray]:
@@ -100,6 +95,29 @@ class RawRecord:
         for i, ch in enumerate(self.channels):
             out[ch] = frames[:, i] * self.scales[ch]
         return out
+
+
+def _write_whole(target: Path, payload: bytes) -> None:
+    """`payload` under `target`, whole or not at all; FileExistsError when `target` exists."""
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "xb") as fh:
+            fh.write(payload)
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            os.link(tmp, target)   # atomic; refuses an existing target
+        except FileExistsError:
+            raise
+        except OSError:            # a file system without hard links: check, then rename
+            if target.exists():
+                raise FileExistsError(f"{target} exists") from None
+            os.replace(tmp, target)
+    finally:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
 
 
 Progress = Callable[[int, int], None]   # (blocks done, blocks total)

@@ -26,6 +26,10 @@ from bench_ctl.runner.devices import CommError, DeviceError
 
 log = logging.getLogger(__name__)
 
+#: reads only: the runner takes no bench lock for it (it may run beside a pulse test) and
+#: refuses any write it would attempt
+WRITES = False
+
 
 def comms_check(bench: Bench, run: RunContext) -> ProcedureResult:
     """Read every register of both profiles once; see the module docstring."""

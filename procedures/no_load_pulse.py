@@ -4,7 +4,18 @@ PURPOSE
     Record the exciter's response (efd, vt) to a rectangular pulse on the AVR voltage setpoint
     (default +0.05 pu for 1 s) at rated speed and no load; the capture feeds identification.
 
+PARAMETERS (each bounded, checked before anything is opened; see PARAMETERS below)
+    amplitude_pu 0.005..0.2 pu in size, width_s 0.1..10 s and >= 20 recorder samples,
+    pre_trigger_s 0.05..30 s, record_s 0.5..60 s and longer than pre-trigger + width,
+    rate_hz 10..1000 Hz, width_tolerance_s 0.5..100 ms and <= 10 % of the width,
+    amplitude_tolerance_pu 0.00001..0.01 pu and <= 20 % of the amplitude,
+    recovery_tolerance_pu 0.0001..0.05 pu, recovery_timeout_s 0..600 s.
+
 PRECONDITIONS (checked before anything is written; the test is refused, never adjusted)
+    - One run on this exciter (the runner's bench lock), and remote free: not held by another
+      master (status.remote_other_master where the profile has it, or the mode already remote).
+    - The exciter's heartbeat watchdog, READ FROM THE DEVICE, within limits.watchdog_max_s and
+      long enough for this host's heartbeat (if this host dies, only it ends the pulse).
     - Unit at rated speed, field breaker closed, generator breaker OPEN: |p| below
       limits.no_load_p_max_mw.
     - Pre-test setpoint, terminal voltage and pulse setpoint inside
@@ -13,12 +24,15 @@ PRECONDITIONS (checked before anything is written; the test is refused, never ad
     - The recorder is idle or holds a finished record (it will be overwritten only on arm).
 
 SEQUENCE
-    1. Read p, setpoint, mode, vt; check the limits; ask the operator (real devices only).
+    1. Read p, setpoint, mode, vt, the watchdog; check the limits; print the plan (setpoint
+       from -> to, width, limits, watchdog found) and ask the operator (real devices, unless
+       --yes).
     2. Configure the recorder (rate_hz, pre_trigger_s, record_s, trigger on a usetp step of
        half the amplitude) and arm it; wait until its pre-trigger buffer is full.
     3. Start the exciter heartbeat, take remote.
     4. Write setpoint + amplitude; exactly width_s later (monotonic clock, from the moment the
-       first request left) write the pre-test setpoint back. Each write is read back.
+       first request left) write the pre-test setpoint back. Each write is read back. On a
+       terminal the operator sees setpoint, vt, efd and the time left meanwhile.
     5. Wait for the record to finish and vt to recover; give remote back, stop the heartbeat.
     6. Download the record, save the raw download, then convert and save the capture
        (capture.csv + capture.json: bench config, device identities, every write with its time).
@@ -46,10 +60,62 @@ import numpy as np
 
 from bench_ctl.runner.bench import Bench
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
-from bench_ctl.runner.safety import PreconditionFailed, check_no_load, check_pulse
-from bench_ctl.runner.devices import DeviceError, RecordSettings, hold_gc
+from bench_ctl.runner.devices import TIMED_WRITE_GUARD_S, DeviceError, RecordSettings, hold_gc
+from bench_ctl.runner.safety import BenchBusy, PreconditionFailed, check_no_load, check_pulse
 
 log = logging.getLogger(__name__)
+
+#: parameter -> (min, max, unit): every parameter is bounded (the bench limits bound the pulse
+#: further); `check_parameters` adds the bounds between parameters
+PARAMETERS: dict[str, tuple[float, float, str]] = {
+    "amplitude_pu": (-0.2, 0.2, "pu"),
+    "width_s": (0.1, 10.0, "s"),
+    "pre_trigger_s": (0.05, 30.0, "s"),
+    "record_s": (0.5, 60.0, "s"),
+    "rate_hz": (10, 1000, "Hz"),
+    "width_tolerance_s": (0.0005, 0.1, "s"),
+    "amplitude_tolerance_pu": (0.00001, 0.01, "pu"),
+    "recovery_tolerance_pu": (0.0001, 0.05, "pu"),
+    "recovery_timeout_s": (0.0, 600.0, "s"),
+}
+MIN_AMPLITUDE_PU = 0.005      # smaller steps drown in the recorder's noise
+MIN_PULSE_SAMPLES = 20        # the recorder must see the pulse
+MIN_PRE_TRIGGER_SAMPLES = 10  # the baseline before the pulse
+
+
+def check_parameters(params: dict[str, Any]) -> list[str]:
+    """Every problem with the test's parameters (empty when fine); the runner refuses the run
+    before anything is opened when there is one."""
+    problems = []
+    for name, (lo, hi, unit) in PARAMETERS.items():
+        value = params.get(name)
+        if value is None:
+            continue
+        if name == "rate_hz" and (isinstance(value, bool) or value != int(value)):
+            problems.append(f"rate_hz = {value!r} must be a whole number of Hz")
+        elif not lo <= value <= hi:
+            problems.append(f"{name} = {value:g} {unit} outside {lo:g}..{hi:g} {unit}")
+    if problems:
+        return problems
+    amp, width, rate = params["amplitude_pu"], params["width_s"], params["rate_hz"]
+    if abs(amp) < MIN_AMPLITUDE_PU:
+        problems.append(f"|amplitude_pu| = {abs(amp):g} pu below {MIN_AMPLITUDE_PU:g} pu")
+    if width * rate < MIN_PULSE_SAMPLES:
+        problems.append(f"width_s = {width:g} s is {width * rate:g} samples at rate_hz = {rate:g} Hz; "
+                        f"the recorder needs at least {MIN_PULSE_SAMPLES}")
+    if params["pre_trigger_s"] * rate < MIN_PRE_TRIGGER_SAMPLES:
+        problems.append(f"pre_trigger_s = {params['pre_trigger_s']:g} s is under "
+                        f"{MIN_PRE_TRIGGER_SAMPLES} samples at {rate:g} Hz")
+    if not params["pre_trigger_s"] + width < params["record_s"]:
+        problems.append(f"record_s = {params['record_s']:g} s must exceed pre_trigger_s + width_s = "
+                        f"{params['pre_trigger_s'] + width:g} s")
+    if params["width_tolerance_s"] > 0.1 * width:
+        problems.append(f"width_tolerance_s = {params['width_tolerance_s']:g} s above 10 % of "
+                        f"width_s = {width:g} s")
+    if params["amplitude_tolerance_pu"] > 0.2 * abs(amp):
+        problems.append(f"amplitude_tolerance_pu = {params['amplitude_tolerance_pu']:g} pu above "
+                        f"20 % of |amplitude_pu| = {abs(amp):g} pu")
+    return problems
 
 
 @dataclass(frozen=True)
@@ -96,29 +162,41 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
         pre = ex.snapshot()
         vt0 = ex.read("vt")
         state = rec.status()
+        holder = ex.remote_holder()
         run.note("readings", p_mw=p_mw, setpoint_pu=pre.setpoint_pu, mode=pre.mode, vt_pu=vt0,
-                 recorder_status=state)
+                 recorder_status=state, remote_holder=holder)
+        if holder is not None:
+            raise BenchBusy(f"refused before any write: {holder}")
+        watchdog_s = run.check_watchdog()
         check_no_load(run.limits, p_mw)
         plan = check_pulse(run.limits, setpoint_pu=pre.setpoint_pu, amplitude_pu=amplitude_pu,
                            width_s=width_s)
         if not run.limits.setpoint_min_pu <= vt0 <= run.limits.setpoint_max_pu:
-            raise PreconditionFailed(f"terminal voltage vt = {vt0:.6g} pu outside the band "
-                                     f"{run.limits.setpoint_min_pu:g}..{run.limits.setpoint_max_pu:g} pu")
+            raise PreconditionFailed(f"terminal voltage vt = {vt0:.4f} pu outside the band "
+                                     f"{run.limits.setpoint_min_pu:.4f}..{run.limits.setpoint_max_pu:.4f} pu")
         if state not in ("idle", "done"):
             raise PreconditionFailed(f"recorder status {state!r}: expected idle or done")
-        if not pre_trigger_s + width_s < record_s:
-            raise PreconditionFailed(f"record_s {record_s:g} s must exceed pre_trigger_s + "
-                                     f"width_s = {pre_trigger_s + width_s:g} s")
         ex.encode("setpoint", plan.pulse_setpoint_pu)  # representable? (RangeError, nothing sent)
         settings = RecordSettings(rate_hz=rate_hz, pre_trigger_s=pre_trigger_s,
                                   length_s=record_s, trigger="usetp_step",
                                   threshold_pu=round(abs(amplitude_pu) / 2, 4))
         run.note("plan", setpoint_pu=plan.setpoint_pu, pulse_setpoint_pu=plan.pulse_setpoint_pu,
-                 width_s=width_s, record=settings.__dict__)
+                 width_s=width_s, watchdog_s=watchdog_s, record=settings.__dict__)
 
-    run.confirm(f"{run.procedure}: pulse the setpoint {plan.setpoint_pu:.4f} -> "
-                f"{plan.pulse_setpoint_pu:.4f} pu for {width_s:g} s on {ex.link.endpoint.url} "
-                f"(p = {p_mw:.3g} MW, vt = {vt0:.4f} pu)")
+    lim = run.limits
+    run.confirm("\n".join((
+        f"{run.procedure} on the exciter {ex.link.endpoint.url} (unit {ex.link.endpoint.unit_id}):",
+        f"  setpoint  {plan.setpoint_pu:.4f} pu -> {plan.pulse_setpoint_pu:.4f} pu for {width_s:.3f} s, "
+        f"then back to {plan.setpoint_pu:.4f} pu",
+        f"  unit now  p {p_mw:.2f} MW, vt {vt0:.4f} pu",
+        f"  limits    |amplitude| <= {lim.pulse_amplitude_max_pu:.4f} pu, width <= "
+        f"{lim.pulse_width_max_s:.3f} s, setpoints {lim.setpoint_min_pu:.4f}..{lim.setpoint_max_pu:.4f} pu, "
+        f"|p| < {lim.no_load_p_max_mw:.2f} MW",
+        f"  watchdog  {run.watchdog_text()}",
+        f"            if this host dies during the pulse, the device ends it {watchdog_s:.3f} s after "
+        "the last heartbeat",
+        f"  recorder  {rate_hz:g} Hz, pre-trigger {pre_trigger_s:.3f} s, record {record_s:.3f} s, "
+        f"trigger on a {settings.threshold_pu:.4f} pu usetp step")))
 
     with run.step("arm recorder"):
         rec.configure(settings)
@@ -131,6 +209,7 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
     with run.step("pulse", amplitude_pu=amplitude_pu, width_s=width_s), hold_gc():
         on = ex.write_setpoint(plan.pulse_setpoint_pu, purpose="pulse on")
         run.hook("pulse_applied")
+        _pulse_readout(run, ex, deadline=on.t_tx_mono + width_s)
         off = ex.write_setpoint(plan.setpoint_pu, purpose="pulse off (restore pre-test setpoint)",
                                 at_mono=on.t_tx_mono + width_s)
         commanded_width_s = off.t_tx_mono - on.t_tx_mono
@@ -179,11 +258,15 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
     amp_err = pulse.amplitude_pu - amplitude_pu
     criteria = (
         Criterion("pulse width error", abs(width_err) <= width_tolerance_s, width_err,
-                  width_tolerance_s, "s"),
+                  width_tolerance_s, "s",
+                  shown=f"{_signed(width_err * 1e3, 1)} ms (limit ±{width_tolerance_s * 1e3:.1f} ms)"),
         Criterion("pulse amplitude error", abs(amp_err) <= amplitude_tolerance_pu, amp_err,
-                  amplitude_tolerance_pu, "pu"),
+                  amplitude_tolerance_pu, "pu",
+                  shown=f"{_signed(amp_err, 4)} pu (limit ±{amplitude_tolerance_pu:.4f} pu)"),
         Criterion("vt recovered", abs(vt_end - vt0) <= recovery_tolerance_pu, vt_end - vt0,
-                  recovery_tolerance_pu, "pu"),
+                  recovery_tolerance_pu, "pu",
+                  shown=f"{vt_end:.4f} pu, {_signed(vt_end - vt0, 4)} pu from pre-test "
+                        f"(limit ±{recovery_tolerance_pu:.4f} pu)"),
         Criterion("setpoint restored (raw)", sp_words == pre.setpoint_words, list(sp_words),
                   list(pre.setpoint_words),
                   shown=(f"{ex.register('setpoint').decode(list(sp_words)):.4f} pu, pre-test "
@@ -192,10 +275,10 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
     )
     run.note("criteria", criteria=[c.to_dict() for c in criteria])
     summary = (f"recorded width {pulse.width_s * 1e3:.1f} ms (commanded {width_s * 1e3:.1f} ms), "
-               f"amplitude {pulse.amplitude_pu:.5f} pu (commanded {amplitude_pu:.5f} pu)")
+               f"amplitude {pulse.amplitude_pu:.4f} pu (commanded {amplitude_pu:.4f} pu)")
     host_late_s = commanded_width_s - width_s
     if abs(host_late_s) > width_tolerance_s:  # the width error is the host's, not the device's
-        summary += (f"; this host sent the restore write {host_late_s * 1e3:+.1f} ms off its deadline "
+        summary += (f"; this host sent the restore write {_signed(host_late_s * 1e3, 1)} ms off its deadline "
                     f"(the process or the machine stalled), so the pulse was that much off on the wire")
     return ProcedureResult(criteria=criteria, summary=summary,
                            data={"width_err_s": width_err, "amplitude_err_pu": amp_err,
@@ -203,6 +286,31 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
                                  "commanded_width_s": commanded_width_s,
                                  "block_retries": raw.block_retries,
                                  "record_attempts": raw.record_attempts})
+
+
+def _signed(value: float, decimals: int) -> str:
+    """`+1.2`, `-0.3`, and `0.0` for anything that rounds to zero (never `-0.0` or `5e-06`)."""
+    text = f"{value:+.{decimals}f}"
+    return text[1:] if float(text) == 0 else text
+
+
+def _pulse_readout(run: RunContext, ex: Any, *, deadline: float, every_s: float = 0.1) -> None:
+    """On a terminal, setpoint / vt / efd and the time left while the pulse is on, until the
+    timed restore write needs the link. Each read is tried once (it never holds the link longer
+    than one request timeout, which the timed write allows for); a failed read ends the
+    readout, not the pulse: the restore write reports the link's trouble itself."""
+    if not run.shown:
+        return
+    stop_at = deadline - TIMED_WRITE_GUARD_S - ex.link.endpoint.timeout_s - 0.05
+    while (now := time.monotonic()) < stop_at:
+        try:
+            text = (f"setpoint {ex.read('setpoint', attempts=1):.4f} pu, vt {ex.read('vt', attempts=1):.4f} pu"
+                    + (f", efd {ex.read('efd', attempts=1):.3f} pu" if "efd" in ex.profile.registers
+                       else ""))
+        except DeviceError:
+            return
+        run.status(f"{text}, {max(0.0, deadline - now):.2f} s left")
+        time.sleep(max(0.0, min(every_s, stop_at - time.monotonic())))
 
 
 def _watching(run: RunContext, bench: Bench, ex: Any, vt0: float, every_s: float = 0.25) -> Any:

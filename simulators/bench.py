@@ -30,6 +30,7 @@ Frozen, a full collection walks only what was allocated since.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import logging
 import sys
@@ -116,6 +117,20 @@ def _thaw() -> None:
         if _freeze_users == 0:
             gc.unfreeze()
 
+async def _drain_tasks(rounds: int = 3) -> None:
+    """End what a client's last requests left on the loop, so stopping while a client is
+    connected is silent: let scheduled callbacks run (pymodbus hands each request to a task
+    two callbacks later), then cancel and await every task still pending (asyncio reports a
+    task destroyed while pending, and a coroutine never awaited, as errors at exit)."""
+    for _ in range(rounds):
+        await asyncio.sleep(0)
+    me = asyncio.current_task()
+    pending = [t for t in asyncio.all_tasks() if t is not me and not t.done()]
+    for task in pending:
+        task.cancel()
+    await asyncio.gather(*pending, return_exceptions=True)
+
+
 class SimBench:
     """Both simulated devices around one real-time plant (see the module docstring)."""
 
@@ -152,6 +167,7 @@ class SimBench:
         self.control = control
         self.control_address: tuple[str, int] | None = None
         self._control_server: asyncio.AbstractServer | None = None
+        self._stop_requested: asyncio.Event | None = None
         self._frozen = False
 
     # ---------------------------------------------------------------- life cycle
@@ -165,6 +181,7 @@ class SimBench:
             # switch interval (5 ms) lets a busy server thread hold it for several steps
             self._old_switch = sys.getswitchinterval()
             sys.setswitchinterval(self.switch_interval_s)
+        self._stop_requested = asyncio.Event()   # bound to the bench's loop on first use
         self._thread = threading.Thread(target=self._run_loop, args=(ready,), name="sim-bench",
                                         daemon=True)
         self._thread.start()
@@ -182,12 +199,20 @@ class SimBench:
         self._loop = loop
         asyncio.set_event_loop(loop)
         try:
-            loop.run_until_complete(self._astart(ready))
-            if ready.exception() is None:
-                loop.run_forever()
-            loop.run_until_complete(self._astop())
+            loop.run_until_complete(self._serve(ready))
+            loop.run_until_complete(loop.shutdown_asyncgens())
         finally:
             loop.close()
+
+    async def _serve(self, ready: Future) -> None:
+        """Start, serve until stop() asks, then shut down, all in one task: a stop() that
+        arrives while starting or shutting down (a failed start) cannot cut the shutdown short."""
+        try:
+            await self._astart(ready)
+            if ready.exception() is None:
+                await self._stop_requested.wait()
+        finally:
+            await self._astop()
 
     async def _astart(self, ready: Future) -> None:
         try:
@@ -224,12 +249,14 @@ class SimBench:
             await srv.shutdown()
         self._servers = []
         self.plant.stop()
+        await _drain_tasks()
 
     def stop(self) -> None:
         """Stop servers, serial line and plant (idempotent)."""
         loop, thread = self._loop, self._thread
         if loop is not None and thread is not None and thread.is_alive():
-            loop.call_soon_threadsafe(loop.stop)
+            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+                loop.call_soon_threadsafe(self._stop_requested.set)
             thread.join(timeout=10)
         self.plant.stop()
         self._thread = None

@@ -12,7 +12,14 @@ Behaviour:
 - local -> remote remembers the pre-remote setpoint and starts the watchdog; while remote the
   heartbeat must change within `heartbeat_timeout_s`, else the setpoint reverts to the
   pre-remote value, the mode drops to local and status.watchdog_tripped latches (until the
-  next local -> remote);
+  next local -> remote); the watchdog period is served in the profile's watchdog register
+  (settings.watchdog_register), and a period that register cannot hold exactly is refused;
+- remote belongs to the master that took it, known by its address as many devices know their
+  master (a host that reconnects after a lost link is the same master): setpoint, heartbeat and
+  mode writes from any other address are refused (exception 01) while it holds remote, and
+  status.remote_other_master (where the profile has that bit) reads 1 to them. The hold ends
+  when remote is given back or the watchdog trips. The device's own panel (the model called
+  directly, as tests do) is never refused;
 - manual mode is not simulated: a mode write without the auto bit -> exception 03.
 """
 from __future__ import annotations
@@ -26,14 +33,19 @@ import numpy as np
 from pymodbus.constants import ExcCodes
 
 from bench_ctl.model.plant import FLAG_CEILING, FLAG_RAMP, FLAG_RATE, Plant
+from drivers.exciter import OTHER_MASTER_BIT, watchdog_register
 from drivers.profile import Profile, Register
+
+from .regmap import CLIENT
 
 log = logging.getLogger(__name__)
 
 REQUIRED = ("setpoint", "active_setpoint", "vt", "efd", "ifd", "p", "mode", "status", "heartbeat")
 DEFAULT_MODE_BITS = {"auto": 0, "remote": 1}
 DEFAULT_STATUS_BITS = {"ceiling_limit": 0, "rate_limit": 1, "watchdog_tripped": 2,
-                       "setpoint_ramping": 3}
+                       "setpoint_ramping": 3, OTHER_MASTER_BIT: 4}
+#: registers only the master holding remote may write
+MASTER_ONLY = ("setpoint", "heartbeat", "mode")
 DEVICE_CODE = 0x4543
 FIRMWARE = 0x0100
 
@@ -57,6 +69,16 @@ class ExciterDevice:
         if not timeout > 0:
             raise ValueError(f"heartbeat timeout {timeout!r} s must be > 0")
         self.heartbeat_timeout_s = float(timeout)
+        self.watchdog_register = watchdog_register(profile) or (
+            "watchdog_timeout" if "watchdog_timeout" in profile.registers else None)
+        if self.watchdog_register is not None:
+            reg = profile[self.watchdog_register]
+            try:
+                reg.encode(self.heartbeat_timeout_s)
+            except ValueError as exc:
+                raise ValueError(f"heartbeat timeout {timeout!r} s cannot be served in register "
+                                 f"{reg.name} ({reg.type}, {reg.scale:g} {reg.unit or 's'} per count): "
+                                 f"{exc}; the device must report the watchdog it runs") from None
         self.require_remote = bool(profile.settings.get("require_remote", True)
                                    if require_remote is None else require_remote)
         self._mode_bits = dict(profile["mode"].bits) or DEFAULT_MODE_BITS
@@ -71,6 +93,7 @@ class ExciterDevice:
         self._hb_changed = time.monotonic()
         self.pre_remote_setpoint = self.setpoint
         self.watchdog_tripped = False
+        self._owner: str | None = None   # the master (address) holding remote (None: anyone)
         self.load_mw = float(load_mw)
         #: plant step from which the last written setpoint acts
         self.last_setpoint_step: int | None = None
@@ -93,16 +116,23 @@ class ExciterDevice:
         for name, on in (("ceiling_limit", st.flags & FLAG_CEILING),
                          ("rate_limit", st.flags & FLAG_RATE),
                          ("setpoint_ramping", st.flags & FLAG_RAMP),
-                         ("watchdog_tripped", self.watchdog_tripped)):
+                         ("watchdog_tripped", self.watchdog_tripped),
+                         (OTHER_MASTER_BIT, self._held_by_other(CLIENT.get()))):
             if on and name in sb:
                 flags |= 1 << sb[name]
         with self._lock:
             snap = dict(self._extra)
             snap.update(setpoint=self.setpoint, heartbeat=self.heartbeat, mode=self.mode_word())
         snap.update(active_setpoint=st.active_setpoint, vt=st.vt, efd=st.efd, ifd=st.ifd,
-                    p=self.load_mw, status=flags, watchdog_timeout=self.heartbeat_timeout_s,
-                    device_code=DEVICE_CODE, firmware=FIRMWARE)
+                    p=self.load_mw, status=flags, device_code=DEVICE_CODE, firmware=FIRMWARE)
+        if self.watchdog_register is not None:
+            snap[self.watchdog_register] = self.heartbeat_timeout_s
         return snap
+
+    def _held_by_other(self, client: str | None) -> bool:
+        """Remote is held by a master other than `client` (the panel, None, never is refused)."""
+        owner = self._owner
+        return self.remote and client is not None and owner is not None and owner != client
 
     def read_window(self, offset: int, count: int) -> list[int] | ExcCodes:
         return ExcCodes.ILLEGAL_ADDRESS
@@ -110,14 +140,19 @@ class ExciterDevice:
     # ---------------------------------------------------------------- writes
     def write(self, items: Sequence[tuple[Register, float]]) -> ExcCodes | None:
         now = time.monotonic()
+        client = CLIENT.get()
         with self._lock:
             for reg, value in items:       # validate all before applying any
+                if reg.name in MASTER_ONLY and self._held_by_other(client):
+                    log.info("exciter refuses %s = %r: remote is held by another master", reg.name,
+                             value)
+                    return ExcCodes.ILLEGAL_FUNCTION
                 exc = self._check(reg.name, value)
                 if exc is not None:
                     log.info("exciter refuses %s = %r: exception %s", reg.name, value, exc.name)
                     return exc
             for reg, value in items:
-                self._apply(reg.name, value, now)
+                self._apply(reg.name, value, now, client)
         return None
 
     def _check(self, name: str, value: float) -> ExcCodes | None:
@@ -130,7 +165,7 @@ class ExciterDevice:
                 return ExcCodes.ILLEGAL_VALUE
         return None
 
-    def _apply(self, name: str, value: float, now: float) -> None:
+    def _apply(self, name: str, value: float, now: float, client: str | None = None) -> None:
         if name == "setpoint":
             self.setpoint = value
             # time-stamped by the plant as it queues the change: "from the next plant step"
@@ -147,8 +182,10 @@ class ExciterDevice:
                 self.pre_remote_setpoint = self.setpoint
                 self.watchdog_tripped = False
                 self._hb_changed = now
+                self._owner = client
                 self.events.append((now, "remote", self.setpoint))
             elif not remote and self.remote:
+                self._owner = None
                 self.events.append((now, "local", self.setpoint))
             self.remote = remote
         else:
@@ -168,6 +205,7 @@ class ExciterDevice:
         with self._lock:
             if self.remote and now - self._hb_changed > self.heartbeat_timeout_s:
                 self.remote = False
+                self._owner = None
                 self.watchdog_tripped = True
                 self.setpoint = self.pre_remote_setpoint
                 self.last_setpoint_step = self.plant.write_setpoint(self.setpoint)

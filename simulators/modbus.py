@@ -20,7 +20,7 @@ from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from .faults import Fault, FaultSet
-from .regmap import DeviceModel, RegisterImage
+from .regmap import CLIENT, DeviceModel, RegisterImage
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +110,14 @@ def corrupt_frame(packet: bytes, mode: str) -> bytes:
 
 
 class _FaultHandler(ServerRequestHandler):
-    """Request handler that applies the reply fault chosen for the current request."""
+    """Request handler (one per client connection) that applies the reply fault chosen for the
+    current request and tells the device model which master a request came from (`CLIENT`: the
+    peer's address, as a device that tracks its master by IP address sees it)."""
+
+    async def handle_request(self):  # noqa: D102 - each request runs in its own task
+        peer = self.transport.get_extra_info("peername") if self.transport is not None else None
+        CLIENT.set(peer[0] if peer else None)
+        await super().handle_request()
 
     def server_send(self, pdu, addr):  # noqa: ANN001 (pymodbus signature)
         fault = _REPLY_FAULT.get()

@@ -12,6 +12,7 @@ using the profile, and back into words. Rules, as a strict real device:
 """
 from __future__ import annotations
 
+import contextvars
 import logging
 import math
 import struct
@@ -22,6 +23,11 @@ from pymodbus.constants import ExcCodes
 from drivers.profile import Profile, Register
 
 log = logging.getLogger(__name__)
+
+#: the master (client address) the request being served came from, set by the Modbus server for
+#: each request; None when a device model is called directly (the device's own panel). A device
+#: that tracks which master holds it (the exciter's remote) reads it.
+CLIENT: contextvars.ContextVar[str | None] = contextvars.ContextVar("modbus_client", default=None)
 
 _INT_RANGE = {"uint16": (0, 0xFFFF), "int16": (-0x8000, 0x7FFF),
               "uint32": (0, 0xFFFFFFFF), "int32": (-0x80000000, 0x7FFFFFFF)}

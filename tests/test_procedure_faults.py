@@ -50,6 +50,11 @@ def bench():
     sim.stop()
 
 
+#: the host side of a 0.5 s device watchdog: beats every 0.1 s, and a request timeout short
+#: enough that a timed write (0.1 + 0.2 + 0.1 s guard) cannot hold the beats off for 0.5 s
+FAST_HOST = {"heartbeat_period_s": 0.1, "timeout_s": 0.2}
+
+
 @pytest.fixture
 def fast_watchdog_bench():
     """The exciter's watchdog at 0.5 s (the host beats every 0.1 s)."""
@@ -85,8 +90,8 @@ def test_link_cut_during_pulse_restored_after_reconnect(bench, tmp_path):
 def test_link_cut_longer_than_the_watchdog_restored_by_the_device(fast_watchdog_bench,
                                                                    tmp_path):
     sim, proxy = fast_watchdog_bench
-    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
-                        params=FAST, hooks={"pulse_applied": lambda run: proxy.cut(1.5)})
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim, exciter=FAST_HOST), tmp_path,
+                        yes=True, params=FAST, hooks={"pulse_applied": lambda run: proxy.cut(1.5)})
     assert out.exit_code == 3
     assert out.safe_state[0].ok
     assert out.safe_state[0].action == "setpoint restored by the device watchdog"
@@ -99,7 +104,7 @@ def test_link_cut_longer_than_the_watchdog_restored_by_the_device(fast_watchdog_
 def test_restore_that_fails_is_loud_and_the_watchdog_takes_over(fast_watchdog_bench,
                                                                 tmp_path):
     sim, proxy = fast_watchdog_bench
-    cfg = bench_config(proxy, sim, restore_deadline_s=0.4)
+    cfg = bench_config(proxy, sim, exciter=FAST_HOST, restore_deadline_s=0.4)
     out = run_procedure("no_load_pulse", cfg, tmp_path, yes=True, params=FAST,
                         hooks={"pulse_applied": lambda run: proxy.cut(2.0)})
     assert out.exit_code == 3 and not out.safe
@@ -124,8 +129,8 @@ def test_refused_restore_stops_the_heartbeat_so_the_watchdog_reverts_at_once(fas
         sim.faults.set("exception", device="exciter", op="write", register="setpoint", code=6,
                        count=None)
 
-    out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True, params=FAST,
-                        hooks={"pulse_applied": refuse})
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim, exciter=FAST_HOST), tmp_path,
+                        yes=True, params=FAST, hooks={"pulse_applied": refuse})
     assert out.exit_code == 2 and "exception 6" in out.message
     assert out.safe_state[0].ok
     assert out.safe_state[0].action.startswith("setpoint reverted by the device watchdog after the "
@@ -142,7 +147,7 @@ def test_ctrl_c_during_the_safe_state_retries_leaves_it_to_the_watchdog(fast_wat
     """A link cut longer than the deadline: the host retries its restore; a Ctrl-C meanwhile
     stops the retries (not the first attempt) and the heartbeat, and says so."""
     sim, proxy = fast_watchdog_bench
-    cfg = bench_config(proxy, sim, restore_deadline_s=3.0)
+    cfg = bench_config(proxy, sim, exciter=FAST_HOST, restore_deadline_s=3.0)
 
     def cut_then_ctrl_c(run) -> None:
         proxy.cut(3.0)
@@ -186,9 +191,11 @@ def test_ctrl_c_during_pulse_restores_and_exits_non_zero(bench, tmp_path):
     assert rows[-1]["kind"] == "run_end" and rows[-1]["exit_code"] == 2
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
-def test_sigterm_and_sighup_during_pulse_end_in_the_safe_state(bench, tmp_path, sig):
-    """A kill or a closed terminal is handled like Ctrl-C: restore, disarm, audit closed."""
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT],
+                         ids=lambda s: signal.Signals(s).name)
+def test_sigterm_sighup_and_sigquit_during_pulse_end_in_the_safe_state(bench, tmp_path, sig):
+    """A kill, a closed terminal or Ctrl-\\ is handled like Ctrl-C: restore, disarm, audit
+    closed (SIGQUIT's default would dump core with the pulse on until the watchdog)."""
     sim, proxy = bench
     out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True, params=FAST,
                         hooks={"pulse_applied": lambda run: os.kill(os.getpid(), sig)})

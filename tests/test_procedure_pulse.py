@@ -39,8 +39,9 @@ def config_doc(**limits) -> dict:
     return doc
 
 
-def bench_config(proxy: WireProxy, sim: SimBench, **limits):
+def bench_config(proxy: WireProxy, sim: SimBench, *, exciter: dict | None = None, **limits):
     doc = config_doc(**limits)
+    doc["exciter"].update(exciter or {})
     doc["exciter"]["url"] = proxy.url
     doc["recorder"]["url"] = sim.endpoints.recorder_serial   # the pty: the serial path
     return config_from_dict(doc, source="test-bench.toml")
@@ -92,8 +93,8 @@ def test_dry_run_pulse_end_to_end(tmp_path):
     rows = read_audit(out.audit_path)
     assert rows[0]["kind"] == "run_start" and rows[-1]["kind"] == "run_end"
     steps = [r["step"] for r in rows if r["kind"] == "step_start"]
-    assert steps == ["connect", "preconditions", "arm recorder", "take remote", "pulse",
-                     "recovery", "release exciter", "download", "save capture"]
+    assert steps == ["bench lock", "connect", "preconditions", "arm recorder", "take remote",
+                     "pulse", "recovery", "release exciter", "download", "save capture"]
     assert [r for r in rows if r["kind"] == "confirmation"][0]["asked"] is False
     writes = [r for r in rows if r["kind"] == "write"]
     assert writes and all(r["readback"] == r["raw"] for r in writes)
@@ -123,7 +124,7 @@ def test_real_devices_need_confirmation_and_a_no_writes_nothing(bench, tmp_path)
     out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, params=SHORT,
                         confirm=lambda summary: asked.append(summary) or False)
     assert out.exit_code == 2 and "did not confirm" in out.message
-    assert len(asked) == 1 and "1.0000 -> 1.0500 pu for 1 s" in asked[0]
+    assert len(asked) == 1 and "1.0000 pu -> 1.0500 pu for 1.000 s" in asked[0]
     assert proxy.writes() == [] and sim.exciter.events == []
     conf = [r for r in read_audit(out.audit_path) if r["kind"] == "confirmation"]
     assert conf[0]["asked"] is True and conf[0]["answer"] is False
@@ -209,30 +210,34 @@ def test_unattended_run_without_yes_is_refused_in_one_line(bench, tmp_path, monk
     assert "Traceback" not in printed.out + printed.err and "Abort" not in printed.out + printed.err
 
 
-def test_heartbeat_too_slow_for_the_watchdog_is_refused_before_anything_opens(bench, tmp_path):
-    from bench_ctl.runner.config import ConfigError, config_from_dict
-
+def test_heartbeat_too_slow_for_the_watchdog_read_from_the_device_is_refused(bench, tmp_path):
+    """The host's heartbeat (1.5 s) against the watchdog the device reports (2 s): refused before
+    any write, naming both; the read-only comms check still runs."""
     sim, proxy = bench
-    doc = config_doc()
-    doc["exciter"]["url"] = proxy.url
-    doc["recorder"]["url"] = sim.endpoints.recorder_serial
-    doc["exciter"]["heartbeat_period_s"] = 1.5  # the simulated device's watchdog is 2 s
-    with pytest.raises(ConfigError, match="heartbeat_period_s.*more than half the device watchdog"):
-        run_procedure("comms_check", config_from_dict(doc, source="slow.toml"), tmp_path / "run")
-    assert not (tmp_path / "run" / "audit.jsonl").exists()
+    cfg = bench_config(proxy, sim, exciter={"heartbeat_period_s": 1.5})
+    out = run_procedure("no_load_pulse", cfg, tmp_path / "run", yes=True, params=SHORT)
+    assert out.exit_code == 2
+    assert ("the exciter's watchdog reads 2.000 s (watchdog_timeout (input 11)): "
+            "exciter.heartbeat_period_s = 1.500 s is more than half the device watchdog") in out.message
+    assert proxy.writes() == [] and sim.exciter.events == []
+    assert run_procedure("comms_check", cfg, tmp_path / "cc").exit_code == 0
 
 
 def test_a_watchdog_longer_than_the_width_cap_is_said_before_the_first_write(bench, tmp_path):
-    """The simulated exciter's watchdog (2 s) exceeds a 1.2 s width cap: the operator is told in
-    the question before the first write, and the audit keeps it."""
+    """The simulated exciter's watchdog (2 s, read from it) exceeds a 1.2 s width cap but not the
+    watchdog limit (1.2 + 1.5 s): the operator is told in the question before the first write,
+    and the audit keeps it."""
     sim, proxy = bench
     asked = []
     out = run_procedure("no_load_pulse", bench_config(proxy, sim, pulse_width_max_s=1.2), tmp_path,
                         params=SHORT, confirm=lambda summary: asked.append(summary) or False)
     assert out.exit_code == 2
-    assert "WARNING: the exciter's watchdog (2 s" in asked[0] and "pulse width cap (1.2 s)" in asked[0]
+    assert "WARNING: the exciter's watchdog (2.000 s, read from the device)" in asked[0]
+    assert "pulse width cap (1.200 s)" in asked[0]
+    assert "watchdog  2.000 s (read from the device, register watchdog_timeout (input 11)); " \
+           "limit 2.700 s = limits.pulse_width_max_s 1.200 s + margin 1.500 s" in asked[0]
     warns = [r for r in read_audit(out.audit_path) if r["kind"] == "warning"]
-    assert len(warns) == 1 and "up to 2 s" in warns[0]["message"]
+    assert len(warns) == 1 and "up to 2.000 s after the last heartbeat" in warns[0]["message"]
 
 
 def test_a_run_on_a_terminal_shows_its_steps_and_a_live_readout(tmp_path, monkeypatch):

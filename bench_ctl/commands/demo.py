@@ -17,7 +17,7 @@ import click
 
 from bench_ctl.capture import read_capture
 from bench_ctl.runner.config import ConfigError
-from bench_ctl.runner.runner import EXIT_ABORTED, OutputExists, run_procedure
+from bench_ctl.runner.runner import EXIT_ABORTED, OutputExists, OutputUnusable, run_procedure
 
 from .run import print_outcome
 
@@ -27,8 +27,15 @@ DEMO_OUTPUTS = ("result.json", "diagnosis.json", "report.html")
 
 
 def _write_json(path: Path, data: dict) -> None:
-    with path.open("x", encoding="utf-8") as fh:  # never overwrite
-        json.dump(data, fh, indent=2)
+    """Write a new file (never overwrite); a write that fails (disk full) leaves no half file."""
+    try:
+        with path.open("x", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=2)
+    except FileExistsError:
+        raise
+    except OSError:
+        path.unlink(missing_ok=True)
+        raise
 
 
 @click.command("demo")
@@ -39,11 +46,6 @@ def _write_json(path: Path, data: dict) -> None:
 @click.option("--seed", type=int, default=0, show_default=True)
 def demo(out_dir: str | None, evals: int, seed: int) -> int:
     """Run pulse test, identification, diagnosis and report on the embedded simulated bench."""
-    from bench_ctl.diagnosis.diagnose import diagnose
-    from bench_ctl.identification.identify import identify
-    from bench_ctl.model.unit import reference_unit
-    from bench_ctl.report import analyse, write_report
-
     t_start = time.perf_counter()
     if out_dir is None:
         out_dir = str(Path("demo-out") / dt.datetime.now().strftime("%Y%m%dT%H%M%S"))
@@ -58,12 +60,26 @@ def demo(out_dir: str | None, evals: int, seed: int) -> int:
     try:
         with resources.as_file(bench) as bench_path:
             outcome = run_procedure("no_load_pulse", bench_path, out, dry_run=True, progress=True)
-    except (ConfigError, OutputExists) as exc:
+    except (ConfigError, OutputExists, OutputUnusable) as exc:
         click.secho(f"refused: {exc}", fg="red", err=True)
         return EXIT_ABORTED
     print_outcome(outcome)
     if outcome.exit_code != 0 or outcome.capture_path is None:
         return outcome.exit_code or EXIT_ABORTED
+    try:
+        return _analyse(outcome, out, evals, seed, command_line, t_start)
+    except OSError as exc:  # the folder filled up or went read-only after the pulse test
+        click.secho(f"error: cannot write in {out}: {exc}; the capture and audit of the pulse test "
+                    f"are in {out}", fg="red", err=True)
+        return EXIT_ABORTED
+
+
+def _analyse(outcome, out: Path, evals: int, seed: int, command_line: str, t_start: float) -> int:
+    """Steps 2-4 of the demo on the saved capture."""
+    from bench_ctl.diagnosis.diagnose import diagnose
+    from bench_ctl.identification.identify import identify
+    from bench_ctl.model.unit import reference_unit
+    from bench_ctl.report import analyse, write_report
 
     capture = read_capture(outcome.capture_path)
     unit = reference_unit()

@@ -13,7 +13,8 @@ from pathlib import Path
 import click
 
 from bench_ctl.runner.config import ConfigError
-from bench_ctl.runner.runner import EXIT_ABORTED, OutputExists, RunOutcome, run_procedure
+from bench_ctl.runner.runner import (EXIT_ABORTED, OutputExists, OutputUnusable, RunOutcome,
+                                    run_procedure)
 
 log = logging.getLogger(__name__)
 
@@ -32,12 +33,23 @@ def _parse_param(text: str) -> tuple[str, float | int | str]:
 
 
 def print_outcome(outcome: RunOutcome) -> None:
-    """The operator's summary of a run."""
+    """The operator's summary of a run (nothing when the terminal is gone: a hang-up ended the
+    run, and its outcome is in the audit)."""
+    try:
+        _print_outcome(outcome)
+    except OSError as exc:
+        log.warning("the outcome could not be printed (%s); it is in %s", exc, outcome.audit_path)
+
+
+def _print_outcome(outcome: RunOutcome) -> None:
     err = outcome.exit_code != 0
     click.secho(f"{outcome.procedure}: {outcome.status.upper()} (exit {outcome.exit_code})",
                 fg="green" if not err else ("yellow" if outcome.exit_code == 1 else "red"),
                 bold=True, err=err)
     click.echo(outcome.message, err=err)
+    for line in outcome.not_saved:
+        if line not in outcome.message:
+            click.secho(f"  {line}", fg="red", bold=True, err=True)
     for c in outcome.criteria:
         mark = "PASS" if c.passed else "FAIL"
         click.echo(f"  [{mark}] {c.name}: {c.text()}".rstrip())
@@ -72,7 +84,7 @@ def run(procedure: str, bench_path: str, dry_run: bool, yes: bool, out_dir: str 
         outcome = run_procedure(procedure, bench_path, out_dir, dry_run=dry_run, yes=yes,
                                 params=dict(_parse_param(p) for p in params),
                                 progress=True)
-    except (ConfigError, OutputExists) as exc:
+    except (ConfigError, OutputExists, OutputUnusable) as exc:
         click.secho(f"refused: {exc}", fg="red", err=True)
         return EXIT_ABORTED
     print_outcome(outcome)

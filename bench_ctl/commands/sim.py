@@ -54,7 +54,8 @@ def _hostport(text: str, option: str) -> tuple[str, int]:
 @click.option("--exciter-unit-id", type=int, default=1, show_default=True)
 @click.option("--recorder-unit-id", type=int, default=1, show_default=True)
 @click.option("--heartbeat-timeout", type=float, default=None,
-              help="Exciter watchdog period (s); default from the profile.")
+              help="Exciter watchdog period (s), served in the profile's watchdog register (what a "
+                   "run reads and checks); default from the profile.")
 @click.option("--load-mw", type=float, default=0.0, show_default=True,
               help="Simulated active power (MW); 0 = no load.")
 @click.option("--noise", type=float, default=0.01, show_default=True,

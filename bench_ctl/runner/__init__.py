@@ -8,7 +8,7 @@ See `runner.py` for the exit paths and `config.py` for the bench config format. 
 wires drivers (and, for dry runs, the simulators) together; the analysis core does not import it.
 """
 from bench_ctl.runner.config import BenchConfig, ConfigError, load_bench_config
-from bench_ctl.runner.runner import OutputExists, RunOutcome, run_procedure
+from bench_ctl.runner.runner import OutputExists, OutputUnusable, RunOutcome, run_procedure
 
-__all__ = ["BenchConfig", "ConfigError", "OutputExists", "RunOutcome", "load_bench_config",
-           "run_procedure"]
+__all__ = ["BenchConfig", "ConfigError", "OutputExists", "OutputUnusable", "RunOutcome",
+           "load_bench_config", "run_procedure"]

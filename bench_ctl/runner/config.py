@@ -32,6 +32,9 @@ typo in a limit must never fall back to a default). Quantities carry their unit 
     setpoint_max_pu = 1.08
     no_load_p_max_mw = 2.0            # no-load precondition: |p| below this
     restore_deadline_s = 10.0         # reconnect-and-restore budget on a lost link
+    watchdog_max_s = 3.0              # optional: the longest device watchdog accepted (read from
+                                      # the device before the first write); default
+                                      # pulse_width_max_s + WATCHDOG_MARGIN_S
 
     [procedures.no_load_pulse]        # optional: keyword parameters of a procedure
     amplitude_pu = 0.05
@@ -71,6 +74,13 @@ class DeviceConfig:
                         baudrate=self.baudrate, parity=self.parity, stopbits=self.stopbits)
 
 
+#: how much longer than the pulse width cap the device's watchdog may be by default: a host
+#: that dies during a pulse leaves it to the watchdog, so this bounds how far past the cap a
+#: pulse can last. 1.5 s accepts the 2-3 s watchdogs real excitation systems ship with against
+#: a 1.5 s cap (docs/decisions/0011).
+WATCHDOG_MARGIN_S = 1.5
+
+
 @dataclass(frozen=True)
 class Limits:
     pulse_amplitude_max_pu: float
@@ -79,6 +89,23 @@ class Limits:
     setpoint_max_pu: float
     no_load_p_max_mw: float
     restore_deadline_s: float = 10.0
+    watchdog_max_s: float | None = None   # None: pulse_width_max_s + WATCHDOG_MARGIN_S
+
+    @property
+    def watchdog_limit_s(self) -> float:
+        """The longest device watchdog a run accepts (limits.watchdog_max_s, or the width cap
+        plus WATCHDOG_MARGIN_S)."""
+        if self.watchdog_max_s is not None:
+            return self.watchdog_max_s
+        return self.pulse_width_max_s + WATCHDOG_MARGIN_S
+
+    def watchdog_limit_text(self) -> str:
+        """Where the watchdog limit comes from, for the operator."""
+        if self.watchdog_max_s is not None:
+            return f"limits.watchdog_max_s = {self.watchdog_max_s:.3f} s"
+        return (f"{self.watchdog_limit_s:.3f} s = limits.pulse_width_max_s "
+                f"{self.pulse_width_max_s:.3f} s + margin {WATCHDOG_MARGIN_S:.3f} s "
+                "(set limits.watchdog_max_s to change it)")
 
 
 @dataclass(frozen=True)
@@ -125,7 +152,8 @@ _RECORDER_KEYS = {**_DEVICE_KEYS, "baudrate": (int, False), "parity": (str, Fals
                   "stopbits": (int, False), "download_attempts": (int, False)}
 _LIMIT_KEYS = {"pulse_amplitude_max_pu": (float, True), "pulse_width_max_s": (float, True),
                "setpoint_min_pu": (float, True), "setpoint_max_pu": (float, True),
-               "no_load_p_max_mw": (float, True), "restore_deadline_s": (float, False)}
+               "no_load_p_max_mw": (float, True), "restore_deadline_s": (float, False),
+               "watchdog_max_s": (float, False)}
 _BENCH_KEYS = {"name": (str, False)}
 _TOP = {"bench", "exciter", "recorder", "limits", "procedures"}
 
@@ -205,7 +233,7 @@ def config_from_dict(doc: Mapping[str, Any], source: str = "<dict>",
     lim = _section(doc, "limits", _LIMIT_KEYS, source)
     _positive(source, "limits", lim, ("pulse_amplitude_max_pu", "pulse_width_max_s",
                                       "no_load_p_max_mw", "restore_deadline_s",
-                                      "setpoint_min_pu"))
+                                      "setpoint_min_pu", "watchdog_max_s"))
     if lim["setpoint_min_pu"] >= lim["setpoint_max_pu"]:
         raise ConfigError(f"{source}: limits.setpoint_min_pu {lim['setpoint_min_pu']} must be "
                           f"below limits.setpoint_max_pu {lim['setpoint_max_pu']}")
@@ -217,14 +245,25 @@ def config_from_dict(doc: Mapping[str, Any], source: str = "<dict>",
                        procedures={k: dict(v) for k, v in procs.items()}, source=source)
 
 
+#: a bench config is a page of TOML; anything larger is not one (and /dev/zero never ends)
+MAX_CONFIG_BYTES = 1 << 20
+
+
 def load_bench_config(path: str | Path) -> BenchConfig:
-    """Read a bench config TOML; ConfigError naming the file and key on anything wrong."""
+    """Read a bench config TOML; ConfigError naming the file and key on anything wrong. Only a
+    regular file of at most MAX_CONFIG_BYTES is read (a device or a pipe is refused unread)."""
     path = Path(path)
     try:
+        if not path.exists():
+            raise ConfigError(f"{path}: no such bench config")
+        if not path.is_file():
+            raise ConfigError(f"{path}: not a regular file (a device, a folder or a pipe); a bench "
+                              "config is a TOML file")
         with path.open("rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such bench config") from None
+            data = fh.read(MAX_CONFIG_BYTES + 1)
+        if len(data) > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 1024} KiB; not a bench config")
+        doc = tomllib.loads(data.decode("utf-8"))
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the bench config: {exc.strerror}") from None
     except UnicodeDecodeError as exc:

@@ -1,10 +1,13 @@
 """What a procedure receives besides the bench: steps, confirmation, audit, output files.
 
 `RunContext.step(name)` logs the start, end, duration and outcome of a step to the audit;
-`confirm(summary)` asks the operator before the first write (skipped for dry runs and
-`--yes`, and recorded either way) and `guard` refuses any device write before it; `hook(name)`
-calls a test's hook at a named moment (deterministic fault injection); `save_raw` and
-`save_capture` write files that are never overwritten.
+`check_watchdog()` refuses a device watchdog (as read from the device) the limits do not allow;
+`confirm(plan)` checks that this run holds the bench lock and the watchdog, shows the plan
+(printed on every run shown to an operator, asked about on real devices unless `--yes`,
+recorded either way), and `guard` refuses any device write before it; `hook(name)` calls a
+test's hook at a named moment (deterministic fault injection); `save_raw` and `save_capture`
+write files that are never overwritten, and a file that cannot be written (disk full,
+read-only) is recorded in `lost_outputs` and ends the procedure with `OutputLost`.
 """
 from __future__ import annotations
 
@@ -22,8 +25,10 @@ from typing import Any
 from bench_ctl.capture import write_capture
 from bench_ctl.runner.audit import AuditLog
 from bench_ctl.runner.config import BenchConfig, Limits
-from bench_ctl.runner.safety import NoOperator, OperatorDeclined, Refused
+from bench_ctl.runner.safety import (NoOperator, OperatorDeclined, OutputLost, Refused,
+                                     check_watchdog)
 from drivers.device import WriteRecord
+from drivers.exciter import WatchdogReading
 from drivers.recorder import RawRecord
 
 log = logging.getLogger(__name__)
@@ -99,6 +104,10 @@ class RunContext:
         self.capture_path: Path | None = None
         self.sidecar_path: Path | None = None
         self.raw_path: Path | None = None
+        self.lost_outputs: list[str] = []       # files that could not be saved, and why
+        self.watchdog: WatchdogReading | None = None   # read from the exciter after connecting
+        self.watchdog_s: float | None = None    # the watchdog once check_watchdog accepted it
+        self.bench_lock: Any = None             # runner.lock.BenchLock once taken (writing runs)
         self._confirm = confirm
         self._hooks = dict(hooks or {})
 
@@ -157,15 +166,57 @@ class RunContext:
             self.audit.event("hook", name=name)
             fn(self)
 
+    # -- the device's watchdog ---------------------------------------------------------------
+    def check_watchdog(self) -> float:
+        """The exciter's watchdog as read from the device, or LimitViolation (nothing written)
+        naming the value found and the limit (safety.check_watchdog). A watchdog longer than the
+        pulse width cap but within the limit is said: it joins the run's warnings."""
+        ex = self.config.exciter
+        try:
+            wd = check_watchdog(self.limits, self.watchdog, heartbeat_period_s=ex.heartbeat_period_s,
+                                request_timeout_s=ex.timeout_s)
+        except Refused as exc:
+            self.audit.event("watchdog_check", accepted=False, reading=self.watchdog,
+                             limit_s=self.limits.watchdog_limit_s, refused=str(exc))
+            raise
+        if self.watchdog_s is None:
+            self.audit.event("watchdog_check", accepted=True, reading=self.watchdog,
+                             limit_s=self.limits.watchdog_limit_s)
+            cap = self.limits.pulse_width_max_s
+            if wd > cap:
+                warning = (f"the exciter's watchdog ({wd:.3f} s, read from the device) is longer than "
+                           f"the pulse width cap ({cap:.3f} s): if this host dies during the pulse, "
+                           f"the device ends it up to {wd:.3f} s after the last heartbeat")
+                log.info("WARNING: %s", warning)   # in the plan the operator reads
+                self.audit.event("warning", message=warning)
+                self.warnings = (*self.warnings, warning)
+        self.watchdog_s = wd
+        return wd
+
+    def watchdog_text(self) -> str:
+        """`2.000 s (read from the device, register ...); limit 3.000 s` for the plan."""
+        reading = self.watchdog.text() if self.watchdog else "not read"
+        return f"{reading}; limit {self.limits.watchdog_limit_text()}"
+
     # -- confirmation and the write guard ----------------------------------------------------
     def confirm(self, summary: str) -> None:
-        """Ask before the first write; dry runs and --yes skip the question (recorded). The
-        bench's warnings are part of what the operator confirms."""
+        """Before the first write: this run holds the bench lock, the device's watchdog is
+        accepted (else refused, nothing written), then the plan is shown and confirmed. A real
+        bench asks the operator unless --yes; dry runs and --yes skip the question (recorded)
+        but the plan is still printed on a run shown to an operator. The bench's warnings are
+        part of what the operator confirms."""
+        if self.bench_lock is None or not self.bench_lock.held:
+            raise WriteRefused(f"{self.procedure}: no write without the bench lock (a procedure "
+                               "declared WRITES = False writes nothing)")
+        self.check_watchdog()
         if self.warnings:
             summary = summary + "".join(f"\nWARNING: {w}" for w in self.warnings)
         if self.dry_run or self.yes:
             why = "dry run against the simulated bench" if self.dry_run else "--yes given"
             self.audit.event("confirmation", asked=False, why=why, summary=summary)
+            if self.progress:
+                sys.stdout.write(f"{summary}\n({why}: not asked)\n")
+                sys.stdout.flush()
         else:
             ask = self._confirm or _ask_operator
             try:
@@ -194,19 +245,40 @@ class RunContext:
 
     # -- output files ------------------------------------------------------------------------
     def save_raw(self, raw: RawRecord) -> Path:
-        """The recorder download exactly as received (before any conversion)."""
-        path, head = raw.save(self.out_dir / RAW_NAME)
+        """The recorder download exactly as received (before any conversion); OutputLost when
+        it cannot be written (whatever was written whole is kept and named)."""
+        target = self.out_dir / RAW_NAME
+        payload = raw.payload()
+        try:
+            path, head = raw.save(target)
+        except OSError as exc:
+            kept = target if target.exists() and not isinstance(exc, FileExistsError) else None
+            self.raw_path = kept
+            self._lost(f"{target.name}{'.json (its header)' if kept else ''}", exc,
+                       f"the recorder download, {len(payload)} bytes, is not on disk" if not kept
+                       else "the raw download is saved without its header")
         self.raw_path = path
-        digest = hashlib.sha256(path.read_bytes()).hexdigest()
-        self.audit.event("raw_saved", path=str(path), header=str(head), sha256=digest,
-                         bytes=path.stat().st_size)
+        self.audit.event("raw_saved", path=str(path), header=str(head),
+                         sha256=hashlib.sha256(payload).hexdigest(), bytes=len(payload))
         return path
 
     def save_capture(self, data: Mapping[str, Any], meta: Mapping[str, Any]) -> Path:
-        csv_path, json_path = write_capture(self.out_dir / CAPTURE_NAME, dict(data), dict(meta))
+        """capture.csv and its sidecar, both or neither; OutputLost when they cannot be written."""
+        try:
+            csv_path, json_path = write_capture(self.out_dir / CAPTURE_NAME, dict(data), dict(meta))
+        except OSError as exc:
+            self._lost(f"{CAPTURE_NAME} and its sidecar", exc, "the capture is not on disk")
         self.capture_path, self.sidecar_path = csv_path, json_path
         self.audit.event("capture_saved", path=str(csv_path), sidecar=str(json_path))
         return csv_path
+
+    def _lost(self, what: str, exc: OSError, consequence: str) -> None:
+        reason = f"[Errno {exc.errno}] {exc.strerror}" if exc.errno else str(exc)
+        text = f"{self.out_dir / what}: NOT SAVED ({reason}); {consequence}"
+        self.lost_outputs.append(text)
+        self.audit.event("output_lost", what=what, error=reason)
+        log.error("%s", text)
+        raise OutputLost(text) from None
 
     def sidecar_meta(self, **extra: Any) -> dict[str, Any]:
         """The capture sidecar's common part: bench config, devices, every write so far."""

@@ -78,7 +78,11 @@ def simulated_bench(config: BenchConfig, *, recorder_link: str = "serial",
                "recorder_profile": config.recorder.profile, **sim_options}
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     proc = subprocess.Popen([sys.executable, "-m", "bench_ctl.runner.dryrun"],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+                            # its own session, as a real device does not share the operator's
+                            # terminal: a Ctrl-C, Ctrl-\ or hang-up reaches the run only, which
+                            # then restores against a living simulator (docs/decisions/0014)
+                            start_new_session=True)
     assert proc.stdin is not None
     try:
         proc.stdin.write(pickle.dumps(options))

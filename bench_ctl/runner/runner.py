@@ -1,15 +1,23 @@
 """The procedure runner: one call runs a procedure on a bench and always ends in a safe state.
 
 `run_procedure(name, bench_config, out_dir, dry_run=..., yes=...)` loads
-`procedures/<name>.py`, checks its parameters, opens the audit file and a DEBUG log next to
-the capture, connects the bench (a dry run first starts the simulated bench and points the
-config at it), runs the procedure, and on EVERY exit path - normal end, refusal, device error,
-lost link, Ctrl-C - puts the devices in their safe state (exciter: pre-test setpoint back,
-remote given back, heartbeat stopped; recorder: disarmed) with Ctrl-C deferred meanwhile.
+`procedures/<name>.py`, checks its parameters (types and the bounds the procedure declares),
+opens the audit file and a DEBUG log next to the capture, takes the bench lock (one writing run
+per exciter endpoint; procedures that declare `WRITES = False` do not), connects the bench (a
+dry run first starts the simulated bench and points the config at it), reads the exciter's
+watchdog, runs the procedure, and on EVERY exit path - normal end, refusal, device error, lost
+link, Ctrl-C, SIGTERM / SIGHUP / SIGQUIT, a full disk - puts the devices in their safe state
+(exciter: pre-test setpoint back, remote given back, heartbeat stopped; recorder: disarmed)
+with those signals deferred meanwhile, then releases the lock.
 
-Exit codes: 0 passed, 1 criteria failed, 2 aborted / refused (safe state reached),
-3 communication error - and 3 whenever a safe state could NOT be confirmed, whatever else
-happened (a failed restore is never a quiet log line).
+The safe state never depends on the output folder: an audit line, the DEBUG log, the raw
+download or the capture that cannot be written is counted and reported ("NOT SAVED ...") and
+the run ends with exit 2 (3 when the safe state was not confirmed). A folder that cannot be
+written at all is refused before anything is sent (`OutputUnusable`).
+
+Exit codes: 0 passed, 1 criteria failed, 2 aborted / refused (safe state reached) / outputs
+not saved, 3 communication error - and 3 whenever a safe state could NOT be confirmed, whatever
+else happened (a failed restore is never a quiet log line).
 """
 from __future__ import annotations
 
@@ -17,6 +25,8 @@ import contextlib
 import importlib
 import inspect
 import logging
+import math
+import sys
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
@@ -28,10 +38,10 @@ from bench_ctl.runner.bench import Bench
 from bench_ctl.runner.config import BenchConfig, ConfigError, load_bench_config
 from bench_ctl.runner.context import (CAPTURE_NAME, RAW_NAME, Confirm, Criterion, Hook,
                                       ProcedureResult, RunContext)
-from bench_ctl.runner.safety import CtrlC, Refused, Terminated
+from bench_ctl.runner.lock import BenchLock
+from bench_ctl.runner.safety import BenchBusy, CtrlC, OutputLost, Refused, Terminated
 from drivers.device import SafeStateReport
 from drivers.errors import CommError, DeviceError, IntegrityError
-from drivers.exciter import check_heartbeat_timing, watchdog_s
 from drivers.profile import load_profile
 
 log = logging.getLogger(__name__)
@@ -47,6 +57,14 @@ OUTPUT_NAMES = (AUDIT_NAME, LOG_NAME, CAPTURE_NAME, Path(CAPTURE_NAME).with_suff
 
 class OutputExists(FileExistsError):
     """The output folder already holds a run's files; nothing is overwritten."""
+
+
+class OutputUnusable(OSError):
+    """The output folder cannot be written (read-only, full, not a folder): the run is refused
+    before anything is sent to a device (no audit, no run). `str()` is the operator's line."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)
 
 
 @dataclass(frozen=True)
@@ -68,6 +86,7 @@ class RunOutcome:
     data: dict[str, Any]            # the procedure's measurements (ProcedureResult.data)
     dry_run: bool
     duration_s: float
+    not_saved: tuple[str, ...] = ()  # what the run could not save (disk full, read-only), and why
 
     @property
     def safe(self) -> bool:
@@ -106,42 +125,93 @@ def procedure_params(fn: Any, config: BenchConfig, name: str,
                 isinstance(value, bool) or not isinstance(value, (int, float))):
             raise ConfigError(f"{config.source}: procedures.{name}.{key} = {value!r} must be a "
                               "number")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(f"{config.source}: procedures.{name}.{key} = {value!r} must be finite")
+    check = getattr(inspect.getmodule(fn), "check_parameters", None)
+    if check is not None:
+        full = {k: p.default for k, p in allowed.items() if p.default is not inspect.Parameter.empty}
+        problems = check({**full, **params})
+        if problems:
+            raise ConfigError(f"{config.source} / --param: procedures.{name}: " + "; ".join(problems))
     return params
 
 
+def writes_to_devices(fn: Any) -> bool:
+    """Whether a procedure may write (its module's WRITES, True unless it says False)."""
+    return bool(getattr(inspect.getmodule(fn), "WRITES", True))
+
+
 def _check_config(config: BenchConfig) -> list[str]:
-    """Everything the config names must exist before a file is opened: procedures, profiles;
-    the heartbeat must be fast enough for the device watchdog. Returns warnings to say loudly:
-    a device watchdog longer than the pulse width cap (a host that dies mid-pulse leaves the
-    pulse on until the watchdog, beyond the cap; see docs/decisions/0007)."""
+    """Everything the config names must exist and fit before a file is opened: procedures,
+    profiles of the right device kind with the registers the drivers need (the drivers are
+    built once, without I/O). Returns warnings to say loudly (none today: the device's
+    watchdog is read from the device after connecting, docs/decisions/0011)."""
     for other in config.procedures:
         load_procedure(other)
-    profiles = {}
     for device in ("exciter", "recorder"):
         try:
-            profiles[device] = load_profile(getattr(config, device).profile)
+            profile = load_profile(getattr(config, device).profile)
         except (OSError, ValueError) as exc:
             raise ConfigError(f"{config.source}: {device}.profile: {exc}") from None
-    ex = config.exciter
+        if profile.device != device:
+            raise ConfigError(f"{config.source}: {device}.profile = {getattr(config, device).profile!r} "
+                              f"describes a {profile.device} (profile {profile.name!r}), not an {device}"
+                              if device == "exciter" else
+                              f"{config.source}: {device}.profile = {getattr(config, device).profile!r} "
+                              f"describes an {profile.device} (profile {profile.name!r}), not a {device}")
     try:
-        check_heartbeat_timing(profiles["exciter"], ex.heartbeat_period_s, ex.timeout_s)
-    except ValueError as exc:
-        raise ConfigError(f"{config.source}: exciter.heartbeat_period_s: {exc}") from None
-    warnings = []
-    wd = watchdog_s(profiles["exciter"])
-    if wd is not None and wd > config.limits.pulse_width_max_s:
-        warnings.append(f"the exciter's watchdog ({wd:g} s, profile {profiles['exciter'].name!r}) is longer "
-                        f"than the pulse width cap ({config.limits.pulse_width_max_s:g} s): if this host "
-                        f"dies during the pulse, the pulse lasts until the watchdog reverts it, up to "
-                        f"{wd:g} s")
-    return warnings
+        Bench(config)   # the drivers check their profiles (registers, layout); no I/O
+    except (KeyError, ValueError) as exc:
+        raise ConfigError(f"{config.source}: {exc.args[0] if exc.args else exc}") from None
+    return []
+
+
+class _RunLogHandler(logging.FileHandler):
+    """The run's DEBUG log file. A line it cannot write (disk full, read-only) stops it, quietly:
+    no traceback on the console for each record; the loss is reported with the outcome."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path, encoding="utf-8")
+        self.error: OSError | None = None
+        self.lost = 0
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if self.error is not None:
+            self.lost += 1
+            return
+        super().emit(record)
+
+    def handleError(self, record: logging.LogRecord) -> None:  # noqa: N802 - logging's name
+        exc = sys.exc_info()[1]
+        if not isinstance(exc, OSError):
+            super().handleError(record)
+            return
+        self.error, self.lost = exc, self.lost + 1
+        stream, self.stream = self.stream, None  # type: ignore[assignment]
+        with contextlib.suppress(OSError):
+            if stream is not None:
+                stream.close()
+
+    def close(self) -> None:
+        try:
+            super().close()
+        except OSError as exc:
+            self.error = self.error or exc
+            self.stream = None  # type: ignore[assignment]
+
+    def loss_text(self) -> str:
+        if self.error is None:
+            return ""
+        reason = f"[Errno {self.error.errno}] {self.error.strerror}" if self.error.errno \
+            else str(self.error)
+        return f"{self.baseFilename}: NOT SAVED: {self.lost} log records lost ({reason})"
 
 
 @contextlib.contextmanager
-def _debug_log(path: Path) -> Iterator[None]:
+def _debug_log(path: Path) -> Iterator[_RunLogHandler]:
     """A per-run DEBUG log file; other handlers keep the level they had."""
     root = logging.getLogger()
-    handler = logging.FileHandler(path, encoding="utf-8")
+    handler = _RunLogHandler(path)
     handler.setLevel(logging.DEBUG)
     handler.setFormatter(logging.Formatter(
         "%(asctime)s.%(msecs)03d %(levelname)s %(threadName)s %(name)s: %(message)s",
@@ -156,7 +226,7 @@ def _debug_log(path: Path) -> Iterator[None]:
     root.addHandler(handler)
     root.setLevel(logging.DEBUG)
     try:
-        yield
+        yield handler
     finally:
         root.removeHandler(handler)
         handler.close()
@@ -167,16 +237,20 @@ def _debug_log(path: Path) -> Iterator[None]:
 
 
 def _classify(exc: BaseException) -> tuple[int, str, bool]:
-    """(exit code, message, reconnect before the safe state) for what ended a run."""
+    """(exit code, message, reconnect before the safe state) for what ended a run. A device
+    error's message is its summary (device, register, value, device state); its raw frames are
+    in the audit and the DEBUG log, not on the operator's console."""
     if isinstance(exc, Terminated):
         return EXIT_ABORTED, f"terminated by {exc.signal_name}", True
     if isinstance(exc, KeyboardInterrupt):
         return EXIT_ABORTED, "interrupted by the operator (Ctrl-C)", True
-    if isinstance(exc, Refused):
+    if isinstance(exc, (Refused, OutputLost)):
         return EXIT_ABORTED, str(exc), False
     if isinstance(exc, (CommError, IntegrityError)):
-        return EXIT_COMMS, f"communication error: {exc}", True
+        return EXIT_COMMS, f"communication error: {exc.summary}", True
     if isinstance(exc, DeviceError):
+        return EXIT_ABORTED, f"aborted: {exc.summary}", False
+    if isinstance(exc, OSError):
         return EXIT_ABORTED, f"aborted: {exc}", False
     return EXIT_ABORTED, f"aborted by an unexpected error: {type(exc).__name__}: {exc}", False
 
@@ -185,14 +259,16 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
                   dry_run: bool = False, yes: bool = False,
                   params: Mapping[str, Any] | None = None, confirm: Confirm | None = None,
                   hooks: Mapping[str, Hook] | None = None, progress: bool = False,
-                  sim_options: Mapping[str, Any] | None = None) -> RunOutcome:
+                  sim_options: Mapping[str, Any] | None = None,
+                  lock_folder: Path | None = None) -> RunOutcome:
     """Run procedure `name` on the bench and return how it ended (never raises for device
-    trouble; raises ConfigError / OutputExists before anything is opened).
+    trouble or a full disk; raises ConfigError / OutputExists / OutputUnusable before anything
+    is sent).
 
     `params` override `[procedures.NAME]` of the config; `confirm(summary) -> bool` replaces
     the interactive question for real devices; `hooks` maps moment names a procedure announces
     (e.g. "pulse_applied") to callables (tests inject faults there); `sim_options` go to the
-    simulated bench of a dry run.
+    simulated bench of a dry run; `lock_folder` replaces the per-user folder of bench locks.
     """
     t_start = time.monotonic()
     config = (bench_config if isinstance(bench_config, BenchConfig)
@@ -201,17 +277,27 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
     kwargs = procedure_params(fn, config, name, params)
     warnings = _check_config(config)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    existing = [n for n in OUTPUT_NAMES if (out / n).exists()]
-    if existing:
-        raise OutputExists(f"{out}: already holds {', '.join(existing)}; refusing to overwrite "
-                           "a previous run (choose another --out)")
     audit_path, log_path = out / AUDIT_NAME, out / LOG_NAME
+    _usable_out(out)
     with contextlib.ExitStack() as stack:
-        stack.enter_context(_debug_log(log_path))
-        audit = stack.enter_context(AuditLog(audit_path))
+        try:
+            runlog = stack.enter_context(_debug_log(log_path))
+            audit = AuditLog(audit_path).open()
+        except OSError as exc:
+            stack.close()
+            _remove_new(log_path)
+            raise OutputUnusable(exc.errno, f"--out {out}: cannot write the run's files there: "
+                                 f"{exc.strerror or exc}; nothing was sent to a device") from None
+        stack.callback(audit.close)
         audit.event("run_start", procedure=name, params=kwargs, dry_run=dry_run, yes=yes,
                     out_dir=str(out))
+        if not audit.intact:  # no audit, no run
+            reason = audit.loss_text()
+            stack.close()
+            _remove_new(audit_path, log_path)
+            raise OutputUnusable(audit.error.errno if audit.error else 0,
+                                 f"--out {out}: cannot write the audit ({reason}); nothing was sent "
+                                 "to a device")
         if dry_run:
             from bench_ctl.runner.dryrun import simulated_bench
 
@@ -223,7 +309,10 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
         ctx = RunContext(procedure=name, config=config, out_dir=out, audit=audit,
                          dry_run=dry_run, yes=yes, confirm=confirm, hooks=hooks,
                          progress=progress, warnings=tuple(warnings))
-        code, message, result, reports = _run(fn, kwargs, config, ctx)
+        lock = (BenchLock(config.exciter.url, config.exciter.unit_id, procedure=name,
+                          out_dir=str(out), folder=lock_folder)
+                if writes_to_devices(fn) else None)
+        code, message, result, reports = _run(fn, kwargs, config, ctx, lock)
         if not all(r.ok for r in reports):
             failed = "; ".join(f"{r.device}: {r.action} - {r.detail}" for r in reports if not r.ok)
             log.critical("SAFE STATE NOT CONFIRMED: %s", failed)
@@ -234,29 +323,79 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
         audit.event("run_end", exit_code=code, status=STATUS[code], message=message,
                     criteria=[c.to_dict() for c in result.criteria],
                     safe_state=[r.to_dict() for r in reports],
-                    capture=str(ctx.capture_path) if ctx.capture_path else None)
+                    capture=str(ctx.capture_path) if ctx.capture_path else None,
+                    not_saved=list(ctx.lost_outputs))
+        stack.close()   # the audit and the DEBUG log are closed (their last losses counted)
+        not_saved = _not_saved(ctx, audit, runlog)
+        if not_saved and code in (EXIT_PASSED, EXIT_FAILED):
+            code = EXIT_ABORTED
+        if not_saved and not ctx.lost_outputs:  # a lost capture already leads the message
+            message = "; ".join(not_saved) + f"; run ended with: {message}"
         log.info("%s: %s: %s", name, STATUS[code], message)  # the caller reports the outcome
     return RunOutcome(procedure=name, exit_code=code, status=STATUS[code], message=message,
                       out_dir=out, audit_path=audit_path, log_path=log_path,
                       capture_path=ctx.capture_path, sidecar_path=ctx.sidecar_path,
                       raw_path=ctx.raw_path, safe_state=tuple(reports),
                       criteria=result.criteria, data=dict(result.data), dry_run=dry_run,
-                      duration_s=time.monotonic() - t_start)
+                      duration_s=time.monotonic() - t_start, not_saved=tuple(not_saved))
 
 
-def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig,
-         ctx: RunContext) -> tuple[int, str, ProcedureResult, list[SafeStateReport]]:
-    """Connect, run the procedure, then the safe state on every exit path."""
+def _usable_out(out: Path) -> None:
+    """The output folder exists (made if needed), holds no earlier run, and is writable;
+    OutputExists / OutputUnusable otherwise (before any file is opened)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputUnusable(exc.errno, f"--out {out}: cannot make the folder: {exc.strerror or exc}; "
+                             "nothing was sent to a device") from None
+    existing = [n for n in OUTPUT_NAMES if (out / n).exists()]
+    if existing:
+        raise OutputExists(f"{out}: already holds {', '.join(existing)}; refusing to overwrite "
+                           "a previous run (choose another --out)")
+
+
+def _remove_new(*paths: Path) -> None:
+    """Remove files this run created and that hold nothing of value (refused at the start)."""
+    for path in paths:
+        with contextlib.suppress(OSError):
+            path.unlink()
+
+
+def _not_saved(ctx: RunContext, audit: AuditLog, runlog: "_RunLogHandler") -> list[str]:
+    """What the run could not save, one line each: the capture / raw download, the audit, the
+    DEBUG log."""
+    lines = list(ctx.lost_outputs)
+    if audit.loss_text():
+        lines.append(audit.loss_text())
+    if runlog.loss_text():
+        lines.append(runlog.loss_text())
+    return lines
+
+
+def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig, ctx: RunContext,
+         lock: BenchLock | None) -> tuple[int, str, ProcedureResult, list[SafeStateReport]]:
+    """Take the bench lock, connect, read the watchdog, run the procedure, then the safe state
+    on every exit path, then release the lock."""
     bench = Bench(config, guard=ctx.guard, listener=ctx.on_write)
     result = ProcedureResult()
     reason = "end of procedure"
     reconnect = False
     with CtrlC().installed() as ctrl_c:
         try:
+            if lock is not None:
+                with ctx.step("bench lock"):
+                    try:
+                        ctx.bench_lock = lock.acquire()
+                    except OSError as exc:
+                        raise BenchBusy(f"refused before any write: cannot take the bench lock "
+                                        f"({exc}); a run must know it is alone on the exciter") from None
+                    ctx.note("bench_lock", key=lock.key, path=str(lock.path))
             with ctx.step("connect"):
                 bench.connect()
                 ctx.identities = bench.identities()
                 ctx.note("identity", devices=ctx.identities)
+                ctx.watchdog = bench.exciter.read_watchdog()
+                ctx.note("watchdog", **ctx.watchdog.to_dict())
             result = fn(bench, ctx, **kwargs)
             code = EXIT_PASSED if result.passed else EXIT_FAILED
             message = result.summary or STATUS[code]
@@ -266,7 +405,9 @@ def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig,
             reason = message.splitlines()[0]
             ctx.note("error", error=type(exc).__name__, message=str(exc),
                      **({"device_error": exc.to_dict()} if isinstance(exc, DeviceError) else {}))
-            if not isinstance(exc, (Refused, DeviceError, KeyboardInterrupt)):
+            if isinstance(exc, DeviceError):
+                log.debug("%s", exc)  # with the last frames on the link (-vv and run.log)
+            elif not isinstance(exc, (Refused, KeyboardInterrupt, OutputLost)):
                 log.exception("procedure %s failed", ctx.procedure)
         finally:
             ctrl_c.armed = False
@@ -275,6 +416,8 @@ def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig,
             for r in reports:
                 ctx.note("safe_state", **r.to_dict())
             bench.close()
+            if lock is not None:
+                lock.release()   # only once the devices are safe
             ctx.audit.step = None
             if ctrl_c.ignored:
                 ctx.note("ctrl_c_ignored", count=ctrl_c.ignored)

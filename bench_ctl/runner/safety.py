@@ -1,8 +1,11 @@
 """Safety checks done before the first write (docs/safety.md), and Ctrl-C handling.
 
 Checks refuse, never clip: every violated limit is listed in one `LimitViolation` (or
-`PreconditionFailed` for the state of the unit), raised before anything is written.
-`CtrlC` keeps a Ctrl-C from interrupting the safe-state sequence itself.
+`PreconditionFailed` for the state of the unit), raised before anything is written. The
+device's watchdog is one of them: read from the device, refused when longer than the limits
+allow or too short for this host's heartbeat (`check_watchdog`, docs/decisions/0011).
+`CtrlC` keeps a Ctrl-C (or SIGTERM, SIGHUP, SIGQUIT) from interrupting the safe-state sequence
+itself.
 """
 from __future__ import annotations
 
@@ -15,6 +18,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from bench_ctl.runner.config import Limits
+from drivers.exciter import WatchdogReading, heartbeat_problems
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +41,15 @@ class NoOperator(Refused):
 
 class OperatorDeclined(Refused):
     """The operator did not confirm."""
+
+
+class BenchBusy(Refused):
+    """Another run holds this bench (the host lock), or another master holds the exciter."""
+
+
+class OutputLost(Exception):
+    """A file of the run could not be saved (disk full, read-only): the run ends (exit 2) and
+    says what it could not save; the devices' safe state never depends on it."""
 
 
 @dataclass(frozen=True)
@@ -87,6 +100,32 @@ def check_pulse(limits: Limits, *, setpoint_pu: float, amplitude_pu: float,
     return PulsePlan(setpoint_pu=setpoint_pu, amplitude_pu=amplitude_pu, width_s=width_s)
 
 
+def check_watchdog(limits: Limits, reading: WatchdogReading | None, *, heartbeat_period_s: float,
+                   request_timeout_s: float) -> float:
+    """The device's watchdog period as read from it, or LimitViolation naming the value found
+    and the limit: unknown, zero (off), longer than `limits.watchdog_limit_s` (a host that dies
+    during the pulse leaves it on until the watchdog), or too short for this host's heartbeat
+    (shorter than its period, under two beats, or a timed write could hold the beats off)."""
+    if reading is None or reading.value_s is None:
+        why = reading.error if reading is not None else "it was not read"
+        raise LimitViolation(f"refused before any write: the exciter's watchdog period is unknown "
+                             f"({why}); if this host dies during a pulse, nothing is known to end it")
+    wd = reading.value_s
+    found = f"the exciter's watchdog reads {wd:.3f} s ({reading.register})"
+    if not math.isfinite(wd) or wd <= 0:
+        raise LimitViolation(f"refused before any write: {found}: the device's watchdog is off; "
+                             "if this host dies during a pulse, nothing ends it")
+    if wd > limits.watchdog_limit_s:
+        raise LimitViolation(f"refused before any write: {found}, longer than the limit "
+                             f"{limits.watchdog_limit_text()}: if this host dies during a pulse, the "
+                             f"device holds it up to {wd:.3f} s after the last heartbeat; shorten "
+                             "the device's watchdog or raise limits.watchdog_max_s")
+    problems = heartbeat_problems(wd, heartbeat_period_s, request_timeout_s)
+    if problems:
+        raise LimitViolation(f"refused before any write: {found}: " + "; ".join(problems))
+    return wd
+
+
 def check_no_load(limits: Limits, p_mw: float) -> None:
     """No-load precondition: |p| below limits.no_load_p_max_mw."""
     if not math.isfinite(p_mw) or abs(p_mw) >= limits.no_load_p_max_mw:
@@ -95,12 +134,14 @@ def check_no_load(limits: Limits, p_mw: float) -> None:
             f"limits.no_load_p_max_mw = {limits.no_load_p_max_mw:g} MW (open the breaker first)")
 
 
-#: signals that end a run through the safe state: Ctrl-C, a kill (SIGTERM), a closed terminal (SIGHUP)
-HANDLED_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: signals that end a run through the safe state: Ctrl-C, a kill (SIGTERM), a closed terminal
+#: (SIGHUP), Ctrl-\ (SIGQUIT, whose default would dump core and skip the safe state)
+HANDLED_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
 class Terminated(KeyboardInterrupt):
-    """The run was ended by SIGTERM or SIGHUP (handled like Ctrl-C: through the safe state)."""
+    """The run was ended by SIGTERM, SIGHUP or SIGQUIT (handled like Ctrl-C: through the safe
+    state)."""
 
     def __init__(self, signal_name: str) -> None:
         super().__init__(signal_name)
@@ -108,8 +149,8 @@ class Terminated(KeyboardInterrupt):
 
 
 class CtrlC:
-    """The Ctrl-C policy of a run (SIGTERM and SIGHUP alike): the first one while the procedure
-    runs raises KeyboardInterrupt (`Terminated` for the other two; the runner then restores the
+    """The Ctrl-C policy of a run (SIGTERM, SIGHUP and SIGQUIT alike): the first one while the
+    procedure runs raises KeyboardInterrupt (`Terminated` for the others; the runner then restores the
     safe state). A Ctrl-C after that never
     interrupts a request in flight: it sets `abandon`, which stops the exciter's restore
     *retries* (after the first attempt): the heartbeat stops and the device watchdog reverts

@@ -1,0 +1,404 @@
+"""Every fault the simulated bench can inject, x N runs of the no-load pulse test (issue 24).
+
+Each run is `bench-ctl run no_load_pulse --yes` in its own process, as an operator starts it,
+against a fresh simulated bench in this process (the exciter's events and state are read from
+the simulator itself, not from the run's own records). Faults:
+
+- link cut (the connection dropped instead of the reply) and exception reply (code 4) at each
+  write of the test: take remote, pulse on, pulse off, give back remote, arm the recorder;
+- late (0.5 s, past the 0.3 s request timeout) and lost replies to the pulse writes, late and
+  lost replies and corrupt frames on recorder blocks (twice: retried; for good: the download
+  fails), the link cut for 3 s during the pulse (longer than the device watchdog);
+- the device's watchdog longer than the limit (20 s) and shorter than the heartbeat period,
+  a second master holding remote, a second run started together with the first;
+- SIGINT / SIGTERM / SIGHUP / SIGQUIT / SIGKILL at pre-test (the recorder arming), mid-pulse
+  and recovery;
+- disk full under --out: 12 KB free (the issue's case: the audit fills it while the recorder
+  is armed, so the pulse, its restore and the release run on a full disk) and 56 KB free (the
+  raw download is the first file that does not fit); a tmpfs of that size in its own mount
+  namespace where `unshare -rm` works (ENOSPC), else RLIMIT_FSIZE of that size (EFBIG, per
+  file); and a read-only --out (a read-only tmpfs, or a chmod 555 folder when not root).
+
+Per fault: setpoint restored (% of runs whose device setpoint is back at the pre-test value),
+worst time to the pre-test setpoint after the fault hit (the signal sent, the cut, the faulty
+reply; from the pulse on for faults without a moment: a full disk, a second run; 0 when the
+setpoint never moved) and worst pulse length on the device, remote released
+(% of runs after which this host does not hold remote), capture saved or its loss reported (%;
+a silent loss is an exit 0 without a readable capture), and the exit codes. Targets: 100 %
+restored; after a signal, the pre-test setpoint within 50 ms (SIGKILL: the pulse within the
+width cap + the device watchdog); 0 silent losses.
+
+Usage: python benchmarks/fault_matrix.py [--runs 5] [--only NAME[,NAME]] [--json OUT]
+Prints a table; `--json` writes a flat object. Exits 0 when it ran (it reports, it does not judge).
+"""
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import logging
+import os
+import platform
+import resource
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from bench_ctl.capture import read_capture  # noqa: E402
+from cli_runs import bench_toml, run_argv, start_run  # noqa: E402
+from simulators.bench import SimBench  # noqa: E402
+from simulators.faults import parse_fault  # noqa: E402
+from test_runner_wire import WireProxy  # noqa: E402
+
+PARAMS = {"pre_trigger_s": 0.3, "record_s": 2.0, "width_s": 0.5, "recovery_timeout_s": 3.0,
+          "width_tolerance_s": 0.02}
+WIDTH_CAP_S = 1.5          # benches/example.toml limits.pulse_width_max_s
+WATCHDOG_S = 2.0           # the simulated exciter's default watchdog
+PRE_TEST_PU = 1.0
+SIGNAL_TARGET_S = 0.050
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    faults: tuple[str, ...] = ()              # simulators.faults.parse_fault texts, armed at start
+    sim: dict[str, Any] = field(default_factory=dict)
+    exciter: dict[str, Any] = field(default_factory=dict)
+    moment: str | None = None                 # pre-test | mid-pulse | recovery
+    action: str | None = None                 # SIGINT.. | cut
+    disk: str | None = None                   # full-12k | full-56k | read-only
+    setup: str | None = None                  # second-master | second-run
+
+
+def cases() -> list[Case]:
+    out: list[Case] = []
+    writes = {"take_remote": "device=exciter,op=write,register=mode,skip=0",
+              "pulse_on": "device=exciter,op=write,register=setpoint,skip=0",
+              "pulse_off": "device=exciter,op=write,register=setpoint,skip=1",
+              "give_back": "device=exciter,op=write,register=mode,skip=1",
+              "arm_recorder": "device=recorder,op=write,register=arm,skip=0"}
+    for where, match in writes.items():
+        out.append(Case(f"cut_at_{where}", (f"drop_connection:{match}",)))
+    for where, match in writes.items():
+        out.append(Case(f"exception_at_{where}", (f"exception:{match},code=4",)))
+    for where in ("pulse_on", "pulse_off"):
+        out.append(Case(f"late_reply_{where}", (f"late_reply:{writes[where]},delay_s=0.5",)))
+        out.append(Case(f"lost_reply_{where}", (f"no_reply:{writes[where]}",)))
+    block = "device=recorder,register=block,skip=5"
+    out += [Case("late_reply_blocks", (f"late_reply:{block},count=2,delay_s=0.3",)),
+            Case("lost_reply_blocks", (f"no_reply:{block},count=2",)),
+            Case("corrupt_blocks_twice", (f"corrupt:{block},count=2",)),
+            Case("corrupt_blocks_always", (f"corrupt:{block},count=inf",)),
+            Case("link_cut_3s_mid_pulse", moment="mid-pulse", action="cut"),
+            Case("watchdog_longer_20s", sim={"heartbeat_timeout_s": 20.0}),
+            Case("watchdog_shorter_than_beat", sim={"heartbeat_timeout_s": 0.05}),
+            Case("second_master", setup="second-master"),
+            Case("second_run_together", setup="second-run")]
+    for sig in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGKILL"):
+        for moment in ("pre-test", "mid-pulse", "recovery"):
+            out.append(Case(f"{sig}_{moment.replace('-', '_')}", moment=moment, action=sig))
+    out += [Case("disk_full_12k_free", disk="full-12k"), Case("disk_full_56k_free", disk="full-56k"),
+            Case("read_only_out", disk="read-only")]
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def userns_mounts() -> bool:
+    if shutil.which("unshare") is None:
+        return False
+    probe = subprocess.run(["unshare", "-rm", "sh", "-c", "mount -t tmpfs -o size=4k none /mnt"],
+                           capture_output=True)
+    return probe.returncode == 0
+
+
+def in_tmpfs(argv: list[str], mount_dir: Path, options: str) -> list[str]:
+    return ["unshare", "-rm", "sh", "-c", 'mount -t tmpfs -o "$1" none "$2" && shift 2 && exec "$@"',
+            "sh", options, str(mount_dir), *argv]
+
+
+def _rlimit(limit: int) -> Callable[[], None]:
+    return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+
+def disk_argv(case: Case, argv_for: Callable[[Path], list[str]], work: Path) -> tuple[list[str], dict, bool]:
+    """(argv, Popen extras, files visible from here) for a disk case."""
+    mount = work / "mnt"
+    mount.mkdir()
+    size = {"full-12k": 12 * 1024, "full-56k": 56 * 1024}.get(case.disk or "", 0)
+    if case.disk == "read-only":
+        if userns_mounts():
+            return in_tmpfs(argv_for(mount / "run"), mount, "ro,size=4k"), {}, False
+        if os.geteuid() != 0:
+            mount.chmod(0o555)
+            return argv_for(mount / "run"), {}, True
+        raise RuntimeError("no read-only folder to be had (root without mount namespaces)")
+    if userns_mounts():
+        return in_tmpfs(argv_for(mount / "run"), mount, f"size={size // 1024}k"), {}, False
+    return argv_for(mount / "run"), {"preexec_fn": _rlimit(size)}, True
+
+
+def poll_until(cond: Callable[[], bool], proc: subprocess.Popen, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        if proc.poll() is not None:
+            return False
+        time.sleep(0.0005)
+    return False
+
+
+def moment_reached(sim: SimBench, moment: str) -> Callable[[], bool]:
+    ev = sim.exciter.events
+    if moment == "pre-test":
+        return lambda: sim.recorder.status in ("recording", "armed") and not ev
+    if moment == "mid-pulse":
+        return lambda: any(k == "setpoint" and v > PRE_TEST_PU + 1e-3 for _, k, v in ev)
+    return lambda: (sum(k == "setpoint" for _, k, _ in ev) >= 2 and sim.recorder.status == "triggered")
+
+
+class SecondMaster:
+    """Another controller (another host address, 127.0.0.2) holding remote and keeping its
+    heartbeat going until closed (sim profile: mode at holding 3, heartbeat at holding 2)."""
+
+    def __init__(self, sim: SimBench) -> None:
+        import threading
+
+        from pymodbus.client import ModbusTcpClient
+
+        self.client = ModbusTcpClient("127.0.0.1", port=sim.endpoints.exciter_port, timeout=1,
+                                      retries=0, source_address=("127.0.0.2", 0))
+        self.client.connect()
+        self.client.write_register(3, 3, device_id=1)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, daemon=True)
+        self._thread.start()
+
+    def _beat(self) -> None:
+        n = 0
+        while not self._stop.wait(0.1):
+            n = (n + 1) & 0xFFFF
+            self.client.write_register(2, n, device_id=1)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.client.close()
+
+
+def device_outcome(sim: SimBench, t_fault: float | None) -> dict[str, Any]:
+    """From the simulator's event log: did the setpoint come back, how long after the fault,
+    how long was the pulse on the device."""
+    ev = list(sim.exciter.events)
+    t_on = next((t for t, k, v in ev if k == "setpoint" and abs(v - PRE_TEST_PU) > 1e-6), None)
+    back = None
+    if t_on is not None:
+        back = next((t for t, k, v in ev if t > t_on and k in ("setpoint", "watchdog")
+                     and abs(v - PRE_TEST_PU) < 1e-6), None)
+    restored = abs(sim.exciter.setpoint - PRE_TEST_PU) < 1e-6
+    if t_on is None:
+        return {"restored": restored, "moved": False, "restore_s": 0.0, "held_s": 0.0}
+    if back is None:
+        return {"restored": restored, "moved": True, "restore_s": float("inf"), "held_s": float("inf")}
+    start = max(t_on, t_fault) if t_fault is not None else t_on
+    return {"restored": restored, "moved": True, "restore_s": max(0.0, back - start),
+            "held_s": back - t_on}
+
+
+def settle(sim: SimBench, timeout_s: float) -> None:
+    """Wait for the device to reach a state that will not change by itself (remote released
+    by the watchdog after a killed run)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and sim.exciter.remote and sim.exciter._owner == "127.0.0.1":
+        time.sleep(0.01)
+
+
+def capture_state(out: Path, stdout: str, visible: bool) -> str:
+    """saved | reported | silent"""
+    if visible:
+        try:
+            read_capture(out / "capture.csv")
+            return "saved"
+        except Exception:  # noqa: BLE001 - missing or unreadable: not saved
+            pass
+    elif "  capture: " in stdout:
+        return "saved"
+    return "silent"
+
+
+def one_run(case: Case, work: Path, lock_home: Path) -> list[dict[str, Any]]:
+    """One run of `case` (two for second-run); one result per run process."""
+    sim = SimBench(**case.sim)
+    sim.start()
+    proxy = other = None
+    try:
+        for text in case.faults:
+            sim.faults.add(parse_fault(text))
+        if case.action == "cut":
+            proxy = WireProxy(sim.endpoints.exciter_tcp)
+        if case.setup == "second-master":
+            other = SecondMaster(sim)
+        bench = bench_toml(work / "bench.toml", sim, exciter_url=proxy.url if proxy else None,
+                           exciter=case.exciter)
+        outs = [work / "run"] if case.setup != "second-run" else [work / "run0", work / "run1"]
+        visible = True
+        extras: dict[str, Any] = {}
+        if case.disk:
+            argv, extras, visible = disk_argv(case, lambda o: run_argv(bench, o, params=PARAMS), work)
+            outs = [work / "mnt" / "run"]
+            procs = [start_run(argv, lock_home, **extras)]
+        else:
+            procs = [start_run(run_argv(bench, o, params=PARAMS), lock_home) for o in outs]
+        t_fault = None
+        if case.moment is not None:
+            if poll_until(moment_reached(sim, case.moment), procs[0], 120):
+                t_fault = time.monotonic()
+                if case.action == "cut":
+                    proxy.cut(3.0)
+                else:
+                    os.kill(procs[0].pid, getattr(signal, case.action))
+        results = [(p, *p.communicate(timeout=180)) for p in procs]
+        if t_fault is None and sim.faults.history:
+            t_fault = sim.faults.history[0].time
+        settle(sim, WATCHDOG_S + 1.0)
+        dev = device_outcome(sim, t_fault)
+        released = not (sim.exciter.remote and sim.exciter._owner == "127.0.0.1")
+        rows = []
+        for (proc, stdout, stderr), out in zip(results, outs):
+            cap = capture_state(out, stdout, visible)
+            code = proc.returncode
+            if cap != "saved" and code != 0:
+                cap = "reported"
+            if case.disk and cap == "reported" and code != -9 and \
+                    "NOT SAVED" not in stdout + stderr and "refused: --out" not in stderr:
+                cap = "silent"
+            said = next((ln for ln in (stdout + stderr).splitlines()
+                         if ln.startswith(("no_load_pulse: ", "refused: "))), "")
+            lines = (stdout + stderr).splitlines()
+            if said.startswith("no_load_pulse: ") and said in lines:
+                at = lines.index(said)
+                said += " | " + (lines[at + 1] if at + 1 < len(lines) else "")
+            rows.append({**dev, "released": released, "capture": cap, "exit": code, "said": said,
+                         "traceback": "Traceback" in stdout + stderr,
+                         "fault_hit": t_fault is not None or (not case.faults and case.moment is None)})
+        return rows
+    finally:
+        if other is not None:
+            other.close()
+        if proxy is not None:
+            proxy.close()
+        sim.stop()
+
+
+def summarise(case: Case, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    n = len(rows)
+    finite = [r["restore_s"] for r in rows]
+    return {"runs": n,
+            "restored_pct": 100.0 * sum(r["restored"] for r in rows) / n,
+            "worst_restore_ms": max(finite) * 1e3,
+            "worst_held_ms": max(r["held_s"] for r in rows) * 1e3,
+            "remote_released_pct": 100.0 * sum(r["released"] for r in rows) / n,
+            "capture_ok_pct": 100.0 * sum(r["capture"] != "silent" for r in rows) / n,
+            "silent_losses": sum(r["capture"] == "silent" for r in rows),
+            "tracebacks": sum(r["traceback"] for r in rows),
+            "fault_missed": sum(not r["fault_hit"] for r in rows),
+            "exit_codes": ",".join(str(c) for c in sorted({r["exit"] for r in rows}))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--only", default=None, help="comma-separated case names")
+    ap.add_argument("--json", dest="json_out", default=None)
+    ap.add_argument("-v", "--verbose", action="store_true",
+                    help="print each run's exit code and the run's own outcome line")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    chosen = [c for c in cases() if args.only is None or c.name in args.only.split(",")]
+    result: dict[str, Any] = {"runs_per_fault": args.runs, "faults": len(chosen),
+                              "pulse_width_s": PARAMS["width_s"], "width_cap_s": WIDTH_CAP_S,
+                              "watchdog_s": WATCHDOG_S,
+                              "disk_full_method": "tmpfs_12k_userns" if userns_mounts()
+                              else "rlimit_fsize_12k"}
+    head = (f"{'fault':30s} {'runs':>4s} {'restored':>8s} {'worst to':>9s} {'worst':>8s} "
+            f"{'remote':>8s} {'capture':>8s} {'silent':>6s}  exit")
+    print(head + "\n" + f"{'':30s} {'':>4s} {'%':>8s} {'pre-test':>9s} {'pulse':>8s} "
+          f"{'released':>8s} {'ok %':>8s} {'losses':>6s}  codes\n" + "-" * len(head))
+    summaries = {}
+    with tempfile.TemporaryDirectory(prefix="fault-matrix-") as tmp:
+        for case in chosen:
+            rows = []
+            for i in range(args.runs):
+                work = Path(tmp) / f"{case.name}-{i}"
+                work.mkdir()
+                try:
+                    rows += one_run(case, work, Path(tmp))
+                finally:
+                    for p in work.rglob("*"):      # a read-only folder made by chmod
+                        if p.is_dir():
+                            p.chmod(0o755)
+            s = summarise(case, rows)
+            summaries[case.name] = (case, s)
+            for key, value in s.items():
+                result[f"{case.name}_{key}"] = value
+            print(f"{case.name:30s} {s['runs']:4d} {s['restored_pct']:8.0f} "
+                  f"{s['worst_restore_ms']:8.1f}ms {s['worst_held_ms']:6.0f}ms "
+                  f"{s['remote_released_pct']:8.0f} {s['capture_ok_pct']:8.0f} "
+                  f"{s['silent_losses']:6d}  {s['exit_codes']}"
+                  + (f"  ({s['tracebacks']} tracebacks)" if s["tracebacks"] else "")
+                  + (f"  (fault not reached in {s['fault_missed']})" if s["fault_missed"] else ""),
+                  flush=True)
+            if args.verbose:
+                for r in rows:
+                    print(f"    exit {r['exit']}: {r['said'][:300]}", flush=True)
+    all_runs = sum(s["runs"] for _, s in summaries.values())
+    restored = sum(s["restored_pct"] * s["runs"] / 100 for _, s in summaries.values())
+    signal_mid = [s["worst_restore_ms"] for c, s in summaries.values()
+                  if c.action not in (None, "cut", "SIGKILL") and c.moment == "mid-pulse"]
+    kill_held = [s["worst_held_ms"] for c, s in summaries.values() if c.action == "SIGKILL"]
+    result.update({
+        "run_processes": all_runs,
+        "restored_pct_all": 100.0 * restored / all_runs if all_runs else 0.0,
+        "remote_released_pct_all": sum(s["remote_released_pct"] * s["runs"] / 100
+                                       for _, s in summaries.values()) * 100.0 / max(all_runs, 1),
+        "silent_losses_all": sum(s["silent_losses"] for _, s in summaries.values()),
+        "tracebacks_all": sum(s["tracebacks"] for _, s in summaries.values()),
+        "signal_mid_pulse_worst_restore_ms": max(signal_mid) if signal_mid else 0.0,
+        "sigkill_worst_held_ms": max(kill_held) if kill_held else 0.0,
+        "sigkill_bound_ms": (WIDTH_CAP_S + WATCHDOG_S) * 1e3,
+        "machine": f"{platform.machine()} {os.cpu_count()} cpu, Python {platform.python_version()}",
+    })
+    print("-" * len(head))
+    print(f"setpoint restored in {result['restored_pct_all']:.1f} % of {all_runs} run processes; "
+          f"remote released in {result['remote_released_pct_all']:.1f} %; silent capture losses "
+          f"{result['silent_losses_all']}; tracebacks {result['tracebacks_all']}")
+    if signal_mid:
+        print(f"after SIGINT/TERM/HUP/QUIT mid-pulse: pre-test setpoint within "
+              f"{result['signal_mid_pulse_worst_restore_ms']:.1f} ms at worst (target 50 ms)")
+    if kill_held:
+        print(f"SIGKILL: pulse on the device at most {result['sigkill_worst_held_ms']:.0f} ms "
+              f"(bound: width cap + watchdog = {result['sigkill_bound_ms']:.0f} ms)")
+    print(f"disk full made with: {result['disk_full_method']}")
+    if args.json_out:
+        Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json_out).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"wrote {args.json_out}")
+    return 0
+
+
+if __name__ == "__main__":
+    t0 = time.monotonic()
+    code = main()
+    print(f"total {time.monotonic() - t0:.0f} s")
+    sys.exit(code)

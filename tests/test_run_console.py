@@ -1,0 +1,171 @@
+"""What the engineer reads on the console of a run, and the inputs a run refuses in one line
+(issue 24 items 13 (procedure parameters), 18, 19).
+
+- The plan (setpoint from -> to, width, limits, the watchdog found on the device) is printed on
+  every run, also with --yes and --dry-run; a live readout (setpoint, vt, efd, time left) runs
+  during the pulse on a terminal; values in engineering format (no `5.0e-06 pu`, no `-0.0`),
+  no raw register words outside -vv.
+- Every parameter of the pulse test is bounded; a bench config whose exciter profile is a
+  recorder's, or that is not a file, is refused before anything is opened.
+"""
+from __future__ import annotations
+
+import inspect
+import io
+import re
+
+import pytest
+
+from bench_ctl.cli import main
+from bench_ctl.runner.config import ConfigError, config_from_dict
+from bench_ctl.runner.runner import run_procedure
+from cli_runs import FAST_PARAMS, ROOT, bench_toml
+from procedures import no_load_pulse as pulse_module
+from simulators.bench import SimBench
+from test_procedure_pulse import bench_config, config_doc
+from test_runner_wire import WireProxy
+
+PLAN_LINES = ("no_load_pulse on the exciter tcp://127.0.0.1:",
+              "  setpoint  1.0000 pu -> 1.0500 pu for 0.300 s, then back to 1.0000 pu",
+              "  limits    |amplitude| <= 0.0600 pu, width <= 1.500 s, setpoints 0.9500..1.0800 pu",
+              "  watchdog  2.000 s (read from the device, register watchdog_timeout (input 11)); limit 3.000 s")
+
+
+def fast_args() -> list[str]:
+    args = []
+    for key, value in FAST_PARAMS.items():
+        args += ["--param", f"{key}={value}"]
+    return args
+
+
+def assert_engineering(text: str) -> None:
+    assert not re.search(r"\d[eE][-+]?\d", text), text          # no 5.0e-06
+    assert not re.search(r"-0\.0+\b(?!\d)", text), text           # no -0.0 / -0.000
+    assert not re.search(r"\[\d+, \d+\]", text), text           # no register words
+    assert "last frames on the link" not in text
+
+
+def test_the_plan_is_printed_with_yes_and_the_criteria_in_engineering_format(tmp_path, capsys):
+    with SimBench() as sim:
+        bench = bench_toml(tmp_path / "bench.toml", sim)
+        rc = main(["run", "no_load_pulse", "--bench", str(bench), "--yes", "--out",
+                   str(tmp_path / "run"), *fast_args()])
+    out = capsys.readouterr()
+    assert rc in (0, 1), out.out + out.err
+    for line in PLAN_LINES:
+        assert line in out.out, out.out
+    assert "(--yes given: not asked)" in out.out
+    crit = [ln for ln in out.out.splitlines() if ln.startswith("  [PASS]") or ln.startswith("  [FAIL]")]
+    assert len(crit) == 4
+    assert re.search(r"pulse width error: [-+]?\d+\.\d ms \(limit ±20\.0 ms\)", crit[0]), crit[0]
+    assert re.search(r"pulse amplitude error: [-+]?\d\.\d{4} pu \(limit ±0\.0010 pu\)", crit[1]), crit[1]
+    assert_engineering(out.out)
+
+
+def test_the_plan_is_printed_on_a_dry_run(tmp_path, capsys):
+    rc = main(["run", "no_load_pulse", "--bench", str(ROOT / "benches" / "example.toml"),
+               "--dry-run", "--out", str(tmp_path / "run"), *fast_args()])
+    out = capsys.readouterr().out
+    assert rc in (0, 1), out
+    for line in PLAN_LINES:
+        assert line in out, out
+    assert "(dry run against the simulated bench: not asked)" in out
+
+
+def test_a_live_readout_runs_during_the_pulse_on_a_terminal(tmp_path, monkeypatch):
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    tty = Tty()
+    monkeypatch.setattr("sys.stderr", tty)
+    with SimBench() as sim:
+        proxy = WireProxy(sim.endpoints.exciter_tcp)
+        try:
+            out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                                params={**FAST_PARAMS, "width_s": 0.8, "record_s": 2.0},
+                                progress=True)
+        finally:
+            proxy.close()
+    shown = tty.getvalue()
+    assert out.exit_code in (0, 1), out.message
+    readouts = re.findall(r"pulse: setpoint (\d\.\d{4}) pu, vt \d\.\d{4} pu, efd -?\d+\.\d{3} pu, "
+                          r"(\d\.\d\d) s left", shown)
+    assert len(readouts) >= 3, shown[-800:]
+    assert {sp for sp, _ in readouts} == {"1.0500"}                   # the device's setpoint
+    left = [float(t) for _, t in readouts]
+    assert left == sorted(left, reverse=True) and left[0] <= 0.8
+    assert out.data["commanded_width_s"] - 0.8 < 0.005                # the readout kept off the deadline
+
+
+def test_a_refused_write_says_register_and_value_not_words(tmp_path):
+    with SimBench() as sim:
+        proxy = WireProxy(sim.endpoints.exciter_tcp)
+        try:
+            sim.faults.set("exception", device="exciter", op="write", register="setpoint", code=4)
+            out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                                params=FAST_PARAMS)
+        finally:
+            proxy.close()
+    assert out.exit_code == 2
+    assert ("exciter: writing 2 holding register(s) at 0: device replied with exception 4 (server "
+            "device failure) (register setpoint (holding 0), value 1.05)") in out.message
+    assert_engineering(out.message)
+
+
+@pytest.mark.parametrize("param, value, message", [
+    ("width_s", 0.0001, "width_s = 0.0001 s outside 0.1..10 s"),
+    ("width_tolerance_s", 10, "width_tolerance_s = 10 s outside 0.0005..0.1 s"),
+    ("recovery_timeout_s", -5, "recovery_timeout_s = -5 s outside 0..600 s"),
+    ("width_tolerance_s", 0.05, "width_tolerance_s = 0.05 s above 10 % of width_s = 0.3 s"),
+    ("rate_hz", 20, "width_s = 0.3 s is 6 samples at rate_hz = 20 Hz"),
+    ("amplitude_pu", 0.001, "|amplitude_pu| = 0.001 pu below 0.005 pu"),
+    ("record_s", 0.5, "record_s = 0.5 s must exceed pre_trigger_s + width_s = 0.5 s"),
+])
+def test_every_pulse_parameter_is_bounded(tmp_path, capsys, param, value, message):
+    bench = ROOT / "benches" / "example.toml"
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        run_procedure("no_load_pulse", bench, tmp_path / "a", params={**FAST_PARAMS, param: value})
+    assert not (tmp_path / "a").exists()                              # nothing opened
+    rc = main(["run", "no_load_pulse", "--bench", str(bench), "--dry-run", "--out",
+               str(tmp_path / "b"), *fast_args(), "--param", f"{param}={value}"])
+    err = capsys.readouterr().err
+    assert rc == 2 and message in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_bounds_cover_every_parameter():
+    kwargs = [p.name for p in inspect.signature(pulse_module.no_load_pulse).parameters.values()
+              if p.kind is inspect.Parameter.KEYWORD_ONLY]
+    assert sorted(kwargs) == sorted(pulse_module.PARAMETERS)
+    defaults = {p.name: p.default for p in inspect.signature(pulse_module.no_load_pulse).parameters.values()
+                if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    assert pulse_module.check_parameters(defaults) == []
+
+
+@pytest.mark.parametrize("device, other", [("exciter", "sim-recorder"), ("recorder", "sim-exciter")])
+def test_a_profile_of_the_wrong_device_kind_is_refused_in_one_line(tmp_path, capsys, device, other):
+    doc = config_doc()
+    doc[device]["profile"] = other
+    kind = "recorder" if device == "exciter" else "exciter"
+    with pytest.raises(ConfigError, match=f"{device}.profile = '{other}' describes an? {kind} "
+                                          f"\\(profile '{other}'\\), not an? {device}"):
+        run_procedure("comms_check", config_from_dict(doc, source="wrong.toml"), tmp_path / "a")
+    assert not (tmp_path / "a").exists()
+    text = (ROOT / "benches" / "example.toml").read_text().replace(
+        f'profile = "sim-{device}"', f'profile = "{other}"')
+    (tmp_path / "wrong.toml").write_text(text)
+    rc = main(["run", "no_load_pulse", "--bench", str(tmp_path / "wrong.toml"), "--dry-run",
+               "--out", str(tmp_path / "b")])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"describes a" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "b").exists()
+
+
+def test_a_bench_config_that_is_not_a_file_is_refused_unread(tmp_path, capsys):
+    rc = main(["run", "comms_check", "--bench", "/dev/zero", "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "/dev/zero: not a regular file" in err and len(err.strip().splitlines()) == 1
+    big = tmp_path / "big.toml"
+    big.write_text("# " + "x" * (1 << 20) + "\n")
+    rc = main(["run", "comms_check", "--bench", str(big), "--out", str(tmp_path / "y")])
+    assert rc == 2 and "larger than 1024 KiB" in capsys.readouterr().err
