@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -30,7 +31,11 @@ def test_demo_writes_every_artifact_and_fits(tmp_path, capsys):
     # the simulated recorder adds 0.01 pu noise: a good fit sits at the noise variance
     assert 0.8e-4 < result["mse"] < 1.2e-4
     assert {r["optimizer"] for r in result["comparison"]} == {"mvmo", "de", "local", "open-loop"}
+    # the result and diagnosis name their capture relative to their own folder: the demo folder
+    # can be moved or reported on from any working directory
+    assert [c["path"] for c in result["captures"]] == ["capture.csv"]
     diag = json.loads((out / "diagnosis.json").read_text())
+    assert diag["capture"]["path"] == "capture.csv"
     assert diag["verdict"] == "none"                  # the simulated unit has no effect switched on
     audit = [json.loads(line) for line in (out / "audit.jsonl").read_text().splitlines()]
     assert audit

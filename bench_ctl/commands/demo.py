@@ -7,7 +7,6 @@ DIR/capture.csv, capture.json, audit.jsonl, result.json, diagnosis.json, report.
 from __future__ import annotations
 
 import datetime as dt
-import json
 import sys
 import time
 from importlib import resources
@@ -15,10 +14,12 @@ from pathlib import Path
 
 import click
 
+from bench_ctl import outputs
 from bench_ctl.capture import read_capture
 from bench_ctl.runner.config import ConfigError
 from bench_ctl.runner.runner import EXIT_ABORTED, OutputExists, OutputUnusable, run_procedure
 
+from .diagnose import clean_json, for_file as diagnosis_for_file
 from .run import print_outcome
 
 
@@ -26,16 +27,17 @@ from .run import print_outcome
 DEMO_OUTPUTS = ("result.json", "diagnosis.json", "report.html")
 
 
-def _write_json(path: Path, data: dict) -> None:
-    """Write a new file (never overwrite); a write that fails (disk full) leaves no half file."""
-    try:
-        with path.open("x", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=2)
-    except FileExistsError:
-        raise
-    except OSError:
-        path.unlink(missing_ok=True)
-        raise
+def _claim(out: Path) -> outputs.Outputs:
+    """Claim, before the pulse, every file the analysis writes (the report's figures included):
+    the demo never ends half-written for want of a free name, and writes nothing through a
+    link or over an existing file."""
+    from bench_ctl.report import claim_report
+
+    guard = outputs.Outputs(make_folders=True, replace_hint=outputs.NEVER_HINT)
+    guard.claim("result", out / "result.json")
+    guard.claim("diagnosis", out / "diagnosis.json")
+    claim_report(guard, out / "report.html")
+    return guard
 
 
 @click.command("demo")
@@ -51,9 +53,10 @@ def demo(out_dir: str | None, evals: int, seed: int) -> int:
         out_dir = str(Path("demo-out") / dt.datetime.now().strftime("%Y%m%dT%H%M%S"))
     out = Path(out_dir)
     command_line = " ".join(["bench-ctl"] + sys.argv[1:])
-    taken = [n for n in DEMO_OUTPUTS if (out / n).exists()]
-    if taken:  # before the pulse: the demo never ends half-written for want of a free name
-        click.secho(f"refused: {out} already holds {', '.join(taken)}; choose another --out", fg="red", err=True)
+    try:
+        guard = _claim(out)
+    except outputs.OutputRefused as exc:
+        click.secho(f"refused: {exc}", fg="red", err=True)
         return EXIT_ABORTED
     bench = resources.files("bench_ctl.data").joinpath("demo_bench.toml")
     click.echo(f"1/4 pulse test on the embedded simulated bench -> {out}")
@@ -67,17 +70,19 @@ def demo(out_dir: str | None, evals: int, seed: int) -> int:
     if outcome.exit_code != 0 or outcome.capture_path is None:
         return outcome.exit_code or EXIT_ABORTED
     try:
-        return _analyse(outcome, out, evals, seed, command_line, t_start)
-    except OSError as exc:  # the folder filled up or went read-only after the pulse test
-        click.secho(f"error: cannot write in {out}: {exc}; the capture and audit of the pulse test "
-                    f"are in {out}", fg="red", err=True)
+        return _analyse(outcome, out, guard, evals, seed, command_line, t_start)
+    except (OSError, outputs.OutputRefused) as exc:  # the folder filled up or went read-only
+        why = outputs.why_not_written(exc, out) if isinstance(exc, OSError) else str(exc)
+        click.secho(f"error: {why}; the capture and audit of the pulse test are in {out}",
+                    fg="red", err=True)
         return EXIT_ABORTED
 
 
-def _analyse(outcome, out: Path, evals: int, seed: int, command_line: str, t_start: float) -> int:
+def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, command_line: str,
+             t_start: float) -> int:
     """Steps 2-4 of the demo on the saved capture."""
     from bench_ctl.diagnosis.diagnose import diagnose
-    from bench_ctl.identification.identify import identify
+    from bench_ctl.identification.identify import identify, result_for_file
     from bench_ctl.model.unit import reference_unit
     from bench_ctl.report import analyse, write_report
 
@@ -87,7 +92,7 @@ def _analyse(outcome, out: Path, evals: int, seed: int, command_line: str, t_sta
     result = identify([capture], unit, optimizer="mvmo", compare=("de", "local", "open-loop"),
                       max_evals=evals, seed=seed, command_line=command_line)
     result_path = out / "result.json"
-    _write_json(result_path, result)
+    guard.write_json(result_path, result_for_file(result, result_path))
     det = (result.get("identifiability") or {}).get("determined") or {}
     click.echo("    identified: " + ", ".join(
         f"{n} {v:.4g}{'' if det.get(n, True) else ' (not determined)'}" for n, v in result["params"].items()))
@@ -100,12 +105,12 @@ def _analyse(outcome, out: Path, evals: int, seed: int, command_line: str, t_sta
     click.echo("3/4 gap diagnosis (each unmodelled effect added to the fitted model)")
     diag = diagnose(capture, unit, seed=seed, command_line=command_line)
     diag_path = out / "diagnosis.json"
-    _write_json(diag_path, diag)
+    guard.write_json(diag_path, clean_json(diagnosis_for_file(diag, diag_path)))
     click.echo(f"    verdict: {diag['verdict']}")
 
     click.echo("4/4 validation report")
     data = analyse(result, diagnosis=diag, report_command=command_line)
-    paths = write_report(data, out / "report.html")
+    paths = write_report(data, out / "report.html", outputs=guard)
     for c in data.checks:
         if c.status in ("fail", "warn"):
             click.echo(f"    {c.status.upper()}: {c.name}: {c.detail}")

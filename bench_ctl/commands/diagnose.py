@@ -83,7 +83,7 @@ def summary(d: dict[str, Any]) -> str:
 
 def write_json(path: str | Path, data: dict[str, Any], *, force: bool = False) -> None:
     """Write JSON through the output guard (atomic; NaN / inf become null)."""
-    outputs.write_json(path, _clean(data), force=force)
+    outputs.write_json(path, clean_json(data), force=force)
 
 
 def for_file(d: dict[str, Any], path: str | Path) -> dict[str, Any]:
@@ -102,15 +102,16 @@ def for_file(d: dict[str, Any], path: str | Path) -> dict[str, Any]:
     return out
 
 
-def _clean(x: Any) -> Any:
+def clean_json(x: Any) -> Any:
+    """`x` with every non-finite float as None and numpy scalars as Python numbers (strict JSON)."""
     if isinstance(x, float):
         return x if math.isfinite(x) else None
     if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
+        return {k: clean_json(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
+        return [clean_json(v) for v in x]
     if isinstance(x, np.generic):
-        return _clean(x.item())
+        return clean_json(x.item())
     return x
 
 
@@ -250,12 +251,12 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     click.echo(summary(d))
     try:
         if json_out:
-            out.write_json(json_out, _clean(for_file(d, json_out)))
+            out.write_json(json_out, clean_json(for_file(d, json_out)))
             click.echo(f"diagnosis written to {json_out}")
         if report_out:
             from bench_ctl.report import ReportError, render_report
             try:
-                written = render_report(base_result(d, capture, unit), report_out, diagnosis=_clean(d),
+                written = render_report(base_result(d, capture, unit), report_out, diagnosis=clean_json(d),
                                         report_command=command_line, outputs=out)
             except ReportError as exc:
                 click.echo(f"error: report not written: {exc}", err=True)
