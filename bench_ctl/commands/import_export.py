@@ -32,6 +32,7 @@ from typing import Any
 
 import click
 
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl import outputs
 
 from bench_ctl.capture.capture import Capture
@@ -223,7 +224,7 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
                                             dyr_bus=dyr_bus, dyr_id=dyr_id, effects=effects))
     except (UnitError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
-        return 2
+        return ExitCode.ABORTED
     try:
         spec = ImportSpec(
             columns=_pairs(maps, "--map"), time_column=time_column, date_column=date_column,
@@ -243,11 +244,11 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
         capture = run_import(src, spec, out)
     except (CaptureError, FileExistsError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
-        return 2
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: {outputs.why_not_written(exc, out)}", err=True)
-        return 2
+        return ExitCode.ABORTED
     for line in summary(capture):
         click.echo(line)
     click.echo(f"wrote {capture.source} ({capture.n} samples at {capture.rate_hz:g} Hz)")
-    return 0
+    return ExitCode.OK

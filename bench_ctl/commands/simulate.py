@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl import __version__, outputs
 from bench_ctl.capture import write_capture
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, synthetic_record
@@ -62,7 +63,7 @@ def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, am
         rec = synthetic_record(unit, t, usetp, RecorderModel(noise, lsb), seed)
     except (UnitError, ValueError) as exc:   # OutputRefused is a ValueError
         click.echo(f"error: {exc}", err=True)
-        return 2
+        return ExitCode.ABORTED
     meta = {
         "test": {"kind": "pulse", "amplitude_pu": amplitude, "start_s": start, "width_s": width},
         "source": "simulation",
@@ -79,10 +80,10 @@ def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, am
         csv_path, json_path = write_capture(Path(output), rec, meta)
     except FileExistsError as exc:
         click.echo(f"error: {exc} (captures are never overwritten)", err=True)
-        return 2
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: {outputs.why_not_written(exc, output)}", err=True)
-        return 2
+        return ExitCode.ABORTED
     click.echo(f"capture: {csv_path}")
     click.echo(f"sidecar: {json_path}")
-    return 0
+    return ExitCode.OK

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.limits import InputError, read_bounded
 from bench_ctl.outputs import OutputRefused, Outputs, why_not_written
 
@@ -36,6 +37,9 @@ if TYPE_CHECKING:
     from distributed import LocalCluster
 
 log = logging.getLogger(__name__)
+
+#: a step that ran to its end (its output exists): passed, or its criteria failed
+DONE_CODES = (ExitCode.OK, ExitCode.FAILED)
 
 #: the environment of our LocalCluster's workers: the kernel on one thread (one worker per core)
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1"}
@@ -93,19 +97,19 @@ class BatchOutcome:
     start_unix: float = 0.0
 
     @property
-    def exit_code(self) -> int:
+    def exit_code(self) -> ExitCode:
         if self.interrupted:
-            return 2
-        if any(r["status"] == "error" for r in self.rows):
-            return 1
-        return 1 if any(r["status"] == "criteria failed" for r in self.rows) else 0
+            return ExitCode.ABORTED
+        if any(r["status"] in ("error", "criteria failed") for r in self.rows):
+            return ExitCode.FAILED
+        return ExitCode.OK
 
 
 def _report_step(id_row: dict | None, dg_row: dict | None, entry: Entry, folder: str, evals: int,
                  seed: int) -> dict:
     """The report of a capture, once its identification (and diagnosis) ended."""
-    if id_row is None or id_row.get("rc") not in (0, 1):
-        return {"step": "report", "capture": entry.name, "rc": 2, "wall_s": 0.0,
+    if id_row is None or id_row.get("rc") not in DONE_CODES:
+        return {"step": "report", "capture": entry.name, "rc": int(ExitCode.ABORTED), "wall_s": 0.0,
                 "error": "not made: the identification failed", "output": ""}
     return tasks.run_step("report", entry, folder, evals, seed)
 
@@ -123,8 +127,8 @@ def summary_row(entry: Entry, folder: Path, steps: dict[str, dict], *, skipped: 
     res, dia = _read(folder / tasks.RESULT), _read(folder / tasks.DIAGNOSIS)
     errors = [f"{s}: {r['error']}" for s, r in steps.items() if r.get("error")]
     rcs = [r.get("rc") for r in steps.values()]
-    status = ("skipped (up to date)" if skipped else "error" if errors or any(rc not in (0, 1) for rc in rcs)
-              else "criteria failed" if 1 in rcs else "ok")
+    status = ("skipped (up to date)" if skipped else "error" if errors or any(rc not in DONE_CODES for rc in rcs)
+              else "criteria failed" if ExitCode.FAILED in rcs else "ok")
     rep_out = steps.get("report", {}).get("output", "")
     warnings = [ln.strip() for ln in rep_out.splitlines() if ln.startswith(("WARN:", "FAIL:"))]
     mse, floor = res.get("mse"), dia.get("noise_floor")
@@ -298,7 +302,7 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
                     row = fut.result()
                 except Exception as exc:  # noqa: BLE001 - a lost worker is a row, not the end
                     step = str(fut.key).split("-")[0]
-                    row = {"step": step, "capture": e.name, "rc": 2, "wall_s": 0.0, "output": "",
+                    row = {"step": step, "capture": e.name, "rc": int(ExitCode.ABORTED), "wall_s": 0.0, "output": "",
                            "error": f"{type(exc).__name__}: {exc}"}
                 steps[e.name][row["step"]] = row
                 if bar is not None:

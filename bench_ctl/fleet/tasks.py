@@ -21,6 +21,8 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from bench_ctl.exitcodes import ExitCode
+
 from .manifest import Entry
 
 RESULT, DIAGNOSIS, REPORT, DONE = "result.json", "diagnosis.json", "report.html", "done.json"
@@ -87,11 +89,12 @@ def run_step(step: str, entry: Entry, folder: str, evals: int, seed: int) -> dic
             rc = main(argv)
         row.update(rc=int(rc), argv=argv)
     except Exception as exc:  # noqa: BLE001 - a bad capture is a row of the summary, not a crash
-        row.update(rc=2, error=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc(limit=4))
+        row.update(rc=int(ExitCode.ABORTED), error=f"{type(exc).__name__}: {exc}",
+                   trace=traceback.format_exc(limit=4))
     row["output"] = buf.getvalue()[-4000:]
     row["wall_s"] = time.perf_counter() - t0
     row["end_unix"] = time.time()
-    if row["rc"] not in (0, 1) and "error" not in row:
+    if row["rc"] not in (ExitCode.OK, ExitCode.FAILED) and "error" not in row:
         lines = [ln for ln in row["output"].splitlines() if ln.strip()]
         row["error"] = lines[-1] if lines else f"exit {row['rc']}"
     return row
