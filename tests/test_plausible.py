@@ -57,7 +57,7 @@ def test_report_fails_unreadable_constraints_and_refuses_a_flat_record(tmp_path,
     # refuses it (issue 24 item 12: it was a FAIL report with "inf nan", rc 1), nothing written
     flat = Capture(cap.time, cap.usetp, np.full(cap.n, 1.0) + 0.002 * np.cos(np.arange(cap.n)))
     fcsv = write_capture(tmp_path / "flat.csv", {"time": flat.time, "usetp": flat.usetp, "efd": flat.efd}, {})[0]
-    from bench_ctl.capture.capture import sha256_file
+    from bench_ctl.limits import sha256_file
 
     forged = dict(result)
     forged["captures"] = [dict(result["captures"][0], path=str(fcsv), sha256=sha256_file(fcsv), meta={})]
@@ -172,7 +172,7 @@ def test_sidecar_test_metadata_is_validated_before_a_report_copies_it(tmp_path, 
 def test_report_with_another_captures_diagnosis_warns_on_the_console(tmp_path, cap, capsys):
     """The report only noted it in the HTML; the console now says it, and the other record's noise
     floor is not used to judge this fit."""
-    from bench_ctl.capture.capture import sha256_file
+    from bench_ctl.limits import sha256_file
 
     one = _write(tmp_path, "one.csv", cap)
     two = _write(tmp_path, "two.csv", synthetic_capture(reference_unit(), duration=3.0, rate=500.0, seed=9))

@@ -25,7 +25,7 @@ import pytest
 from PIL import Image
 
 from bench_ctl.capture import write_capture
-from bench_ctl.capture.capture import sha256_file
+from bench_ctl.limits import sha256_file
 from bench_ctl.cli import main
 from bench_ctl.model.params import AVR_PARAMS, PARAMS, REFERENCE_BOUNDS, REFERENCE_VALUES
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bench_ctl.capture import write_capture
-from bench_ctl.capture.capture import sha256_file
+from bench_ctl.limits import sha256_file
 from bench_ctl.model.params import AVR_PARAMS, REFERENCE_VALUES, neutral_values
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
 from bench_ctl.model.unit import load_unit

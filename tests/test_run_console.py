@@ -168,4 +168,4 @@ def test_a_bench_config_that_is_not_a_file_is_refused_unread(tmp_path, capsys):
     big = tmp_path / "big.toml"
     big.write_text("# " + "x" * (1 << 20) + "\n")
     rc = main(["run", "comms_check", "--bench", str(big), "--out", str(tmp_path / "y")])
-    assert rc == 2 and "larger than 1024 KiB" in capsys.readouterr().err
+    assert rc == 2 and "more than the 1048576 bytes a bench config may have" in capsys.readouterr().err

@@ -37,8 +37,7 @@ def read_limited(path: "str | os.PathLike[str]", limit: int | None = None, kind:
     try:
         return read_bounded(path, kind, limit)
     except InputError as exc:
-        file = os.fspath(path)
-        raise CaptureError(file, str(exc).removeprefix(f"{file}: ")) from None
+        raise CaptureError(exc.file, exc.reason) from None
 
 
 def delimiter_name(delimiter: str) -> str:

@@ -15,7 +15,6 @@ output could not be written.
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -30,7 +29,7 @@ from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.limits import InputError, read_bounded
+from bench_ctl.limits import InputError, read_json
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
@@ -207,7 +206,7 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
                 check_plausible(c)
         base_params = None
         if result_path:
-            data = json.loads(read_bounded(result_path, "a result JSON").decode("utf-8"))
+            data = read_json(result_path, "a result JSON")
             params = data.get("params") if isinstance(data, dict) else None
             if not isinstance(params, dict):
                 raise UnitError(f"{result_path}: not an identification result (no 'params' table)")
@@ -219,12 +218,6 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
                     base_params[k] = float(v)
             if not base_params:
                 raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
-    except UnicodeDecodeError as exc:
-        click.echo(f"error: {result_path}: not UTF-8 text (byte {exc.start})", err=True)
-        return ExitCode.ABORTED
-    except json.JSONDecodeError as exc:
-        click.echo(f"error: {result_path}: invalid JSON: {exc.msg} (line {exc.lineno})", err=True)
-        return ExitCode.ABORTED
     except (CaptureError, UnitError, ConstraintError, InputError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED

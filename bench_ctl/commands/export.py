@@ -14,9 +14,7 @@ comment. Exit codes: 0 written, 2 bad input (file, key or value named) or an out
 """
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 
 import click
 
@@ -35,7 +33,7 @@ NO_LIMIT = 999.0
 def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: bool = False) -> int:
     """Write the identified model of RESULT.json as a PSS/E dynamic data record."""
     from bench_ctl import outputs
-    from bench_ctl.limits import InputError, read_bounded
+    from bench_ctl.limits import InputError, read_json
     from bench_ctl.model.dyr import DyrError, DyrRecord, dyr_text
     from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of, not_carried
     from bench_ctl.model.structures import StructureError
@@ -46,7 +44,7 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
     try:
-        result = json.loads(read_bounded(result_path, "a result JSON").decode("utf-8"))
+        result = read_json(result_path, "a result JSON")
         if not isinstance(result, dict) or "params" not in result:
             raise ValueError("not an identification result (no 'params')")
         st, std = dyr_values_of(result)
@@ -58,9 +56,6 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         missing = not_carried(result, st, std)
     except InputError as exc:
         click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except UnicodeDecodeError as exc:
-        click.echo(f"error: {result_path}: not UTF-8 text (byte {exc.start})", err=True)
         return ExitCode.ABORTED
     except (ValueError, TypeError, StructureError, DyrError) as exc:
         click.echo(f"error: {result_path}: {exc}", err=True)

@@ -13,7 +13,6 @@ failed; 2 bad input (capture, unit file, --set, option), with the file / key nam
 """
 from __future__ import annotations
 
-import json
 import logging
 import shlex
 import sys

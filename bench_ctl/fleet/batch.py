@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import csv
 import html
-import json
 import logging
 import os
 import sys
@@ -27,7 +26,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.limits import InputError, read_bounded
+from bench_ctl.limits import InputError, read_json
 from bench_ctl.outputs import OutputRefused, Outputs, why_not_written
 
 from . import tasks
@@ -117,8 +116,8 @@ def _report_step(id_row: dict | None, dg_row: dict | None, entry: Entry, folder:
 def _read(path: Path) -> dict:
     """A result or diagnosis the batch wrote ({} when absent or unreadable), read bounded."""
     try:
-        data = json.loads(read_bounded(path, "a result JSON").decode("utf-8"))
-    except (InputError, ValueError):
+        data = read_json(path, "a result JSON")
+    except InputError:
         return {}
     return data if isinstance(data, dict) else {}
 
@@ -270,9 +269,8 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
                 continue
             try:
                 fp = tasks.fingerprint(e, evals, seed)
-            except OSError as exc:   # gone or unreadable since the manifest was read
-                rows[e.name] = problem_row(e, f"{Path(exc.filename or e.capture).name}: "
-                                              f"{exc.strerror or exc}")
+            except InputError as exc:   # gone or unreadable since the manifest was read
+                rows[e.name] = problem_row(e, f"{Path(exc.file).name}: {exc.reason}")
                 continue
             fps[e.name] = fp
             if tasks.is_done(folder, fp):

@@ -22,6 +22,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Iterable, Iterator, Mapping
 
+from bench_ctl.limits import InputError, read_text
+
 from .acceptance import AcceptanceError, acceptance_limits
 from .effects import EFFECTS, effect
 from .params import AVR_PARAMS, GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, neutral_values
@@ -334,10 +336,6 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     return check_unit(unit, source)
 
 
-#: a unit file is a page of TOML; anything much larger is the wrong file
-UNIT_FILE_MAX_BYTES = 1 << 20
-
-
 def load_unit(path: str | Path | None = None) -> Unit:
     """Load a unit file, or the built-in reference unit when `path` is None."""
     if path is None:
@@ -345,15 +343,10 @@ def load_unit(path: str | Path | None = None) -> Unit:
         source = "<built-in reference unit>"
     else:
         p = Path(path)
-        try:
-            if not p.is_file() or p.stat().st_size > UNIT_FILE_MAX_BYTES:  # not /dev/zero, not a capture
-                raise UnitError(f"{p}: not a unit file (a regular file of at most "
-                                f"{UNIT_FILE_MAX_BYTES} bytes)")
-            text = p.read_text("utf-8")
-        except OSError as exc:
-            raise UnitError(f"{p}: cannot read unit file: {exc.strerror}") from None
-        except UnicodeDecodeError as exc:
-            raise UnitError(f"{p}: not a UTF-8 text file (byte {exc.start}): {exc.reason}") from None
+        try:   # a regular file within the limit (not /dev/zero, not a capture)
+            text = read_text(p, "a unit file")
+        except InputError as exc:
+            raise UnitError(str(exc)) from None
         source = str(p)
     try:
         data = tomllib.loads(text)

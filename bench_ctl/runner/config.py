@@ -48,6 +48,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
+from bench_ctl.limits import InputError, read_text
 from drivers.link import Endpoint
 
 
@@ -245,29 +246,15 @@ def config_from_dict(doc: Mapping[str, Any], source: str = "<dict>",
                        procedures={k: dict(v) for k, v in procs.items()}, source=source)
 
 
-#: a bench config is a page of TOML; anything larger is not one (and /dev/zero never ends)
-MAX_CONFIG_BYTES = 1 << 20
-
-
 def load_bench_config(path: str | Path) -> BenchConfig:
     """Read a bench config TOML; ConfigError naming the file and key on anything wrong. Only a
-    regular file of at most MAX_CONFIG_BYTES is read (a device or a pipe is refused unread)."""
+    regular file within the limit of "a bench config" is read (`bench_ctl.limits`: a device or
+    a pipe is refused unread)."""
     path = Path(path)
     try:
-        if not path.exists():
-            raise ConfigError(f"{path}: no such bench config")
-        if not path.is_file():
-            raise ConfigError(f"{path}: not a regular file (a device, a folder or a pipe); a bench "
-                              "config is a TOML file")
-        with path.open("rb") as fh:
-            data = fh.read(MAX_CONFIG_BYTES + 1)
-        if len(data) > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 1024} KiB; not a bench config")
-        doc = tomllib.loads(data.decode("utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the bench config: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}): {exc.reason}") from None
+        doc = tomllib.loads(read_text(path, "a bench config"))
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     return config_from_dict(doc, source=str(path), base=path.resolve().parent)
