@@ -7,13 +7,13 @@ writes before the operator confirmed), sent once, then read back and compared wo
 """
 from __future__ import annotations
 
-import datetime as dt
 import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from bench_ctl.timestamps import utc_at_monotonic
 from drivers.errors import RangeError, ReadbackMismatch
 from drivers.link import ModbusLink, wait_until
 from drivers.profile import Profile, Register
@@ -71,11 +71,6 @@ class SafeStateReport:
 
 WriteGuard = Callable[[str, str, float, str], None]      # device, register, value, purpose
 WriteListener = Callable[[WriteRecord], None]
-
-
-def _utc_at(t_mono: float) -> str:
-    wall = time.time() - (time.monotonic() - t_mono)
-    return dt.datetime.fromtimestamp(wall, dt.timezone.utc).isoformat(timespec="microseconds")
 
 
 class RegisterDevice:
@@ -173,7 +168,7 @@ class RegisterDevice:
         """Record a write with its read-back words (listener), ReadbackMismatch when they
         differ from the words sent."""
         record = WriteRecord(device=self.name, register=name, value=value, raw=tuple(words),
-                             readback=tuple(readback), t_tx_mono=t_tx, t_utc=_utc_at(t_tx),
+                             readback=tuple(readback), t_tx_mono=t_tx, t_utc=utc_at_monotonic(t_tx),
                              purpose=purpose)
         if self.listener is not None:
             self.listener(record)

@@ -10,7 +10,6 @@ never overwrites an existing capture and writes each file atomically.
 from __future__ import annotations
 
 import csv
-import datetime as dt
 import errno
 import hashlib
 import io
@@ -32,6 +31,7 @@ from bench_ctl.capture.timebase import check_time, step_tolerance
 # the one file hash lives in bench_ctl.limits; bench_ctl.identification.identify still imports it
 # from here until its rewrite lands
 from bench_ctl.limits import sha256_file  # noqa: F401
+from bench_ctl.timestamps import utc_now_text
 
 log = logging.getLogger(__name__)
 
@@ -335,7 +335,7 @@ def write_capture(
     sidecar: dict[str, Any] = {
         "schema": SCHEMA,
         "software_version": bench_ctl.__version__,
-        "created_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "created_utc": utc_now_text(),
         "csv_sha256": sha256_bytes(payload),
         "rate_hz": capture.rate_hz,
         "n_samples": capture.n,
