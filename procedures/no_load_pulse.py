@@ -53,11 +53,12 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from bench_ctl.model.edges import SETPOINT, find_edges
 from bench_ctl.runner.bench import Bench
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
 from bench_ctl.runner.devices import TIMED_WRITE_GUARD_S, DeviceError, RecordSettings, hold_gc
@@ -130,19 +131,23 @@ class RecordedPulse:
 
 def measure_pulse(time_s: np.ndarray, usetp: np.ndarray, expected_pu: float,
                   pre_samples: int = 1) -> RecordedPulse:
-    """The first run of samples where usetp departs from its baseline (median of the first
-    `pre_samples`, the pre-trigger part) by more than half the expected amplitude: its start,
-    width (samples x step) and mean level above the baseline."""
+    """The pulse in the recorded setpoint, by the shared edge finder (`bench_ctl.model.edges`, a
+    setpoint channel): the first edge departing from its level by more than half the expected
+    amplitude, either way, and the first later edge back. Its start is the leading edge's first
+    sample, its width the samples from there to the trailing edge's first sample (to the end of
+    the record when usetp never came back) x the sample step, its amplitude the mean of usetp
+    over those samples above the baseline (median of the first `pre_samples`, the pre-trigger
+    part). ValueError when no edge departs that far."""
     time_s, usetp = np.asarray(time_s, float), np.asarray(usetp, float)
     baseline = float(np.median(usetp[:max(1, pre_samples)]))
-    away = np.abs(usetp - baseline) > abs(expected_pu) / 2
-    idx = np.flatnonzero(away)
-    if idx.size == 0:
-        raise ValueError(f"no pulse in usetp (no sample departs {abs(expected_pu) / 2:g} pu "
-                         f"from the initial {baseline:g} pu)")
-    i0 = int(idx[0])
-    back = np.flatnonzero(~away[i0:])
-    i1 = i0 + int(back[0]) if back.size else usetp.size
+    half = abs(expected_pu) / 2
+    search = find_edges(time_s, usetp, kind=SETPOINT, channel="usetp")
+    lead, trail = replace(search, edges=tuple(e for e in search.edges if abs(e.departure) > half)).pulse()
+    if lead is None:
+        raise ValueError(f"no pulse in usetp (no edge departs {half:g} pu from the level before it; "
+                         f"initial {baseline:g} pu)")
+    i0 = lead.index
+    i1 = trail.index if trail is not None else usetp.size
     dt = float(time_s[1] - time_s[0])
     return RecordedPulse(start_s=float(time_s[i0]), width_s=(i1 - i0) * dt,
                          amplitude_pu=float(np.mean(usetp[i0:i1]) - baseline),
