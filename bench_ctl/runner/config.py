@@ -2,6 +2,10 @@
 
 Every key is known; an unknown or mistyped key is an error naming the file and the key (a
 typo in a limit must never fall back to a default). Quantities carry their unit in the name.
+Each device's profile is loaded and checked against the roles its driver declares
+(`drivers.roles`: a required register missing, one the host writes that is read-only, a unit the
+drivers do not compute in) when the config is loaded, before any file or link is opened: one
+ConfigError line naming the profile, the role and what is wrong.
 
     [bench]
     name = "Unit 3 excitation bench"
@@ -50,6 +54,8 @@ from typing import Any, Mapping
 
 from bench_ctl.limits import InputError, read_text
 from drivers.link import Endpoint
+from drivers.profile import load_profile
+from drivers.roles import role_problems
 
 
 class ConfigError(ValueError):
@@ -241,9 +247,29 @@ def config_from_dict(doc: Mapping[str, Any], source: str = "<dict>",
     procs = doc.get("procedures", {})
     if not isinstance(procs, Mapping) or not all(isinstance(v, Mapping) for v in procs.values()):
         raise ConfigError(f"{source}: [procedures.NAME] must be tables of parameters")
+    for name, device in devices.items():
+        check_profile(name, device.profile, source)
     return BenchConfig(name=bench.get("name", Path(source).stem), exciter=devices["exciter"],
                        recorder=devices["recorder"], limits=Limits(**lim),
                        procedures={k: dict(v) for k, v in procs.items()}, source=source)
+
+
+def check_profile(device: str, profile: str, source: str) -> None:
+    """The `device`'s profile (a name or a path) exists, describes that kind of device and plays
+    every role its driver declares (`drivers.roles`); one ConfigError line otherwise."""
+    key = f"{source}: {device}.profile = {profile!r}"
+    try:
+        prof = load_profile(profile)
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{source}: {device}.profile: {exc}") from None
+    if prof.device != device:
+        article = {"exciter": "an", "recorder": "a"}
+        raise ConfigError(f"{key} describes {article[prof.device]} {prof.device} (profile {prof.name!r}), "
+                          f"not {article[device]} {device}")
+    problems = role_problems(prof)
+    if problems:
+        raise ConfigError(f"{key} (profile {prof.name!r}) does not fit the {device} driver: "
+                          + "; ".join(problems))
 
 
 def load_bench_config(path: str | Path) -> BenchConfig:

@@ -43,7 +43,6 @@ from bench_ctl.runner.lock import BenchLock
 from bench_ctl.runner.safety import BenchBusy, CtrlC, OutputLost, Refused, Terminated
 from drivers.device import SafeStateReport
 from drivers.errors import CommError, DeviceError, IntegrityError
-from drivers.profile import load_profile
 
 log = logging.getLogger(__name__)
 
@@ -143,23 +142,12 @@ def writes_to_devices(fn: Any) -> bool:
 
 
 def _check_config(config: BenchConfig) -> list[str]:
-    """Everything the config names must exist and fit before a file is opened: procedures,
-    profiles of the right device kind with the registers the drivers need (the drivers are
-    built once, without I/O). Returns warnings to say loudly (none today: the device's
-    watchdog is read from the device after connecting, docs/decisions/0011)."""
+    """Everything the config names must exist and fit before a file is opened: procedures, and
+    (the profiles' kinds and roles were checked when the config was loaded) the drivers built
+    once, without I/O. Returns warnings to say loudly (none today: the device's watchdog is
+    read from the device after connecting, docs/decisions/0011)."""
     for other in config.procedures:
         load_procedure(other)
-    for device in ("exciter", "recorder"):
-        try:
-            profile = load_profile(getattr(config, device).profile)
-        except (OSError, ValueError) as exc:
-            raise ConfigError(f"{config.source}: {device}.profile: {exc}") from None
-        if profile.device != device:
-            raise ConfigError(f"{config.source}: {device}.profile = {getattr(config, device).profile!r} "
-                              f"describes a {profile.device} (profile {profile.name!r}), not an {device}"
-                              if device == "exciter" else
-                              f"{config.source}: {device}.profile = {getattr(config, device).profile!r} "
-                              f"describes an {profile.device} (profile {profile.name!r}), not a {device}")
     try:
         Bench(config)   # the drivers check their profiles (registers, layout); no I/O
     except (KeyError, ValueError) as exc:
