@@ -103,9 +103,35 @@ class RegisterDevice:
         return {"device": self.name, "profile": self.profile.name, **self.profile.identity,
                 "url": self.link.endpoint.url, "unit_id": self.link.endpoint.unit_id}
 
+    @property
+    def endpoint_url(self) -> str:
+        """Where the device is reached (`tcp://HOST:PORT`, a serial port, `rtu+tcp://...`)."""
+        return self.link.endpoint.url
+
+    @property
+    def unit_id(self) -> int:
+        return self.link.endpoint.unit_id
+
+    @property
+    def request_timeout_s(self) -> float:
+        """How long one request may take before it counts as lost."""
+        return self.link.endpoint.timeout_s
+
     # -- registers ---------------------------------------------------------------------------
+    def has(self, name: str) -> bool:
+        """Whether the profile maps register `name` (an optional role such as efd)."""
+        return name in self.profile.registers
+
+    def register_names(self) -> tuple[str, ...]:
+        """Every register of the profile, holding then input, in address order."""
+        return tuple(reg.name for table in ("holding", "input") for reg in self.profile.by_table(table))
+
     def register(self, name: str) -> Register:
         return self.profile[name]
+
+    def decode(self, name: str, words: list[int] | tuple[int, ...]) -> float:
+        """The engineering value of register words read earlier (`read_words`)."""
+        return self.register(name).decode(list(words))
 
     def read_words(self, name: str, *, attempts: int | None = None) -> list[int]:
         reg = self.register(name)
@@ -120,11 +146,7 @@ class RegisterDevice:
 
     def read_all(self) -> dict[str, float]:
         """Every register of the profile once, in table and address order."""
-        out: dict[str, float] = {}
-        for table in ("holding", "input"):
-            for reg in self.profile.by_table(table):
-                out[reg.name] = self.read(reg.name)
-        return out
+        return {name: self.read(name) for name in self.register_names()}
 
     def encode(self, name: str, value: float) -> list[int]:
         """Words for `value`, or RangeError (nothing sent)."""

@@ -47,6 +47,16 @@ class PreTest:
     mode: int | None  # None when the profile has no mode register
 
 
+@dataclass(frozen=True)
+class HeartbeatStats:
+    """How the heartbeat went: beats written, beats that failed, the longest gap between two
+    good beats (s)."""
+
+    beats: int
+    failures: int
+    max_gap_s: float
+
+
 class Heartbeat:
     """Background thread keeping the device's heartbeat register changing."""
 
@@ -78,6 +88,9 @@ class Heartbeat:
     @property
     def running(self) -> bool:
         return self._thread is not None
+
+    def stats(self) -> HeartbeatStats:
+        return HeartbeatStats(self.beats, self.failures, self.max_gap_s)
 
     def _run(self) -> None:
         try:
@@ -230,6 +243,10 @@ class Exciter(RegisterDevice):
             return ("the exciter is already in remote (mode bit remote set) before this run took it: "
                     "another master may be controlling it")
         return None
+
+    def heartbeat_stats(self) -> HeartbeatStats:
+        """Beats, failures and the longest gap of this run's heartbeat so far."""
+        return self.heartbeat.stats()
 
     # -- test sequence -----------------------------------------------------------------------
     def snapshot(self) -> PreTest:

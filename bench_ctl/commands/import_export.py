@@ -104,19 +104,13 @@ def _scales(values: tuple[str, ...]) -> tuple[dict[str, float], bool]:
 
 
 def _no_load(unit: Unit) -> NoLoad:
-    """The unit's no-load field for an auto base: Vt0 and the kernel's saturation Sat(x)."""
-    import numpy as np
-    from bench_ctl.model.kernel import saturation_ab   # numba: loaded only for an auto base
+    """The unit's no-load field for an auto base: Vt0 and the model's saturation Sat(x)."""
+    from bench_ctl.model.simulate import generator_saturation   # numba: loaded only for an auto base
 
     values = unit.values()
     s10, s12 = float(values["S10"]), float(values["S12"])
-    a, b = (float(v[0]) for v in saturation_ab(np.array([s10]), np.array([s12])))
-
-    def sat(x: float) -> float:
-        return b * (x - a) ** 2 if x > a else 0.0
-
-    return NoLoad(vt0_pu=float(unit.generator["Vt0"]), s10=s10, s12=s12, saturation=sat,
-                  source=f"{unit.name} ({unit.source})")
+    return NoLoad(vt0_pu=float(unit.generator["Vt0"]), s10=s10, s12=s12,
+                  saturation=generator_saturation(s10, s12), source=f"{unit.name} ({unit.source})")
 
 
 def _fmt(v: Any, spec: str = ".4g") -> str:
