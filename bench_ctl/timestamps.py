@@ -19,16 +19,16 @@ def utc_text(moment: dt.datetime, timespec: str = "seconds") -> str:
     `datetime.isoformat` takes it: "seconds", "milliseconds", "microseconds")."""
     if moment.tzinfo is None:
         raise ValueError(f"{moment!r} has no time zone: a written timestamp is always UTC")
-    return moment.astimezone(dt.timezone.utc).isoformat(timespec=timespec)
+    return moment.astimezone(dt.UTC).isoformat(timespec=timespec)
 
 
 def utc_now_text(timespec: str = "seconds") -> str:
     """Now, in the format of every file bench-ctl writes (see `utc_text`)."""
-    return utc_text(dt.datetime.now(dt.timezone.utc), timespec)
+    return utc_text(dt.datetime.now(dt.UTC), timespec)
 
 
 def utc_at_monotonic(t_mono: float, timespec: str = "microseconds") -> str:
     """The wall-clock time of the monotonic instant `t_mono` (`time.monotonic()` of this process),
     e.g. when a request frame left."""
     wall = time.time() - (time.monotonic() - t_mono)
-    return utc_text(dt.datetime.fromtimestamp(wall, dt.timezone.utc), timespec)
+    return utc_text(dt.datetime.fromtimestamp(wall, dt.UTC), timespec)

@@ -91,7 +91,7 @@ class RegisterDevice:
     def close(self) -> None:
         self.link.close()
 
-    def __enter__(self) -> "RegisterDevice":
+    def __enter__(self) -> RegisterDevice:
         self.connect()
         return self
 

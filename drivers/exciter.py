@@ -24,8 +24,7 @@ import threading
 import time
 from dataclasses import dataclass
 
-from drivers.device import (TIMED_WRITE_GUARD_S, RegisterDevice, SafeStateReport, WriteGuard,
-                            WriteListener, WriteRecord)
+from drivers.device import TIMED_WRITE_GUARD_S, RegisterDevice, SafeStateReport, WriteGuard, WriteListener, WriteRecord
 from drivers.errors import CommError, DeviceError, ExceptionReply, WriteUncertain
 from drivers.link import ModbusLink
 from drivers.profile import Profile

@@ -43,9 +43,10 @@ import logging
 import math
 import struct
 import tomllib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from bench_ctl.limits import read_text
 

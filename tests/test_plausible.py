@@ -127,7 +127,8 @@ def test_import_applies_the_same_checks(tmp_path, capsys):
     c = _fast(10_000.0)
 
     def export(name, t_scale=1.0, efd=c.efd):
-        lines = ["t,EFD,U"] + [f"{float(t) * t_scale!r},{float(e)!r},{float(u)!r}" for t, e, u in zip(c.time, efd, c.usetp)]
+        lines = ["t,EFD,U"] + [f"{float(t) * t_scale!r},{float(e)!r},{float(u)!r}"
+                               for t, e, u in zip(c.time, efd, c.usetp)]
         (tmp_path / name).write_text("\n".join(lines) + "\n")
         return ["import", str(tmp_path / name), "--map", "efd=EFD", "--map", "usetp=U", "--time-column", "t"]
 
@@ -146,7 +147,8 @@ def test_import_applies_the_same_checks(tmp_path, capsys):
 
 @pytest.mark.parametrize("test,expect", [
     ({"kind": "pulse", "amplitude_pu": -5, "start_s": 1.0, "width_s": 1.0}, "key 'test.amplitude_pu': -5 pu is not"),
-    ({"kind": "pulse", "amplitude_pu": 0.05, "start_s": 1.0, "width_s": -1}, "key 'test.width_s': -1 s: a pulse's width"),
+    ({"kind": "pulse", "amplitude_pu": 0.05, "start_s": 1.0, "width_s": -1},
+     "key 'test.width_s': -1 s: a pulse's width"),
     ({"kind": "pulse", "amplitude_pu": 0.05, "start_s": 99, "width_s": 1.0}, "key 'test.start_s': 99 s lies outside"),
     ({"kind": "pulse", "amplitude_pu": -0.05, "start_s": 1.0, "width_s": 1.0}, "but usetp steps by 0.05 pu"),
     ({"kind": "pulse", "amplitude_pu": 0.05, "start_s": 1.0, "width_s": 0.001}, "but the usetp pulse lasts 1 s"),
@@ -181,7 +183,8 @@ def test_report_with_another_captures_diagnosis_warns_on_the_console(tmp_path, c
             "verdict": "none", "noise_floor": 1e-9}
     (tmp_path / "d.json").write_text(json.dumps(diag))
     capsys.readouterr()
-    rc = main(["report", str(tmp_path / "r.json"), "--diagnosis", str(tmp_path / "d.json"), "-o", str(tmp_path / "r.html")])
+    rc = main(["report", str(tmp_path / "r.json"), "--diagnosis", str(tmp_path / "d.json"),
+               "-o", str(tmp_path / "r.html")])
     printed = capsys.readouterr()
     assert rc in (0, 1)
     assert "WARNING: --diagnosis" in printed.err and "not on a capture of this result" in printed.err

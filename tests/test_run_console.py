@@ -157,7 +157,7 @@ def test_a_profile_of_the_wrong_device_kind_is_refused_in_one_line(tmp_path, cap
     rc = main(["run", "no_load_pulse", "--bench", str(tmp_path / "wrong.toml"), "--dry-run",
                "--out", str(tmp_path / "b")])
     err = capsys.readouterr().err
-    assert rc == 2 and f"describes a" in err and len(err.strip().splitlines()) == 1
+    assert rc == 2 and "describes a" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "b").exists()
 
 

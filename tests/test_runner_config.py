@@ -11,8 +11,7 @@ import pytest
 
 from bench_ctl.runner.audit import AuditLog, read_audit
 from bench_ctl.runner.config import ConfigError, config_from_dict, load_bench_config
-from bench_ctl.runner.safety import (CtrlC, LimitViolation, PreconditionFailed,
-                                     check_no_load, check_pulse)
+from bench_ctl.runner.safety import CtrlC, LimitViolation, PreconditionFailed, check_no_load, check_pulse
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "benches" / "example.toml"

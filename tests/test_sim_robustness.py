@@ -47,7 +47,8 @@ def test_stopping_while_clients_send_leaves_no_asyncio_noise(caplog):
             stop = threading.Event()
             started = threading.Barrier(5)
 
-            def hammer() -> None:
+            def hammer(port: int = port, started: threading.Barrier = started,
+                       stop: threading.Event = stop) -> None:
                 c = ModbusTcpClient("127.0.0.1", port=port, timeout=0.2, retries=0)
                 c.connect()
                 started.wait()

@@ -28,6 +28,7 @@ from bench_ctl import outputs
 from bench_ctl.capture.errors import CaptureError, shown_names
 from bench_ctl.capture.table import decode_utf8, parse_numeric, read_limited, read_text_table, try_numeric
 from bench_ctl.capture.timebase import check_time, step_tolerance
+
 # the one file hash lives in bench_ctl.limits; bench_ctl.identification.identify still imports it
 # from here until its rewrite lands
 from bench_ctl.limits import sha256_file  # noqa: F401

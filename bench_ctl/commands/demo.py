@@ -20,9 +20,9 @@ from bench_ctl.exitcodes import ExitCode
 from bench_ctl.runner.config import ConfigError
 from bench_ctl.runner.runner import OutputExists, OutputUnusable, run_procedure
 
-from .diagnose import clean_json, for_file as diagnosis_for_file
+from .diagnose import clean_json
+from .diagnose import for_file as diagnosis_for_file
 from .run import print_outcome
-
 
 #: what the demo writes after the pulse test (the runner guards its own files)
 DEMO_OUTPUTS = ("result.json", "diagnosis.json", "report.html")

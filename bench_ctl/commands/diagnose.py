@@ -19,8 +19,9 @@ import logging
 import math
 import os
 import shlex
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import click
 import numpy as np
@@ -29,9 +30,9 @@ from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.limits import InputError, read_json
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.limits import InputError, read_json
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import Unit, UnitError
@@ -193,7 +194,8 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
              result_path: str | None, seed: int, json_out: str | None, report_out: str | None,
              force: bool = False) -> int:
     """Diagnose the gap between the unit's model and CAPTURE (a pulse or step test)."""
-    from bench_ctl.diagnosis import DiagnosisError, diagnose as run
+    from bench_ctl.diagnosis import DiagnosisError
+    from bench_ctl.diagnosis import diagnose as run
 
     model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id)
 

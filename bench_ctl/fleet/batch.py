@@ -19,9 +19,10 @@ import logging
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -66,7 +67,7 @@ def _with_port(host: str, port: int) -> str:
     return f"[{host}]:{port}" if ":" in host and not host.startswith("[") else f"{host}:{port}"
 
 
-def local_cluster(n_workers: int, host: str = LOOPBACK) -> "LocalCluster":
+def local_cluster(n_workers: int, host: str = LOOPBACK) -> LocalCluster:
     """A LocalCluster of `n_workers` single-threaded worker processes set up for the fits. Its
     scheduler, workers, nannies and dashboard all listen on `host` (default: loopback only; the
     dashboard on ':0' alone would listen on every interface)."""

@@ -6,8 +6,8 @@ parameters into the kernel's parameter matrix. `simulate` runs one parameter set
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
 

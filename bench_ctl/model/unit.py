@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping
 
 from bench_ctl.limits import InputError, read_text
 
@@ -90,7 +90,7 @@ class Unit:
         return out
 
     def with_effects(self, effects: Mapping[str, Mapping[str, float]], *,
-                     check_constraints: bool = True) -> "Unit":
+                     check_constraints: bool = True) -> Unit:
         merged = {k: dict(v) for k, v in self.effects.items()}
         for name, params in effects.items():
             eff = effect(name)
@@ -120,7 +120,8 @@ class Unit:
         }
 
 
-def bounded_values(values: Mapping[str, object], bounds: Mapping[str, object]) -> Iterator[tuple[str, float, float, float]]:
+def bounded_values(values: Mapping[str, object],
+                   bounds: Mapping[str, object]) -> Iterator[tuple[str, float, float, float]]:
     """(name, value, min, max) for each numeric value with a [min, max] pair in `bounds` (as a
     result JSON writes them; anything else is skipped)."""
     for name, value in values.items():

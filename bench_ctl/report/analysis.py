@@ -21,11 +21,26 @@ from bench_ctl.model.acceptance import Acceptance, AcceptanceError, acceptance_l
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import outside_bounds
 from bench_ctl.report import checks as chk
-from bench_ctl.report.inputs import (DIAGNOSIS_SCHEMA, LoadedCapture, ReportError, check_result,
-                                     check_schema, load_captures, model_values, same_file)
+from bench_ctl.report.inputs import (
+    DIAGNOSIS_SCHEMA,
+    LoadedCapture,
+    ReportError,
+    check_result,
+    check_schema,
+    load_captures,
+    model_values,
+    same_file,
+)
+from bench_ctl.report.metrics import (
+    DEFAULT_EDGE_WINDOW_S,
+    ErrorFigures,
+    PulseEdges,
+    error_figures,
+    find_edges,
+    trapezoid_sq,
+    window_slice,
+)
 from bench_ctl.timestamps import utc_now_text
-from bench_ctl.report.metrics import (DEFAULT_EDGE_WINDOW_S, ErrorFigures, PulseEdges,
-                                      error_figures, find_edges, trapezoid_sq, window_slice)
 
 log = logging.getLogger(__name__)
 

@@ -64,7 +64,7 @@ class AuditLog:
         self.error: OSError | None = None  # the first write error
         self._closed = False
 
-    def open(self) -> "AuditLog":
+    def open(self) -> AuditLog:
         self._fh = open(self.path, "x", encoding="utf-8")  # never overwrite an audit
         return self
 
@@ -131,7 +131,7 @@ class AuditLog:
                     self.lost -= 1  # no line was lost by closing; the file may be short
                 self._fh = None
 
-    def __enter__(self) -> "AuditLog":
+    def __enter__(self) -> AuditLog:
         return self.open()
 
     def __exit__(self, *exc: object) -> None:

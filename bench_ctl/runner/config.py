@@ -48,9 +48,10 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from bench_ctl.limits import InputError, read_text
 from drivers.link import Endpoint
@@ -132,7 +133,7 @@ class BenchConfig:
 
     def with_endpoints(self, *, exciter_url: str | None = None, recorder_url: str | None = None,
                        exciter_unit_id: int | None = None,
-                       recorder_unit_id: int | None = None) -> "BenchConfig":
+                       recorder_unit_id: int | None = None) -> BenchConfig:
         """The same bench pointed at other addresses (a dry run points it at the simulators)."""
         exc, rec = self.exciter, self.recorder
         if exciter_url is not None:

@@ -74,7 +74,7 @@ class BenchLock:
         self.path: Path | None = None
         self._fd: int | None = None
 
-    def acquire(self) -> "BenchLock":
+    def acquire(self) -> BenchLock:
         """Take the lock, or BenchBusy naming the holder. OSError when the lock folder or file
         cannot be used (the run is then refused: it would not know it is alone)."""
         folder = self._folder or lock_dir()
@@ -133,7 +133,7 @@ class BenchLock:
             os.close(fd)
         log.info("bench lock released: %s", self.key)
 
-    def __enter__(self) -> "BenchLock":
+    def __enter__(self) -> BenchLock:
         return self.acquire()
 
     def __exit__(self, *exc: object) -> None:

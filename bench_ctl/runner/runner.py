@@ -37,8 +37,7 @@ from bench_ctl.exitcodes import ExitCode
 from bench_ctl.runner.audit import AuditLog
 from bench_ctl.runner.bench import Bench
 from bench_ctl.runner.config import BenchConfig, ConfigError, load_bench_config
-from bench_ctl.runner.context import (CAPTURE_NAME, RAW_NAME, Confirm, Criterion, Hook,
-                                      ProcedureResult, RunContext)
+from bench_ctl.runner.context import CAPTURE_NAME, RAW_NAME, Confirm, Criterion, Hook, ProcedureResult, RunContext
 from bench_ctl.runner.lock import BenchLock
 from bench_ctl.runner.safety import BenchBusy, CtrlC, OutputLost, Refused, Terminated
 from drivers.device import SafeStateReport
@@ -350,7 +349,7 @@ def _remove_new(*paths: Path) -> None:
             path.unlink()
 
 
-def _not_saved(ctx: RunContext, audit: AuditLog, runlog: "_RunLogHandler") -> list[str]:
+def _not_saved(ctx: RunContext, audit: AuditLog, runlog: _RunLogHandler) -> list[str]:
     """What the run could not save, one line each: the capture / raw download, the audit, the
     DEBUG log."""
     lines = list(ctx.lost_outputs)
