@@ -2,7 +2,7 @@
 
 Each sub-command lives in its own module (imported only when used, so `bench-ctl sim` does not
 pay for compiling the identification kernel). Exit codes (docs/style.md): 0 pass, 1 criteria
-failed, 2 aborted / safe state reached, 3 communication error.
+failed, 2 aborted / safe state reached / bad input, 3 communication error: `bench_ctl.exitcodes`.
 """
 from __future__ import annotations
 
@@ -12,10 +12,7 @@ import sys
 
 import click
 
-EXIT_OK = 0
-EXIT_CRITERIA_FAILED = 1
-EXIT_ABORTED = 2
-EXIT_COMMS = 3
+from bench_ctl.exitcodes import ExitCode
 
 # name -> "module:attribute" of a click.Command
 COMMANDS = {
@@ -66,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         rv = cli.main(args=argv, prog_name="bench-ctl", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("aborted", err=True)
-        return EXIT_ABORTED
+        return ExitCode.ABORTED
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code

@@ -26,8 +26,9 @@ import errno
 import json
 import os
 import secrets
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any
 
 __all__ = ["OutputRefused", "Outputs", "guard_outputs", "input_family", "write_bytes", "write_json",
            "write_text", "why_not_written"]

@@ -11,7 +11,8 @@ ANDES integrates with a fixed 0.2 ms step (its time series also holds the event 
 with 0.01 ms for the 5 ms after each edge: its implicit trapezoid takes the step that starts at a
 change of `vref0` with the old input at its start, as if the change came half a step late, and
 0.1 ms of that is an efd error of 0.012 pu at a 5 % ESST1A pulse, more than the 0.01 pu the
-kernel is checked to (issue 13); 0.01 ms makes that 20 times smaller. The output is resampled linearly onto a uniform 1 kHz grid: `time`, `usetp` (1 + the reference
+kernel is checked to (issue 13); 0.01 ms makes that 20 times smaller. The output is resampled
+linearly onto a uniform 1 kHz grid: `time`, `usetp` (1 + the reference
 change, as a recorder samples it: the value at each sample instant), `efd` (GENROU vf), `vt` (bus
 voltage), `ifd` (the exciter's XadIfd, field current on the air-gap-line base). No noise: the
 consumers add seeded noise. Files: tests/fixtures/andes/NAME.csv + manifest.json (true
@@ -84,7 +85,7 @@ def _system(andes, model: str, params: dict):
     ss = _network(andes)
     ss.add("GENROU", dict(idx=1, bus=1, gen=20, **GENERATOR))
     ss.add(model, dict(idx=1, syn=1, **params))
-    return _ready(ss)
+    return _ready(ss, model)
 
 
 def system_from_dyr(andes, dyr_path: str):
@@ -94,7 +95,7 @@ def system_from_dyr(andes, dyr_path: str):
     ss = _network(andes)
     if not psse.read_add(ss, dyr_path):
         raise RuntimeError(f"ANDES could not read {dyr_path}")
-    return _ready(ss)
+    return _ready(ss, dyr_path)
 
 
 def generator_record() -> str:
@@ -105,11 +106,11 @@ def generator_record() -> str:
     return "1 'GENROU' 1 " + " ".join(f"{v:g}" for v in vals) + " /\n"
 
 
-def _ready(ss):
+def _ready(ss, what: str):
     ss.setup()
     ss.PFlow.run()
     if not ss.PFlow.converged:
-        raise RuntimeError(f"{model}: the power flow did not converge")
+        raise RuntimeError(f"{what}: the power flow did not converge")
     ss.TDS.config.fixt = 1
     ss.TDS.config.shrinkt = 0
     ss.TDS.config.tstep = STEP

@@ -5,7 +5,8 @@ by bench-ctl (that structure, the generator known from its GENROU record, 1000 e
 the result exported with `bench-ctl export --dyr`, and the record loaded by ANDES' own PSS/E
 reader (`andes.io.psse.read_add`) beside the capture's GENROU record. ANDES then runs the same
 pulse (benchmarks/andes_captures.py). ANDES 2.0 reads ESST1A's fields in another order than PSS/E
-(its psse-dyr.yaml): the ESST1A record is handed to it reordered, which the output says. Reported: the MSE of ANDES' efd against the noisy capture
+(its psse-dyr.yaml): the ESST1A record is handed to it reordered, which the output says.
+Reported: the MSE of ANDES' efd against the noisy capture
 over the noise variance actually in it (target <= 1.1), and whether ANDES read back every value
 bench-ctl wrote.
 
@@ -60,6 +61,7 @@ def _run(cmd: list[str]) -> None:
 
 def run(model: str, work: Path, seed: int = 0) -> dict:
     import andes
+
     import andes_captures as ac
     m = manifest()
     name = f"{model.lower()}_05pct"

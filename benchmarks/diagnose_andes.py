@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import numpy as np  # noqa: E402
 
-from andes_units import generator_values, manifest, read_fixture, fixture_column  # noqa: E402
+from andes_units import fixture_column, generator_values, manifest, read_fixture  # noqa: E402
 from bench_ctl.capture import Capture  # noqa: E402
 from bench_ctl.diagnosis import diagnose  # noqa: E402
 from bench_ctl.model.unit import apply_overrides, reference_unit, with_model  # noqa: E402
@@ -103,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
                   + f"; ceiling variant: {r['ceiling_variant']}; left {r['left_over_floor']:.2f}x the noise floor "
                     f"({r['note']})")
     print(f"captures riding a limit with saturation and ceiling_limit in explained_by: "
-          f"{out['limited_with_sat_and_ceiling']}/{out['limited_captures']}; median {out['median_wall_s']:.1f} s a capture")
+          f"{out['limited_with_sat_and_ceiling']}/{out['limited_captures']}; "
+          f"median {out['median_wall_s']:.1f} s a capture")
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
     return 0

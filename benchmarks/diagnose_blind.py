@@ -111,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
         mark = "ok " if r.verdict == r.truth else "BAD"
         gap = "-" if r.gap_closed_holdout is None else f"{r.gap_closed_holdout:.3f}"
         print(f"{mark} {r.case_id:<22} verdict {r.verdict:<15} gap {gap:>7}  {r.seconds:5.1f} s  "
-              f"cpu {r.cpu_seconds:5.1f} s  ranking {','.join(r.ranking[:3])}  explained_by {'>'.join(r.explained) or '-'}  "
+              f"cpu {r.cpu_seconds:5.1f} s  ranking {','.join(r.ranking[:3])}  "
+              f"explained_by {'>'.join(r.explained) or '-'}  "
               f"ambiguous {r.ambiguous or '-'}", flush=True)
 
     def diag(capture, unit, holdout=None, seed=0):

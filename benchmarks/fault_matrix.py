@@ -46,9 +46,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -112,7 +113,7 @@ def cases() -> list[Case]:
     return out
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def userns_mounts() -> bool:
     if shutil.which("unshare") is None:
         return False

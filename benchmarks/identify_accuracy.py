@@ -48,8 +48,7 @@ from bench_ctl.capture import Capture, read_capture  # noqa: E402
 from bench_ctl.identification.identify import warm_up  # noqa: E402
 from bench_ctl.identification.peers import MVMO_OPTIONS, OPTIMIZERS, run_optimizer  # noqa: E402
 from bench_ctl.identification.problem import make_problem  # noqa: E402
-from bench_ctl.identification.synthetic import (noise_variance, random_parameters,  # noqa: E402
-                                                 synthetic_capture, with_values)
+from bench_ctl.identification.synthetic import noise_variance, random_parameters, synthetic_capture, with_values  # noqa: E402
 from bench_ctl.model.simulate import RecorderModel  # noqa: E402
 from bench_ctl.model.unit import apply_overrides, reference_unit  # noqa: E402
 

@@ -112,7 +112,7 @@ def main_bench(argv: list[str] | None = None) -> int:
         print("no export given: nothing imported (python benchmarks/import_real.py PATH...)")
     failed = 0
     with tempfile.TemporaryDirectory() as tmp:
-        for i, path in enumerate(args.paths):
+        for path in args.paths:
             row = import_one(path, args, Path(tmp))
             name = label(path)
             print(f"== {name}  ({path.name})")

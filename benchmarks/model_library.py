@@ -67,7 +67,7 @@ def reproduction(out: dict) -> None:
         print(f"{name:<15}{row[0]:>10.4f}{row[1]:>9.5f}{row[2]:>12.4f}{row[3]:>9.5f}  {note}")
     for exc, w in worst.items():
         out[f"reproduce_worst_max_{exc}"] = w
-    print(f"worst max |efd error| per structure (target <= 0.01 pu): "
+    print("worst max |efd error| per structure (target <= 0.01 pu): "
           + ", ".join(f"{e} {w:.4f}" for e, w in worst.items()))
     print()
 
@@ -112,7 +112,8 @@ def identification(args: argparse.Namespace, out: dict) -> None:
         out[f"determined_within_10pct_{exc}"] = sum(x <= 0.10 for x in det)
         out[f"cases_{exc}"] = len(rows)
         out[f"median_wall_s_{exc}"] = statistics.median(r["wall_s"] for r in rows)
-        print(f"{exc:<8}{statistics.median(ratios):>13.4f}{max(ratios):>8.4f}{sum(x <= 1.05 for x in ratios):>5}/{len(rows):<2}"
+        print(f"{exc:<8}{statistics.median(ratios):>13.4f}{max(ratios):>8.4f}"
+              f"{sum(x <= 1.05 for x in ratios):>5}/{len(rows):<2}"
               f"{(max(det) if det else float('nan')) * 100:>14.1f}%{sum(x <= 0.10 for x in det):>5}/{len(det):<2}"
               f"{statistics.median(r['wall_s'] for r in rows):>8.2f}")
     print("(u): not determined by the capture (identifiability analysis); its error is not judged")

@@ -113,7 +113,7 @@ def latency(bench: SimBench, n: int) -> dict[str, float]:
                               ("recorder_url_pymodbus", ep.recorder_url, max(20, n // 10))):
         r = ModbusSerialClient(port, timeout=1.0, retries=0, baudrate=115200)
         r.connect()
-        res[name] = pymodbus_latency(lambda: r.read_input_registers(0, count=18, device_id=1), count)
+        res[name] = pymodbus_latency(lambda r=r: r.read_input_registers(0, count=18, device_id=1), count)
         r.close()
     # the same socket as drivers reach it (rtu+tcp://): the TCP client with the RTU framer
     r = ModbusTcpClient(ep.recorder_host, port=ep.recorder_port, framer=FramerType.RTU, timeout=1.0, retries=0)

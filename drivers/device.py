@@ -7,13 +7,13 @@ writes before the operator confirmed), sent once, then read back and compared wo
 """
 from __future__ import annotations
 
-import datetime as dt
 import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from bench_ctl.timestamps import utc_at_monotonic
 from drivers.errors import RangeError, ReadbackMismatch
 from drivers.link import ModbusLink, wait_until
 from drivers.profile import Profile, Register
@@ -73,11 +73,6 @@ WriteGuard = Callable[[str, str, float, str], None]      # device, register, val
 WriteListener = Callable[[WriteRecord], None]
 
 
-def _utc_at(t_mono: float) -> str:
-    wall = time.time() - (time.monotonic() - t_mono)
-    return dt.datetime.fromtimestamp(wall, dt.timezone.utc).isoformat(timespec="microseconds")
-
-
 class RegisterDevice:
     """Registers of one device by name. No I/O before `connect()`."""
 
@@ -96,7 +91,7 @@ class RegisterDevice:
     def close(self) -> None:
         self.link.close()
 
-    def __enter__(self) -> "RegisterDevice":
+    def __enter__(self) -> RegisterDevice:
         self.connect()
         return self
 
@@ -108,9 +103,35 @@ class RegisterDevice:
         return {"device": self.name, "profile": self.profile.name, **self.profile.identity,
                 "url": self.link.endpoint.url, "unit_id": self.link.endpoint.unit_id}
 
+    @property
+    def endpoint_url(self) -> str:
+        """Where the device is reached (`tcp://HOST:PORT`, a serial port, `rtu+tcp://...`)."""
+        return self.link.endpoint.url
+
+    @property
+    def unit_id(self) -> int:
+        return self.link.endpoint.unit_id
+
+    @property
+    def request_timeout_s(self) -> float:
+        """How long one request may take before it counts as lost."""
+        return self.link.endpoint.timeout_s
+
     # -- registers ---------------------------------------------------------------------------
+    def has(self, name: str) -> bool:
+        """Whether the profile maps register `name` (an optional role such as efd)."""
+        return name in self.profile.registers
+
+    def register_names(self) -> tuple[str, ...]:
+        """Every register of the profile, holding then input, in address order."""
+        return tuple(reg.name for table in ("holding", "input") for reg in self.profile.by_table(table))
+
     def register(self, name: str) -> Register:
         return self.profile[name]
+
+    def decode(self, name: str, words: list[int] | tuple[int, ...]) -> float:
+        """The engineering value of register words read earlier (`read_words`)."""
+        return self.register(name).decode(list(words))
 
     def read_words(self, name: str, *, attempts: int | None = None) -> list[int]:
         reg = self.register(name)
@@ -125,11 +146,7 @@ class RegisterDevice:
 
     def read_all(self) -> dict[str, float]:
         """Every register of the profile once, in table and address order."""
-        out: dict[str, float] = {}
-        for table in ("holding", "input"):
-            for reg in self.profile.by_table(table):
-                out[reg.name] = self.read(reg.name)
-        return out
+        return {name: self.read(name) for name in self.register_names()}
 
     def encode(self, name: str, value: float) -> list[int]:
         """Words for `value`, or RangeError (nothing sent)."""
@@ -173,7 +190,7 @@ class RegisterDevice:
         """Record a write with its read-back words (listener), ReadbackMismatch when they
         differ from the words sent."""
         record = WriteRecord(device=self.name, register=name, value=value, raw=tuple(words),
-                             readback=tuple(readback), t_tx_mono=t_tx, t_utc=_utc_at(t_tx),
+                             readback=tuple(readback), t_tx_mono=t_tx, t_utc=utc_at_monotonic(t_tx),
                              purpose=purpose)
         if self.listener is not None:
             self.listener(record)

@@ -93,7 +93,7 @@ class ExceptionReply(DeviceError):
         name = EXCEPTION_NAMES.get(code, "unknown exception")
         super().__init__(f"{message}: device replied with exception {code} ({name})", **kwargs)
 
-    def with_hint(self, hint: str) -> "ExceptionReply":
+    def with_hint(self, hint: str) -> ExceptionReply:
         """The same reply, explained by the device's state (read after the refusal)."""
         return ExceptionReply(self.request, code=self.code, device=self.device,
                               register=self.register, value=self.value, frames=self.frames,

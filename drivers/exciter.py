@@ -24,8 +24,7 @@ import threading
 import time
 from dataclasses import dataclass
 
-from drivers.device import (TIMED_WRITE_GUARD_S, RegisterDevice, SafeStateReport, WriteGuard,
-                            WriteListener, WriteRecord)
+from drivers.device import TIMED_WRITE_GUARD_S, RegisterDevice, SafeStateReport, WriteGuard, WriteListener, WriteRecord
 from drivers.errors import CommError, DeviceError, ExceptionReply, WriteUncertain
 from drivers.link import ModbusLink
 from drivers.profile import Profile
@@ -45,6 +44,16 @@ class PreTest:
     setpoint_words: tuple[int, ...]
     setpoint_pu: float
     mode: int | None  # None when the profile has no mode register
+
+
+@dataclass(frozen=True)
+class HeartbeatStats:
+    """How the heartbeat went: beats written, beats that failed, the longest gap between two
+    good beats (s)."""
+
+    beats: int
+    failures: int
+    max_gap_s: float
 
 
 class Heartbeat:
@@ -78,6 +87,9 @@ class Heartbeat:
     @property
     def running(self) -> bool:
         return self._thread is not None
+
+    def stats(self) -> HeartbeatStats:
+        return HeartbeatStats(self.beats, self.failures, self.max_gap_s)
 
     def _run(self) -> None:
         try:
@@ -230,6 +242,10 @@ class Exciter(RegisterDevice):
             return ("the exciter is already in remote (mode bit remote set) before this run took it: "
                     "another master may be controlling it")
         return None
+
+    def heartbeat_stats(self) -> HeartbeatStats:
+        """Beats, failures and the longest gap of this run's heartbeat so far."""
+        return self.heartbeat.stats()
 
     # -- test sequence -----------------------------------------------------------------------
     def snapshot(self) -> PreTest:

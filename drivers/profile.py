@@ -43,9 +43,12 @@ import logging
 import math
 import struct
 import tomllib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
+
+from bench_ctl.limits import read_text
 
 log = logging.getLogger(__name__)
 
@@ -263,30 +266,15 @@ def resolve_profile_path(name_or_path: str | Path) -> Path:
     return Path(text)
 
 
-#: a profile is a page of TOML; anything larger is not one (and /dev/zero never ends)
-MAX_PROFILE_BYTES = 1 << 20
-
-
 def load_profile(name_or_path: str | Path) -> Profile:
     """Read and validate a profile TOML; errors name the file and the offending key. Only a
-    regular file of at most MAX_PROFILE_BYTES is read (a device or a pipe is refused unread)."""
+    regular file within the limit of "a profile" is read (`bench_ctl.limits`: a device or a pipe
+    is refused unread; an `InputError` is a ValueError)."""
     path = resolve_profile_path(name_or_path)
-    if not path.exists():
+    if not path.exists():   # a bare name resolved to drivers/profiles/NAME.toml: say where
         raise FileNotFoundError(f"profile {path}: no such file")
-    if not path.is_file():
-        raise ValueError(f"profile {path}: not a regular file (a device, a folder or a pipe); "
-                         "a profile is a TOML file")
     try:
-        with path.open("rb") as fh:
-            data = fh.read(MAX_PROFILE_BYTES + 1)
-    except OSError as exc:
-        raise ValueError(f"profile {path}: cannot read it: {exc.strerror}") from None
-    if len(data) > MAX_PROFILE_BYTES:
-        raise ValueError(f"profile {path}: larger than {MAX_PROFILE_BYTES // 1024} KiB; not a profile")
-    try:
-        doc = tomllib.loads(data.decode("utf-8"))
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"profile {path}: not a UTF-8 text file (byte {exc.start})") from None
+        doc = tomllib.loads(read_text(path, "a profile"))
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"profile {path}: {exc}") from None
     return profile_from_dict(doc, source=str(path))

@@ -2,10 +2,11 @@
 
 Configure, arm, (trigger), wait, then download the stored record block by block:
 select block i (write `block_index`), read the window (`block_echo` + data words) and check
-the echo is i - the selection's read-back and the contiguity check in one. A block whose read fails or whose echo is wrong is read
-again (reads are idempotent) up to `attempts` times. The whole record must then match the
-device's sample count, block count and CRC-32, else it is downloaded again; a record that never
-checks out raises IntegrityError - never a silently short capture.
+the echo is i - the selection's read-back and the contiguity check in one. A block whose read
+fails or whose echo is wrong is read again (reads are idempotent) up to `attempts` times. The
+whole record must then match the device's sample count, block count and CRC-32, else it is
+downloaded again; a record that never checks out raises IntegrityError - never a silently short
+capture.
 
 The download protocol's layout is profile data (`[settings]`): `channels` (frame order),
 `block_data_address`, `block_words`, `block_table`, `crc` ("crc32": zlib CRC-32 of the record
@@ -27,8 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.device import (RegisterDevice, SafeStateReport, WriteGuard, WriteListener,
-                            WriteRecord)
+from drivers.device import RegisterDevice, SafeStateReport, WriteGuard, WriteListener, WriteRecord
 from drivers.errors import CommError, DeviceError, IntegrityError, ReadbackMismatch
 from drivers.link import ModbusLink
 from drivers.profile import Profile

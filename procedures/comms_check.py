@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import logging
 
-from bench_ctl.runner.bench import Bench
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
 from bench_ctl.runner.devices import CommError, DeviceError
+from bench_ctl.runner.protocols import ProcedureBench
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +31,7 @@ log = logging.getLogger(__name__)
 WRITES = False
 
 
-def comms_check(bench: Bench, run: RunContext) -> ProcedureResult:
+def comms_check(bench: ProcedureBench, run: RunContext) -> ProcedureResult:
     """Read every register of both profiles once; see the module docstring."""
     criteria = []
     values: dict[str, dict[str, float | str]] = {}
@@ -39,19 +39,18 @@ def comms_check(bench: Bench, run: RunContext) -> ProcedureResult:
         with run.step(f"read {dev.name}"):
             got: dict[str, float | str] = {}
             failed = []
-            for table in ("holding", "input"):
-                for reg in dev.profile.by_table(table):
-                    try:
-                        got[reg.name] = dev.read(reg.name)
-                    except CommError:
-                        raise  # the link is down: a comms error, not a register problem
-                    except DeviceError as exc:
-                        got[reg.name] = f"error: {exc.message}"
-                        failed.append(reg.name)
+            for name in dev.register_names():
+                try:
+                    got[name] = dev.read(name)
+                except CommError:
+                    raise  # the link is down: a comms error, not a register problem
+                except DeviceError as exc:
+                    got[name] = f"error: {exc.message}"
+                    failed.append(name)
             values[dev.name] = got
             run.note("readings", device=dev.name, values=got)
         criteria.append(Criterion(f"{dev.name}: every register answered", not failed,
-                                  failed or len(got), len(dev.profile.registers)))
+                                  failed or len(got), len(dev.register_names())))
     lines = [f"{dev}.{name} = {value}" for dev, regs in values.items()
              for name, value in regs.items()]
     return ProcedureResult(criteria=tuple(criteria),

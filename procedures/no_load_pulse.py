@@ -53,14 +53,16 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from bench_ctl.runner.bench import Bench
+from bench_ctl.model.edges import SETPOINT, find_edges
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
 from bench_ctl.runner.devices import TIMED_WRITE_GUARD_S, DeviceError, RecordSettings, hold_gc
+from bench_ctl.runner.protocols import ExcitationSystem, ProcedureBench
 from bench_ctl.runner.safety import BenchBusy, PreconditionFailed, check_no_load, check_pulse
 
 log = logging.getLogger(__name__)
@@ -130,26 +132,30 @@ class RecordedPulse:
 
 def measure_pulse(time_s: np.ndarray, usetp: np.ndarray, expected_pu: float,
                   pre_samples: int = 1) -> RecordedPulse:
-    """The first run of samples where usetp departs from its baseline (median of the first
-    `pre_samples`, the pre-trigger part) by more than half the expected amplitude: its start,
-    width (samples x step) and mean level above the baseline."""
+    """The pulse in the recorded setpoint, by the shared edge finder (`bench_ctl.model.edges`, a
+    setpoint channel): the first edge departing from its level by more than half the expected
+    amplitude, either way, and the first later edge back. Its start is the leading edge's first
+    sample, its width the samples from there to the trailing edge's first sample (to the end of
+    the record when usetp never came back) x the sample step, its amplitude the mean of usetp
+    over those samples above the baseline (median of the first `pre_samples`, the pre-trigger
+    part). ValueError when no edge departs that far."""
     time_s, usetp = np.asarray(time_s, float), np.asarray(usetp, float)
     baseline = float(np.median(usetp[:max(1, pre_samples)]))
-    away = np.abs(usetp - baseline) > abs(expected_pu) / 2
-    idx = np.flatnonzero(away)
-    if idx.size == 0:
-        raise ValueError(f"no pulse in usetp (no sample departs {abs(expected_pu) / 2:g} pu "
-                         f"from the initial {baseline:g} pu)")
-    i0 = int(idx[0])
-    back = np.flatnonzero(~away[i0:])
-    i1 = i0 + int(back[0]) if back.size else usetp.size
+    half = abs(expected_pu) / 2
+    search = find_edges(time_s, usetp, kind=SETPOINT, channel="usetp")
+    lead, trail = replace(search, edges=tuple(e for e in search.edges if abs(e.departure) > half)).pulse()
+    if lead is None:
+        raise ValueError(f"no pulse in usetp (no edge departs {half:g} pu from the level before it; "
+                         f"initial {baseline:g} pu)")
+    i0 = lead.index
+    i1 = trail.index if trail is not None else usetp.size
     dt = float(time_s[1] - time_s[0])
     return RecordedPulse(start_s=float(time_s[i0]), width_s=(i1 - i0) * dt,
                          amplitude_pu=float(np.mean(usetp[i0:i1]) - baseline),
                          baseline_pu=baseline)
 
 
-def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
+def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float = 0.05,
                   width_s: float = 1.0, pre_trigger_s: float = 1.0, record_s: float = 10.0,
                   rate_hz: int = 1000, width_tolerance_s: float = 0.005,
                   amplitude_tolerance_pu: float = 0.001, recovery_tolerance_pu: float = 0.01,
@@ -185,7 +191,7 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
 
     lim = run.limits
     run.confirm("\n".join((
-        f"{run.procedure} on the exciter {ex.link.endpoint.url} (unit {ex.link.endpoint.unit_id}):",
+        f"{run.procedure} on the exciter {ex.endpoint_url} (unit {ex.unit_id}):",
         f"  setpoint  {plan.setpoint_pu:.4f} pu -> {plan.pulse_setpoint_pu:.4f} pu for {width_s:.3f} s, "
         f"then back to {plan.setpoint_pu:.4f} pu",
         f"  unit now  p {p_mw:.2f} MW, vt {vt0:.4f} pu",
@@ -230,8 +236,7 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
         run.note("recovered", vt_pu=vt_end, setpoint_words=list(sp_words))
 
     with run.step("release exciter"):
-        hb = ex.heartbeat
-        run.note("heartbeat", beats=hb.beats, failures=hb.failures, max_gap_s=hb.max_gap_s)
+        run.note("heartbeat", **asdict(ex.heartbeat_stats()))
         report = ex.safe_state("pulse test complete")
         run.note("safe_state", **report.to_dict())
         if not report.ok:
@@ -269,7 +274,7 @@ def no_load_pulse(bench: Bench, run: RunContext, *, amplitude_pu: float = 0.05,
                         f"(limit ±{recovery_tolerance_pu:.4f} pu)"),
         Criterion("setpoint restored (raw)", sp_words == pre.setpoint_words, list(sp_words),
                   list(pre.setpoint_words),
-                  shown=(f"{ex.register('setpoint').decode(list(sp_words)):.4f} pu, pre-test "
+                  shown=(f"{ex.decode('setpoint', sp_words):.4f} pu, pre-test "
                          f"{pre.setpoint_pu:.4f} pu (register words "
                          f"{'identical' if sp_words == pre.setpoint_words else 'DIFFER'})")),
     )
@@ -294,26 +299,26 @@ def _signed(value: float, decimals: int) -> str:
     return text[1:] if float(text) == 0 else text
 
 
-def _pulse_readout(run: RunContext, ex: Any, *, deadline: float, every_s: float = 0.1) -> None:
+def _pulse_readout(run: RunContext, ex: ExcitationSystem, *, deadline: float, every_s: float = 0.1) -> None:
     """On a terminal, setpoint / vt / efd and the time left while the pulse is on, until the
     timed restore write needs the link. Each read is tried once (it never holds the link longer
     than one request timeout, which the timed write allows for); a failed read ends the
     readout, not the pulse: the restore write reports the link's trouble itself."""
     if not run.shown:
         return
-    stop_at = deadline - TIMED_WRITE_GUARD_S - ex.link.endpoint.timeout_s - 0.05
+    stop_at = deadline - TIMED_WRITE_GUARD_S - ex.request_timeout_s - 0.05
     while (now := time.monotonic()) < stop_at:
         try:
             text = (f"setpoint {ex.read('setpoint', attempts=1):.4f} pu, vt {ex.read('vt', attempts=1):.4f} pu"
-                    + (f", efd {ex.read('efd', attempts=1):.3f} pu" if "efd" in ex.profile.registers
-                       else ""))
+                    + (f", efd {ex.read('efd', attempts=1):.3f} pu" if ex.has("efd") else ""))
         except DeviceError:
             return
         run.status(f"{text}, {max(0.0, deadline - now):.2f} s left")
         time.sleep(max(0.0, min(every_s, stop_at - time.monotonic())))
 
 
-def _watching(run: RunContext, bench: Bench, ex: Any, vt0: float, every_s: float = 0.25) -> Any:
+def _watching(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, vt0: float,
+              every_s: float = 0.25) -> Callable[[], None]:
     """The bench's check while the record completes, plus (on a terminal) a live vt / efd
     readout every `every_s`: the operator sees the unit while the recorder finishes."""
     last = [0.0]
@@ -327,9 +332,9 @@ def _watching(run: RunContext, bench: Bench, ex: Any, vt0: float, every_s: float
     return check
 
 
-def _efd_text(ex: Any) -> str:
+def _efd_text(ex: ExcitationSystem) -> str:
     """`, efd X pu` for the operator's live readout, when the exciter's profile maps efd."""
-    return f", efd {ex.read('efd'):.3f} pu" if "efd" in ex.profile.registers else ""
+    return f", efd {ex.read('efd'):.3f} pu" if ex.has("efd") else ""
 
 
 def _progress_bar(run: RunContext) -> Any:

@@ -35,10 +35,10 @@ import gc
 import logging
 import sys
 import threading
+from collections.abc import Iterable
 from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
 
 from bench_ctl.model.plant import Plant
 from bench_ctl.model.unit import Unit, load_unit
@@ -268,14 +268,14 @@ class SimBench:
             _thaw()
             self._frozen = False
 
-    def __enter__(self) -> "SimBench":
+    def __enter__(self) -> SimBench:
         self.start()
         return self
 
     def __exit__(self, *exc) -> None:
         self.stop()
 
-    async def __aenter__(self) -> "SimBench":
+    async def __aenter__(self) -> SimBench:
         await asyncio.get_running_loop().run_in_executor(None, self.start)
         return self
 

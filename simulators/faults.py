@@ -29,8 +29,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, fields
-from typing import Iterable
 
 from pymodbus.constants import ExcCodes
 

@@ -19,7 +19,7 @@ import threading
 import time
 import zlib
 from collections import deque
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from pymodbus.constants import ExcCodes

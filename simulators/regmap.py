@@ -16,7 +16,8 @@ import contextvars
 import logging
 import math
 import struct
-from typing import Mapping, Protocol, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Protocol
 
 from pymodbus.constants import ExcCodes
 

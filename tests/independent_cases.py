@@ -32,7 +32,8 @@ def _settles(efd: np.ndarray, dt: float) -> bool:
     return bool(np.all(np.isfinite(efd)) and np.max(np.abs(efd)) <= 10.0 and np.max(np.abs(tail - efd[0])) < 0.1)
 
 
-def independent_case(effect: str, seed: int, cfg: SuiteConfig = SuiteConfig(), edges: str = "inside",
+def independent_case(effect: str, seed: int, cfg: SuiteConfig = SuiteConfig(),  # noqa: B008 - frozen
+                     edges: str = "inside",
                      unit: Unit | None = None) -> Case:
     """One blind case from the independent plant; `effect` is a name, "a+b" or "none"."""
     unit = unit or load_unit(None)
@@ -76,7 +77,8 @@ def independent_case(effect: str, seed: int, cfg: SuiteConfig = SuiteConfig(), e
 
 
 def independent_suite(cases_per_effect: int, none_cases: int, seed: int = 0, effects=None,
-                      cfg: SuiteConfig = SuiteConfig(), edges: str = "inside") -> list[Case]:
+                      cfg: SuiteConfig = SuiteConfig(),  # noqa: B008 - frozen
+                      edges: str = "inside") -> list[Case]:
     from bench_ctl.model.effects import EFFECT_NAMES
 
     cases = []

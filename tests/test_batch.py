@@ -216,7 +216,8 @@ def test_a_missing_capture_holdout_or_unit_is_an_error_row_and_the_others_run(cl
     assert rc == 1 and "Traceback" not in printed.err
     rows = list(csv.DictReader((out / "summary.csv").open()))
     assert [r["status"] for r in rows][1:] == ["error"] * 3 and rows[0]["status"] in ("ok", "criteria failed")
-    assert "gone.csv: not found" in rows[1]["error"] and "column 'holdout': gone_holdout.csv: not found" in rows[2]["error"]
+    assert "gone.csv: not found" in rows[1]["error"]
+    assert "column 'holdout': gone_holdout.csv: not found" in rows[2]["error"]
     assert "column 'unit': gone_unit.toml: not found" in rows[3]["error"]
     assert (out / "c1" / "result.json").is_file()
 

@@ -42,7 +42,8 @@ def jittered_export(folder: Path, *, n: int = 800, seed: int = 3, sep: str = ";"
     steps = rng.integers(46, 51, size=n - 1)  # ticks of 0.1 ms: 4.6 .. 5.0 ms
     ticks = np.concatenate([[0], np.cumsum(steps)])
     t = ticks * TENTH_MS
-    num = (lambda x: repr(float(x)).replace(".", decimal))
+    def num(x: float) -> str:
+        return repr(float(x)).replace(".", decimal)
     lines = [sep.join(["Date", "Time", "USETP", "EFD_V", "IFD_A", "Status"])]
     for k in range(n):
         lines.append(sep.join(["2026-03-14", _clock(int(ticks[k]))

@@ -70,7 +70,7 @@ def test_roundtrip_is_exact_and_sidecar_has_the_computed_keys(tmp_path: Path) ->
     assert side["software_version"] == bench_ctl.__version__
     assert side["csv_sha256"] == hashlib.sha256(csv_path.read_bytes()).hexdigest()
     created = dt.datetime.fromisoformat(side["created_utc"])
-    assert abs(dt.datetime.now(dt.timezone.utc) - created) < dt.timedelta(minutes=5)
+    assert abs(dt.datetime.now(dt.UTC) - created) < dt.timedelta(minutes=5)
     assert side["operator"] == "A. Engineer" and side["test"] == {"kind": "pulse"}
     assert side["columns"] == ["time", "usetp", "efd", "vt", "ifd_a", "note"]
 

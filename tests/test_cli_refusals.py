@@ -39,7 +39,7 @@ def test_import_into_a_missing_folder(cap, tmp_path, capsys):
 def test_demo_refuses_before_the_pulse(tmp_path, capsys):
     (tmp_path / "result.json").write_text("{}")
     rc, err = _run(["demo", "--out", str(tmp_path)], capsys)
-    assert rc == 2 and "already holds result.json" in err
+    assert rc == 2 and "result.json: exists" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json"]  # no pulse was run
     rc, err = _run(["demo", "--out", str(tmp_path / "d"), "--evals", "0"], capsys)
     assert rc == 2 and "--evals" in err and not (tmp_path / "d").exists()

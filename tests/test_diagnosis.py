@@ -13,9 +13,8 @@ from bench_ctl.diagnosis import SCHEMA, Budget, DiagnosisError, diagnose
 from bench_ctl.diagnosis import features as F
 from bench_ctl.diagnosis.blind import SuiteConfig, make_case
 from bench_ctl.diagnosis.diagnose import _gap, choose_verdict
-from bench_ctl.diagnosis.localize import (BANDS_HZ, band_shares, find_edges, localization, noise_floor,
-                                          segments)
 from bench_ctl.diagnosis.effect_fits import lag_variants
+from bench_ctl.diagnosis.localize import BANDS_HZ, band_shares, find_edges, localization, noise_floor, segments
 from bench_ctl.model.simulate import pulse_usetp, simulate
 from bench_ctl.model.unit import load_unit
 

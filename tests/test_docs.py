@@ -105,7 +105,7 @@ def findings(root: Path) -> list[str]:
         except UnicodeDecodeError:
             continue
 
-        def add(pos: int, what: str) -> None:
+        def add(pos: int, what: str, rel: str = rel, text: str = text) -> None:
             found.append(f"{rel}:{_line(text, pos)}: {what}")
 
         for rx, why in ((OUTSIDE, "points outside the repository"),

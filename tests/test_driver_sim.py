@@ -15,7 +15,7 @@ from drivers.errors import CommError, IntegrityError, WriteUncertain
 from drivers.exciter import Exciter
 from drivers.link import Endpoint, ModbusLink
 from drivers.profile import load_profile
-from drivers.recorder import RecordSettings, Recorder
+from drivers.recorder import Recorder, RecordSettings
 from simulators.bench import SimBench
 
 

@@ -162,7 +162,8 @@ def test_each_structures_export_reads_back_and_simulates_the_same(model, tmp_pat
 
     cap, res, dyr, back = (tmp_path / n for n in ("cap.csv", "r.json", "r.dyr", "back.csv"))
     assert main(["simulate", "--model", model, "-o", str(cap), "--duration", "3", "--rate", "500", "--seed", "1"]) == 0
-    assert main(["identify", str(cap), "--model", model, "--evals", "64", "--json", str(res), "--no-progress"]) in (0, 1)
+    assert main(["identify", str(cap), "--model", model, "--evals", "64", "--json", str(res),
+                 "--no-progress"]) in (0, 1)
     assert main(["export", str(res), "--dyr", str(dyr)]) == 0
     rec = read_dyr(dyr)[0]
     for k, v in rec.values.items():     # an open limit is +-999 on its own side, never flipped
@@ -221,7 +222,8 @@ def test_a_bypassed_lead_lag_is_simulated_bypassed_and_zeros_stay_zero(tmp_path)
     v = u.values()
     assert v["TA1"] == v["TA2"] and v["TA3"] == v["TA4"]            # (1 + s T)/(1 + s T) = 1
     assert not {"TA1", "TA2", "TA3", "TA4"} & set(u.identify)        # not identified: the record has none
-    assert {k: u.standard_values()[k] for k in ("TC", "TB", "TC1", "TB1")} == dict.fromkeys(("TC", "TB", "TC1", "TB1"), 0.0)
+    lead_lags = ("TC", "TB", "TC1", "TB1")
+    assert {k: u.standard_values()[k] for k in lead_lags} == dict.fromkeys(lead_lags, 0.0)
     # the same simulation as the structure without lead-lags: KA/(1 + s TA) alone
     t = np.arange(0, 3.0, 0.002)
     usetp = np.where((t >= 1.0) & (t < 2.0), 1.05, 1.0)
@@ -251,7 +253,8 @@ def test_export_names_what_the_record_cannot_hold(tmp_path, capsys):
     record: said on the console and in the record, so nobody takes the record for the model."""
     cap, res, dyr = tmp_path / "c.csv", tmp_path / "r.json", tmp_path / "r.dyr"
     assert main(["simulate", "-o", str(cap), "--duration", "3", "--rate", "500"]) == 0
-    assert main(["identify", str(cap), "--set", "TD=0.01", "--evals", "64", "--no-progress", "--json", str(res)]) in (0, 1)
+    assert main(["identify", str(cap), "--set", "TD=0.01", "--evals", "64", "--no-progress",
+                 "--json", str(res)]) in (0, 1)
     capsys.readouterr()
     assert main(["export", str(res), "--dyr", str(dyr)]) == 0
     err = capsys.readouterr().err

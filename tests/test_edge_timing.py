@@ -18,7 +18,6 @@ from bench_ctl.model.edges import EdgeSpec, find_setpoint_edges
 from bench_ctl.model.kernel import run_kernel
 from bench_ctl.model.simulate import param_matrix
 from bench_ctl.model.unit import reference_unit
-
 from truth import TRUTH
 
 FINE = 20  # fine steps per recorder sample

@@ -18,7 +18,6 @@ from bench_ctl.model.unit import apply_overrides
 from truth import TRUTH
 
 
-
 def _unit_with(unit, values):
     return apply_overrides(unit, [f"{k}={v}" for k, v in values.items()])
 

@@ -223,7 +223,8 @@ def test_a_comtrade_record_without_setpoint_channel_and_its_field_current_in_amp
 
     t, ch, truth = sampled(fine_response(0.05, 1.5), seed=5, rate_hz=1000.0, jitter=0.0)
     t = np.arange(t.size) / 1000.0                       # the record's own uniform time
-    counts = (lambda x, a: np.round(x / a).astype(np.int64))
+    def counts(x: np.ndarray, a: float) -> np.ndarray:
+        return np.round(x / a).astype(np.int64)
     analog = [Analog("EFD", "pu", 2e-4, 0.0, counts(ch["efd"], 2e-4)),
               Analog("IF", "A", 0.05, 0.0, counts(ch["ifd"] * 480.0, 0.05))]
     cfg = write_comtrade_1999(tmp_path, "rec", ft="BINARY", analog=analog, rate_hz=1000.0)

@@ -15,8 +15,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from bench_ctl.model.edges import EdgeSpec, find_setpoint_edges
-from bench_ctl.model.simulate import param_matrix, pulse_usetp
 from bench_ctl.model.kernel import run_kernel
+from bench_ctl.model.simulate import param_matrix, pulse_usetp
 from bench_ctl.model.unit import reference_unit
 
 REF = dict(KAVR=200.0, TA1=1.0, TA2=0.2, TA3=0.5, TA4=10.0, TE=0.02, Td0p=7.5, Td0pp=0.05, Vt0=1.0)

@@ -8,12 +8,10 @@ address) holding remote is refused by the simulated exciter and by the procedure
 """
 from __future__ import annotations
 
-import re
 import signal
 import subprocess
 import sys
 import textwrap
-import time
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -21,7 +19,7 @@ from pymodbus.client import ModbusTcpClient
 from bench_ctl.runner.lock import BenchLock, endpoint_key
 from bench_ctl.runner.runner import run_procedure
 from bench_ctl.runner.safety import BenchBusy
-from cli_runs import FAST_PARAMS, ROOT, bench_toml, run_argv, run_env, start_run, wait_for
+from cli_runs import FAST_PARAMS, ROOT, bench_toml, run_argv, run_env, start_run
 from simulators.bench import SimBench
 from test_procedure_pulse import bench_config, config_doc
 from test_runner_wire import WireProxy

@@ -17,7 +17,6 @@ from bench_ctl.identification.synthetic import synthetic_capture
 from truth import TRUTH
 
 
-
 @pytest.fixture(scope="module")
 def problem(unit, truth_unit):
     cap = synthetic_capture(truth_unit, duration=3.0, rate=500.0, seed=5)

@@ -57,7 +57,7 @@ def test_report_fails_unreadable_constraints_and_refuses_a_flat_record(tmp_path,
     # refuses it (issue 24 item 12: it was a FAIL report with "inf nan", rc 1), nothing written
     flat = Capture(cap.time, cap.usetp, np.full(cap.n, 1.0) + 0.002 * np.cos(np.arange(cap.n)))
     fcsv = write_capture(tmp_path / "flat.csv", {"time": flat.time, "usetp": flat.usetp, "efd": flat.efd}, {})[0]
-    from bench_ctl.capture.capture import sha256_file
+    from bench_ctl.limits import sha256_file
 
     forged = dict(result)
     forged["captures"] = [dict(result["captures"][0], path=str(fcsv), sha256=sha256_file(fcsv), meta={})]
@@ -127,7 +127,8 @@ def test_import_applies_the_same_checks(tmp_path, capsys):
     c = _fast(10_000.0)
 
     def export(name, t_scale=1.0, efd=c.efd):
-        lines = ["t,EFD,U"] + [f"{float(t) * t_scale!r},{float(e)!r},{float(u)!r}" for t, e, u in zip(c.time, efd, c.usetp)]
+        lines = ["t,EFD,U"] + [f"{float(t) * t_scale!r},{float(e)!r},{float(u)!r}"
+                               for t, e, u in zip(c.time, efd, c.usetp)]
         (tmp_path / name).write_text("\n".join(lines) + "\n")
         return ["import", str(tmp_path / name), "--map", "efd=EFD", "--map", "usetp=U", "--time-column", "t"]
 
@@ -146,7 +147,8 @@ def test_import_applies_the_same_checks(tmp_path, capsys):
 
 @pytest.mark.parametrize("test,expect", [
     ({"kind": "pulse", "amplitude_pu": -5, "start_s": 1.0, "width_s": 1.0}, "key 'test.amplitude_pu': -5 pu is not"),
-    ({"kind": "pulse", "amplitude_pu": 0.05, "start_s": 1.0, "width_s": -1}, "key 'test.width_s': -1 s: a pulse's width"),
+    ({"kind": "pulse", "amplitude_pu": 0.05, "start_s": 1.0, "width_s": -1},
+     "key 'test.width_s': -1 s: a pulse's width"),
     ({"kind": "pulse", "amplitude_pu": 0.05, "start_s": 99, "width_s": 1.0}, "key 'test.start_s': 99 s lies outside"),
     ({"kind": "pulse", "amplitude_pu": -0.05, "start_s": 1.0, "width_s": 1.0}, "but usetp steps by 0.05 pu"),
     ({"kind": "pulse", "amplitude_pu": 0.05, "start_s": 1.0, "width_s": 0.001}, "but the usetp pulse lasts 1 s"),
@@ -172,7 +174,7 @@ def test_sidecar_test_metadata_is_validated_before_a_report_copies_it(tmp_path, 
 def test_report_with_another_captures_diagnosis_warns_on_the_console(tmp_path, cap, capsys):
     """The report only noted it in the HTML; the console now says it, and the other record's noise
     floor is not used to judge this fit."""
-    from bench_ctl.capture.capture import sha256_file
+    from bench_ctl.limits import sha256_file
 
     one = _write(tmp_path, "one.csv", cap)
     two = _write(tmp_path, "two.csv", synthetic_capture(reference_unit(), duration=3.0, rate=500.0, seed=9))
@@ -181,7 +183,8 @@ def test_report_with_another_captures_diagnosis_warns_on_the_console(tmp_path, c
             "verdict": "none", "noise_floor": 1e-9}
     (tmp_path / "d.json").write_text(json.dumps(diag))
     capsys.readouterr()
-    rc = main(["report", str(tmp_path / "r.json"), "--diagnosis", str(tmp_path / "d.json"), "-o", str(tmp_path / "r.html")])
+    rc = main(["report", str(tmp_path / "r.json"), "--diagnosis", str(tmp_path / "d.json"),
+               "-o", str(tmp_path / "r.html")])
     printed = capsys.readouterr()
     assert rc in (0, 1)
     assert "WARNING: --diagnosis" in printed.err and "not on a capture of this result" in printed.err

@@ -18,8 +18,7 @@ import pytest
 from bench_ctl.runner.audit import read_audit
 from bench_ctl.runner.runner import run_procedure
 from simulators.bench import SimBench
-from test_procedure_pulse import (MODE_ADDR, SETPOINT_ADDR, SP_1_00, SP_1_05, bench_config,
-                                  device_writes)
+from test_procedure_pulse import MODE_ADDR, SETPOINT_ADDR, SP_1_00, SP_1_05, bench_config, device_writes
 from test_runner_wire import WireProxy
 
 # short but real: 0.3 s pulse inside a 1.5 s record

@@ -25,8 +25,8 @@ import pytest
 from PIL import Image
 
 from bench_ctl.capture import write_capture
-from bench_ctl.capture.capture import sha256_file
 from bench_ctl.cli import main
+from bench_ctl.limits import sha256_file
 from bench_ctl.model.params import AVR_PARAMS, PARAMS, REFERENCE_BOUNDS, REFERENCE_VALUES
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
 from bench_ctl.model.unit import load_unit

@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 
 from bench_ctl.capture import write_capture
-from bench_ctl.capture.capture import sha256_file
+from bench_ctl.limits import sha256_file
 from bench_ctl.model.params import AVR_PARAMS, REFERENCE_VALUES, neutral_values
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
 from bench_ctl.model.unit import load_unit
 from bench_ctl.report import ReportError, analyse
 from bench_ctl.report.blocks import Fig
 from bench_ctl.report.checks import constraint_margin
-from bench_ctl.report.outline import sections
 from bench_ctl.report.inputs import model_values
 from bench_ctl.report.metrics import error_figures, find_edges, segment_bounds
+from bench_ctl.report.outline import sections
 
 
 def test_edges_of_a_pulse_a_negative_pulse_a_step_and_nothing() -> None:

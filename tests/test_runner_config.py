@@ -11,11 +11,12 @@ import pytest
 
 from bench_ctl.runner.audit import AuditLog, read_audit
 from bench_ctl.runner.config import ConfigError, config_from_dict, load_bench_config
-from bench_ctl.runner.safety import (CtrlC, LimitViolation, PreconditionFailed,
-                                     check_no_load, check_pulse)
+from bench_ctl.runner.safety import CtrlC, LimitViolation, PreconditionFailed, check_no_load, check_pulse
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "benches" / "example.toml"
+SIM_EXCITER = ROOT / "drivers" / "profiles" / "sim-exciter.toml"
+SIM_RECORDER = ROOT / "drivers" / "profiles" / "sim-recorder.toml"
 
 
 def example_doc() -> dict:
@@ -75,6 +76,8 @@ def test_profile_paths_are_relative_to_the_config(tmp_path):
     text = EXAMPLE.read_text().replace('profile = "sim-exciter"',
                                        'profile = "profiles/mine.toml"')
     (tmp_path / "b.toml").write_text(text)
+    (tmp_path / "profiles").mkdir()
+    (tmp_path / "profiles" / "mine.toml").write_text(SIM_EXCITER.read_text())
     cfg = load_bench_config(tmp_path / "b.toml")
     assert cfg.exciter.profile == str(tmp_path / "profiles" / "mine.toml")
     assert cfg.recorder.profile == "sim-recorder"
@@ -164,3 +167,79 @@ def test_bench_safe_state_never_raises_and_reaches_every_device():
     reports = bench.safe_state("test")
     assert [(r.device, r.ok) for r in reports] == [("exciter", False), ("recorder", True)]
     assert "OSError: No space left on device" in reports[0].detail
+
+
+def _register_block(text: str, name: str) -> str:
+    """The [registers.NAME] table of a profile's text, up to the next table."""
+    start = text.index(f"[registers.{name}]")
+    end = text.find("\n[", start + 1)
+    return text[start:] if end < 0 else text[start:end + 1]
+
+
+def _edited(text: str, name: str, old: str, new: str) -> str:
+    block = _register_block(text, name)
+    assert old in block, (name, old)
+    return text.replace(block, block.replace(old, new))
+
+
+@pytest.mark.parametrize("device, edit, message", [
+    ("exciter", lambda t: t.replace(_register_block(t, "p"), ""),
+     "role p: missing (active power: the no-load precondition)"),
+    ("exciter", lambda t: _edited(t, "setpoint", 'access = "rw"', 'access = "r"'),
+     "role setpoint: access 'r' (holding register), the host writes it: needs 'rw'"),
+    ("exciter", lambda t: _edited(t, "p", 'unit = "MW"', 'unit = "kW"'),
+     "role p: unit 'kW', the drivers compute in 'MW'"),
+    ("exciter", lambda t: _edited(t, "watchdog_timeout", 'unit = "s"', 'unit = "ms"'),
+     "role watchdog (register watchdog_timeout): unit 'ms', the drivers compute in 's'"),
+    ("exciter", lambda t: t.replace('watchdog_register = "watchdog_timeout"', 'watchdog_register = "wd"'),
+     "role watchdog: settings.watchdog_register = 'wd' is not a register of the profile"),
+    ("recorder", lambda t: _edited(t, "status", "triggered = 3, ", ""),
+     "role status: no named value triggered (has idle, recording, armed, done)"),
+    ("recorder", lambda t: t.replace(_register_block(t, "efd_scale"), ""),
+     "role efd_scale: missing (per unit per count of each recorded channel)"),
+])
+def test_a_profile_that_does_not_fit_its_driver_is_refused_at_load_in_one_line(tmp_path, device, edit, message):
+    """The drivers declare the roles a procedure needs (drivers.roles); the bench config checks
+    its profiles against them when it is loaded: one line naming the config, the profile, the
+    role and what is wrong."""
+    shipped = SIM_EXCITER if device == "exciter" else SIM_RECORDER
+    (tmp_path / "mine.toml").write_text(edit(shipped.read_text()))
+    (tmp_path / "b.toml").write_text(EXAMPLE.read_text().replace(
+        f'profile = "sim-{device}"', 'profile = "mine.toml"'))
+    with pytest.raises(ConfigError) as info:
+        load_bench_config(tmp_path / "b.toml")
+    text = str(info.value)
+    assert text.startswith(f"{tmp_path / 'b.toml'}: {device}.profile = '{tmp_path / 'mine.toml'}' "
+                           f"(profile 'sim-{device}') does not fit the {device} driver: ")
+    assert text.endswith(message) and "\n" not in text
+
+
+def test_every_problem_of_a_profile_is_in_its_one_line(tmp_path):
+    text = _edited(SIM_EXCITER.read_text(), "setpoint", 'access = "rw"', 'access = "r"')
+    (tmp_path / "mine.toml").write_text(text.replace(_register_block(text, "vt"), ""))
+    doc = example_doc()
+    doc["exciter"]["profile"] = str(tmp_path / "mine.toml")
+    with pytest.raises(ConfigError, match=r"role setpoint: access 'r' .*; role vt: missing"):
+        config_from_dict(doc, source="bench.toml")
+
+
+def test_the_shipped_profiles_play_every_role():
+    from drivers.profile import load_profile
+    from drivers.roles import role_problems
+
+    for name in ("sim-exciter", "vendor-exciter", "sim-recorder"):
+        assert role_problems(load_profile(name)) == [], name
+
+
+def test_a_run_on_a_profile_without_a_role_opens_nothing(tmp_path, capsys):
+    """`bench-ctl run` refuses before the output folder, the audit or a link is opened."""
+    from bench_ctl.cli import main
+
+    (tmp_path / "mine.toml").write_text(SIM_EXCITER.read_text().replace(
+        _register_block(SIM_EXCITER.read_text(), "heartbeat"), ""))
+    (tmp_path / "b.toml").write_text(EXAMPLE.read_text().replace('profile = "sim-exciter"',
+                                                                 'profile = "mine.toml"'))
+    rc = main(["run", "no_load_pulse", "--bench", str(tmp_path / "b.toml"), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "role heartbeat: missing" in err, err
+    assert not (tmp_path / "out").exists()

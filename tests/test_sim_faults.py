@@ -67,7 +67,7 @@ def recv_for(s: socket.socket, seconds: float) -> bytes:
     s.settimeout(seconds)
     try:
         return s.recv(256)
-    except socket.timeout:
+    except TimeoutError:
         return b"<timeout>"
     finally:
         s.settimeout(2.0)

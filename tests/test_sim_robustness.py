@@ -24,12 +24,13 @@ from simulators.bench import SimBench
 def test_a_profile_that_is_not_a_regular_file_is_refused_unread(tmp_path, capsys):
     assert main(["sim", "--tcp", "127.0.0.1:0", "--exciter-profile", "/dev/zero"]) == 2
     err = capsys.readouterr().err
-    assert "profile /dev/zero: not a regular file" in err and "no such file" not in err
+    assert "/dev/zero: not a regular file" in err and "a profile is read from a file" in err \
+        and "no such file" not in err
     assert main(["sim", "--tcp", "127.0.0.1:0", "--recorder-profile", str(tmp_path)]) == 2
     assert "not a regular file" in capsys.readouterr().err
     big = tmp_path / "big.toml"
     big.write_text("# " + "x" * (1 << 20))
-    with pytest.raises(ValueError, match="larger than 1024 KiB"):
+    with pytest.raises(ValueError, match="more than the 1048576 bytes a profile may have"):
         load_profile(big)
     with pytest.raises(FileNotFoundError, match="no such file"):
         load_profile(tmp_path / "missing.toml")
@@ -46,7 +47,8 @@ def test_stopping_while_clients_send_leaves_no_asyncio_noise(caplog):
             stop = threading.Event()
             started = threading.Barrier(5)
 
-            def hammer() -> None:
+            def hammer(port: int = port, started: threading.Barrier = started,
+                       stop: threading.Event = stop) -> None:
                 c = ModbusTcpClient("127.0.0.1", port=port, timeout=0.2, retries=0)
                 c.connect()
                 started.wait()

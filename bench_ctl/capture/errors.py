@@ -14,7 +14,8 @@ class CaptureError(ValueError):
     """Refused capture input.
 
     Attributes keep the parts apart for callers that want them: `file`, `row` (int or None),
-    `column` (str or None; a COMTRADE channel is named with column_kind="channel"), `reason` (the message without the location).
+    `column` (str or None; a COMTRADE channel is named with column_kind="channel"), `reason` (the
+    message without the location).
     """
 
     def __init__(
@@ -53,7 +54,7 @@ def shown(text: object) -> str:
     return f"<{len(s)} characters, not shown>"
 
 
-def shown_names(names: "list[str] | tuple[str, ...]") -> str:
+def shown_names(names: list[str] | tuple[str, ...]) -> str:
     """The header's column names, or only how many when one of them does not look like a name."""
     if all(_SHOWABLE.fullmatch(n) for n in names):
         return ", ".join(names)

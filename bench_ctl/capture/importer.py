@@ -25,13 +25,14 @@ from typing import Any, Literal
 import numpy as np
 
 from bench_ctl.capture import comtrade_io
-from bench_ctl.capture.capture import CHANNEL_UNITS, Capture, read_capture, sha256_file, write_capture
+from bench_ctl.capture.capture import CHANNEL_UNITS, Capture, read_capture, write_capture
 from bench_ctl.capture.errors import CaptureError
 from bench_ctl.capture.field_base import EfdBase, NoLoad, auto_factor, explicit_block, pre_step
 from bench_ctl.capture.found_test import FoundTest, find_test, tolerance_on
 from bench_ctl.capture.plausible import implausible
 from bench_ctl.capture.timebase import check_time, resample_linear, step_stats
 from bench_ctl.capture.vendor_csv import RawRecord, read_vendor_csv
+from bench_ctl.limits import sha256_file
 from bench_ctl.model.edges import SETPOINT, find_edges
 
 log = logging.getLogger(__name__)

@@ -106,7 +106,8 @@ def _test_meta(capture: Capture, file: str, where: str | None) -> CaptureError |
                        f"{MAX_AMPLITUDE_PU:g} pu)")
         if edges.size:
             k = int(edges[0])
-            jump = float(np.median(u[k:min(u.size, k + EDGE_TOL_SAMPLES)]) - np.median(u[max(0, k - EDGE_TOL_SAMPLES):k]))
+            jump = float(np.median(u[k:min(u.size, k + EDGE_TOL_SAMPLES)])
+                         - np.median(u[max(0, k - EDGE_TOL_SAMPLES):k]))
             if abs(jump - a) > AMPLITUDE_REL_TOL * abs(a) + AMPLITUDE_ABS_TOL_PU:
                 return bad("amplitude_pu", f"{a:g} pu, but usetp steps by {jump:.4g} pu at t = "
                            f"{t[k] - t[0]:.6g} s: the description is not this record's")

@@ -30,15 +30,14 @@ _NONFINITE = {"nan", "+nan", "-nan", "inf", "+inf", "-inf", "infinity", "+infini
 MAX_INPUT_BYTES = LIMITS["a capture"]
 
 
-def read_limited(path: "str | os.PathLike[str]", limit: int | None = None, kind: str = "a capture") -> bytes:
+def read_limited(path: str | os.PathLike[str], limit: int | None = None, kind: str = "a capture") -> bytes:
     """The bytes of a regular file of at most `limit` bytes (default: the limit of `kind`, see
     `bench_ctl.limits`); anything else (a device such as /dev/zero, a pipe, a folder, a larger
     file) is refused naming the file, before it is read."""
     try:
         return read_bounded(path, kind, limit)
     except InputError as exc:
-        file = os.fspath(path)
-        raise CaptureError(file, str(exc).removeprefix(f"{file}: ")) from None
+        raise CaptureError(exc.file, exc.reason) from None
 
 
 def delimiter_name(delimiter: str) -> str:

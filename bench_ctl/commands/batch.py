@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import click
 
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.fleet.manifest import ManifestError
 
 
@@ -43,7 +44,7 @@ def batch(manifest: str, out_dir: str, scheduler: str | None, workers: int | Non
                             echo=click.echo, allow_outside=allow_outside, host=host)
     except (ManifestError, OutputRefused) as exc:
         click.echo(f"error: {exc}", err=True)
-        return 2
+        return ExitCode.ABORTED
     counts: dict[str, int] = {}
     for r in outcome.rows:
         counts[r["status"]] = counts.get(r["status"], 0) + 1

@@ -16,12 +16,13 @@ import click
 
 from bench_ctl import outputs
 from bench_ctl.capture import read_capture
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.runner.config import ConfigError
-from bench_ctl.runner.runner import EXIT_ABORTED, OutputExists, OutputUnusable, run_procedure
+from bench_ctl.runner.runner import OutputExists, OutputUnusable, run_procedure
 
-from .diagnose import clean_json, for_file as diagnosis_for_file
+from .diagnose import clean_json
+from .diagnose import for_file as diagnosis_for_file
 from .run import print_outcome
-
 
 #: what the demo writes after the pulse test (the runner guards its own files)
 DEMO_OUTPUTS = ("result.json", "diagnosis.json", "report.html")
@@ -57,7 +58,7 @@ def demo(out_dir: str | None, evals: int, seed: int) -> int:
         guard = _claim(out)
     except outputs.OutputRefused as exc:
         click.secho(f"refused: {exc}", fg="red", err=True)
-        return EXIT_ABORTED
+        return ExitCode.ABORTED
     bench = resources.files("bench_ctl.data").joinpath("demo_bench.toml")
     click.echo(f"1/4 pulse test on the embedded simulated bench -> {out}")
     try:
@@ -65,17 +66,17 @@ def demo(out_dir: str | None, evals: int, seed: int) -> int:
             outcome = run_procedure("no_load_pulse", bench_path, out, dry_run=True, progress=True)
     except (ConfigError, OutputExists, OutputUnusable) as exc:
         click.secho(f"refused: {exc}", fg="red", err=True)
-        return EXIT_ABORTED
+        return ExitCode.ABORTED
     print_outcome(outcome)
-    if outcome.exit_code != 0 or outcome.capture_path is None:
-        return outcome.exit_code or EXIT_ABORTED
+    if outcome.exit_code != ExitCode.OK or outcome.capture_path is None:
+        return outcome.exit_code or ExitCode.ABORTED
     try:
         return _analyse(outcome, out, guard, evals, seed, command_line, t_start)
     except (OSError, outputs.OutputRefused) as exc:  # the folder filled up or went read-only
         why = outputs.why_not_written(exc, out) if isinstance(exc, OSError) else str(exc)
         click.secho(f"error: {why}; the capture and audit of the pulse test are in {out}",
                     fg="red", err=True)
-        return EXIT_ABORTED
+        return ExitCode.ABORTED
 
 
 def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, command_line: str,
@@ -123,4 +124,4 @@ def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, 
         click.echo(f"  {label:<9} {path}")
     click.echo(f"  total     {time.perf_counter() - t_start:.1f} s")
     failed = [c["expr"] for c in result["constraints"] if not c["satisfied"]]
-    return 1 if failed or result.get("failed") else 0
+    return ExitCode.FAILED if failed or result.get("failed") else ExitCode.OK

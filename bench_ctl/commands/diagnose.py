@@ -15,13 +15,13 @@ output could not be written.
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
 import shlex
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import click
 import numpy as np
@@ -29,9 +29,10 @@ import numpy as np
 from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
-from bench_ctl.limits import InputError, read_bounded
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.limits import InputError, read_json
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import Unit, UnitError
@@ -40,8 +41,6 @@ from .options import fmt_value as _fmt
 from .options import model_args, model_options, resolve_unit
 
 log = logging.getLogger(__name__)
-
-EXIT_NONE, EXIT_EFFECT, EXIT_BAD_INPUT = 0, 1, 2
 
 
 def summary(d: dict[str, Any]) -> str:
@@ -195,7 +194,8 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
              result_path: str | None, seed: int, json_out: str | None, report_out: str | None,
              force: bool = False) -> int:
     """Diagnose the gap between the unit's model and CAPTURE (a pulse or step test)."""
-    from bench_ctl.diagnosis import DiagnosisError, diagnose as run
+    from bench_ctl.diagnosis import DiagnosisError
+    from bench_ctl.diagnosis import diagnose as run
 
     model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id)
 
@@ -208,7 +208,7 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
                 check_plausible(c)
         base_params = None
         if result_path:
-            data = json.loads(read_bounded(result_path, "a result JSON").decode("utf-8"))
+            data = read_json(result_path, "a result JSON")
             params = data.get("params") if isinstance(data, dict) else None
             if not isinstance(params, dict):
                 raise UnitError(f"{result_path}: not an identification result (no 'params' table)")
@@ -220,18 +220,12 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
                     base_params[k] = float(v)
             if not base_params:
                 raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
-    except UnicodeDecodeError as exc:
-        click.echo(f"error: {result_path}: not UTF-8 text (byte {exc.start})", err=True)
-        return EXIT_BAD_INPUT
-    except json.JSONDecodeError as exc:
-        click.echo(f"error: {result_path}: invalid JSON: {exc.msg} (line {exc.lineno})", err=True)
-        return EXIT_BAD_INPUT
     except (CaptureError, UnitError, ConstraintError, InputError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     try:
         out = outputs.Outputs([capture_path, holdout_path, unit_path, result_path, from_dyr], force=force)
         out.claim("--json", json_out)
@@ -240,14 +234,14 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
             claim_report(out, report_out)   # the HTML and every figure it may draw beside it
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     command_line = _command_line(capture_path, holdout_path, unit_path, overrides, model_kw, result_path, seed,
                                  json_out, report_out)
     try:
         d = run(capture, unit, holdout=holdout, seed=seed, base_params=base_params, command_line=command_line)
     except DiagnosisError as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     click.echo(summary(d))
     try:
         if json_out:
@@ -260,12 +254,12 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
                                         report_command=command_line, outputs=out)
             except ReportError as exc:
                 click.echo(f"error: report not written: {exc}", err=True)
-                return EXIT_BAD_INPUT
+                return ExitCode.ABORTED
             click.echo(f"report written to {written[0]}")
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: {outputs.why_not_written(exc, json_out or report_out or '')}", err=True)
-        return EXIT_BAD_INPUT
-    return EXIT_NONE if d["verdict"] == "none" else EXIT_EFFECT
+        return ExitCode.ABORTED
+    return ExitCode.OK if d["verdict"] == "none" else ExitCode.FAILED  # FAILED: an effect found

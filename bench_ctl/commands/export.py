@@ -14,13 +14,12 @@ comment. Exit codes: 0 written, 2 bad input (file, key or value named) or an out
 """
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 
 import click
 
-EXIT_BAD_INPUT = 2
+from bench_ctl.exitcodes import ExitCode
+
 NO_LIMIT = 999.0
 
 
@@ -34,7 +33,7 @@ NO_LIMIT = 999.0
 def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: bool = False) -> int:
     """Write the identified model of RESULT.json as a PSS/E dynamic data record."""
     from bench_ctl import outputs
-    from bench_ctl.limits import InputError, read_bounded
+    from bench_ctl.limits import InputError, read_json
     from bench_ctl.model.dyr import DyrError, DyrRecord, dyr_text
     from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of, not_carried
     from bench_ctl.model.structures import StructureError
@@ -43,9 +42,9 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         out = outputs.guard_outputs({"--dyr": dyr_out}, [result_path], force=force)
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     try:
-        result = json.loads(read_bounded(result_path, "a result JSON").decode("utf-8"))
+        result = read_json(result_path, "a result JSON")
         if not isinstance(result, dict) or "params" not in result:
             raise ValueError("not an identification result (no 'params')")
         st, std = dyr_values_of(result)
@@ -57,13 +56,10 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         missing = not_carried(result, st, std)
     except InputError as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
-    except UnicodeDecodeError as exc:
-        click.echo(f"error: {result_path}: not UTF-8 text (byte {exc.start})", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     except (ValueError, TypeError, StructureError, DyrError) as exc:
         click.echo(f"error: {result_path}: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     model = result.get("model") or {}
     identified = set(model.get("identified") or [])
     if st.name == "ESST1A" and model.get("name") == "REFERENCE":
@@ -92,13 +88,13 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         out.write_text(dyr_out, dyr_text([(rec, "\n".join(notes))], header=header))
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: {outputs.why_not_written(exc, dyr_out)}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     click.echo(f"wrote {dyr_out}: {st.dyr_model} at bus {bus}, ID {machine_id} "
                f"({len(identified)} identified, {len(fields) - len(identified)} fixed or default)")
     if missing:
         click.echo(f"warning: the {st.dyr_model} record does not hold: {'; '.join(missing)}; a simulation "
                    "from it differs from the result where these act", err=True)
-    return 0
+    return ExitCode.OK

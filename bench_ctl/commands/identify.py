@@ -13,7 +13,6 @@ failed; 2 bad input (capture, unit file, --set, option), with the file / key nam
 """
 from __future__ import annotations
 
-import json
 import logging
 import shlex
 import sys
@@ -25,6 +24,7 @@ import click
 from bench_ctl import outputs
 from bench_ctl.capture import CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError
 from bench_ctl.identification.identify import Identification, result_for_file, run_identification
 from bench_ctl.identification.peers import MVMO_OPTIONS, OPTIMIZERS
@@ -35,8 +35,6 @@ from .options import fmt_value as _fmt
 from .options import model_args, model_options, resolve_unit
 
 log = logging.getLogger(__name__)
-
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
 #: the smallest --evals: MVMO evaluates its whole swarm in the first generation
 MIN_EVALS = int(MVMO_OPTIONS["particles"])
@@ -174,23 +172,23 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         problem = make_problem(caps, unit)
     except (CaptureError, UnitError, ProblemError, ConstraintError) as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     try:
         out = outputs.guard_outputs({"--json": json_out, "--plot": plot_out},
                                     [*captures, unit_path, from_dyr], force=force)
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     chosen = list(dict.fromkeys(optimizers or ("mvmo",)))
     others = chosen[1:] + ([n for n in OPTIMIZERS if n not in chosen] if compare else [])
     short = [f"{n} needs at least {min_evals(n, problem.d)}" for n in chosen + others
              if evals < min_evals(n, problem.d)]
     if short:
         click.echo(f"error: --evals {evals}: {'; '.join(short)} evaluations ({problem.d} parameters)", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
 
     bars: list[Any] = []
 
@@ -220,7 +218,7 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         for b in bars:
             b.close()
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     for b in bars:
         b.close()
     click.echo(summary(ident))
@@ -233,10 +231,10 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
             click.echo(f"plot written to {plot_out}")
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: {outputs.why_not_written(exc, json_out or plot_out or '')}", err=True)
-        return EXIT_BAD_INPUT
+        return ExitCode.ABORTED
     if not ident.ok:
         bad = [c["expr"] for c in ident.result["constraints"] if not c["satisfied"]]
         why = [f"constraint(s) violated: {', '.join(bad)}"] if bad else []
@@ -244,8 +242,8 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
             why.append(f"outside its bounds: {', '.join(ident.outside_bounds)}")
         click.echo("criteria failed: " + ("fit failed" if ident.best.failed else "; ".join(why)),
                    err=True)
-        return EXIT_FAILED
-    return EXIT_OK
+        return ExitCode.FAILED
+    return ExitCode.OK
 
 
 def _command_line(captures: tuple[str, ...], unit_path: str | None, overrides: tuple[str, ...], model_kw: dict,

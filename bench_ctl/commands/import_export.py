@@ -33,11 +33,12 @@ from typing import Any
 import click
 
 from bench_ctl import outputs
-
 from bench_ctl.capture.capture import Capture
 from bench_ctl.capture.errors import CaptureError
 from bench_ctl.capture.field_base import NoLoad, parse_efd_base
-from bench_ctl.capture.importer import ImportSpec, TestDescription, import_export as run_import
+from bench_ctl.capture.importer import ImportSpec, TestDescription
+from bench_ctl.capture.importer import import_export as run_import
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.model.unit import Unit, UnitError
 
 from .options import resolve_unit, unit_options
@@ -103,19 +104,13 @@ def _scales(values: tuple[str, ...]) -> tuple[dict[str, float], bool]:
 
 
 def _no_load(unit: Unit) -> NoLoad:
-    """The unit's no-load field for an auto base: Vt0 and the kernel's saturation Sat(x)."""
-    import numpy as np
-    from bench_ctl.model.kernel import saturation_ab   # numba: loaded only for an auto base
+    """The unit's no-load field for an auto base: Vt0 and the model's saturation Sat(x)."""
+    from bench_ctl.model.simulate import generator_saturation  # numba: loaded only for an auto base
 
     values = unit.values()
     s10, s12 = float(values["S10"]), float(values["S12"])
-    a, b = (float(v[0]) for v in saturation_ab(np.array([s10]), np.array([s12])))
-
-    def sat(x: float) -> float:
-        return b * (x - a) ** 2 if x > a else 0.0
-
-    return NoLoad(vt0_pu=float(unit.generator["Vt0"]), s10=s10, s12=s12, saturation=sat,
-                  source=f"{unit.name} ({unit.source})")
+    return NoLoad(vt0_pu=float(unit.generator["Vt0"]), s10=s10, s12=s12,
+                  saturation=generator_saturation(s10, s12), source=f"{unit.name} ({unit.source})")
 
 
 def _fmt(v: Any, spec: str = ".4g") -> str:
@@ -223,7 +218,7 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
                                             dyr_bus=dyr_bus, dyr_id=dyr_id, effects=effects))
     except (UnitError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
-        return 2
+        return ExitCode.ABORTED
     try:
         spec = ImportSpec(
             columns=_pairs(maps, "--map"), time_column=time_column, date_column=date_column,
@@ -243,11 +238,11 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
         capture = run_import(src, spec, out)
     except (CaptureError, FileExistsError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
-        return 2
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: {outputs.why_not_written(exc, out)}", err=True)
-        return 2
+        return ExitCode.ABORTED
     for line in summary(capture):
         click.echo(line)
     click.echo(f"wrote {capture.source} ({capture.n} samples at {capture.rate_hz:g} Hz)")
-    return 0
+    return ExitCode.OK

@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import click
 
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.model.structures import STRUCTURES, StructureError, structure
-
-EXIT_BAD_INPUT = 2
 
 
 @click.command("models")
@@ -24,10 +23,10 @@ def models(name: str | None) -> int:
             click.echo(f"{'':<10} {'':<7} identified by default: {ident}")
         click.echo("\nChoose one with `[avr] model = \"NAME\"` in the unit file or --model NAME; "
                    "`bench-ctl models NAME` shows it.")
-        return 0
+        return ExitCode.OK
     try:
         click.echo(structure(name).describe())
     except StructureError as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_BAD_INPUT
-    return 0
+        return ExitCode.ABORTED
+    return ExitCode.OK

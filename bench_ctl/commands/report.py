@@ -25,14 +25,13 @@ from pathlib import Path
 import click
 
 from bench_ctl import outputs
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.report import ReportError, analyse, claim_report, load_json, write_report
 from bench_ctl.report.checks import DEFAULT_NOISE_RATIO_LIMIT, FAIL
 from bench_ctl.report.inputs import DIAGNOSIS_SCHEMA, RESULT_SCHEMA, resolve_capture_path
 from bench_ctl.report.metrics import DEFAULT_EDGE_WINDOW_S
 
 log = logging.getLogger(__name__)
-
-EXIT_OK, EXIT_FAILED, EXIT_REFUSED = 0, 1, 2
 
 
 def _command_line(result_json: str, diagnosis_json: str | None, out: str, pdf: str | None,
@@ -84,7 +83,7 @@ def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | No
                                                     edge_window, noise_ratio_limit))
     except (ReportError, outputs.OutputRefused) as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_REFUSED
+        return ExitCode.ABORTED
     for c in data.checks:
         if c.name == "diagnosis of this record" and c.status == "warn":
             click.echo(f"WARNING: --diagnosis {diagnosis_json}: {c.detail}", err=True)
@@ -92,14 +91,14 @@ def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | No
         written = write_report(data, out, pdf=pdf, outputs=out_set)
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
-        return EXIT_REFUSED
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: the report was not written: {outputs.why_not_written(exc, out)}", err=True)
-        return EXIT_REFUSED
+        return ExitCode.ABORTED
     for path in written:
         click.echo(f"wrote {path}")
     for c in data.checks:
         if c.status in ("fail", "warn"):
             click.echo(f"{c.status.upper()}: {c.name}: {c.detail}")
     click.echo(f"overall: {data.verdict}")
-    return EXIT_FAILED if data.verdict == FAIL else EXIT_OK
+    return ExitCode.FAILED if data.verdict == FAIL else ExitCode.OK

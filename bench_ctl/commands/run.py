@@ -12,9 +12,9 @@ from pathlib import Path
 
 import click
 
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.runner.config import ConfigError
-from bench_ctl.runner.runner import (EXIT_ABORTED, OutputExists, OutputUnusable, RunOutcome,
-                                    run_procedure)
+from bench_ctl.runner.runner import OutputExists, OutputUnusable, RunOutcome, run_procedure
 
 log = logging.getLogger(__name__)
 
@@ -42,9 +42,9 @@ def print_outcome(outcome: RunOutcome) -> None:
 
 
 def _print_outcome(outcome: RunOutcome) -> None:
-    err = outcome.exit_code != 0
+    err = outcome.exit_code != ExitCode.OK
     click.secho(f"{outcome.procedure}: {outcome.status.upper()} (exit {outcome.exit_code})",
-                fg="green" if not err else ("yellow" if outcome.exit_code == 1 else "red"),
+                fg="green" if not err else ("yellow" if outcome.exit_code == ExitCode.FAILED else "red"),
                 bold=True, err=err)
     click.echo(outcome.message, err=err)
     for line in outcome.not_saved:
@@ -86,6 +86,6 @@ def run(procedure: str, bench_path: str, dry_run: bool, yes: bool, out_dir: str 
                                 progress=True)
     except (ConfigError, OutputExists, OutputUnusable) as exc:
         click.secho(f"refused: {exc}", fg="red", err=True)
-        return EXIT_ABORTED
+        return ExitCode.ABORTED
     print_outcome(outcome)
     return outcome.exit_code

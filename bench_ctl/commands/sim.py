@@ -17,6 +17,7 @@ import threading
 
 import click
 
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.model.unit import UnitError
 
 from .options import build_unit, unit_options
@@ -90,7 +91,7 @@ def sim(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, tcp, re
                          seed=seed, faults=armed, control=control_addr)
     except (UnitError, ValueError, FileNotFoundError) as exc:
         click.echo(f"error: {exc}", err=True)
-        return 2
+        return ExitCode.ABORTED
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -98,7 +99,7 @@ def sim(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, tcp, re
             endpoints = bench.start()
         except OSError as exc:
             click.echo(f"error: cannot open the simulated devices' ports: {exc}", err=True)
-            return 3
+            return ExitCode.COMMS
         click.echo(f"simulated bench: unit {unit.name!r}, effects "
                    f"{', '.join(unit.effects) or 'none'}")
         click.echo(endpoints.describe())
@@ -117,4 +118,4 @@ def sim(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, tcp, re
     timing = bench.plant.timing()
     click.echo(f"stopped after {timing.elapsed_s:.1f} s: plant lag max {timing.lag_max_s * 1e3:.2f} ms, "
                f"behind max {timing.behind_max_s * 1e3:.2f} ms, stalls > 1 ms {timing.stalls_over_1ms}")
-    return 0
+    return ExitCode.OK

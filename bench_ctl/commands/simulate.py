@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-
 import sys
 from pathlib import Path
 
@@ -10,11 +9,11 @@ import click
 
 from bench_ctl import __version__, outputs
 from bench_ctl.capture import write_capture
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, synthetic_record
 from bench_ctl.model.unit import UnitError
 
 from .options import build_unit, unit_options
-
 
 #: the longest simulated capture (samples): an hour at 1 kHz is 3.6e6
 MAX_SAMPLES = 1.0e7
@@ -32,7 +31,8 @@ MAX_SAMPLES = 1.0e7
               help="Recorder quantisation step (pu); default 12 bit over +-10 pu.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Capture CSV to write.")
-def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, amplitude, width, start, duration, rate, noise, lsb, seed, output):
+def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, amplitude, width, start, duration,
+             rate, noise, lsb, seed, output):
     """Write a synthetic pulse capture (CSV + JSON sidecar) of the unit."""
     try:
         unit = build_unit(unit_path, overrides, effects, model=model, from_dyr=from_dyr,
@@ -62,7 +62,7 @@ def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, am
         rec = synthetic_record(unit, t, usetp, RecorderModel(noise, lsb), seed)
     except (UnitError, ValueError) as exc:   # OutputRefused is a ValueError
         click.echo(f"error: {exc}", err=True)
-        return 2
+        return ExitCode.ABORTED
     meta = {
         "test": {"kind": "pulse", "amplitude_pu": amplitude, "start_s": start, "width_s": width},
         "source": "simulation",
@@ -79,10 +79,10 @@ def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, am
         csv_path, json_path = write_capture(Path(output), rec, meta)
     except FileExistsError as exc:
         click.echo(f"error: {exc} (captures are never overwritten)", err=True)
-        return 2
+        return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: {outputs.why_not_written(exc, output)}", err=True)
-        return 2
+        return ExitCode.ABORTED
     click.echo(f"capture: {csv_path}")
     click.echo(f"sidecar: {json_path}")
-    return 0
+    return ExitCode.OK

@@ -15,18 +15,19 @@ from __future__ import annotations
 
 import csv
 import html
-import json
 import logging
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from bench_ctl.limits import InputError, read_bounded
+from bench_ctl.exitcodes import ExitCode
+from bench_ctl.limits import InputError, read_json
 from bench_ctl.outputs import OutputRefused, Outputs, why_not_written
 
 from . import tasks
@@ -36,6 +37,9 @@ if TYPE_CHECKING:
     from distributed import LocalCluster
 
 log = logging.getLogger(__name__)
+
+#: a step that ran to its end (its output exists): passed, or its criteria failed
+DONE_CODES = (ExitCode.OK, ExitCode.FAILED)
 
 #: the environment of our LocalCluster's workers: the kernel on one thread (one worker per core)
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1"}
@@ -63,7 +67,7 @@ def _with_port(host: str, port: int) -> str:
     return f"[{host}]:{port}" if ":" in host and not host.startswith("[") else f"{host}:{port}"
 
 
-def local_cluster(n_workers: int, host: str = LOOPBACK) -> "LocalCluster":
+def local_cluster(n_workers: int, host: str = LOOPBACK) -> LocalCluster:
     """A LocalCluster of `n_workers` single-threaded worker processes set up for the fits. Its
     scheduler, workers, nannies and dashboard all listen on `host` (default: loopback only; the
     dashboard on ':0' alone would listen on every interface)."""
@@ -93,19 +97,19 @@ class BatchOutcome:
     start_unix: float = 0.0
 
     @property
-    def exit_code(self) -> int:
+    def exit_code(self) -> ExitCode:
         if self.interrupted:
-            return 2
-        if any(r["status"] == "error" for r in self.rows):
-            return 1
-        return 1 if any(r["status"] == "criteria failed" for r in self.rows) else 0
+            return ExitCode.ABORTED
+        if any(r["status"] in ("error", "criteria failed") for r in self.rows):
+            return ExitCode.FAILED
+        return ExitCode.OK
 
 
 def _report_step(id_row: dict | None, dg_row: dict | None, entry: Entry, folder: str, evals: int,
                  seed: int) -> dict:
     """The report of a capture, once its identification (and diagnosis) ended."""
-    if id_row is None or id_row.get("rc") not in (0, 1):
-        return {"step": "report", "capture": entry.name, "rc": 2, "wall_s": 0.0,
+    if id_row is None or id_row.get("rc") not in DONE_CODES:
+        return {"step": "report", "capture": entry.name, "rc": int(ExitCode.ABORTED), "wall_s": 0.0,
                 "error": "not made: the identification failed", "output": ""}
     return tasks.run_step("report", entry, folder, evals, seed)
 
@@ -113,8 +117,8 @@ def _report_step(id_row: dict | None, dg_row: dict | None, entry: Entry, folder:
 def _read(path: Path) -> dict:
     """A result or diagnosis the batch wrote ({} when absent or unreadable), read bounded."""
     try:
-        data = json.loads(read_bounded(path, "a result JSON").decode("utf-8"))
-    except (InputError, ValueError):
+        data = read_json(path, "a result JSON")
+    except InputError:
         return {}
     return data if isinstance(data, dict) else {}
 
@@ -123,8 +127,8 @@ def summary_row(entry: Entry, folder: Path, steps: dict[str, dict], *, skipped: 
     res, dia = _read(folder / tasks.RESULT), _read(folder / tasks.DIAGNOSIS)
     errors = [f"{s}: {r['error']}" for s, r in steps.items() if r.get("error")]
     rcs = [r.get("rc") for r in steps.values()]
-    status = ("skipped (up to date)" if skipped else "error" if errors or any(rc not in (0, 1) for rc in rcs)
-              else "criteria failed" if 1 in rcs else "ok")
+    status = ("skipped (up to date)" if skipped else "error" if errors or any(rc not in DONE_CODES for rc in rcs)
+              else "criteria failed" if ExitCode.FAILED in rcs else "ok")
     rep_out = steps.get("report", {}).get("output", "")
     warnings = [ln.strip() for ln in rep_out.splitlines() if ln.startswith(("WARN:", "FAIL:"))]
     mse, floor = res.get("mse"), dia.get("noise_floor")
@@ -266,9 +270,8 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
                 continue
             try:
                 fp = tasks.fingerprint(e, evals, seed)
-            except OSError as exc:   # gone or unreadable since the manifest was read
-                rows[e.name] = problem_row(e, f"{Path(exc.filename or e.capture).name}: "
-                                              f"{exc.strerror or exc}")
+            except InputError as exc:   # gone or unreadable since the manifest was read
+                rows[e.name] = problem_row(e, f"{Path(exc.file).name}: {exc.reason}")
                 continue
             fps[e.name] = fp
             if tasks.is_done(folder, fp):
@@ -298,7 +301,7 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
                     row = fut.result()
                 except Exception as exc:  # noqa: BLE001 - a lost worker is a row, not the end
                     step = str(fut.key).split("-")[0]
-                    row = {"step": step, "capture": e.name, "rc": 2, "wall_s": 0.0, "output": "",
+                    row = {"step": step, "capture": e.name, "rc": int(ExitCode.ABORTED), "wall_s": 0.0, "output": "",
                            "error": f"{type(exc).__name__}: {exc}"}
                 steps[e.name][row["step"]] = row
                 if bar is not None:

@@ -21,7 +21,7 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench_ctl.limits import LIMITS, InputError, read_bounded
+from bench_ctl.limits import LIMITS, InputError, read_text
 from bench_ctl.model.structures import StructureError, structure
 
 STEPS = ("identify", "diagnose", "report")
@@ -86,13 +86,9 @@ def read_manifest(path: str | Path, *, allow_outside: bool = False,
     receives a line for each repeated row run once."""
     path = Path(path)
     try:
-        data = read_bounded(path, "a manifest")
+        text = read_text(path, "a manifest")   # Excel's "CSV UTF-8" byte-order mark is dropped
     except InputError as exc:
         raise ManifestError(str(exc)) from None
-    try:
-        text = data.decode("utf-8-sig")    # Excel's "CSV UTF-8" starts with a byte-order mark
-    except UnicodeDecodeError as exc:
-        raise ManifestError(f"{path}: not UTF-8 text (byte {exc.start})") from None
     rows = list(csv.reader(text.splitlines()))
     if not rows:
         raise ManifestError(f"{path}: empty; the first line must be a header with a 'capture' column")

@@ -10,16 +10,15 @@ renamed when the command has ended, so an interrupted batch leaves no half-writt
 from __future__ import annotations
 
 import contextlib
-import errno
-import hashlib
 import io
-import json
 import os
-import stat
 import time
 import traceback
 from pathlib import Path
 from typing import Any
+
+from bench_ctl.exitcodes import ExitCode
+from bench_ctl.limits import InputError, read_json, sha256_file
 
 from .manifest import Entry
 
@@ -28,23 +27,15 @@ RESULT, DIAGNOSIS, REPORT, DONE = "result.json", "diagnosis.json", "report.html"
 VOLATILE_KEYS = ("wall_s", "compile_s", "created_utc", "command_line", "seconds")
 
 
-def sha256_of(path: Path | None) -> str | None:
-    """SHA-256 of a regular file (OSError for anything else: a device is never read to its end)."""
-    if path is None:
-        return None
-    if not stat.S_ISREG(os.stat(path).st_mode):
-        raise OSError(errno.EINVAL, "not a regular file", str(path))
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+def _sha256(path: Path | None) -> str | None:
+    return None if path is None else sha256_file(path)
 
 
 def fingerprint(entry: Entry, evals: int, seed: int) -> dict[str, Any]:
-    """What a capture's outputs depend on: input hashes and the settings (for resuming)."""
-    return {"capture": sha256_of(entry.capture), "holdout": sha256_of(entry.holdout),
-            "unit": sha256_of(entry.unit), "overrides": list(entry.overrides), "model": entry.model,
+    """What a capture's outputs depend on: input hashes and the settings (for resuming). An
+    input gone, unreadable or no longer a regular file is an `InputError` naming it."""
+    return {"capture": _sha256(entry.capture), "holdout": _sha256(entry.holdout),
+            "unit": _sha256(entry.unit), "overrides": list(entry.overrides), "model": entry.model,
             "steps": list(entry.steps), "evals": evals, "seed": seed}
 
 
@@ -87,11 +78,12 @@ def run_step(step: str, entry: Entry, folder: str, evals: int, seed: int) -> dic
             rc = main(argv)
         row.update(rc=int(rc), argv=argv)
     except Exception as exc:  # noqa: BLE001 - a bad capture is a row of the summary, not a crash
-        row.update(rc=2, error=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc(limit=4))
+        row.update(rc=int(ExitCode.ABORTED), error=f"{type(exc).__name__}: {exc}",
+                   trace=traceback.format_exc(limit=4))
     row["output"] = buf.getvalue()[-4000:]
     row["wall_s"] = time.perf_counter() - t0
     row["end_unix"] = time.time()
-    if row["rc"] not in (0, 1) and "error" not in row:
+    if row["rc"] not in (ExitCode.OK, ExitCode.FAILED) and "error" not in row:
         lines = [ln for ln in row["output"].splitlines() if ln.strip()]
         row["error"] = lines[-1] if lines else f"exit {row['rc']}"
     return row
@@ -118,11 +110,9 @@ OUTPUT_OF = {"identify": RESULT, "diagnose": DIAGNOSIS, "report": REPORT}
 
 def is_done(folder: Path, fp: dict[str, Any]) -> bool:
     """The capture's outputs exist and were made from the same inputs and settings."""
-    from bench_ctl.limits import InputError, read_bounded
-
     try:
-        done = json.loads(read_bounded(folder / DONE, "a result JSON").decode("utf-8"))
-    except (InputError, ValueError):
+        done = read_json(folder / DONE, "a result JSON")
+    except InputError:
         return False
     if not isinstance(done, dict):
         return False

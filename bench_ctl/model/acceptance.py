@@ -14,7 +14,8 @@ out (the transient the standard judges separately). Here, for an AVR pulse or st
 - figures in per unit of the step size: the largest deviation of the measured efd from its
   pre-trigger mean (so 0.05 is 5 % of the response the test produced);
 - default limits (MXE / ME / MAE): before and after 0.05 / 0.02 / 0.03, during 0.08 / 0.05 /
-  0.07; a unit file may set its own under `[acceptance]` (`acceptance_limits`); the report (`bench_ctl.report`) shows the table.
+  0.07; a unit file may set its own under `[acceptance]` (`acceptance_limits`); the report
+  (`bench_ctl.report`) shows the table.
 
 A window passes when every figure is at or below its limit; the test passes when every window
 with samples does.
@@ -22,8 +23,9 @@ with samples does.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 

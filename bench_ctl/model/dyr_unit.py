@@ -28,11 +28,12 @@ the absolute excess Sat(1.2). The conversion is here, in both directions.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
-from .dyr import DyrError, DyrRecord, FIELDS, find, read_dyr
+from .dyr import FIELDS, DyrError, DyrRecord, find, read_dyr
 from .params import PARAMS
 from .structures import STRUCTURES, Structure, structure
 from .unit import Bound, Unit, UnitError, with_model
@@ -130,7 +131,8 @@ def _exciter_std(st: Structure, rec: DyrRecord) -> tuple[dict[str, float], set[s
                             "is never replaced by a typical value")
         if p.kernel in ("TA2", "TA4"):
             raise UnitError(f"{where} {name} = 0: a lag of zero needs its lead at zero too (bypassed)")
-        if p.kernel == "TEX" and (std.get("KE", 1.0) != 1.0 or (std.get("SE1", 0.0) > 0.0 and std.get("SE2", 0.0) > 0.0)):
+        if p.kernel == "TEX" and (std.get("KE", 1.0) != 1.0
+                                  or (std.get("SE1", 0.0) > 0.0 and std.get("SE2", 0.0) > 0.0)):
             raise UnitError(f"{where} {name} = 0 with KE = {std.get('KE', 1.0):g} or saturation: bench-ctl's "
                             "kernel drops a DC exciter of zero time constant entirely (Efd = VR), which is "
                             f"only right for KE = 1 without saturation; it needs {name} > 0")

@@ -63,10 +63,10 @@ class EdgeSpec:
         return int(self.index.size)
 
     @staticmethod
-    def none() -> "EdgeSpec":
+    def none() -> EdgeSpec:
         return EdgeSpec(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
 
-    def decimated(self, q: int, offset: int, dt: float) -> "EdgeSpec":
+    def decimated(self, q: int, offset: int, dt: float) -> EdgeSpec:
         """The same edges on the record of every q-th sample from `offset` (fine step `dt`): each
         jump shows at the first kept sample at or after its fine index; the nominal instant stays
         the fine one, counted from the decimated record's first sample."""

@@ -6,13 +6,13 @@ parameters into the kernel's parameter matrix. `simulate` runs one parameter set
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 
 from .edges import EdgeSpec
-from .kernel import run_kernel
+from .kernel import run_kernel, saturation_ab
 from .params import COL, KERNEL_PARAMS, PARAMS, RECORD_PARAMS, STRUCTURE_PARAMS
 from .unit import Unit
 
@@ -60,6 +60,19 @@ def simulate(values: Mapping[str, float], usetp: np.ndarray, dt: float,
     pre = pre_trigger_mean(usetp, dt) if usetp_pre is None else usetp_pre
     out = run_kernel(param_matrix(values), usetp, dt, pre, edges=edges)
     return out["efd"][0], out["vt"][0], int(out["fail_step"][0])
+
+
+def generator_saturation(s10: float, s12: float) -> Callable[[float], float]:
+    """The no-load generator's saturation Sat(x) through S(1.0) = `s10` and S(1.2) = `s12`, the
+    curve the kernel integrates (docs/model.md): for code outside the model that needs the
+    unit's no-load field (the import's efd base) without reaching into the kernel."""
+    a_arr, b_arr = saturation_ab(np.array([float(s10)]), np.array([float(s12)]))
+    a, b = float(a_arr[0]), float(b_arr[0])
+
+    def sat(x: float) -> float:
+        return b * (x - a) ** 2 if x > a else 0.0
+
+    return sat
 
 
 def pulse_usetp(*, amplitude: float = 0.05, width: float = 1.0, start: float = 1.0,

@@ -17,10 +17,12 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping
+
+from bench_ctl.limits import InputError, read_text
 
 from .acceptance import AcceptanceError, acceptance_limits
 from .effects import EFFECTS, effect
@@ -88,7 +90,7 @@ class Unit:
         return out
 
     def with_effects(self, effects: Mapping[str, Mapping[str, float]], *,
-                     check_constraints: bool = True) -> "Unit":
+                     check_constraints: bool = True) -> Unit:
         merged = {k: dict(v) for k, v in self.effects.items()}
         for name, params in effects.items():
             eff = effect(name)
@@ -118,7 +120,8 @@ class Unit:
         }
 
 
-def bounded_values(values: Mapping[str, object], bounds: Mapping[str, object]) -> Iterator[tuple[str, float, float, float]]:
+def bounded_values(values: Mapping[str, object],
+                   bounds: Mapping[str, object]) -> Iterator[tuple[str, float, float, float]]:
     """(name, value, min, max) for each numeric value with a [min, max] pair in `bounds` (as a
     result JSON writes them; anything else is skipped)."""
     for name, value in values.items():
@@ -334,10 +337,6 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     return check_unit(unit, source)
 
 
-#: a unit file is a page of TOML; anything much larger is the wrong file
-UNIT_FILE_MAX_BYTES = 1 << 20
-
-
 def load_unit(path: str | Path | None = None) -> Unit:
     """Load a unit file, or the built-in reference unit when `path` is None."""
     if path is None:
@@ -345,15 +344,10 @@ def load_unit(path: str | Path | None = None) -> Unit:
         source = "<built-in reference unit>"
     else:
         p = Path(path)
-        try:
-            if not p.is_file() or p.stat().st_size > UNIT_FILE_MAX_BYTES:  # not /dev/zero, not a capture
-                raise UnitError(f"{p}: not a unit file (a regular file of at most "
-                                f"{UNIT_FILE_MAX_BYTES} bytes)")
-            text = p.read_text("utf-8")
-        except OSError as exc:
-            raise UnitError(f"{p}: cannot read unit file: {exc.strerror}") from None
-        except UnicodeDecodeError as exc:
-            raise UnitError(f"{p}: not a UTF-8 text file (byte {exc.start}): {exc.reason}") from None
+        try:   # a regular file within the limit (not /dev/zero, not a capture)
+            text = read_text(p, "a unit file")
+        except InputError as exc:
+            raise UnitError(str(exc)) from None
         source = str(p)
     try:
         data = tomllib.loads(text)

@@ -12,8 +12,7 @@ comparison; diagnosis (when given); unit, test and capture metadata; software an
 """
 from bench_ctl.report.analysis import ReportData, analyse
 from bench_ctl.report.inputs import ReportError, load_json
-from bench_ctl.report.render import (claim_report, figure_path, possible_figure_paths, render_report,
-                                     write_report)
+from bench_ctl.report.render import claim_report, figure_path, possible_figure_paths, render_report, write_report
 
 __all__ = ["ReportData", "ReportError", "analyse", "claim_report", "figure_path", "load_json",
            "possible_figure_paths", "render_report", "write_report"]

@@ -7,7 +7,6 @@ the error figures, re-evaluates the constraints and sets up the pass / fail chec
 """
 from __future__ import annotations
 
-import datetime as dt
 import logging
 import math
 from collections.abc import Mapping
@@ -22,10 +21,26 @@ from bench_ctl.model.acceptance import Acceptance, AcceptanceError, acceptance_l
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import outside_bounds
 from bench_ctl.report import checks as chk
-from bench_ctl.report.inputs import (DIAGNOSIS_SCHEMA, LoadedCapture, ReportError, check_result,
-                                     check_schema, load_captures, model_values, same_file)
-from bench_ctl.report.metrics import (DEFAULT_EDGE_WINDOW_S, ErrorFigures, PulseEdges,
-                                      error_figures, find_edges, trapezoid_sq, window_slice)
+from bench_ctl.report.inputs import (
+    DIAGNOSIS_SCHEMA,
+    LoadedCapture,
+    ReportError,
+    check_result,
+    check_schema,
+    load_captures,
+    model_values,
+    same_file,
+)
+from bench_ctl.report.metrics import (
+    DEFAULT_EDGE_WINDOW_S,
+    ErrorFigures,
+    PulseEdges,
+    error_figures,
+    find_edges,
+    trapezoid_sq,
+    window_slice,
+)
+from bench_ctl.timestamps import utc_now_text
 
 log = logging.getLogger(__name__)
 
@@ -140,7 +155,7 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
                       constraints=constraints, checks=checks, verdict=chk.overall(checks),
                       noise_floor=noise_floor, noise_source=noise_source, window_s=window_s,
                       noise_ratio_limit=noise_ratio_limit, report_command=report_command,
-                      generated_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
+                      generated_utc=utc_now_text())
 
 
 def _analyse_capture(lc: LoadedCapture, values: dict[str, float],

@@ -7,7 +7,7 @@ import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Union
+from typing import Any
 
 NOT_AVAILABLE = "not available"
 
@@ -30,7 +30,7 @@ class Status:
     status: str  # pass | fail | warn | n/a
 
 
-Cell = Union[str, Num, Status, None]
+Cell = str | Num | Status | None
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ class Fig:
     size: tuple[float, float] | None = None  # inches, None = the default figure size
 
 
-Block = Union[Heading, Para, Table, Verdict, Fig]
+Block = Heading | Para | Table | Verdict | Fig
 
 
 @dataclass(frozen=True)

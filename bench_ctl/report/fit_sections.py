@@ -15,8 +15,21 @@ from bench_ctl.model.params import PARAMS
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
-from bench_ctl.report.blocks import (NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section,
-                                     Status, Table, Verdict, fmt, num, table)
+from bench_ctl.report.blocks import (
+    NOT_AVAILABLE,
+    Block,
+    Fig,
+    Heading,
+    Num,
+    Para,
+    Section,
+    Status,
+    Table,
+    Verdict,
+    fmt,
+    num,
+    table,
+)
 
 STRONG_CORRELATION = 0.9
 

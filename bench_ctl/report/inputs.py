@@ -8,7 +8,6 @@ refused, because the report would otherwise certify a fit on data it was not mad
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -18,9 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from bench_ctl.capture import Capture, CaptureError, read_capture
-from bench_ctl.capture.capture import sha256_file
 from bench_ctl.capture.plausible import implausible
-from bench_ctl.limits import InputError, read_bounded
+from bench_ctl.limits import InputError, read_json, sha256_file
 from bench_ctl.model.params import KERNEL_PARAMS, PARAMS, neutral_values
 
 log = logging.getLogger(__name__)
@@ -39,16 +37,9 @@ def load_json(path: str | os.PathLike[str], schema: str) -> dict[str, Any]:
     path = Path(path)
     kind = "a diagnosis JSON" if schema == DIAGNOSIS_SCHEMA else "a result JSON"
     try:
-        text = read_bounded(path, kind).decode("utf-8")
+        data = read_json(path, kind)
     except InputError as exc:
         raise ReportError(str(exc)) from None
-    except UnicodeDecodeError as exc:
-        raise ReportError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ReportError(f"{path}: invalid JSON: {exc.msg} (line {exc.lineno}, column "
-                          f"{exc.colno})") from None
     if not isinstance(data, dict):
         raise ReportError(f"{path}: expected a JSON object, got {type(data).__name__}")
     check_schema(data, schema, str(path))

@@ -135,7 +135,7 @@ def pdf_bytes(title: str, subtitle: str, sections: Sequence[Section]) -> bytes:
     return buf.getvalue()
 
 
-def write_pdf(path: "Path | io.BytesIO", title: str, subtitle: str, sections: Sequence[Section]) -> None:
+def write_pdf(path: Path | io.BytesIO, title: str, subtitle: str, sections: Sequence[Section]) -> None:
     pages = paginate([[(subtitle, "")]] + section_groups(sections))
     figs = [b for s in sections for b in s.blocks if isinstance(b, Fig)]
     page = 0

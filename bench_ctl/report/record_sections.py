@@ -11,8 +11,7 @@ from typing import Any
 import bench_ctl
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import ReportData
-from bench_ctl.report.blocks import (NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section, flatten,
-                                     fmt, num, table)
+from bench_ctl.report.blocks import NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section, flatten, fmt, num, table
 from bench_ctl.report.inputs import same_file
 
 NO_GAP = "n/a: base model at the noise floor"
@@ -123,7 +122,7 @@ def _explained_by(g: Mapping[str, Any]) -> list[Block]:
     rows = [("base model", "", Num(num(base.get("mse")), digits=4),
              Num(num(base.get("mse")) / floor if floor and num(base.get("mse")) is not None else None, digits=3),
              "", Num(num(base.get("mse_holdout")), digits=4))]
-    for i, s in enumerate(steps, 1):
+    for s in steps:
         params = ", ".join(f"{k} {fmt(v, 4)}" for k, v in (s.get("params") or {}).items())
         check = s.get("check") if isinstance(s.get("check"), Mapping) else {}
         rows.append((f"+ {s.get('name', '?')}", params, Num(num(s.get("mse")), digits=4),

@@ -16,7 +16,6 @@ with exit 2 (or 3). Only `open()` raises: a run that cannot start its audit does
 """
 from __future__ import annotations
 
-import datetime as dt
 import json
 import logging
 import math
@@ -25,6 +24,8 @@ import threading
 import time
 from pathlib import Path
 from typing import Any
+
+from bench_ctl.timestamps import utc_now_text
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +64,7 @@ class AuditLog:
         self.error: OSError | None = None  # the first write error
         self._closed = False
 
-    def open(self) -> "AuditLog":
+    def open(self) -> AuditLog:
         self._fh = open(self.path, "x", encoding="utf-8")  # never overwrite an audit
         return self
 
@@ -83,7 +84,7 @@ class AuditLog:
         """Append one line, flushed, and fsynced when `durable`; returns the record. A line
         that cannot be written is counted as lost (see the module docstring), never raised."""
         now = time.monotonic()
-        record = {"t_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="microseconds"),
+        record = {"t_utc": utc_now_text("microseconds"),
                   "t_mono_s": round(now - self._t0, 6), "kind": kind, "step": self.step}
         record.update(_jsonable(fields))
         line = json.dumps(record, allow_nan=False)
@@ -130,7 +131,7 @@ class AuditLog:
                     self.lost -= 1  # no line was lost by closing; the file may be short
                 self._fh = None
 
-    def __enter__(self) -> "AuditLog":
+    def __enter__(self) -> AuditLog:
         return self.open()
 
     def __exit__(self, *exc: object) -> None:

@@ -2,6 +2,10 @@
 
 Every key is known; an unknown or mistyped key is an error naming the file and the key (a
 typo in a limit must never fall back to a default). Quantities carry their unit in the name.
+Each device's profile is loaded and checked against the roles its driver declares
+(`drivers.roles`: a required register missing, one the host writes that is read-only, a unit the
+drivers do not compute in) when the config is loaded, before any file or link is opened: one
+ConfigError line naming the profile, the role and what is wrong.
 
     [bench]
     name = "Unit 3 excitation bench"
@@ -44,11 +48,15 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
+from bench_ctl.limits import InputError, read_text
 from drivers.link import Endpoint
+from drivers.profile import load_profile
+from drivers.roles import role_problems
 
 
 class ConfigError(ValueError):
@@ -125,7 +133,7 @@ class BenchConfig:
 
     def with_endpoints(self, *, exciter_url: str | None = None, recorder_url: str | None = None,
                        exciter_unit_id: int | None = None,
-                       recorder_unit_id: int | None = None) -> "BenchConfig":
+                       recorder_unit_id: int | None = None) -> BenchConfig:
         """The same bench pointed at other addresses (a dry run points it at the simulators)."""
         exc, rec = self.exciter, self.recorder
         if exciter_url is not None:
@@ -240,34 +248,40 @@ def config_from_dict(doc: Mapping[str, Any], source: str = "<dict>",
     procs = doc.get("procedures", {})
     if not isinstance(procs, Mapping) or not all(isinstance(v, Mapping) for v in procs.values()):
         raise ConfigError(f"{source}: [procedures.NAME] must be tables of parameters")
+    for name, device in devices.items():
+        check_profile(name, device.profile, source)
     return BenchConfig(name=bench.get("name", Path(source).stem), exciter=devices["exciter"],
                        recorder=devices["recorder"], limits=Limits(**lim),
                        procedures={k: dict(v) for k, v in procs.items()}, source=source)
 
 
-#: a bench config is a page of TOML; anything larger is not one (and /dev/zero never ends)
-MAX_CONFIG_BYTES = 1 << 20
+def check_profile(device: str, profile: str, source: str) -> None:
+    """The `device`'s profile (a name or a path) exists, describes that kind of device and plays
+    every role its driver declares (`drivers.roles`); one ConfigError line otherwise."""
+    key = f"{source}: {device}.profile = {profile!r}"
+    try:
+        prof = load_profile(profile)
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{source}: {device}.profile: {exc}") from None
+    if prof.device != device:
+        article = {"exciter": "an", "recorder": "a"}
+        raise ConfigError(f"{key} describes {article[prof.device]} {prof.device} (profile {prof.name!r}), "
+                          f"not {article[device]} {device}")
+    problems = role_problems(prof)
+    if problems:
+        raise ConfigError(f"{key} (profile {prof.name!r}) does not fit the {device} driver: "
+                          + "; ".join(problems))
 
 
 def load_bench_config(path: str | Path) -> BenchConfig:
     """Read a bench config TOML; ConfigError naming the file and key on anything wrong. Only a
-    regular file of at most MAX_CONFIG_BYTES is read (a device or a pipe is refused unread)."""
+    regular file within the limit of "a bench config" is read (`bench_ctl.limits`: a device or
+    a pipe is refused unread)."""
     path = Path(path)
     try:
-        if not path.exists():
-            raise ConfigError(f"{path}: no such bench config")
-        if not path.is_file():
-            raise ConfigError(f"{path}: not a regular file (a device, a folder or a pipe); a bench "
-                              "config is a TOML file")
-        with path.open("rb") as fh:
-            data = fh.read(MAX_CONFIG_BYTES + 1)
-        if len(data) > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 1024} KiB; not a bench config")
-        doc = tomllib.loads(data.decode("utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the bench config: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}): {exc.reason}") from None
+        doc = tomllib.loads(read_text(path, "a bench config"))
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     return config_from_dict(doc, source=str(path), base=path.resolve().parent)

@@ -25,8 +25,7 @@ from typing import Any
 from bench_ctl.capture import write_capture
 from bench_ctl.runner.audit import AuditLog
 from bench_ctl.runner.config import BenchConfig, Limits
-from bench_ctl.runner.safety import (NoOperator, OperatorDeclined, OutputLost, Refused,
-                                     check_watchdog)
+from bench_ctl.runner.safety import NoOperator, OperatorDeclined, OutputLost, Refused, check_watchdog
 from drivers.device import WriteRecord
 from drivers.exciter import WatchdogReading
 from drivers.recorder import RawRecord

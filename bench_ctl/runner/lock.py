@@ -11,7 +11,6 @@ state covers other machines (docs/decisions/0012).
 """
 from __future__ import annotations
 
-import datetime as dt
 import errno
 import fcntl
 import hashlib
@@ -25,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from bench_ctl.runner.safety import BenchBusy
+from bench_ctl.timestamps import utc_now_text
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +74,7 @@ class BenchLock:
         self.path: Path | None = None
         self._fd: int | None = None
 
-    def acquire(self) -> "BenchLock":
+    def acquire(self) -> BenchLock:
         """Take the lock, or BenchBusy naming the holder. OSError when the lock folder or file
         cannot be used (the run is then refused: it would not know it is alone)."""
         folder = self._folder or lock_dir()
@@ -101,7 +101,7 @@ class BenchLock:
         self._fd = fd
         holder = {"pid": os.getpid(), "host": socket.gethostname(), "user": _user(),
                   "procedure": self.procedure, "out_dir": self.out_dir, "endpoint": self.key,
-                  "started_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
+                  "started_utc": utc_now_text()}
         try:
             os.ftruncate(fd, 0)
             os.pwrite(fd, (json.dumps(holder) + "\n").encode(), 0)
@@ -133,7 +133,7 @@ class BenchLock:
             os.close(fd)
         log.info("bench lock released: %s", self.key)
 
-    def __enter__(self) -> "BenchLock":
+    def __enter__(self) -> BenchLock:
         return self.acquire()
 
     def __exit__(self, *exc: object) -> None:

@@ -33,22 +33,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bench_ctl.exitcodes import ExitCode
 from bench_ctl.runner.audit import AuditLog
 from bench_ctl.runner.bench import Bench
 from bench_ctl.runner.config import BenchConfig, ConfigError, load_bench_config
-from bench_ctl.runner.context import (CAPTURE_NAME, RAW_NAME, Confirm, Criterion, Hook,
-                                      ProcedureResult, RunContext)
+from bench_ctl.runner.context import CAPTURE_NAME, RAW_NAME, Confirm, Criterion, Hook, ProcedureResult, RunContext
 from bench_ctl.runner.lock import BenchLock
 from bench_ctl.runner.safety import BenchBusy, CtrlC, OutputLost, Refused, Terminated
 from drivers.device import SafeStateReport
 from drivers.errors import CommError, DeviceError, IntegrityError
-from drivers.profile import load_profile
 
 log = logging.getLogger(__name__)
 
-EXIT_PASSED, EXIT_FAILED, EXIT_ABORTED, EXIT_COMMS = 0, 1, 2, 3
-STATUS = {EXIT_PASSED: "passed", EXIT_FAILED: "criteria failed", EXIT_ABORTED: "aborted",
-          EXIT_COMMS: "communication error"}
+#: how a run ended, in words (the audit's and the console's status)
+STATUS = {ExitCode.OK: "passed", ExitCode.FAILED: "criteria failed", ExitCode.ABORTED: "aborted",
+          ExitCode.COMMS: "communication error"}
 AUDIT_NAME = "audit.jsonl"
 LOG_NAME = "run.log"
 OUTPUT_NAMES = (AUDIT_NAME, LOG_NAME, CAPTURE_NAME, Path(CAPTURE_NAME).with_suffix(".json").name,
@@ -72,7 +71,7 @@ class RunOutcome:
     """What a run left behind and how it ended."""
 
     procedure: str
-    exit_code: int
+    exit_code: ExitCode
     status: str                     # passed | criteria failed | aborted | communication error
     message: str
     out_dir: Path
@@ -142,23 +141,12 @@ def writes_to_devices(fn: Any) -> bool:
 
 
 def _check_config(config: BenchConfig) -> list[str]:
-    """Everything the config names must exist and fit before a file is opened: procedures,
-    profiles of the right device kind with the registers the drivers need (the drivers are
-    built once, without I/O). Returns warnings to say loudly (none today: the device's
-    watchdog is read from the device after connecting, docs/decisions/0011)."""
+    """Everything the config names must exist and fit before a file is opened: procedures, and
+    (the profiles' kinds and roles were checked when the config was loaded) the drivers built
+    once, without I/O. Returns warnings to say loudly (none today: the device's watchdog is
+    read from the device after connecting, docs/decisions/0011)."""
     for other in config.procedures:
         load_procedure(other)
-    for device in ("exciter", "recorder"):
-        try:
-            profile = load_profile(getattr(config, device).profile)
-        except (OSError, ValueError) as exc:
-            raise ConfigError(f"{config.source}: {device}.profile: {exc}") from None
-        if profile.device != device:
-            raise ConfigError(f"{config.source}: {device}.profile = {getattr(config, device).profile!r} "
-                              f"describes a {profile.device} (profile {profile.name!r}), not an {device}"
-                              if device == "exciter" else
-                              f"{config.source}: {device}.profile = {getattr(config, device).profile!r} "
-                              f"describes an {profile.device} (profile {profile.name!r}), not a {device}")
     try:
         Bench(config)   # the drivers check their profiles (registers, layout); no I/O
     except (KeyError, ValueError) as exc:
@@ -236,23 +224,23 @@ def _debug_log(path: Path) -> Iterator[_RunLogHandler]:
             h.setLevel(logging.NOTSET)
 
 
-def _classify(exc: BaseException) -> tuple[int, str, bool]:
+def _classify(exc: BaseException) -> tuple[ExitCode, str, bool]:
     """(exit code, message, reconnect before the safe state) for what ended a run. A device
     error's message is its summary (device, register, value, device state); its raw frames are
     in the audit and the DEBUG log, not on the operator's console."""
     if isinstance(exc, Terminated):
-        return EXIT_ABORTED, f"terminated by {exc.signal_name}", True
+        return ExitCode.ABORTED, f"terminated by {exc.signal_name}", True
     if isinstance(exc, KeyboardInterrupt):
-        return EXIT_ABORTED, "interrupted by the operator (Ctrl-C)", True
+        return ExitCode.ABORTED, "interrupted by the operator (Ctrl-C)", True
     if isinstance(exc, (Refused, OutputLost)):
-        return EXIT_ABORTED, str(exc), False
+        return ExitCode.ABORTED, str(exc), False
     if isinstance(exc, (CommError, IntegrityError)):
-        return EXIT_COMMS, f"communication error: {exc.summary}", True
+        return ExitCode.COMMS, f"communication error: {exc.summary}", True
     if isinstance(exc, DeviceError):
-        return EXIT_ABORTED, f"aborted: {exc.summary}", False
+        return ExitCode.ABORTED, f"aborted: {exc.summary}", False
     if isinstance(exc, OSError):
-        return EXIT_ABORTED, f"aborted: {exc}", False
-    return EXIT_ABORTED, f"aborted by an unexpected error: {type(exc).__name__}: {exc}", False
+        return ExitCode.ABORTED, f"aborted: {exc}", False
+    return ExitCode.ABORTED, f"aborted by an unexpected error: {type(exc).__name__}: {exc}", False
 
 
 def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: str | Path, *,
@@ -317,7 +305,7 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
             failed = "; ".join(f"{r.device}: {r.action} - {r.detail}" for r in reports if not r.ok)
             log.critical("SAFE STATE NOT CONFIRMED: %s", failed)
             message = f"SAFE STATE NOT CONFIRMED ({failed}); run ended with: {message}"
-            code = EXIT_COMMS
+            code = ExitCode.COMMS
         summary = "; ".join(f"{r.device}: {r.action}" for r in reports)
         message = f"{message} [safe state: {summary}]" if summary else message
         audit.event("run_end", exit_code=code, status=STATUS[code], message=message,
@@ -327,8 +315,8 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
                     not_saved=list(ctx.lost_outputs))
         stack.close()   # the audit and the DEBUG log are closed (their last losses counted)
         not_saved = _not_saved(ctx, audit, runlog)
-        if not_saved and code in (EXIT_PASSED, EXIT_FAILED):
-            code = EXIT_ABORTED
+        if not_saved and code in (ExitCode.OK, ExitCode.FAILED):
+            code = ExitCode.ABORTED
         if not_saved and not ctx.lost_outputs:  # a lost capture already leads the message
             message = "; ".join(not_saved) + f"; run ended with: {message}"
         log.info("%s: %s: %s", name, STATUS[code], message)  # the caller reports the outcome
@@ -361,7 +349,7 @@ def _remove_new(*paths: Path) -> None:
             path.unlink()
 
 
-def _not_saved(ctx: RunContext, audit: AuditLog, runlog: "_RunLogHandler") -> list[str]:
+def _not_saved(ctx: RunContext, audit: AuditLog, runlog: _RunLogHandler) -> list[str]:
     """What the run could not save, one line each: the capture / raw download, the audit, the
     DEBUG log."""
     lines = list(ctx.lost_outputs)
@@ -373,7 +361,7 @@ def _not_saved(ctx: RunContext, audit: AuditLog, runlog: "_RunLogHandler") -> li
 
 
 def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig, ctx: RunContext,
-         lock: BenchLock | None) -> tuple[int, str, ProcedureResult, list[SafeStateReport]]:
+         lock: BenchLock | None) -> tuple[ExitCode, str, ProcedureResult, list[SafeStateReport]]:
     """Take the bench lock, connect, read the watchdog, run the procedure, then the safe state
     on every exit path, then release the lock."""
     bench = Bench(config, guard=ctx.guard, listener=ctx.on_write)
@@ -397,7 +385,7 @@ def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig, ctx: RunContext,
                 ctx.watchdog = bench.exciter.read_watchdog()
                 ctx.note("watchdog", **ctx.watchdog.to_dict())
             result = fn(bench, ctx, **kwargs)
-            code = EXIT_PASSED if result.passed else EXIT_FAILED
+            code = ExitCode.OK if result.passed else ExitCode.FAILED
             message = result.summary or STATUS[code]
         except BaseException as exc:  # noqa: BLE001 - every exit path ends in the safe state
             ctrl_c.armed = False

@@ -173,7 +173,7 @@ class CtrlC:
                     "current attempt ends; the heartbeat stops and the device watchdog reverts the setpoint")
 
     @contextlib.contextmanager
-    def installed(self) -> Iterator["CtrlC"]:
+    def installed(self) -> Iterator[CtrlC]:
         """Install the policy for the block (main thread only; elsewhere a no-op)."""
         if threading.current_thread() is not threading.main_thread():
             yield self

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import importlib
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Sequence
 
 from ..params import PARAMS
 
@@ -188,7 +188,7 @@ class Structure:
             if p.kernel is not None and math.isfinite(p.typical) and not (
                     p.typical == 0.0 and any(p.kernel in pair for pair in self.lead_lags)):
                 PARAMS[p.kernel].check(p.typical, where=f"model {self.name}: {p.name} -> ")
-        for note, pair in self.swaps:
+        for _note, pair in self.swaps:
             for n in pair:
                 self.kernel_name(n)
 
