@@ -121,7 +121,7 @@ def plot_fit(ident: Identification, path: str | Path, out: outputs.Outputs | Non
     for ax, cap, sim, m in zip(axes[:, 0], prob.captures, sims, mses):
         t = cap.time - cap.time[0]
         ax.plot(t, cap.efd, color="0.6", lw=0.8, label="efd measured")
-        ax.plot(t, sim["efd"], color="C0", lw=1.2, label=f"efd simulated ({ident.best.name})")
+        ax.plot(t, sim["efd"], color="C0", lw=1.2, label=f"efd simulated ({ident.best.method})")
         ax.set_ylabel("efd (pu)")
         ax.set_xlabel("time (s)")
         ax.set_title(f"{Path(cap.source).name if cap.source else 'capture'}: mse {m:.3g}")
@@ -240,7 +240,7 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         why = [f"constraint(s) violated: {', '.join(bad)}"] if bad else []
         if ident.outside_bounds:
             why.append(f"outside its bounds: {', '.join(ident.outside_bounds)}")
-        click.echo("criteria failed: " + ("fit failed" if ident.best.failed else "; ".join(why)),
+        click.echo("criteria failed: " + ("fit failed" if not ident.best.success else "; ".join(why)),
                    err=True)
         return ExitCode.FAILED
     return ExitCode.OK
