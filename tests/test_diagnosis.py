@@ -12,9 +12,10 @@ from bench_ctl.capture import Capture, write_capture
 from bench_ctl.diagnosis import SCHEMA, Budget, DiagnosisError, diagnose
 from bench_ctl.diagnosis import features as F
 from bench_ctl.diagnosis.blind import SuiteConfig, make_case
-from bench_ctl.diagnosis.diagnose import _gap, choose_verdict
-from bench_ctl.diagnosis.effect_fits import lag_variants
 from bench_ctl.diagnosis.localize import BANDS_HZ, band_shares, find_edges, localization, noise_floor, segments
+from bench_ctl.diagnosis.starts import lag_variants
+from bench_ctl.diagnosis.verdict import choose_verdict
+from bench_ctl.diagnosis.verdict import gap as _gap
 from bench_ctl.model.simulate import pulse_usetp, simulate
 from bench_ctl.model.unit import load_unit
 
@@ -175,7 +176,7 @@ def test_verdict_is_the_best_significant_effect_not_the_best_scored():
 
 
 def test_ambiguity_is_judged_around_the_verdict_not_the_best_score():
-    from bench_ctl.diagnosis.effect_fits import ambiguous_pairs
+    from bench_ctl.diagnosis.verdict import ambiguous_pairs
 
     entries = [{"name": "time_skew", "score": -195.0, "significant": False},
                {"name": "dead_time", "score": -80.0, "significant": True},
@@ -344,7 +345,7 @@ def test_capture_without_pre_trigger_is_refused(unit):
 
 
 def test_ambiguous_pairs_name_the_separating_test():
-    from bench_ctl.diagnosis.effect_fits import AMBIGUOUS, ambiguous_pairs
+    from bench_ctl.diagnosis.verdict import AMBIGUOUS, ambiguous_pairs
     entries = [{"name": "dead_time", "score": -500.0, "significant": True},
                {"name": "time_skew", "score": -500.0 + AMBIGUOUS / 2, "significant": True},
                {"name": "setpoint_ramp", "score": -500.0 + AMBIGUOUS / 3, "significant": False},

@@ -339,15 +339,6 @@ class Problem:
         f = np.einsum("ij,ij->i", R, R)
         return R, np.where(fail_frac > 0, self.penalty(fail_frac), f)
 
-    def efd_residual_slices(self) -> list[slice]:
-        """Where each capture's efd residuals sit in the vector of `residuals`."""
-        out, pos = [], 0
-        for r in self.records:
-            n = r.i1 - r.i0
-            out.append(slice(pos, pos + n))
-            pos += n * (2 if (r.vt is not None and self.w_vt > 0) else 1)
-        return out
-
     def residual_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For each entry of the `residuals` vector: its capture, its instant (s from the record's
         first sample) and the seconds of record it stands for (alpha c_j w_j dt on a sample's efd
@@ -383,7 +374,8 @@ def _lost(fail_step: np.ndarray, r: Record) -> np.ndarray:
 
 
 #: below this many candidate-steps a kernel call runs on one thread: waking the worker threads
-#: costs more than it saves for the small batches of a polish, the more so on a busy machine
+#: costs more than it saves for the small batches of a polish, several times more when the
+#: machine is busy (docs/benchmarks.md, "Diagnosis constants")
 SMALL_CALL = 300_000
 
 
