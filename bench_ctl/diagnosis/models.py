@@ -168,7 +168,7 @@ class Budget:
     polish_coarse: int = 150   # least-squares simulations on the coarse record per start
     starts: int = 8            # starting points polished on the coarse record per effect
     coarse_dt: float = 0.004   # sample step of the coarse record (s), at most the unit's shortest
-                               # lag (reference unit: TE >= 2 ms), see `fit.coarse_factor`
+                               # lag (reference unit: TE >= 2 ms), see `coarse_factor`
     coarse_tail_s: float = 3.0 # the coarse record ends this long after the trailing edge
     combo_polish: int = 60
     max_sequence: int = 3

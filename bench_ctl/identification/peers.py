@@ -282,10 +282,10 @@ def _run_local(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarra
     lb[edge], ub[edge] = problem.lower[edge], problem.upper[edge]
     x_start = np.where(edge, np.clip(x_start, lb, ub), np.maximum(x_start, 2e-9))
 
-    def resid(X: np.ndarray) -> np.ndarray:
+    def resid(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         R, f = problem.residuals_and_objective(X)  # f: the sum of squares, the penalty if failed
         tr.record(X, f)
-        return R
+        return R, f >= problem.penalty_base
 
     msg, _ = least_squares(resid, x_start, lb, ub, tr, _relative_steps(fd_step, ub))
     x = tr.best_x if tr.best_x is not None else x_start
@@ -390,11 +390,11 @@ def _run_open_loop(problem: Problem, max_evals: int, seed: int | None, x0: np.nd
     x_start = np.clip(problem.x_start() if x0 is None else np.asarray(x0, float),
                       problem.lower, problem.upper)
 
-    def resid(X: np.ndarray) -> np.ndarray:
+    def resid(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         R, failed = model.residuals(X)
         # the method only sees its open-loop error; the tracker keeps that as its history
         tr.record(X, np.where(failed, np.inf, np.einsum("ij,ij->i", R, R)))
-        return R
+        return R, failed
 
     msg, _ = least_squares(resid, x_start, problem.lower, problem.upper, tr, _relative_steps(fd_step, problem.upper))
     x = tr.best_x if tr.best_x is not None else x_start

@@ -21,7 +21,7 @@ from scipy import optimize as sopt
 
 from .problem import Problem
 from .result import Result
-from .space import SearchSpace
+from .space import FEASIBLE_TOL, SearchSpace
 
 logger = logging.getLogger(__name__)
 
@@ -33,9 +33,6 @@ Progress = Callable[[int, float], Any]
 FD_STEP = 1e-5
 #: weight of the constraints' violation row, against residuals scaled to a mean square (pu)
 VIOLATION_WEIGHT = 10.0
-#: the exact trust-region solver up to this many Jacobian entries, lsmr above (an SVD of a
-#: whole record's Jacobian costs more than the iterations it saves)
-EXACT_MAX_ENTRIES = 50_000
 #: convergence tolerances of the polish (relative change of the cost / of x, scaled gradient)
 TOL = 1e-8
 
@@ -69,18 +66,20 @@ class Tracker:
             self.progress(self.nfev, self.best_f)
 
 
-def least_squares(resid: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, lb: np.ndarray, ub: np.ndarray,
-                  tr: Tracker, steps: Callable[[np.ndarray], np.ndarray], *, tr_solver: str = "exact",
-                  tol: float = 1e-10) -> tuple[str, np.ndarray | None]:
+def least_squares(resid: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], z0: np.ndarray, lb: np.ndarray,
+                  ub: np.ndarray, tr: Tracker, steps: Callable[[np.ndarray], np.ndarray], *,
+                  tr_solver: str = "exact", tol: float = 1e-10) -> tuple[str, np.ndarray | None]:
     """TRF least squares with batched forward-difference Jacobians, within the tracker's budget.
 
-    `resid(Z)` evaluates a population at once (and records it in the tracker); `steps(z)` gives
-    the signed difference step of each variable at z. Returns (scipy's message, the last
-    Jacobian computed (None: none))."""
+    `resid(Z)` evaluates a population at once (and records it in the tracker) -> (R, failed);
+    `steps(z)` gives the signed difference step of each variable at z. A difference that reaches
+    a failed simulation says nothing of the derivative: its column is zero for that step (the
+    penalty would otherwise make it huge, and x_scale="jac" would freeze the variable for good).
+    Returns (scipy's message, the last Jacobian computed (None: none))."""
     cache: dict[bytes, np.ndarray] = {}
     last_jac: list[np.ndarray | None] = [None]
 
-    def evaluate(Z: np.ndarray) -> np.ndarray:
+    def evaluate(Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if Z.shape[0] > tr.remaining:
             raise Budget
         return resid(Z)
@@ -89,14 +88,15 @@ def least_squares(resid: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, lb:
         key = z.tobytes()
         if key not in cache:
             cache.clear()
-            cache[key] = evaluate(z[None])[0]
+            cache[key] = evaluate(z[None])[0][0]
         return cache[key]
 
     def jac(z: np.ndarray) -> np.ndarray:
         r0 = fun(z)
         h = steps(z)
-        R = evaluate(z[None, :] + np.diag(h))
+        R, failed = evaluate(z[None, :] + np.diag(h))
         J = (R - r0[None, :]).T / h[None, :]
+        J[:, failed] = 0.0
         last_jac[0] = J
         return J
 
@@ -145,17 +145,15 @@ def polish(problem: Problem, x0: Sequence[float], *, budget: int, space: SearchS
         R, f = problem.residuals_and_objective(X)
         failed = f >= problem.penalty_base
         viol = space.violation(X)
-        tr.record(X, f, (viol <= 1e-9) & ~failed)
+        tr.record(X, f, (viol <= FEASIBLE_TOL) & ~failed)
         extra = np.sqrt(np.where(failed, f, 0.0))
-        return np.hstack([R * scale, (extra * scale)[:, None], (VIOLATION_WEIGHT * viol)[:, None]])
+        return np.hstack([R * scale, (extra * scale)[:, None], (VIOLATION_WEIGHT * viol)[:, None]]), failed
 
     def steps(z: np.ndarray) -> np.ndarray:
         h = FD_STEP * span
         return np.where(z + h <= space.zhi, h, -h)
 
-    m = sum(r.i1 - r.i0 for r in problem.records)  # efd rows (vt doubles them; a rough size)
-    solver = "exact" if m * d <= EXACT_MAX_ENTRIES else "lsmr"
-    msg, J = least_squares(resid, space.to_z(x0), space.zlo, space.zhi, tr, steps, tr_solver=solver, tol=TOL)
+    msg, J = least_squares(resid, space.to_z(x0), space.zlo, space.zhi, tr, steps, tr_solver="exact", tol=TOL)
     history = tuple((nfev0 + n, min(v, shown)) for n, v in tr.history)
     if tr.best_x is None:
         return Result(x=x0, fun=math.inf, nfev=tr.nfev, success=False, message=f"{msg}; no feasible point",
@@ -166,7 +164,7 @@ def polish(problem: Problem, x0: Sequence[float], *, budget: int, space: SearchS
         std = _std(problem, space, x, J[:-2], noise_variance)
     return Result(x=x, fun=tr.best_f, nfev=tr.nfev, success=True, message=msg, names=problem.names, std=std,
                   jac=None if J is None else J[:-2], history=history, violated=tuple(problem.violated(x)),
-                  settings={"solver": f"scipy.optimize.least_squares (trf, {solver})", "budget": int(budget)})
+                  settings={"solver": "scipy.optimize.least_squares (trf, exact)", "budget": int(budget)})
 
 
 def _std(problem: Problem, space: SearchSpace, x: np.ndarray, J: np.ndarray, noise_variance: float
@@ -181,6 +179,6 @@ def _std(problem: Problem, space: SearchSpace, x: np.ndarray, J: np.ndarray, noi
         cov = np.linalg.pinv(J.T @ J) * noise_variance / n_eff
     except np.linalg.LinAlgError:  # pragma: no cover - defensive
         return {n: math.nan for n in problem.names}
-    sd_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    sd_z = np.where(np.any(J != 0.0, axis=0), np.sqrt(np.maximum(np.diag(cov), 0.0)), np.nan)
     dxdz = np.where(space.log, x, 1.0)
     return {n: float(v) for n, v in zip(problem.names, sd_z * np.abs(dxdz))}
