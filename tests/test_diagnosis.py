@@ -299,7 +299,10 @@ def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling
     spec, offsets = edge_spec_of(res["captures"][0]["edges"], cap.n)
     assert set(offsets) == {"EDGE1", "EDGE2"} and all(-cap.dt <= v <= 0 for v in offsets.values())
     efd, _, _ = simulate({**unit.values(), **d["base"]["params"], **offsets}, cap.usetp, cap.dt, edges=spec)
-    assert np.mean((cap.efd - efd) ** 2) == pytest.approx(d["base"]["mse"], rel=1e-9)
+    e2 = (cap.efd - efd) ** 2
+    assert np.mean(e2) == pytest.approx(res["mse"], rel=1e-9)
+    # the diagnosis' mse is the objective per second: the trapezoidal mean of the squared error
+    assert (np.sum(e2) - 0.5 * (e2[0] + e2[-1])) / (cap.n - 1) == pytest.approx(d["base"]["mse"], rel=1e-9)
 
 
 def test_effect_free_capture_gives_none(unit):

@@ -72,7 +72,8 @@ def _left_out(views: Views, p: Problem, x: np.ndarray) -> list[Part]:
     space = SearchSpace(p)
     d = space.d
     z = space.to_z(np.asarray(x, float))
-    h = FD_STEP * (space.zhi - space.zlo)
+    span = space.zhi - space.zlo
+    h = FD_STEP * span
     h = np.where(z + h <= space.zhi, h, -h)
     Z = np.vstack([z[None, :], z[None, :] + np.diag(h)])
     R, failed = p.residuals(space.to_x(Z))
@@ -82,7 +83,9 @@ def _left_out(views: Views, p: Problem, x: np.ndarray) -> list[Part]:
     if failed[0]:
         return [Part(w.label, 0.0, math.inf) for w in views.windows]
     r0 = R[0]
-    J = ((R[1:] - r0[None, :]) / h[:, None]).T            # (rows, d)
+    # per unit of each variable's range (the damping below must weigh the variables alike: per
+    # unit of z an edge offset's column, in seconds, would outweigh every other one)
+    J = ((R[1:] - r0[None, :]) / (h / span)[:, None]).T    # (rows, d)
     eps = 1e-9 * views.capture.dt
     out = []
     for w in views.windows:
@@ -93,10 +96,10 @@ def _left_out(views: Views, p: Problem, x: np.ndarray) -> list[Part]:
         A = Jr.T @ Jr
         lam = LEAVE_OUT_DAMPING * max(float(np.trace(A)) / max(d, 1), 1e-300)
         try:
-            dz = -np.linalg.solve(A + lam * np.eye(d), Jr.T @ rr)
+            du = -np.linalg.solve(A + lam * np.eye(d), Jr.T @ rr)
         except np.linalg.LinAlgError:
-            dz = np.zeros(d)
-        pred = r0[inw] + J[inw] @ dz
+            du = np.zeros(d)
+        pred = r0[inw] + J[inw] @ du
         seconds = float(sec[inw].sum())
         n = float(np.count_nonzero(sec[inw]))
         out.append(Part(w.label, n, float(pred @ pred) / seconds if seconds > 0 else math.inf))
