@@ -172,7 +172,6 @@ class Budget:
     coarse_tail_s: float = 3.0 # the coarse record ends this long after the trailing edge
     combo_polish: int = 60
     max_sequence: int = 3
-    sequence_candidates: int = 4  # effects tried at each step of explained_by
     floor_sigmas: float = 3.0
 
 

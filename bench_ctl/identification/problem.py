@@ -14,12 +14,11 @@ the earlier they fail, so every candidate stays rankable.
 
 A fit window (`fit_window=(t0, t1)` in s, or `segment=slice(i0, i1)` in samples) restricts the
 objective and the MSE to part of each record; the simulation always starts at the record's
-first sample (initial steady state) and stops at the window's end. Windows can also be left out
-of the objective (`Problem.excluding`, the simulation still runs through them: the diagnosis'
-cross-validation) or be the only part scored (`Problem.only`), and a record can be decimated
+first sample (initial steady state) and stops at the window's end. A record can be decimated
 (`Problem.decimated`: every q-th sample, integrated at the coarser step, the cheap copy the
-diagnosis searches on). Without a window or mask the fast path runs the kernel with
-`store=False`; with one the traces are kept and the error is summed in numpy.
+diagnosis searches on). Without a window the fast path runs the kernel with `store=False`; with
+one the traces are kept and the error is summed in numpy. Beside the objective, the scores the
+diagnosis ranks models by (`mean_objective`, `mean_objective_of`, `mse` of efd or vt).
 
 Constraints are read from the unit's text (and those of any effect whose parameters are fitted)
 over all kernel parameters, then reduced to the fitted names: a term on a parameter that is not
@@ -44,7 +43,7 @@ from bench_ctl.model.simulate import param_matrix, pre_trigger_mean
 from bench_ctl.model.unit import Unit
 
 from .constraints import LinearConstraint, parse_constraints
-from .records import ProblemError, Record, apply_window, decimated, masked, segment_window
+from .records import ProblemError, Record, apply_window, decimated, segment_window
 from .timing import EDGE_PARAMS, Edge, edge_spec, edges_entry, record_edges
 
 logger = logging.getLogger(__name__)
@@ -166,15 +165,6 @@ class Problem:
         return replace(self, window=window, records=tuple(
             apply_window(r, window, c) for r, c in zip(self.records, self.captures)))
 
-    def excluding(self, windows: Sequence[tuple[float, float]]) -> "Problem":
-        """The same problem with the time windows (s from each record's start, ends included)
-        left out of the objective and the MSE; the simulation still runs through them."""
-        return replace(self, records=tuple(masked(r, windows, keep=False) for r in self.records))
-
-    def only(self, windows: Sequence[tuple[float, float]]) -> "Problem":
-        """The same problem scored on the time windows only (what `excluding` leaves out)."""
-        return replace(self, records=tuple(masked(r, windows, keep=True) for r in self.records))
-
     def decimated(self, q: int, *, n_max: int | None = None, offset: int = 0) -> "Problem":
         """Every q-th sample of each record from `offset` (give the leading edge's index so that it
         stays on the coarse grid), up to sample n_max: the kernel integrates at q times the step.
@@ -217,8 +207,8 @@ class Problem:
     @property
     def scored_s(self) -> float:
         """Seconds of record the objective integrates (alpha-weighted over the captures, half a
-        step at each window's end, samples left out not counted): a constant efd error e at
-        weight 1 gives an objective of e**2 times this."""
+        step at each window's end): a constant efd error e at weight 1 gives an objective of
+        e**2 times this."""
         return float(sum(r.alpha * r.scored_s for r in self.records))
 
     def mean_objective(self, X: np.ndarray) -> np.ndarray:
@@ -311,8 +301,7 @@ class Problem:
             else:
                 out = _kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
                 e = out[signal][:, r.i0: r.i1] - meas[r.i0: r.i1]
-                w = r.weights()
-                m = (e * e) @ w / max(float(w.sum()), 1e-300)
+                m = np.mean(e * e, axis=1)
             rows.append(np.where(out["fail_step"] >= 0, np.inf, m))
         return np.array(rows)
 
@@ -341,7 +330,7 @@ class Problem:
 
     def residual_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For each entry of the `residuals` vector: its capture, its instant (s from the record's
-        first sample) and the seconds of record it stands for (alpha c_j w_j dt on a sample's efd
+        first sample) and the seconds of record it stands for (alpha c_j dt on a sample's efd
         row, 0 on its vt row), so that the squared residuals of any set of samples over their
         seconds are that set's `mean_objective`."""
         caps, times, secs = [], [], []
@@ -350,7 +339,7 @@ class Problem:
             c = np.ones(n)
             c[0] = c[-1] = 0.5
             t = (r.i0 + np.arange(n)) * r.dt
-            sec = r.alpha * c * r.weights() * r.dt
+            sec = r.alpha * c * r.dt
             signals = 2 if (r.vt is not None and self.w_vt > 0) else 1
             caps.append(np.full(n * signals, k))
             times.append(np.tile(t, signals))
@@ -361,7 +350,7 @@ class Problem:
         out = _kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
         c = np.ones(r.i1 - r.i0)
         c[0] = c[-1] = 0.5
-        scale = np.sqrt(c * r.weights() * r.dt)
+        scale = np.sqrt(c * r.dt)
         res = [math.sqrt(self.w_efd) * scale * (out["efd"][:, r.i0: r.i1] - r.efd[r.i0: r.i1])]
         if r.vt is not None and self.w_vt > 0:
             res.append(math.sqrt(self.w_vt) * scale * (out["vt"][:, r.i0: r.i1] - r.vt[r.i0: r.i1]))

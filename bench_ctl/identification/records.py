@@ -1,5 +1,5 @@
-"""One capture prepared for the kernel, and its views: a time window, samples left out of (or
-the only ones in) the objective, a decimated copy. `Problem` holds one `Record` per capture.
+"""One capture prepared for the kernel, and its views: a time window, a decimated copy.
+`Problem` holds one `Record` per capture.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from bench_ctl.model.edges import EdgeSpec
 
 from .timing import Edge
 
-__all__ = ["Record", "apply_window", "masked", "decimated", "segment_window", "ProblemError"]
+__all__ = ["Record", "apply_window", "decimated", "segment_window", "ProblemError"]
 
 
 class ProblemError(ValueError):
@@ -35,30 +35,20 @@ class Record:
     edges: EdgeSpec = field(default_factory=EdgeSpec.none)
     edge_list: tuple[Edge, ...] = ()
     edge_slots: tuple[int | None, ...] = ()
-    #: per-sample weight of the objective (1 in, 0 out), over the whole record; None: all 1
-    mask: np.ndarray | None = None
 
     @property
     def full(self) -> bool:
-        return self.i0 == 0 and self.i1 == self.efd.size and self.mask is None
-
-    def weights(self) -> np.ndarray:
-        """The samples' weights in the objective over [i0, i1) (mask, or 1)."""
-        return np.ones(self.i1 - self.i0) if self.mask is None else self.mask[self.i0: self.i1]
+        return self.i0 == 0 and self.i1 == self.efd.size
 
     @property
     def n_scored(self) -> float:
-        """How many samples the objective and the MSE count (the sum of the weights)."""
-        return float(np.sum(self.weights()))
+        """How many samples the objective and the MSE count."""
+        return float(self.i1 - self.i0)
 
     @property
     def scored_s(self) -> float:
-        """Seconds of record the objective integrates: the trapezoid's weights (1/2 at the window's
-        ends) times the samples' weights times the step."""
-        c = self.weights().astype(float)
-        c[0] *= 0.5
-        c[-1] *= 0.5
-        return float(np.sum(c) * self.dt)
+        """Seconds of record the objective integrates (the trapezoid: half a step at each end)."""
+        return float((self.i1 - self.i0 - 1) * self.dt)
 
     def edges_upto(self, n: int) -> EdgeSpec:
         """The edges inside the first n samples (a run that stops at a window's end)."""
@@ -83,22 +73,8 @@ def apply_window(r: Record, window: tuple[float, float] | None, cap: Capture) ->
     return replace(r, i0=i0, i1=i1)
 
 
-def masked(r: Record, windows: Sequence[tuple[float, float]], *, keep: bool) -> Record:
-    """`r` with its objective's weights set to 0 inside the windows (keep=False) or outside them."""
-    n = r.efd.size
-    t = np.arange(n) * r.dt
-    inside = np.zeros(n, dtype=bool)
-    for t0, t1 in windows:
-        inside |= (t >= float(t0) - 1e-9 * r.dt) & (t <= float(t1) + 1e-9 * r.dt)
-    sel = inside if keep else ~inside
-    mask = (np.ones(n) if r.mask is None else r.mask) * sel
-    if not np.any(mask[r.i0: r.i1] > 0):
-        raise ProblemError(f"{r.source}: the windows {list(windows)} leave no sample in the objective")
-    return replace(r, mask=mask)
-
-
 def decimated(r: Record, q: int, n_max: int | None, offset: int) -> Record:
-    """Every q-th sample of `r` from offset (mod q) up to n_max, the window and mask carried over."""
+    """Every q-th sample of `r` from offset (mod q) up to n_max, the window carried over."""
     n = r.efd.size if n_max is None else min(int(n_max), r.efd.size)
     first = offset % q if q > 1 else 0
     idx = np.arange(first, n, max(1, q))
@@ -113,7 +89,7 @@ def decimated(r: Record, q: int, n_max: int | None, offset: int) -> Record:
     i1 = int(np.searchsorted(idx, r.i1))
     return replace(r, usetp=np.ascontiguousarray(r.usetp[idx]), efd=np.ascontiguousarray(r.efd[idx]),
                    vt=None if r.vt is None else np.ascontiguousarray(r.vt[idx]), dt=r.dt * q, i0=i0,
-                   i1=max(i1, i0 + 2), edges=edges, mask=None if r.mask is None else r.mask[idx])
+                   i1=max(i1, i0 + 2), edges=edges)
 
 
 def segment_window(seg: slice, cap: Capture) -> tuple[float, float]:
