@@ -1,12 +1,13 @@
 """MVMO and the methods the reference paper compared it with, behind one interface.
 
-`run_optimizer(name, problem, max_evals=..., seed=...)` runs one of
+`run_optimizer(name, problem, max_evals=..., seed=...) -> Result` (pymoo's `minimize(problem,
+algorithm, termination)`; `result.Result` after scipy's `OptimizeResult`) runs one of
 
 * ``mvmo``: MVMO-SH (`bench_ctl.identification.mvmo`) on the closed-loop objective, under the
-  unit's bounds and constraints; one kernel call per generation. It searches the log of every
-  parameter with a positive lower bound (`SearchSpace`; option ``space="linear"`` turns that
-  off): the gains and time constants span one to two decades and the objective's valleys are
-  far straighter in log coordinates.
+  unit's bounds and constraints; one kernel call per generation, in the search space
+  (`space.SearchSpace`: the log of every parameter with a positive lower bound; option
+  ``space="linear"`` turns that off), followed by the polish (`polish.polish`). Identification
+  and the diagnosis both run it (docs/decisions/0011-one-fitting-stack.md).
 * ``de``: scipy's differential evolution on the same objective, bounds and constraints
   (`LinearConstraint`), vectorised (`updating="deferred"`), population and generations chosen
   so the evaluations stay within the budget; no polishing (it would spend evaluations outside
