@@ -1,7 +1,7 @@
 """The MVMO option sets, named by what they search (`mvmo.DEFAULT_OPTIONS` for the rest).
 
-Why each: docs/decisions/0011-one-fitting-stack.md; the figures behind them are the benchmarks'
-(docs/benchmarks.md: benchmarks/identify_accuracy.py, identify_speed.py, diagnose_blind.py).
+Why each: docs/decisions/0011-one-fitting-stack.md; the figures behind them: docs/benchmarks.md,
+"MVMO defaults and option sets" and "Diagnosis constants".
 """
 from __future__ import annotations
 
