@@ -126,6 +126,8 @@ def polish(problem: Problem, x0: Sequence[float], *, budget: int, space: SearchS
     only evaluated). progress(nfev0 + n, best) is called as it goes, never above `shown` (the
     best objective before it). With `noise_variance` (of the mean objective, pu^2), the result
     carries each parameter's standard deviation from the Jacobian at x (Gauss-Newton)."""
+    if budget < 1:
+        raise ValueError(f"polish budget {budget!r}: need at least one simulation")
     space = space or SearchSpace(problem)
     x0 = space.clip(np.asarray(x0, float).reshape(-1))
     d = problem.d
