@@ -6,8 +6,9 @@ sum is `Problem.objective`: in the search space's coordinates (`SearchSpace`), i
 with one more residual row carrying the constraints' violation and one the penalty of a
 candidate that failed to simulate (`Problem.penalty`), so a step across a constraint or into an
 unstable region is refused like any step that does not lower the objective. The forward-difference
-Jacobian is one kernel call of d candidates. Every simulation counts toward `budget`, which is
-never exceeded; the result is the best feasible point evaluated (x0 itself when nothing better is
+Jacobian is one kernel call of d candidates. It takes at most budget / (d + 1) steps (a step: a
+Jacobian and a trial point), and every simulation counts toward `budget`, which is never
+exceeded; the result is the best feasible point evaluated (x0 itself when nothing better is
 found). docs/decisions/0011-one-fitting-stack.md.
 """
 from __future__ import annotations
@@ -68,11 +69,13 @@ class Tracker:
 
 def least_squares(resid: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], z0: np.ndarray, lb: np.ndarray,
                   ub: np.ndarray, tr: Tracker, steps: Callable[[np.ndarray], np.ndarray], *,
-                  tr_solver: str = "exact", tol: float = 1e-10) -> tuple[str, np.ndarray | None]:
+                  tr_solver: str = "exact", tol: float = 1e-10, max_steps: int | None = None
+                  ) -> tuple[str, np.ndarray | None]:
     """TRF least squares with batched forward-difference Jacobians, within the tracker's budget.
 
     `resid(Z)` evaluates a population at once (and records it in the tracker) -> (R, failed);
-    `steps(z)` gives the signed difference step of each variable at z. A difference that reaches
+    `steps(z)` gives the signed difference step of each variable at z; `max_steps` bounds scipy's
+    own count of function evaluations (default: only the budget stops it). A difference that reaches
     a failed simulation says nothing of the derivative: its column is zero for that step (the
     penalty would otherwise make it huge, and x_scale="jac" would freeze the variable for good).
     Returns (scipy's message, the last Jacobian computed (None: none))."""
@@ -102,7 +105,7 @@ def least_squares(resid: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], 
 
     try:
         res = sopt.least_squares(fun, z0, jac=jac, bounds=(lb, ub), method="trf", x_scale="jac",
-                                 max_nfev=10 * tr.max_evals, ftol=tol, xtol=tol, gtol=tol,
+                                 max_nfev=max_steps or 10 * tr.max_evals, ftol=tol, xtol=tol, gtol=tol,
                                  tr_solver=tr_solver)
         return str(res.message), last_jac[0]
     except Budget:
@@ -155,7 +158,8 @@ def polish(problem: Problem, x0: Sequence[float], *, budget: int, space: SearchS
         h = FD_STEP * span
         return np.where(z + h <= space.zhi, h, -h)
 
-    msg, J = least_squares(resid, space.to_z(x0), space.zlo, space.zhi, tr, steps, tr_solver="exact", tol=TOL)
+    msg, J = least_squares(resid, space.to_z(x0), space.zlo, space.zhi, tr, steps, tr_solver="exact", tol=TOL,
+                           max_steps=max(2, budget // (d + 1)))
     history = tuple((nfev0 + n, min(v, shown)) for n, v in tr.history)
     if tr.best_x is None:
         return Result(x=x0, fun=math.inf, nfev=tr.nfev, success=False, message=f"{msg}; no feasible point",
