@@ -1,5 +1,5 @@
 """The fitting stack's parts that identification and the diagnosis share: the scores a Problem
-gives the diagnosis, the search space, and the one polish (docs/decisions/0011-one-fitting-stack.md).
+gives the diagnosis, the search space, and the one polish (docs/decisions/0015-one-fitting-stack.md).
 
 Expected values are recomputed here from the kernel's traces with numpy, not taken from the code
 under test.

@@ -4,7 +4,7 @@
 Every model is identification's `Problem` on the whole capture (the unit's identified
 parameters, the effects' parameters, the instant of every setpoint edge) and every fit is
 identification's fitting stack (`bench_ctl.identification.peers`, `.polish`):
-docs/decisions/0010-diagnosis-one-objective-and-its-check.md, 0011-one-fitting-stack.md.
+docs/decisions/0010-diagnosis-one-objective-and-its-check.md, 0015-one-fitting-stack.md.
 """
 from __future__ import annotations
 

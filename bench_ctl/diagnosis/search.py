@@ -1,7 +1,7 @@
 """How the diagnosis fits a model (the base model plus one or several effects) to the capture.
 
 Every fit is identification's stack on identification's objective (`peers.run_optimizer`'s MVMO,
-`polish.polish`, `SearchSpace`, docs/decisions/0011-one-fitting-stack.md); what is the
+`polish.polish`, `SearchSpace`, docs/decisions/0015-one-fitting-stack.md); what is the
 diagnosis' own is the strategy that drives each model to its local minimum, so that "base
 model" and "base model + effect" differ by what the effect explains and not by how far an
 optimiser happened to get (`fit_model`):

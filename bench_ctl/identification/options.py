@@ -1,6 +1,6 @@
 """The MVMO option sets, named by what they search (`mvmo.DEFAULT_OPTIONS` for the rest).
 
-Why each: docs/decisions/0011-one-fitting-stack.md; the figures behind them: docs/benchmarks.md,
+Why each: docs/decisions/0015-one-fitting-stack.md; the figures behind them: docs/benchmarks.md,
 "MVMO defaults and option sets" and "Diagnosis constants".
 """
 from __future__ import annotations

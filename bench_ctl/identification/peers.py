@@ -7,7 +7,7 @@ algorithm, termination)`; `result.Result` after scipy's `OptimizeResult`) runs o
   unit's bounds and constraints; one kernel call per generation, in the search space
   (`space.SearchSpace`: the log of every parameter with a positive lower bound; option
   ``space="linear"`` turns that off), followed by the polish (`polish.polish`). Identification
-  and the diagnosis both run it (docs/decisions/0011-one-fitting-stack.md).
+  and the diagnosis both run it (docs/decisions/0015-one-fitting-stack.md).
 * ``de``: scipy's differential evolution on the same objective, bounds and constraints
   (`LinearConstraint`), vectorised (`updating="deferred"`), population and generations chosen
   so the evaluations stay within the budget; no polishing (it would spend evaluations outside

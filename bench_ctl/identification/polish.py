@@ -9,7 +9,7 @@ unstable region is refused like any step that does not lower the objective. The 
 Jacobian is one kernel call of d candidates. It takes at most budget / (d + 1) steps (a step: a
 Jacobian and a trial point), and every simulation counts toward `budget`, which is never
 exceeded; the result is the best feasible point evaluated (x0 itself when nothing better is
-found). docs/decisions/0011-one-fitting-stack.md.
+found). docs/decisions/0015-one-fitting-stack.md.
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """What every optimiser run returns: MVMO, its peers (de, local, open-loop), the polish, and the
-diagnosis' fits alike (docs/decisions/0011-one-fitting-stack.md).
+diagnosis' fits alike (docs/decisions/0015-one-fitting-stack.md).
 
 Shaped after scipy's `OptimizeResult` (x, fun, nfev, success, message, jac) with the standard
 deviations and the bookkeeping a report needs; frozen, so a fit is a value.

@@ -2,7 +2,7 @@
 
 z = ln x for a parameter whose lower bound is positive (gains, time constants, rates, levels:
 their valleys are far straighter in log coordinates), z = x for the others (edge offsets, limits
-that may be negative, parameters whose neutral value is 0). docs/decisions/0011-one-fitting-stack.md.
+that may be negative, parameters whose neutral value is 0). docs/decisions/0015-one-fitting-stack.md.
 """
 from __future__ import annotations
 
