@@ -27,7 +27,8 @@ from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError
 from bench_ctl.identification.identify import Identification, result_for_file, run_identification
-from bench_ctl.identification.peers import MVMO_OPTIONS, OPTIMIZERS
+from bench_ctl.identification.options import IDENTIFY
+from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.model.unit import UnitError
 
@@ -37,7 +38,7 @@ from .options import model_args, model_options, resolve_unit
 log = logging.getLogger(__name__)
 
 #: the smallest --evals: MVMO evaluates its whole swarm in the first generation
-MIN_EVALS = int(MVMO_OPTIONS["particles"])
+MIN_EVALS = int(IDENTIFY["particles"])
 #: differential evolution's population: this many candidates per identified parameter (peers._run_de)
 DE_POPSIZE = 5
 
