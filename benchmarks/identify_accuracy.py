@@ -46,7 +46,8 @@ import numpy as np  # noqa: E402
 
 from bench_ctl.capture import Capture, read_capture  # noqa: E402
 from bench_ctl.identification.identify import warm_up  # noqa: E402
-from bench_ctl.identification.peers import MVMO_OPTIONS, OPTIMIZERS, run_optimizer  # noqa: E402
+from bench_ctl.identification.options import IDENTIFY  # noqa: E402
+from bench_ctl.identification.peers import OPTIMIZERS, run_optimizer  # noqa: E402
 from bench_ctl.identification.problem import make_problem  # noqa: E402
 from bench_ctl.identification.synthetic import noise_variance, random_parameters, synthetic_capture, with_values  # noqa: E402
 from bench_ctl.model.simulate import RecorderModel  # noqa: E402
@@ -141,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     out: dict[str, float | int | str] = {"seeds": args.seeds, "evaluations": args.evals,
                                          "near_boundary": int(args.near_boundary), "edges": args.edges,
                                          "sources": ",".join(sources), "compile_s": compile_s,
-                                         "mvmo_options": json.dumps({**MVMO_OPTIONS, **mvmo_options})}
+                                         "mvmo_options": json.dumps({**IDENTIFY, **mvmo_options})}
     t_start = time.perf_counter()
     run_methods = methods + (["mvmo-nominal"] if args.nominal else [])
     for source in sources:
@@ -164,11 +165,11 @@ def main(argv: list[str] | None = None) -> int:
                 mse = float(np.mean(p.mse(r.x)))
                 rows.append({"source": source, "seed": seed, "method": m, "mse": mse, "ratio": mse / var,
                              "ratio_truth": (mse / mse_true) if mse_true else float("nan"),
-                             "objective": r.objective, "evaluations": r.nfev, "wall_s": r.wall_s,
-                             "violated": ";".join(r.constraints_violated),
+                             "objective": r.fun, "evaluations": r.nfev, "wall_s": r.wall_s,
+                             "violated": ";".join(r.violated),
                              **{f"true_{k}": v for k, v in truth.items()},
                              **{f"fit_{k}": float(v) for k, v in zip(p.names, r.x)}})
-                line.append(f"{m} {mse / var:8.4f}{'!' if r.constraints_violated else ''}")
+                line.append(f"{m} {mse / var:8.4f}{'!' if r.violated else ''}")
             print("  ".join(line), flush=True)
     total_s = time.perf_counter() - t_start
     out["total_s"] = total_s

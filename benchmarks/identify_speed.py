@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         "compile_s": compile_s, "setup_s": setup_s, "evaluations": r.nfev,
         "evals_per_s": r.nfev / wall, "kernel_one_batch_s": kernel_s,
         "kernel_evals_per_s": args.evals / kernel_s, "samples": int(cap.n),
-        "mse": float(np.mean(prob.mse(r.x))), "objective": r.objective,
+        "mse": float(np.mean(prob.mse(r.x))), "objective": r.fun,
         "particles": r.settings.get("particles"), "numba_threads": numba.get_num_threads(),
         "cpu_count": os.cpu_count(), "load_avg_1min": os.getloadavg()[0],
         "python": platform.python_version(),

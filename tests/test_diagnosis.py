@@ -12,9 +12,10 @@ from bench_ctl.capture import Capture, write_capture
 from bench_ctl.diagnosis import SCHEMA, Budget, DiagnosisError, diagnose
 from bench_ctl.diagnosis import features as F
 from bench_ctl.diagnosis.blind import SuiteConfig, make_case
-from bench_ctl.diagnosis.diagnose import _gap, choose_verdict
-from bench_ctl.diagnosis.effect_fits import lag_variants
 from bench_ctl.diagnosis.localize import BANDS_HZ, band_shares, find_edges, localization, noise_floor, segments
+from bench_ctl.diagnosis.starts import lag_variants
+from bench_ctl.diagnosis.verdict import choose_verdict
+from bench_ctl.diagnosis.verdict import gap as _gap
 from bench_ctl.model.simulate import pulse_usetp, simulate
 from bench_ctl.model.unit import load_unit
 
@@ -175,7 +176,7 @@ def test_verdict_is_the_best_significant_effect_not_the_best_scored():
 
 
 def test_ambiguity_is_judged_around_the_verdict_not_the_best_score():
-    from bench_ctl.diagnosis.effect_fits import ambiguous_pairs
+    from bench_ctl.diagnosis.verdict import ambiguous_pairs
 
     entries = [{"name": "time_skew", "score": -195.0, "significant": False},
                {"name": "dead_time", "score": -80.0, "significant": True},
@@ -298,7 +299,10 @@ def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling
     spec, offsets = edge_spec_of(res["captures"][0]["edges"], cap.n)
     assert set(offsets) == {"EDGE1", "EDGE2"} and all(-cap.dt <= v <= 0 for v in offsets.values())
     efd, _, _ = simulate({**unit.values(), **d["base"]["params"], **offsets}, cap.usetp, cap.dt, edges=spec)
-    assert np.mean((cap.efd - efd) ** 2) == pytest.approx(d["base"]["mse"], rel=1e-9)
+    e2 = (cap.efd - efd) ** 2
+    assert np.mean(e2) == pytest.approx(res["mse"], rel=1e-9)
+    # the diagnosis' mse is the objective per second: the trapezoidal mean of the squared error
+    assert (np.sum(e2) - 0.5 * (e2[0] + e2[-1])) / (cap.n - 1) == pytest.approx(d["base"]["mse"], rel=1e-9)
 
 
 def test_effect_free_capture_gives_none(unit):
@@ -344,7 +348,7 @@ def test_capture_without_pre_trigger_is_refused(unit):
 
 
 def test_ambiguous_pairs_name_the_separating_test():
-    from bench_ctl.diagnosis.effect_fits import AMBIGUOUS, ambiguous_pairs
+    from bench_ctl.diagnosis.verdict import AMBIGUOUS, ambiguous_pairs
     entries = [{"name": "dead_time", "score": -500.0, "significant": True},
                {"name": "time_skew", "score": -500.0 + AMBIGUOUS / 2, "significant": True},
                {"name": "setpoint_ramp", "score": -500.0 + AMBIGUOUS / 3, "significant": False},

@@ -65,13 +65,7 @@ KERNEL_USERS = ("bench_ctl.model", "bench_ctl.identification")
 
 #: (importer, imported, why): imports the rules refuse that are allowed for now; each must still
 #: occur (the test says when one can go)
-TEMPORARY: tuple[tuple[str, str, str], ...] = (
-    # issue 25 section 2: the fitting stack's rewrite leaves nothing in diagnosis/ calling the
-    # kernel (its scores become Problem methods); until it lands these modules still do
-    ("bench_ctl.diagnosis.diagnose", KERNEL, "issue 25 section 2 rewrite"),
-    ("bench_ctl.diagnosis.effect_fits", KERNEL, "issue 25 section 2 rewrite"),
-    ("bench_ctl.diagnosis.fit", KERNEL, "issue 25 section 2 rewrite"),
-)
+TEMPORARY: tuple[tuple[str, str, str], ...] = ()
 
 #: what a procedure must not reach on a device (bench_ctl.runner.protocols gives what it needs)
 DEVICE_INSIDES = ("link", "profile", "heartbeat")

@@ -11,8 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from bench_ctl.identification.peers import OPTIMIZERS, OpenLoopModel, SearchSpace, run_optimizer
+from bench_ctl.identification.peers import OPTIMIZERS, OpenLoopModel, run_optimizer
 from bench_ctl.identification.problem import make_problem
+from bench_ctl.identification.result import Result
+from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.synthetic import synthetic_capture
 from truth import TRUTH
 
@@ -27,24 +29,24 @@ def problem(unit, truth_unit):
 def test_every_optimizer_keeps_the_budget_and_reports_alike(problem, name):
     seen = []
     r = run_optimizer(name, problem, max_evals=120, seed=4, progress=lambda n, f: seen.append((n, f)))
-    assert r.name == name and 0 < r.nfev <= 120
-    assert r.x.shape == (6,) and np.all(r.x > 0)
-    assert math.isfinite(r.objective) and not r.failed
-    assert r.objective == pytest.approx(float(problem.objective(r.x[None])[0]))
+    assert isinstance(r, Result) and r.method == name and 0 < r.nfev <= 120
+    assert r.x.shape == (6,) and np.all(r.x > 0) and r.names == problem.names
+    assert math.isfinite(r.fun) and r.success
+    assert r.fun == pytest.approx(float(problem.objective(r.x[None])[0]))
     counts = [n for n, _ in r.history]
     assert counts == sorted(counts) and counts[-1] == r.nfev
     best = [f for _, f in r.history]
     assert all(a >= b for a, b in zip(best, best[1:]))
     assert seen and seen[-1][0] == r.nfev
     assert r.wall_s > 0 and isinstance(r.settings, dict)
-    assert r.constraints_violated == problem.violated(r.x)
+    assert list(r.violated) == problem.violated(r.x)
 
 
 @pytest.mark.parametrize("name", ["mvmo", "de"])
 def test_global_methods_respect_bounds_and_constraints(problem, name):
     r = run_optimizer(name, problem, max_evals=300, seed=1)
     assert np.all(r.x >= problem.lower) and np.all(r.x <= problem.upper)
-    assert r.constraints_violated == []
+    assert r.violated == ()
 
 
 def test_mvmo_is_deterministic_for_a_seed(problem):
@@ -69,7 +71,7 @@ def test_local_may_break_constraints_and_says_which(problem):
     # in that equally good valley, where TA2 <= TA1 does not hold
     x0 = np.array([200.0, 0.1, 0.3, 1.0, 2.0, 0.03])
     r = run_optimizer("local", problem, max_evals=200, seed=0, x0=x0)
-    assert r.constraints_violated == ["TA2 <= TA1"]
+    assert r.violated == ("TA2 <= TA1",)
     assert r.x[1] < r.x[2]
     assert problem.mse(r.x)[0] < 1.1e-4  # a good fit, just not an allowed one
     assert r.settings["bounds"].startswith("positivity only")
@@ -122,4 +124,4 @@ def test_no_simulation_beyond_the_budget(problem, name, monkeypatch):
     monkeypatch.setattr(problem_module, "run_kernel", counting)
     r = run_optimizer(name, problem, max_evals=120, seed=0)
     assert r.nfev <= 120 and rows[0] == r.nfev, (r.nfev, rows[0])
-    assert r.objective == pytest.approx(float(problem.objective(r.x[None])[0]), rel=1e-9)
+    assert r.fun == pytest.approx(float(problem.objective(r.x[None])[0]), rel=1e-9)

@@ -232,9 +232,14 @@ def test_identification_polishes_again_from_ieeex1s_exchanged_lags():
     stalled = {"KAVR": 39.909, "TE": 0.5, "TEX": 0.05, "KF": 0.0267}
     x = np.array([stalled.get(n, 0.5 * (lo + hi)) for n, lo, hi in zip(prob.names, prob.lower, prob.upper)])
     f = float(prob.objective(x[None])[0])
-    x2, f2, nfev, _, settings, _ = peers._swap_restarts(prob, swaps, 200, x, f, 0, [], {}, "", None)
-    assert nfev <= 200 and settings["swap_restarts"][0]["kept"]
-    assert f2 < 0.85 * f
+    from bench_ctl.identification.result import Result
+    from bench_ctl.identification.space import SearchSpace
+
+    start = Result(x=x, fun=f, nfev=0, success=True, names=prob.names)
+    res = peers._swap_restarts(prob, SearchSpace(prob), swaps, 200, start, None)
+    assert res.nfev <= 200 and res.settings["swap_restarts"][0]["kept"]
+    assert res.fun < 0.85 * f
+    x2 = res.x
     true = standard_params(manifest()["captures"][name])
     truth = {"TE": true["TA"], "TEX": true["TE"]}
     v = prob.params(x2)

@@ -128,6 +128,7 @@ def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, An
     k1 = min(capture.n, int(round(t1 / capture.dt)) + 1)  # t1 included (the whole capture today)
     r = capture.efd[:k1] - efd[:k1]
     objective = float(capture.dt * (np.sum(r * r) - 0.5 * (r[0] ** 2 + r[-1] ** 2)))
+    mse = float(np.mean(r * r))  # a result's mse is the plain mean (the diagnosis' the trapezoidal one)
     names = list(unit.identified_names)
     x = np.array([d["base"]["params"][n] for n in names])
     cons = []
@@ -138,13 +139,13 @@ def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, An
         "command_line": d["command_line"], "created_utc": d["created_utc"], "unit": unit.to_dict(),
         "captures": [{"path": os.path.abspath(capture.source) if capture.source else d["capture"]["path"],
                       "sha256": d["capture"]["sha256"], "n": capture.n,
-                      "rate_hz": capture.rate_hz, "meta": capture.meta, "mse": d["base"]["mse"],
+                      "rate_hz": capture.rate_hz, "meta": capture.meta, "mse": mse,
                       "objective": objective, "weight": 1.0, "edges": edges}],
         "params": dict(d["base"]["params"]),
         "fixed": {k: (v if math.isfinite(v) else None) for k, v in values.items()
                   if k in KERNEL_PARAMS and k not in d["base"]["params"] and k not in RECORD_PARAMS},
         "bounds": {n: [b.min, b.max] for n, b in unit.identify.items()},
-        "constraints": cons, "objective": objective, "mse": d["base"]["mse"],
+        "constraints": cons, "objective": objective, "mse": mse,
         "evaluations": d["base"]["evaluations"], "wall_s": d["wall_s"], "compile_s": 0.0,
         "optimizer": {"name": "mvmo + least squares (diagnosis base fit)", "settings": {}, "seed": None},
         "history": [], "fit_window": None if k1 >= capture.n else [0.0, t1],

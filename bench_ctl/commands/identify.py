@@ -27,7 +27,8 @@ from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError
 from bench_ctl.identification.identify import Identification, result_for_file, run_identification
-from bench_ctl.identification.peers import MVMO_OPTIONS, OPTIMIZERS
+from bench_ctl.identification.options import IDENTIFY
+from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.model.unit import UnitError
 
@@ -37,7 +38,7 @@ from .options import model_args, model_options, resolve_unit
 log = logging.getLogger(__name__)
 
 #: the smallest --evals: MVMO evaluates its whole swarm in the first generation
-MIN_EVALS = int(MVMO_OPTIONS["particles"])
+MIN_EVALS = int(IDENTIFY["particles"])
 #: differential evolution's population: this many candidates per identified parameter (peers._run_de)
 DE_POPSIZE = 5
 
@@ -121,7 +122,7 @@ def plot_fit(ident: Identification, path: str | Path, out: outputs.Outputs | Non
     for ax, cap, sim, m in zip(axes[:, 0], prob.captures, sims, mses):
         t = cap.time - cap.time[0]
         ax.plot(t, cap.efd, color="0.6", lw=0.8, label="efd measured")
-        ax.plot(t, sim["efd"], color="C0", lw=1.2, label=f"efd simulated ({ident.best.name})")
+        ax.plot(t, sim["efd"], color="C0", lw=1.2, label=f"efd simulated ({ident.best.method})")
         ax.set_ylabel("efd (pu)")
         ax.set_xlabel("time (s)")
         ax.set_title(f"{Path(cap.source).name if cap.source else 'capture'}: mse {m:.3g}")
@@ -240,7 +241,7 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         why = [f"constraint(s) violated: {', '.join(bad)}"] if bad else []
         if ident.outside_bounds:
             why.append(f"outside its bounds: {', '.join(ident.outside_bounds)}")
-        click.echo("criteria failed: " + ("fit failed" if ident.best.failed else "; ".join(why)),
+        click.echo("criteria failed: " + ("fit failed" if not ident.best.success else "; ".join(why)),
                    err=True)
         return ExitCode.FAILED
     return ExitCode.OK

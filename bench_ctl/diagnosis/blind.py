@@ -27,10 +27,13 @@ from bench_ctl.model.effects import EFFECT_NAMES
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate
 from bench_ctl.model.unit import Bound, Unit, load_unit
 
+from bench_ctl.identification.options import PROFILE
+from bench_ctl.identification.polish import polish
 from bench_ctl.identification.problem import make_problem
 
-from .fit import Space, coarse_factor, fit, mse_of, polish
 from .localize import find_edges
+from .models import coarse_factor
+from .search import fit, mean
 
 log = logging.getLogger(__name__)
 
@@ -149,9 +152,10 @@ def record_visibility(unit: Unit, cap: Capture, avr: Mapping[str, float], cfg: S
     q = coarse_factor(unit, dt, 0.004)
     coarse = p.decimated(q, n_max=(edges.k_off or cap.n) + int(round(3.0 / dt)), offset=edges.k_on)
     x0 = np.array([avr[n] for n in p.names])
-    res = fit(coarse, x0=x0, evals=600, seed=seed, polish_evals=150)
-    _u, f, _n = polish(p, Space.of(p).to_u(res.x), max_calls=100)
-    f = min(f, float(mse_of(p, res.x)[0]))  # the polish returns inf when it left the constraints
+    res = fit(coarse, x0=x0, evals=600, seed=seed, polish_evals=150, options=PROFILE)
+    f = mean(p, polish(p, res.x, budget=100))
+    if not math.isfinite(f):  # no feasible point: the search's own, as it is
+        f = float(p.mean_objective(res.x[None])[0])
     return f / cfg.noise_pu ** 2
 
 

@@ -29,8 +29,9 @@ from bench_ctl.model.unit import Unit
 from bench_ctl.model.unit import outside_bounds as values_outside_bounds
 
 from .identifiability import analyse
-from .peers import OPTIMIZERS, OptimResult, Progress, run_optimizer
+from .peers import OPTIMIZERS, Progress, run_optimizer
 from .problem import Problem, make_problem
+from .result import Result
 
 logger = logging.getLogger(__name__)
 
@@ -44,14 +45,14 @@ class Identification:
     """Everything one identification produced: the result dict and the objects behind it."""
     result: dict[str, Any]
     problem: Problem
-    best: OptimResult
-    runs: tuple[OptimResult, ...]  # every optimizer run, the chosen one first
+    best: Result
+    runs: tuple[Result, ...]  # every optimizer run, the chosen one first
 
     @property
     def ok(self) -> bool:
         """The fit succeeded, satisfies every constraint and lies inside the bounds (exit code 0
         of the CLI; the `local` peer ignores bounds by design)."""
-        return ((not self.best.failed) and all(c["satisfied"] for c in self.result["constraints"])
+        return (self.best.success and all(c["satisfied"] for c in self.result["constraints"])
                 and not self.outside_bounds)
 
     @property
@@ -143,12 +144,12 @@ def _model_only(ident: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _run_summary(problem: Problem, r: OptimResult) -> dict[str, Any]:
+def _run_summary(problem: Problem, r: Result) -> dict[str, Any]:
     mses = problem.mse(r.x)
-    return {"optimizer": r.name, "mse": _none_if_inf(float(np.mean(mses))),
-            "objective": _none_if_inf(r.objective), "evaluations": r.nfev, "wall_s": r.wall_s,
-            "constraints_violated": list(r.constraints_violated), "params": problem.model_params(r.x),
-            "failed": r.failed, "message": r.message}
+    return {"optimizer": r.method, "mse": _none_if_inf(float(np.mean(mses))),
+            "objective": _none_if_inf(r.fun), "evaluations": r.nfev, "wall_s": r.wall_s,
+            "constraints_violated": list(r.violated), "params": problem.model_params(r.x),
+            "failed": not r.success, "message": r.message}
 
 
 def run_identification(*args: Any, **kwargs: Any) -> Identification:
@@ -212,7 +213,7 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
     mses = prob.mse(x)
     objs = prob.capture_objectives(x)
     try:
-        ident = analyse(prob, x) if not best.failed else None
+        ident = analyse(prob, x) if best.success else None
     except (ValueError, np.linalg.LinAlgError) as exc:
         logger.warning("identifiability analysis failed: %s", exc)
         ident = None
@@ -237,16 +238,16 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
         "bounds": {n: [lo, hi] for n, (lo, hi) in zip(prob.names, prob.bounds) if n not in RECORD_PARAMS},
         "edges": [{"capture": i, **e} for i, es in enumerate(edges) for e in es],
         "constraints": prob.constraint_report(x),
-        "objective": _none_if_inf(best.objective),
+        "objective": _none_if_inf(best.fun),
         "mse": _none_if_inf(float(np.mean(mses))),
         "evaluations": best.nfev,
         "wall_s": best.wall_s,
         "compile_s": compile_s,
-        "optimizer": {"name": best.name, "settings": best.settings, "seed": seed},
+        "optimizer": {"name": best.method, "settings": dict(best.settings), "seed": seed},
         "history": [[n, _none_if_inf(v)] for n, v in best.history],
         "identifiability": ident,
         "fit_window": list(prob.window) if prob.window is not None else None,
-        "failed": best.failed,
+        "failed": not best.success,
         "message": best.message,
     }
     result["model"] = model_entry(prob.unit, {**prob.base, **result["params"]}, prob.names,

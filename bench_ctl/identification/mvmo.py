@@ -46,7 +46,7 @@ Choices of this implementation where the literature leaves room or was not at ha
 the ``beta`` range, SLSQP with batched forward differences as the local search and its
 scheduling (one at a time, best unpolished good particle), the penalised ranking of infeasible
 candidates, and the defaults in ``DEFAULT_OPTIONS`` (docs/benchmarks.md, "MVMO defaults and
-MVMO_OPTIONS").
+option sets").
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ __all__ = ["DEFAULT_OPTIONS", "MVMOResult", "mapping", "minimize"]
 
 ConstraintLike = Union[LinearConstraint, Callable[[np.ndarray], float]]
 
-#: Option defaults (why: docs/benchmarks.md, "MVMO defaults and MVMO_OPTIONS"). ``None`` means
+#: Option defaults (why: docs/benchmarks.md, "MVMO defaults and option sets"). ``None`` means
 #: derived from the number of variables ``d``: ``m_init = ceil(d / 2)``,
 #: ``local_search_evals = 40 (d + 1)``.
 DEFAULT_OPTIONS: Mapping[str, Any] = MappingProxyType(
@@ -451,7 +451,7 @@ def minimize(fun: Callable[[np.ndarray], Any], bounds: Sequence[Sequence[float]]
     one local search at a time from the best unpolished good particle after 20 % of the budget
     (without local search a pulse-response fit does not reach the true parameters' error);
     ``fs`` 1 -> 20, archive 4, ``delta_d`` 0.25, good share 0.7 -> 0.2. The figures behind
-    them: docs/benchmarks.md, "MVMO defaults and MVMO_OPTIONS".
+    them: docs/benchmarks.md, "MVMO defaults and option sets".
     """
     if isinstance(max_evals, bool) or not isinstance(max_evals, (int, np.integer)) or max_evals < 1:
         raise ValueError(f"max_evals={max_evals!r}: need an integer >= 1")

@@ -1,12 +1,13 @@
 """MVMO and the methods the reference paper compared it with, behind one interface.
 
-`run_optimizer(name, problem, max_evals=..., seed=...)` runs one of
+`run_optimizer(name, problem, max_evals=..., seed=...) -> Result` (pymoo's `minimize(problem,
+algorithm, termination)`; `result.Result` after scipy's `OptimizeResult`) runs one of
 
 * ``mvmo``: MVMO-SH (`bench_ctl.identification.mvmo`) on the closed-loop objective, under the
-  unit's bounds and constraints; one kernel call per generation. It searches the log of every
-  parameter with a positive lower bound (`SearchSpace`; option ``space="linear"`` turns that
-  off): the gains and time constants span one to two decades and the objective's valleys are
-  far straighter in log coordinates.
+  unit's bounds and constraints; one kernel call per generation, in the search space
+  (`space.SearchSpace`: the log of every parameter with a positive lower bound; option
+  ``space="linear"`` turns that off), followed by the polish (`polish.polish`). Identification
+  and the diagnosis both run it (docs/decisions/0015-one-fitting-stack.md).
 * ``de``: scipy's differential evolution on the same objective, bounds and constraints
   (`LinearConstraint`), vectorised (`updating="deferred"`), population and generations chosen
   so the evaluations stay within the budget; no polishing (it would spend evaluations outside
@@ -30,7 +31,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import replace
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -40,70 +41,30 @@ from scipy import signal
 from bench_ctl.model.params import AVR_PARAMS, RECORD_PARAMS
 
 from . import mvmo
-from .constraints import LinearConstraint
+from .options import EDGE_POLISH_MAX, EDGE_POLISH_SHARE, IDENTIFY
+from .polish import Tracker, least_squares, polish
 from .problem import Problem
+from .result import Result
+from .space import SearchSpace
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["OPTIMIZERS", "OptimResult", "run_optimizer", "OpenLoopModel"]
+__all__ = ["OPTIMIZERS", "run_optimizer", "OpenLoopModel"]
 
 OPTIMIZERS = ("mvmo", "de", "local", "open-loop")
 
 Progress = Callable[[int, float], Any]
 
 
-@dataclass(frozen=True, eq=False)
-class OptimResult:
-    """What one optimizer run produced. `objective` is the closed-loop OF at `x`."""
-    name: str
-    x: np.ndarray
-    objective: float
-    nfev: int
-    history: list[tuple[int, float]]
-    wall_s: float
-    settings: dict[str, Any]
-    seed: int | None
-    message: str = ""
-    constraints_violated: list[str] = field(default_factory=list)
-    failed: bool = False  # the best point could not be simulated (or no finite objective)
-
-
-class _Budget(Exception):
-    """Raised inside scipy callbacks when the evaluation budget is used up."""
-
-
-class _Tracker:
-    """Counts evaluations, keeps the best closed-loop objective and the history."""
-
-    def __init__(self, max_evals: int, progress: Progress | None):
-        self.max_evals, self.progress = max_evals, progress
-        self.nfev = 0
-        self.best_f = math.inf
-        self.best_x: np.ndarray | None = None
-        self.history: list[tuple[int, float]] = []
-
-    @property
-    def remaining(self) -> int:
-        return self.max_evals - self.nfev
-
-    def record(self, X: np.ndarray, f: np.ndarray) -> None:
-        self.nfev += X.shape[0]
-        j = int(np.argmin(f))
-        if f[j] < self.best_f:
-            self.best_f, self.best_x = float(f[j]), X[j].copy()
-        self.history.append((self.nfev, self.best_f))
-        if self.progress is not None:
-            self.progress(self.nfev, self.best_f)
-
-
 def run_optimizer(name: str, problem: Problem, *, max_evals: int, seed: int | None = 0,
                   x0: Sequence[float] | None = None, progress: Progress | None = None,
-                  options: Mapping[str, Any] | None = None) -> OptimResult:
+                  options: Mapping[str, Any] | None = None) -> Result:
     """Run optimizer `name` (one of OPTIMIZERS) on `problem` within `max_evals` evaluations.
 
     x0: a start point (MVMO: joins the initial swarm; de: joins the initial population; local
     and open-loop: the start, default the unit's values). options: method-specific settings
-    (MVMO options dict; de: popsize, mutation, recombination; local: fd_step).
+    (MVMO: `mvmo.DEFAULT_OPTIONS` over `options.IDENTIFY`, and `space`, `edges`, `polish_evals`;
+    de: popsize, mutation, recombination, strategy; local and open-loop: fd_step).
     """
     if name not in OPTIMIZERS:
         raise ValueError(f"unknown optimizer {name!r}; choose one of {', '.join(OPTIMIZERS)}")
@@ -114,131 +75,78 @@ def run_optimizer(name: str, problem: Problem, *, max_evals: int, seed: int | No
     res = fn(problem, int(max_evals), seed, None if x0 is None else np.asarray(x0, float),
              progress, dict(options or {}))
     wall = time.perf_counter() - t0
-    x, f, nfev, hist, settings, msg = res
+    x = np.asarray(res.x, float)
     violated = problem.violated(x)
-    failed = not math.isfinite(f) or f >= problem.penalty_base
-    logger.info("%s: objective %.6g after %d evaluations in %.2f s%s", name, f, nfev, wall,
+    f = float(res.fun)
+    logger.info("%s: objective %.6g after %d evaluations in %.2f s%s", name, f, res.nfev, wall,
                 f"; violates {violated}" if violated else "")
-    return OptimResult(name=name, x=np.asarray(x, float), objective=float(f), nfev=int(nfev),
-                       history=[(int(n), float(v)) for n, v in hist], wall_s=wall,
-                       settings=settings, seed=seed, message=msg, constraints_violated=violated,
-                       failed=failed)
+    return replace(res, x=x, fun=f, nfev=int(res.nfev), success=math.isfinite(f) and f < problem.penalty_base,
+                   names=problem.names, method=name, wall_s=wall, seed=seed, violated=tuple(violated),
+                   history=tuple((int(n), float(v)) for n, v in res.history))
+
+
+def _result(problem: Problem, x: np.ndarray, f: float, nfev: int, history: Sequence[tuple[int, float]],
+            settings: Mapping[str, Any], message: str, **kw: Any) -> Result:
+    return Result(x=np.asarray(x, float), fun=float(f), nfev=int(nfev), success=True, message=message,
+                  names=problem.names, history=tuple(history), settings=dict(settings), **kw)
 
 
 # ---------------------------------------------------------------------- MVMO
 
-#: MVMO options used for identification unless overridden (see `mvmo.DEFAULT_OPTIONS`).
-#: particles 32: a generation is one kernel call, and the kernel's cost per candidate falls with
-#: the batch size (candidates are its inner, vectorised loop); local_search_evals 500: longer
-#: polishing along the KAVR-TA4 ridge of this objective. Figures: docs/benchmarks.md, "MVMO
-#: defaults and MVMO_OPTIONS".
-MVMO_OPTIONS: dict[str, Any] = {"particles": 32, "local_search_evals": 500}
-
-
-class SearchSpace:
-    """The variables MVMO searches: ln x for parameters with a positive lower bound (time
-    constants and gains spanning decades), x itself for the others.
-
-    A linear constraint between two log variables with a zero bound (`TA2 <= TA1`, `S12 >=
-    1.44*S10`) or on one log variable stays linear in the search space; any other becomes a
-    callable violation evaluated in the original units.
-    """
-
-    def __init__(self, problem: Problem, space: str):
-        if space not in ("log", "linear"):
-            raise ValueError(f"MVMO option space={space!r}: choose 'log' or 'linear'")
-        lo, hi = problem.lower, problem.upper
-        self.log = (lo > 0) if space == "log" else np.zeros(problem.d, bool)
-        self.bounds = [(math.log(a), math.log(b)) if g else (a, b) for a, b, g in zip(lo, hi, self.log)]
-        self.constraints: list[Any] = []
-        for c in problem.constraints:
-            nz = np.flatnonzero(c.coef)
-            coef = c.coef
-            if len(nz) == 2 and c.rhs == 0.0 and all(self.log[nz]) and coef[nz[0]] * coef[nz[1]] < 0:
-                i, j = (nz[0], nz[1]) if coef[nz[0]] > 0 else (nz[1], nz[0])
-                new = np.zeros(problem.d)
-                new[i], new[j] = 1.0, -1.0  # a x_i <= b x_j  <=>  ln x_i - ln x_j <= ln(b/a)
-                self.constraints.append(LinearConstraint(c.expr, new, math.log(-coef[j] / coef[i]), c.names))
-            elif len(nz) == 1 and self.log[nz[0]] and coef[nz[0]] > 0 and c.rhs > 0:
-                new = np.zeros(problem.d)
-                new[nz[0]] = 1.0
-                self.constraints.append(LinearConstraint(c.expr, new, math.log(c.rhs / coef[nz[0]]), c.names))
-            else:
-                self.constraints.append(lambda z, c=c: c.violation(self.to_x(z)))
-
-    def to_x(self, Z: np.ndarray) -> np.ndarray:
-        return np.where(self.log, np.exp(np.where(self.log, Z, 0.0)), Z)
-
-    def to_z(self, X: np.ndarray) -> np.ndarray:
-        return np.where(self.log, np.log(np.where(self.log, X, 1.0)), X)
-
-
-#: share of the budget (at most EDGE_POLISH_MAX evaluations) of the joint least-squares polish
-#: that follows an MVMO search with the edge instants held at mid-interval
-EDGE_POLISH_SHARE = 0.15
-EDGE_POLISH_MAX = 200
-
-
 def _run_mvmo(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray | None,
-              progress: Progress | None, options: dict[str, Any]):
-    """MVMO; with setpoint edge instants among the names (and the option `edges` = "polish", the
-    default), MVMO searches the model parameters with each edge held at the middle of its
-    interval, then one least-squares polish moves everything, edges included. The edge offsets
-    barely shape the objective's landscape; searched by MVMO they only thin its budget.
+              progress: Progress | None, options: dict[str, Any]) -> Result:
+    """MVMO in the search space (`SearchSpace`), then the polish (`polish.polish`) of every
+    parameter from its best point, then the structure's exchanged pairs (`_swap_restarts`).
 
-    When the unit's structure declares near-symmetric time constants (`Structure.swaps`) and both
-    are fitted, the same polish is run again from the point with the two exchanged, and the better
-    end kept (`_swap_restarts`), with the evaluations the polish left unused. Figures for both:
-    docs/benchmarks.md, "Identification: edge instants held, swap restarts"."""
-    opts = dict(options)
+    With setpoint edge instants among the names (and the option `edges` = "polish", the default),
+    MVMO searches the model parameters with each edge held at the middle of its interval and the
+    polish gets `EDGE_POLISH_SHARE` of the budget (at most `EDGE_POLISH_MAX`): the edge offsets
+    barely shape the objective's landscape, searched by MVMO they only thin its budget. Option
+    `polish_evals`: the polish's budget instead (the diagnosis' fits); a polish too small for
+    three Jacobians is not run and MVMO gets the whole budget. Figures for the held edges and the
+    swap restarts: docs/benchmarks.md, "Identification: edge instants held, swap restarts"."""
+    opts = {**IDENTIFY, **options}
     mode = str(opts.pop("edges", "polish"))
     if mode not in ("polish", "search"):
         raise ValueError(f"MVMO option edges={mode!r}: choose 'polish' or 'search'")
-    edge = [i for i, n in enumerate(problem.names) if n in RECORD_PARAMS]
-    n_pol = min(EDGE_POLISH_MAX, int(EDGE_POLISH_SHARE * max_evals))
+    kind = str(opts.pop("space", "log"))
+    n_pol = opts.pop("polish_evals", None)
+    edge = [i for i, n in enumerate(problem.names) if n in RECORD_PARAMS] if mode == "polish" else []
+    if n_pol is None:
+        n_pol = min(EDGE_POLISH_MAX, int(EDGE_POLISH_SHARE * max_evals)) if edge else 0
+    n_pol = int(n_pol)
+    if n_pol < 3 * (problem.d + 1) or n_pol >= max_evals:
+        n_pol, edge = 0, []
+    space = SearchSpace(problem, kind)
     swaps = _swaps(problem)
-    if mode == "search" or not edge or n_pol < 3 * (problem.d + 1):
-        x, f, nfev, history, settings, msg = _run_mvmo_plain(problem, max_evals, seed, x0, progress, opts)
-        return _swap_restarts(problem, swaps, max_evals, x, f, nfev, history, settings, msg, progress)
+    if not edge:
+        res = _mvmo_search(problem, max_evals - n_pol, seed, x0, progress, opts, kind)
+        if n_pol:
+            res = _polished(problem, res, n_pol, space, progress, "polish", {})
+        return _swap_restarts(problem, space, swaps, max_evals, res, progress)
     mid = {problem.names[i]: 0.5 * (problem.lower[i] + problem.upper[i]) for i in edge}
     sub = problem.held(mid)
     model = [i for i in range(problem.d) if i not in edge]
     x0s = None if x0 is None else np.asarray(x0, float)[model]
-    xs, fs, nfev, history, settings, msg = _run_mvmo_plain(sub, max_evals - n_pol, seed, x0s, progress, opts)
+    rs = _mvmo_search(sub, max_evals - n_pol, seed, x0s, progress, opts, kind)
     x = np.empty(problem.d)
-    x[model] = xs
+    x[model] = rs.x
     x[edge] = [mid[problem.names[i]] for i in edge]
-    xp, fp, n, steps, pol_msg = _polish(problem, x, nfev, n_pol, progress, fs)
-    x, f = (xp, fp) if fp < fs else (x, fs)
-    settings = {**settings, "edges": {"search": "held at mid-interval", "polish": "joint least squares "
-                                      "(trf) of every parameter, edges included", "polish_evals": n - nfev,
-                                      "polish_message": pol_msg}}
-    return _swap_restarts(problem, swaps, max_evals, x, f, n, list(history) + steps, settings, msg, progress)
+    res = replace(rs, x=x, names=problem.names)
+    res = _polished(problem, res, n_pol, space, progress, "edges", {"search": "held at mid-interval"})
+    return _swap_restarts(problem, space, swaps, max_evals, res, progress)
 
 
-def _polish(problem: Problem, x: np.ndarray, nfev: int, budget: int, progress: Progress | None,
-            shown: float = math.inf) -> tuple[np.ndarray, float, int, list[tuple[int, float]], str]:
-    """One joint least-squares polish of every parameter from x, after nfev evaluations, within
-    `budget` evaluations: (its best feasible point, that point's objective (inf: none), the
-    evaluations so far, its history steps, scipy's message). Progress and history show the best
-    objective found so far, never above `shown` (the best before the polish)."""
-    offset = nfev
-
-    def shifted(n: int, best: float) -> None:
-        if progress is not None:
-            progress(offset + n, min(best, shown))
-
-    tr = _Tracker(budget, shifted)
-
-    def score(X: np.ndarray, R: np.ndarray, failed: np.ndarray) -> np.ndarray:
-        return np.where(failed, problem.penalty_base, np.einsum("ij,ij->i", R, R))
-
-    # lsmr: the exact solver's SVD of the (samples x parameters) Jacobian cost 17 ms an iteration
-    msg = _least_squares(problem.residuals, x, problem.lower, problem.upper, tr, score, 1e-6, "lsmr")
-    steps = [(offset + n, min(v, shown)) for n, v in tr.history]
-    if tr.best_x is None or problem.violated(tr.best_x):
-        return x, math.inf, offset + tr.nfev, steps, msg
-    return np.clip(tr.best_x, problem.lower, problem.upper), tr.best_f, offset + tr.nfev, steps, msg
+def _polished(problem: Problem, res: Result, budget: int, space: SearchSpace, progress: Progress | None,
+              key: str, note: dict[str, Any]) -> Result:
+    """res followed by the polish from its point; the better end kept, the evaluations added and
+    the polish described under settings[key]."""
+    pol = polish(problem, res.x, budget=budget, space=space, progress=progress, nfev0=res.nfev, shown=res.fun)
+    settings = {**res.settings, key: {**note, "polish": "joint least squares (trf) of every parameter in the "
+                                      "search space", "polish_evals": pol.nfev, "polish_message": pol.message}}
+    better = pol.success and pol.fun < res.fun
+    return replace(pol if better else res, nfev=res.nfev + pol.nfev, settings=settings, message=res.message,
+                   history=tuple(res.history) + tuple(pol.history), success=True)
 
 
 def _swaps(problem: Problem) -> list[tuple[str, int, int]]:
@@ -248,14 +156,15 @@ def _swaps(problem: Problem) -> list[tuple[str, int, int]]:
     return [(note, names.index(a), names.index(b)) for note, a, b in problem.unit.structure.kernel_swaps(names)]
 
 
-def _swap_restarts(problem: Problem, swaps: list[tuple[str, int, int]], max_evals: int, x: np.ndarray,
-                   f: float, nfev: int, history: list, settings: dict[str, Any], msg: str,
-                   progress: Progress | None):
-    """For each near-symmetric pair, the polish from x with the pair exchanged (clipped into the
-    bounds), sharing the evaluations left of `max_evals`; the better end is kept. MVMO's swarm
+def _swap_restarts(problem: Problem, space: SearchSpace, swaps: list[tuple[str, int, int]], max_evals: int,
+                   res: Result, progress: Progress | None) -> Result:
+    """For each near-symmetric pair, the polish from res.x with the pair exchanged (clipped into
+    the bounds), sharing the evaluations left of `max_evals`; the better end is kept. MVMO's swarm
     collapses into one basin, and for such a pair the exchanged basin can hold a local optimum
     (docs/benchmarks.md, "Identification: edge instants held, swap restarts")."""
     tried = []
+    x, f, nfev, history = res.x, res.fun, res.nfev, tuple(res.history)
+    best = res
     for k, (note, i, j) in enumerate(swaps):
         budget = (max_evals - nfev) // (len(swaps) - k)
         if budget < 3 * (problem.d + 1):
@@ -269,21 +178,21 @@ def _swap_restarts(problem: Problem, swaps: list[tuple[str, int, int]], max_eval
         if violated:
             entry["skipped"] = f"the exchanged point violates {', '.join(violated)}"
         else:
-            xn, fn, nfev, steps, _ = _polish(problem, xs, nfev, budget, progress, f)
-            history = list(history) + steps
+            pol = polish(problem, xs, budget=budget, space=space, progress=progress, nfev0=nfev, shown=f)
+            nfev += pol.nfev
+            history += tuple(pol.history)
+            fn = pol.fun if pol.success else math.inf
             entry.update({"objective": float(fn), "kept": bool(fn < f)})
             if fn < f:
-                x, f = xn, fn
+                x, f, best = pol.x, fn, pol
         tried.append(entry)
-    if tried:
-        settings = {**settings, "swap_restarts": tried}
-    return x, f, nfev, history, settings, msg
+    settings = {**res.settings, "swap_restarts": tried} if tried else res.settings
+    return replace(best, x=x, fun=f, nfev=nfev, history=history, settings=settings, message=res.message)
 
 
-def _run_mvmo_plain(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray | None,
-                    progress: Progress | None, options: dict[str, Any]):
-    opts = {**MVMO_OPTIONS, **options}
-    space = SearchSpace(problem, str(opts.pop("space", "log")))
+def _mvmo_search(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray | None,
+                 progress: Progress | None, opts: dict[str, Any], kind: str) -> Result:
+    space = SearchSpace(problem, kind)
     cb = None
     if progress is not None:
         def cb(nfev: int, z: np.ndarray, f: float) -> None:
@@ -293,14 +202,13 @@ def _run_mvmo_plain(problem: Problem, max_evals: int, seed: int | None, x0: np.n
                       constraints=space.constraints, max_evals=max_evals, seed=seed,
                       vectorized=True, options=opts or None, callback=cb, x0=z0)
     x = np.clip(space.to_x(r.x), problem.lower, problem.upper)
-    settings = {**r.settings, "space": {n: ("log" if g else "linear") for n, g in zip(problem.names, space.log)}}
-    return x, r.fun, r.nfev, r.history, settings, r.message
+    return _result(problem, x, r.fun, r.nfev, r.history, {**r.settings, "space": space.kind}, r.message)
 
 
 # ---------------------------------------------------------------------- differential evolution
 
 def _run_de(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray | None,
-            progress: Progress | None, options: dict[str, Any]):
+            progress: Progress | None, options: dict[str, Any]) -> Result:
     d = problem.d
     popsize = int(options.pop("popsize", 5))  # multiplier of d, as scipy's
     mutation = options.pop("mutation", (0.5, 1.0))
@@ -314,7 +222,7 @@ def _run_de(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray |
     # infeasible trial vectors are not evaluated by scipy, so generations are cheaper than npop:
     # allow plenty and stop on the budget (a generation cut by the budget scores its rest +inf)
     maxiter = 4 * max(1, max_evals // npop)
-    tr = _Tracker(max_evals, progress)
+    tr = Tracker(max_evals, progress)
 
     def fun(xt: np.ndarray) -> np.ndarray:
         X = np.asarray(xt, float).reshape(d, -1).T
@@ -357,59 +265,17 @@ def _run_de(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray |
     # the best candidate evaluated (no extra, uncounted simulation to score it again)
     x = tr.best_x if tr.best_x is not None else np.asarray(res.x, float)
     f = tr.best_f if tr.best_x is not None else float(problem.objective(x[None])[0])
-    return x, f, tr.nfev, tr.history, settings, str(res.message)
+    return _result(problem, x, f, tr.nfev, tr.history, settings, str(res.message))
 
 
 # ---------------------------------------------------------------------- local (PowerFactory-like)
 
-def _least_squares(resid: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], x_start: np.ndarray,
-                   lb: np.ndarray, ub: np.ndarray, tr: _Tracker,
-                   score: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
-                   fd_step: float, tr_solver: str = "exact") -> str:
-    """Trust-region reflective least squares with batched forward-difference Jacobians.
-
-    `resid(X)` -> (R (n, m), failed (n,)) evaluates a population at once; `score(X)` gives the
-    closed-loop objective recorded in the tracker for each evaluated point (may be the squared
-    residual sum itself)."""
-    cache: dict[bytes, np.ndarray] = {}
-
-    def evaluate(X: np.ndarray) -> np.ndarray:
-        if X.shape[0] > tr.remaining:
-            raise _Budget
-        R, failed = resid(X)
-        f = score(X, R, failed)
-        tr.record(X, f)
-        return R
-
-    def fun(x: np.ndarray) -> np.ndarray:
-        key = x.tobytes()
-        if key not in cache:
-            cache.clear()
-            cache[key] = evaluate(x[None])[0]
-        return cache[key]
-
-    def jac(x: np.ndarray) -> np.ndarray:
-        r0 = fun(x)
-        h = fd_step * np.maximum(np.abs(x), 1e-3)
-        h = np.where(x + h > ub, -h, h)  # stay inside the bounds
-        R = evaluate(x[None, :] + np.diag(h))
-        return (R - r0[None, :]).T / h[None, :]
-
-    try:
-        res = sopt.least_squares(fun, x_start, jac=jac, bounds=(lb, ub), method="trf",
-                                 x_scale="jac", max_nfev=10 * tr.max_evals, ftol=1e-10,
-                                 xtol=1e-10, gtol=1e-10, tr_solver=tr_solver)
-        return str(res.message)
-    except _Budget:
-        return "evaluation budget used up"
-
-
 def _run_local(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray | None,
-               progress: Progress | None, options: dict[str, Any]):
+               progress: Progress | None, options: dict[str, Any]) -> Result:
     fd_step = float(options.pop("fd_step", 1e-6))
     if options:
         raise ValueError(f"unknown local option(s) {sorted(options)}")
-    tr = _Tracker(max_evals, progress)
+    tr = Tracker(max_evals, progress)
     x_start = problem.x_start() if x0 is None else np.asarray(x0, float)
     d = problem.d
     lb, ub = np.full(d, 1e-9), np.full(d, np.inf)  # positivity only, as PowerFactory
@@ -417,18 +283,27 @@ def _run_local(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarra
     lb[edge], ub[edge] = problem.lower[edge], problem.upper[edge]
     x_start = np.where(edge, np.clip(x_start, lb, ub), np.maximum(x_start, 2e-9))
 
-    def score(X: np.ndarray, R: np.ndarray, failed: np.ndarray) -> np.ndarray:
-        f = np.einsum("ij,ij->i", R, R)
-        return np.where(failed, problem.penalty_base, f)
+    def resid(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        R, f = problem.residuals_and_objective(X)  # f: the sum of squares, the penalty if failed
+        tr.record(X, f)
+        return R, f >= problem.penalty_base
 
-    msg = _least_squares(problem.residuals, x_start, lb, ub, tr, score, fd_step)
+    msg, _ = least_squares(resid, x_start, lb, ub, tr, _relative_steps(fd_step, ub))
     x = tr.best_x if tr.best_x is not None else x_start
     # its score is the sum of squared residuals = the objective: no extra, uncounted simulation
     f = tr.best_f if tr.best_x is not None else float(problem.objective(x[None])[0])
     settings = {"algorithm": "scipy.optimize.least_squares (trf), batched forward differences",
                 "bounds": "positivity only (x > 0)", "start": problem.params(x_start),
                 "fd_step": fd_step, "max_evals": max_evals}
-    return x, f, tr.nfev, tr.history, settings, msg
+    return _result(problem, x, f, tr.nfev, tr.history, settings, msg)
+
+
+def _relative_steps(fd_step: float, ub: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """Forward-difference steps relative to |x| (at least fd_step * 1e-3), pointing inside ub."""
+    def steps(x: np.ndarray) -> np.ndarray:
+        h = fd_step * np.maximum(np.abs(x), 1e-3)
+        return np.where(x + h > ub, -h, h)
+    return steps
 
 
 # ---------------------------------------------------------------------- open loop (Simulink-like)
@@ -506,21 +381,23 @@ class OpenLoopModel:
 
 
 def _run_open_loop(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray | None,
-                   progress: Progress | None, options: dict[str, Any]):
+                   progress: Progress | None, options: dict[str, Any]) -> Result:
     fd_step = float(options.pop("fd_step", 1e-6))
     if options:
         raise ValueError(f"unknown open-loop option(s) {sorted(options)}")
     typical = problem.unit.values()
     model = OpenLoopModel(problem, typical)
-    tr = _Tracker(max_evals, progress)
+    tr = Tracker(max_evals, progress)
     x_start = np.clip(problem.x_start() if x0 is None else np.asarray(x0, float),
                       problem.lower, problem.upper)
 
-    def score(X: np.ndarray, R: np.ndarray, failed: np.ndarray) -> np.ndarray:
+    def resid(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        R, failed = model.residuals(X)
         # the method only sees its open-loop error; the tracker keeps that as its history
-        return np.where(failed, np.inf, np.einsum("ij,ij->i", R, R))
+        tr.record(X, np.where(failed, np.inf, np.einsum("ij,ij->i", R, R)))
+        return R, failed
 
-    msg = _least_squares(model.residuals, x_start, problem.lower, problem.upper, tr, score, fd_step)
+    msg, _ = least_squares(resid, x_start, problem.lower, problem.upper, tr, _relative_steps(fd_step, problem.upper))
     x = tr.best_x if tr.best_x is not None else x_start
     f = float(problem.objective(x[None])[0])  # scored in closed loop like the other methods
     settings = {"algorithm": "open-loop AVR fit: scipy.optimize.least_squares (trf), bounds",
@@ -528,4 +405,4 @@ def _run_open_loop(problem: Problem, max_evals: int, seed: int | None, x0: np.nd
                 "typical": {n: typical[n] for n in AVR_PARAMS}, "discretisation": "exact: ZOH (setpoint), FOH (Vt)",
                 "open_loop_objective": tr.best_f, "fd_step": fd_step, "max_evals": max_evals,
                 "history_is": "open-loop objective"}
-    return x, f, tr.nfev, tr.history, settings, msg
+    return _result(problem, x, f, tr.nfev, tr.history, settings, msg)

@@ -14,12 +14,11 @@ the earlier they fail, so every candidate stays rankable.
 
 A fit window (`fit_window=(t0, t1)` in s, or `segment=slice(i0, i1)` in samples) restricts the
 objective and the MSE to part of each record; the simulation always starts at the record's
-first sample (initial steady state) and stops at the window's end. Windows can also be left out
-of the objective (`Problem.excluding`, the simulation still runs through them: the diagnosis'
-cross-validation) or be the only part scored (`Problem.only`), and a record can be decimated
+first sample (initial steady state) and stops at the window's end. A record can be decimated
 (`Problem.decimated`: every q-th sample, integrated at the coarser step, the cheap copy the
-diagnosis searches on). Without a window or mask the fast path runs the kernel with
-`store=False`; with one the traces are kept and the error is summed in numpy.
+diagnosis searches on). Without a window the fast path runs the kernel with `store=False`; with
+one the traces are kept and the error is summed in numpy. Beside the objective, the scores the
+diagnosis ranks models by (`mean_objective`, `mean_objective_of`, `mse` of efd or vt).
 
 Constraints are read from the unit's text (and those of any effect whose parameters are fitted)
 over all kernel parameters, then reduced to the fitted names: a term on a parameter that is not
@@ -31,20 +30,20 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
+import numba
 import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.model.effects import EFFECTS
-from bench_ctl.model.kernel import BLOWUP, run_kernel
+from bench_ctl.model.kernel import BLOWUP, run_kernel, saturation_ab
 from bench_ctl.model.params import KERNEL_PARAMS, PARAMS
 from bench_ctl.model.simulate import param_matrix, pre_trigger_mean
 from bench_ctl.model.unit import Unit
 
-from bench_ctl.model.edges import EdgeSpec
-
 from .constraints import LinearConstraint, parse_constraints
+from .records import ProblemError, Record, apply_window, decimated, segment_window
 from .timing import EDGE_PARAMS, Edge, edge_spec, edges_entry, record_edges
 
 logger = logging.getLogger(__name__)
@@ -53,10 +52,6 @@ __all__ = ["Problem", "ProblemError", "make_problem", "default_bounds"]
 
 #: the largest recorded-efd gain the kernel may apply (recorder_gain upper physical limit)
 _MAX_GAIN = PARAMS["GAIN"].hi
-
-
-class ProblemError(ValueError):
-    """Names, bounds, weights or a window that cannot define an identification problem."""
 
 
 def default_bounds(unit: Unit, name: str) -> tuple[float, float]:
@@ -70,46 +65,6 @@ def default_bounds(unit: Unit, name: str) -> tuple[float, float]:
             return float(lo), float(hi)
     raise ProblemError(f"no default bounds for {name!r}: it is neither identified in unit "
                        f"{unit.name!r} nor an effect parameter; pass bounds={{{name!r}: (lo, hi)}}")
-
-
-@dataclass(frozen=True, eq=False)
-class _Record:
-    """One capture prepared for the kernel (window applied as the index range [i0, i1))."""
-    usetp: np.ndarray
-    efd: np.ndarray
-    vt: np.ndarray | None
-    dt: float
-    usetp_pre: float
-    alpha: float
-    i0: int
-    i1: int
-    source: str
-    edges: EdgeSpec = field(default_factory=EdgeSpec.none)
-    edge_list: tuple[Edge, ...] = ()
-    edge_slots: tuple[int | None, ...] = ()
-    #: per-sample weight of the objective (1 in, 0 out), over the whole record; None: all 1
-    mask: np.ndarray | None = None
-
-    @property
-    def full(self) -> bool:
-        return self.i0 == 0 and self.i1 == self.efd.size and self.mask is None
-
-    def weights(self) -> np.ndarray:
-        """The samples' weights in the objective over [i0, i1) (mask, or 1)."""
-        return np.ones(self.i1 - self.i0) if self.mask is None else self.mask[self.i0: self.i1]
-
-    @property
-    def n_scored(self) -> float:
-        """How many samples the objective and the MSE count (the sum of the weights)."""
-        return float(np.sum(self.weights()))
-
-    def edges_upto(self, n: int) -> EdgeSpec:
-        """The edges inside the first n samples (a run that stops at a window's end)."""
-        keep = self.edges.index < n
-        if keep.all():
-            return self.edges
-        e = self.edges
-        return EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,7 +89,7 @@ class Problem:
     w_efd: float
     w_vt: float
     base: dict[str, float]
-    records: tuple[_Record, ...] = field(repr=False)
+    records: tuple[Record, ...] = field(repr=False)
     window: tuple[float, float] | None = None
     penalty_base: float = 1.0e20
 
@@ -208,22 +163,13 @@ class Problem:
     def with_window(self, window: tuple[float, float] | None) -> "Problem":
         """The same problem with its objective and MSE over another time window (None = all)."""
         return replace(self, window=window, records=tuple(
-            _apply_window(r, window, c) for r, c in zip(self.records, self.captures)))
-
-    def excluding(self, windows: Sequence[tuple[float, float]]) -> "Problem":
-        """The same problem with the time windows (s from each record's start, ends included)
-        left out of the objective and the MSE; the simulation still runs through them."""
-        return replace(self, records=tuple(_masked(r, windows, keep=False) for r in self.records))
-
-    def only(self, windows: Sequence[tuple[float, float]]) -> "Problem":
-        """The same problem scored on the time windows only (what `excluding` leaves out)."""
-        return replace(self, records=tuple(_masked(r, windows, keep=True) for r in self.records))
+            apply_window(r, window, c) for r, c in zip(self.records, self.captures)))
 
     def decimated(self, q: int, *, n_max: int | None = None, offset: int = 0) -> "Problem":
         """Every q-th sample of each record from `offset` (give the leading edge's index so that it
         stays on the coarse grid), up to sample n_max: the kernel integrates at q times the step.
         The edges keep their nominal instants, so the EDGE offsets mean the same on both grids."""
-        return replace(self, records=tuple(_decimated(r, int(q), n_max, int(offset)) for r in self.records))
+        return replace(self, records=tuple(decimated(r, int(q), n_max, int(offset)) for r in self.records))
 
     def n_scored(self) -> list[float]:
         """Per capture, how many samples the objective and the MSE count."""
@@ -248,41 +194,69 @@ class Problem:
 
     # ------------------------------------------------------------------ evaluation
     def objective(self, X: np.ndarray) -> np.ndarray:
-        """The paper's OF for a population X (n, d) -> (n,); failed candidates get a penalty."""
-        parts, fail_frac = self._objective_parts(X)
+        """The paper's OF for a population X (n, d) -> (n,); failed candidates get `penalty`."""
+        return self._total(self.matrix(X))
+
+    def penalty(self, fail_frac: np.ndarray) -> np.ndarray:
+        """The objective of a candidate that failed to simulate: above any objective a finite
+        simulation can produce, and higher the earlier it failed (`fail_frac`: the share of the
+        records lost, summed over the captures), so that every candidate stays rankable. The one
+        penalty of every fit (search, polish, diagnosis)."""
+        return self.penalty_base * (1.0 + np.asarray(fail_frac, dtype=float))
+
+    @property
+    def scored_s(self) -> float:
+        """Seconds of record the objective integrates (alpha-weighted over the captures, half a
+        step at each window's end): a constant efd error e at weight 1 gives an objective of
+        e**2 times this."""
+        return float(sum(r.alpha * r.scored_s for r in self.records))
+
+    def mean_objective(self, X: np.ndarray) -> np.ndarray:
+        """The objective per second of scored record: with the default weights (efd 1, vt 0) the
+        trapezoidal mean squared efd error, the figure the diagnosis ranks models by and compares
+        with the noise floor."""
+        return self.objective(X) / self.scored_s
+
+    def mean_objective_of(self, values: Sequence[Mapping[str, float]]) -> np.ndarray:
+        """`mean_objective` of whole parameter sets, each a name -> value map over `base` that may
+        also set parameters this problem does not fit (the diagnosis scores the start points of
+        every effect on the base model's problem this way, in one kernel call)."""
+        P = np.vstack([param_matrix({**self.base, **{k: float(v) for k, v in row.items()}}) for row in values])
+        return self._total(P) / self.scored_s
+
+    def _total(self, P: np.ndarray) -> np.ndarray:
+        parts, fail_frac = self._objective_parts(P)
         total = parts.sum(axis=0)
         bad = fail_frac > 0
         if bad.any():
-            total = np.where(bad, self.penalty_base * (1.0 + fail_frac), total)
+            total = np.where(bad, self.penalty(fail_frac), total)
         return total
 
     def capture_objectives(self, x: Sequence[float]) -> list[float]:
         """alpha_k * integral of the weighted squared error, per capture (inf when it failed)."""
-        parts, _ = self._objective_parts(np.asarray(x, dtype=float).reshape(1, -1), per_capture_fail=True)
+        P = self.matrix(np.asarray(x, dtype=float).reshape(1, -1))
+        parts, _ = self._objective_parts(P, per_capture_fail=True)
         return [float(v) for v in parts[:, 0]]
 
-    def _objective_parts(self, X: np.ndarray, per_capture_fail: bool = False
+    def _objective_parts(self, P: np.ndarray, per_capture_fail: bool = False
                          ) -> tuple[np.ndarray, np.ndarray]:
-        X = np.atleast_2d(np.asarray(X, dtype=float))
-        P = self.matrix(X)
         n = P.shape[0]
         parts = np.zeros((len(self.records), n))
         fail_frac = np.zeros(n)  # sum over captures of the share of the record lost to a failure
         for k, r in enumerate(self.records):
             if r.full:
-                out = run_kernel(P, r.usetp, r.dt, r.usetp_pre, efd_meas=r.efd, vt_meas=r.vt,
-                                 w_efd=self.w_efd, w_vt=self.w_vt if r.vt is not None else 0.0,
-                                 store=False, edges=r.edges)
+                out = _kernel(P, r.usetp, r.dt, r.usetp_pre, efd_meas=r.efd, vt_meas=r.vt,
+                              w_efd=self.w_efd, w_vt=self.w_vt if r.vt is not None else 0.0,
+                              store=False, edges=r.edges)
                 obj = out["obj"]
             else:
                 out, res = self._window_residuals(P, r)
                 obj = np.einsum("ij,ij->i", res, res)
-            fs = out["fail_step"]
-            failed = fs >= 0
+            failed = out["fail_step"] >= 0
             parts[k] = r.alpha * obj
             if per_capture_fail:
                 parts[k] = np.where(failed, np.inf, parts[k])
-            fail_frac += np.where(failed, (r.i1 - np.minimum(fs, r.i1 - 1)) / max(1, r.i1), 0.0)
+            fail_frac += _lost(out["fail_step"], r)
         return parts, fail_frac
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
@@ -293,28 +267,41 @@ class Problem:
         P = self.matrix(np.asarray(x, dtype=float).reshape(1, -1))
         outs = []
         for r in self.records:
-            o = run_kernel(P, r.usetp, r.dt, r.usetp_pre, edges=r.edges)
+            o = _kernel(P, r.usetp, r.dt, r.usetp_pre, edges=r.edges)
             outs.append({"efd": o["efd"][0], "vt": o["vt"][0], "fail_step": int(o["fail_step"][0])})
         return outs
 
-    def mse(self, x: Sequence[float]) -> list[float]:
-        """Per capture, mean squared efd sample error over the window (inf when the run failed)."""
-        return [float(v) for v in self.mse_many(np.asarray(x, dtype=float).reshape(1, -1))[:, 0]]
+    def steady_efd(self, x: Sequence[float]) -> float:
+        """The model's no-load steady-state field voltage at x: Vt0 + Sat(Vt0) (pu)."""
+        v = self.values(x)
+        a, b = saturation_ab(np.array([v["S10"]]), np.array([v["S12"]]))
+        vt0 = v["Vt0"]
+        return vt0 + (float(b[0] * (vt0 - a[0]) ** 2) if vt0 > a[0] else 0.0)
 
-    def mse_many(self, X: np.ndarray) -> np.ndarray:
-        """Per-capture MSE of efd for a population: shape (n_captures, n)."""
+    def mse(self, x: Sequence[float], signal: str = "efd") -> list[float]:
+        """Per capture, mean squared sample error of `signal` (efd or vt, whatever its weight)
+        over the window (inf when the run failed, nan when the capture lacks the signal)."""
+        return [float(v) for v in self.mse_many(np.asarray(x, dtype=float).reshape(1, -1), signal)[:, 0]]
+
+    def mse_many(self, X: np.ndarray, signal: str = "efd") -> np.ndarray:
+        """Per-capture MSE of `signal` for a population: shape (n_captures, n)."""
+        if signal not in ("efd", "vt"):
+            raise ValueError(f"signal {signal!r}: choose 'efd' or 'vt'")
         P = self.matrix(X)
         rows = []
         for r in self.records:
+            meas = r.efd if signal == "efd" else r.vt
+            if meas is None:
+                rows.append(np.full(P.shape[0], np.nan))
+                continue
             if r.full:
-                out = run_kernel(P, r.usetp, r.dt, r.usetp_pre, efd_meas=r.efd, w_efd=1.0, store=False,
-                                 edges=r.edges)
-                m = out["sse_efd"] / r.efd.size
+                kw = {"efd_meas": r.efd, "w_efd": 1.0} if signal == "efd" else {"vt_meas": r.vt, "w_vt": 1.0}
+                out = _kernel(P, r.usetp, r.dt, r.usetp_pre, store=False, edges=r.edges, **kw)
+                m = out["sse_" + signal] / meas.size
             else:
-                out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
-                e = out["efd"][:, r.i0: r.i1] - r.efd[r.i0: r.i1]
-                w = r.weights()
-                m = (e * e) @ w / max(float(w.sum()), 1e-300)
+                out = _kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
+                e = out[signal][:, r.i0: r.i1] - meas[r.i0: r.i1]
+                m = np.mean(e * e, axis=1)
             rows.append(np.where(out["fail_step"] >= 0, np.inf, m))
         return np.array(rows)
 
@@ -325,89 +312,75 @@ class Problem:
         sqrt(alpha_k w_s c_j dt) (y - y_meas), c_j = 1/2 at the window's ends (trapezoid).
         Only efd and (when weighted) vt are included, in that order, capture by capture.
         """
+        R, f = self.residuals_and_objective(X)
+        return R, f >= self.penalty_base
+
+    def residuals_and_objective(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`residuals` and the objective they give (their squared sum; `penalty` for a failed
+        candidate, whose residuals are those of its held outputs) - what the polish works on."""
         P = self.matrix(X)
-        parts, failed = [], np.zeros(P.shape[0], dtype=bool)
+        parts, fail_frac = [], np.zeros(P.shape[0])
         for r in self.records:
             out, res = self._window_residuals(P, r)
             parts.append(np.sqrt(r.alpha) * res)
-            failed |= out["fail_step"] >= 0
-        return np.hstack(parts), failed
+            fail_frac += _lost(out["fail_step"], r)
+        R = np.hstack(parts)
+        f = np.einsum("ij,ij->i", R, R)
+        return R, np.where(fail_frac > 0, self.penalty(fail_frac), f)
 
-    def efd_residual_slices(self) -> list[slice]:
-        """Where each capture's efd residuals sit in the vector of `residuals`."""
-        out, pos = [], 0
-        for r in self.records:
+    def residual_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For each entry of the `residuals` vector: its capture, its instant (s from the record's
+        first sample) and the seconds of record it stands for (alpha c_j dt on a sample's efd
+        row, 0 on its vt row), so that the squared residuals of any set of samples over their
+        seconds are that set's `mean_objective`."""
+        caps, times, secs = [], [], []
+        for k, r in enumerate(self.records):
             n = r.i1 - r.i0
-            out.append(slice(pos, pos + n))
-            pos += n * (2 if (r.vt is not None and self.w_vt > 0) else 1)
-        return out
+            c = np.ones(n)
+            c[0] = c[-1] = 0.5
+            t = (r.i0 + np.arange(n)) * r.dt
+            sec = r.alpha * c * r.dt
+            signals = 2 if (r.vt is not None and self.w_vt > 0) else 1
+            caps.append(np.full(n * signals, k))
+            times.append(np.tile(t, signals))
+            secs.append(np.concatenate([sec] + [np.zeros(n)] * (signals - 1)))
+        return np.concatenate(caps), np.concatenate(times), np.concatenate(secs)
 
-    def _window_residuals(self, P: np.ndarray, r: _Record) -> tuple[dict, np.ndarray]:
-        out = run_kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
+    def _window_residuals(self, P: np.ndarray, r: Record) -> tuple[dict, np.ndarray]:
+        out = _kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
         c = np.ones(r.i1 - r.i0)
         c[0] = c[-1] = 0.5
-        scale = np.sqrt(c * r.weights() * r.dt)
+        scale = np.sqrt(c * r.dt)
         res = [math.sqrt(self.w_efd) * scale * (out["efd"][:, r.i0: r.i1] - r.efd[r.i0: r.i1])]
         if r.vt is not None and self.w_vt > 0:
             res.append(math.sqrt(self.w_vt) * scale * (out["vt"][:, r.i0: r.i1] - r.vt[r.i0: r.i1]))
         return out, np.hstack(res)
 
 
+def _lost(fail_step: np.ndarray, r: Record) -> np.ndarray:
+    """The share of the record each candidate lost to a failure (0 when it did not fail)."""
+    return np.where(fail_step >= 0, (r.i1 - np.minimum(fail_step, r.i1 - 1)) / max(1, r.i1), 0.0)
+
+
+#: below this many candidate-steps a kernel call runs on one thread: waking the worker threads
+#: costs more than it saves for the small batches of a polish, several times more when the
+#: machine is busy (docs/benchmarks.md, "Diagnosis constants")
+SMALL_CALL = 300_000
+
+
+def _kernel(P: np.ndarray, usetp: np.ndarray, *args: Any, **kwargs: Any) -> dict:
+    """`run_kernel`, on one thread when the call is small (`SMALL_CALL`)."""
+    if P.shape[0] * usetp.shape[0] >= SMALL_CALL or numba.get_num_threads() == 1:
+        return run_kernel(P, usetp, *args, **kwargs)
+    old = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        return run_kernel(P, usetp, *args, **kwargs)
+    finally:
+        numba.set_num_threads(old)
+
+
 # ---------------------------------------------------------------------- construction
-
-def _apply_window(r: _Record, window: tuple[float, float] | None, cap: Capture) -> _Record:
-    n = cap.efd.size
-    if window is None:
-        return replace(r, i0=0, i1=n)
-    t0, t1 = (float(v) for v in window)
-    t = cap.time - cap.time[0]
-    i0 = int(np.searchsorted(t, t0 - 1e-9 * r.dt, side="left"))
-    i1 = int(np.searchsorted(t, t1 + 1e-9 * r.dt, side="right"))
-    if not (t0 < t1) or i1 - i0 < 2:
-        raise ProblemError(f"{cap.source or 'capture'}: fit window ({t0}, {t1}) s (from the record's "
-                           f"start) holds {max(0, i1 - i0)} samples; need t0 < t1 and at least 2")
-    return replace(r, i0=i0, i1=i1)
-
-
-def _masked(r: _Record, windows: Sequence[tuple[float, float]], *, keep: bool) -> _Record:
-    """`r` with its objective's weights set to 0 inside the windows (keep=False) or outside them."""
-    n = r.efd.size
-    t = np.arange(n) * r.dt
-    inside = np.zeros(n, dtype=bool)
-    for t0, t1 in windows:
-        inside |= (t >= float(t0) - 1e-9 * r.dt) & (t <= float(t1) + 1e-9 * r.dt)
-    sel = inside if keep else ~inside
-    mask = (np.ones(n) if r.mask is None else r.mask) * sel
-    if not np.any(mask[r.i0: r.i1] > 0):
-        raise ProblemError(f"{r.source}: the windows {list(windows)} leave no sample in the objective")
-    return replace(r, mask=mask)
-
-
-def _decimated(r: _Record, q: int, n_max: int | None, offset: int) -> _Record:
-    """Every q-th sample of `r` from offset (mod q) up to n_max, the window and mask carried over."""
-    n = r.efd.size if n_max is None else min(int(n_max), r.efd.size)
-    first = offset % q if q > 1 else 0
-    idx = np.arange(first, n, max(1, q))
-    if q <= 1 and n == r.efd.size:
-        return r
-    if idx.size < 2:
-        raise ProblemError(f"{r.source}: decimating by {q} leaves {idx.size} sample(s)")
-    e = r.edges.decimated(q, offset, r.dt)
-    keep = e.index < idx.size
-    edges = EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
-    i0 = int(np.searchsorted(idx, r.i0))
-    i1 = int(np.searchsorted(idx, r.i1))
-    return replace(r, usetp=np.ascontiguousarray(r.usetp[idx]), efd=np.ascontiguousarray(r.efd[idx]),
-                   vt=None if r.vt is None else np.ascontiguousarray(r.vt[idx]), dt=r.dt * q, i0=i0,
-                   i1=max(i1, i0 + 2), edges=edges, mask=None if r.mask is None else r.mask[idx])
-
-
-def _segment_window(seg: slice, cap: Capture) -> tuple[float, float]:
-    i0, i1, step = seg.indices(cap.efd.size)
-    if step != 1 or i1 - i0 < 2:
-        raise ProblemError(f"segment {seg!r}: need a contiguous slice of at least 2 samples")
-    return (float(i0 * cap.dt), float((i1 - 1) * cap.dt))
-
 
 def _reduce_constraints(texts: Sequence[str], names: Sequence[str], base: dict[str, float]
                         ) -> tuple[list[LinearConstraint], list[tuple[str, bool]]]:
@@ -561,17 +534,17 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         vt = np.ascontiguousarray(c.vt, dtype=float) if c.vt is not None else None
         moved = [(e, s) for e, s in zip(edges, slots) if s is not None]
         spec = edge_spec([e for e, _ in moved], [s for _, s in moved])
-        r = _Record(usetp=usetp, efd=np.ascontiguousarray(c.efd, dtype=float), vt=vt, dt=dt,
+        r = Record(usetp=usetp, efd=np.ascontiguousarray(c.efd, dtype=float), vt=vt, dt=dt,
                     usetp_pre=pre_trigger_mean(usetp, dt), alpha=a, i0=0, i1=c.n, source=owner,
                     edges=spec, edge_list=tuple(edges), edge_slots=tuple(slots))
-        window = _segment_window(segment, c) if segment is not None else fit_window
-        recs.append(_apply_window(r, window, c))
+        window = segment_window(segment, c) if segment is not None else fit_window
+        recs.append(apply_window(r, window, c))
         # a finite (non-failed) simulation keeps |states| < BLOWUP: bound its objective
         dur = dt * (c.n - 1)
         e_max = (_MAX_GAIN * BLOWUP + float(np.max(np.abs(c.efd)))) ** 2 * w_efd
         v_max = (BLOWUP + float(np.max(np.abs(vt)))) ** 2 * w_vt if vt is not None else 0.0
         bound_total += a * (e_max + v_max) * dur
-    window_used = fit_window if segment is None else _segment_window(segment, caps[0])
+    window_used = fit_window if segment is None else segment_window(segment, caps[0])
     return Problem(captures=caps, unit=unit, names=names_t, bounds=tuple(bnds),
                    constraints=tuple(fitted), constraint_texts=tuple(texts),
                    fixed_constraints=tuple(fixed), weights=tuple(alphas), w_efd=w_efd, w_vt=w_vt,

@@ -1,0 +1,115 @@
+"""Where the diagnosis' fits of an effect start: the effect's values from the feature tests plus a
+small grid (`effect_starts`), for limits on efd every assignment of the linear model's equivalent
+lags to TE (`lag_variants`), all scored on the coarse record at once (`all_starts`).
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from bench_ctl.identification.constraints import parse_constraints
+from bench_ctl.model.effects import EFFECT_NAMES, EFFECTS
+from bench_ctl.model.unit import Unit
+
+from .models import Views
+
+__all__ = ["effect_starts", "lag_variants", "all_starts", "ORDER_SENSITIVE"]
+
+
+def _clip(name: str, v: float, effect: str) -> float:
+    lo, hi = EFFECTS[effect].bounds[name]
+    return float(min(max(v, lo), hi))
+
+
+def effect_starts(effect: str, hints: Mapping[str, float]) -> list[dict[str, float]]:
+    """Starting values of an effect's parameters: from the feature tests plus a small grid."""
+    c = lambda n, v: _clip(n, v, effect)  # noqa: E731
+    if effect == "ceiling_limit":
+        # both limits where the measured efd turns flat: a limit that is not there moves away
+        # (its gradient pushes it out), one started outside the record would get no gradient
+        return [{"VRMAX": c("VRMAX", hints["top_level"]), "VRMIN": c("VRMIN", hints["bottom_level"])}]
+    if effect in ("dead_time", "time_skew"):
+        p = "TD" if effect == "dead_time" else "SKEW"
+        d = hints.get("delay_s", math.nan)
+        grid = [0.003, 0.01, 0.02, 0.04]
+        if math.isfinite(d) and d > 0:
+            grid = [d, 0.6 * d, 1.5 * d] + grid
+        return [{p: c(p, v)} for v in grid]
+    if effect == "transducer_lag":
+        return [{"TR": v} for v in (0.01, 0.03, 0.06, 0.1, 0.15, 0.2)]
+    if effect == "saturation":
+        s = hints.get("sat0", 0.0)
+        s10s = [s] if s > 0.005 else []
+        s10s += [0.03, 0.1]
+        return [{"S10": c("S10", a), "S12": c("S12", a * r)} for a in s10s for r in (2.0, 4.0)]
+    if effect == "rate_limit":
+        s = max(hints.get("slope_up", math.nan), hints.get("slope_down", math.nan))
+        grid = [3.0, 10.0, 30.0, 80.0]
+        if math.isfinite(s) and s > 0:
+            grid = [s, 0.8 * s, 1.2 * s] + grid
+        return [{"RATE": c("RATE", v)} for v in grid]
+    if effect == "setpoint_ramp":
+        grid = [0.05, 0.1, 0.2, 0.4, 0.8, 2.0, 5.0]
+        return [{"RAMP": c("RAMP", v)} for v in grid]
+    if effect == "recorder_gain":
+        g = hints.get("gain", 1.0)
+        return [{"GAIN": c("GAIN", g)}, {"GAIN": 1.0}]
+    raise ValueError(f"unknown effect {effect!r}")
+
+
+#: effects acting between the exciter lag TE and the record (limits on the efd state): for them
+#: it matters which of the equivalent lags of the linear model is TE, so every assignment is tried
+ORDER_SENSITIVE = ("ceiling_limit", "rate_limit")
+VARIANT_LAGS = ("TA2", "TA4", "TE")
+
+
+def lag_variants(unit: Unit, avr: Mapping[str, float]) -> list[dict[str, float]]:
+    """The base model's parameters and the linear-equivalent sets with another lag in the TE slot.
+
+    Without limits the model's transfer function is the same for any assignment of the lag time
+    constants to TA2, TA4 and TE; a limit on efd (after TE) breaks that symmetry. Variants
+    outside the unit's bounds or constraints are dropped."""
+    out = [dict(avr)]
+    lags = [n for n in VARIANT_LAGS if n in avr and n in unit.identify]
+    if "TE" not in lags or len(lags) < 2:
+        return out
+    names = list(unit.identified_names)
+    cons = parse_constraints(unit.constraints, names)
+    for other in lags:
+        if other == "TE":
+            continue
+        v = dict(avr)
+        v["TE"], v[other] = avr[other], avr["TE"]
+        rest = sorted(v[n] for n in lags if n != "TE")
+        for n, val in zip([n for n in ("TA2", "TA4") if n in lags], rest):
+            v[n] = val
+        x = np.array([v[n] for n in names])
+        inside = all(unit.identify[n].min <= v[n] <= unit.identify[n].max for n in names)
+        if inside and all(c.violation(x) <= 1e-12 for c in cons):
+            if all(any(abs(v[n] - w[n]) > 1e-9 * max(1.0, abs(w[n])) for n in lags) for w in out):
+                out.append(v)
+    return out
+
+
+def all_starts(views: Views, avr_sets: Sequence[Mapping[str, float]], hints: Mapping[str, float],
+               effects: Sequence[str] = EFFECT_NAMES, fixed: Mapping[str, float] | None = None
+               ) -> dict[str, list[dict[str, float]]]:
+    """Starting points (model + effect parameters + edge instants) for every effect, best first by
+    their mean objective on the coarse record: each effect start with the base parameters and,
+    for the order-sensitive effects, with every lag variant. All starts of all effects are scored
+    at once (`Problem.mean_objective_of`, one kernel call)."""
+    coarse = views.coarse(views.problem((), fixed))
+    rows, owners = [], []
+    for e in effects:
+        sets = avr_sets if e in ORDER_SENSITIVE else avr_sets[:1]
+        for avr in sets:
+            for s in effect_starts(e, hints):
+                rows.append({**avr, **s})
+                owners.append((e, {**dict(avr), **s}))
+    score = coarse.mean_objective_of(rows)
+    result: dict[str, list[tuple[float, dict[str, float]]]] = {}
+    for (e, s), m in zip(owners, score):
+        result.setdefault(e, []).append((float(m), s))
+    return {e: [s for _, s in sorted(v, key=lambda t: t[0])] for e, v in result.items()}

@@ -1,0 +1,153 @@
+"""The verdict: which effect explains the capture, how significant, how close another one is.
+
+An effect is significant when it lowers the BIC on the capture by more than `SIGNIFICANT` and the
+check's deviance by more than `CHECK_GAIN` (`check.score`); the verdict is the best-scored
+significant effect, or `none` (`choose_verdict`); near-equal effects are `ambiguous`, with the
+test that would separate them.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, Sequence
+
+from bench_ctl.model.unit import Unit
+
+from .check import aic, bic, check_deviance, score
+from .models import ModelFit, Setup
+
+__all__ = ["SIGNIFICANT", "CHECK_GAIN", "STRONG", "AMBIGUOUS", "separating_test", "ambiguous_pairs", "gap",
+           "significance", "rank_entries", "check_entry", "choose_verdict", "model_params"]
+
+#: BIC improvement (n ln mse units, i.e. -2 log-likelihood) an effect must bring to count
+SIGNIFICANT = 10.0
+#: improvement of the check's deviance an effect must bring to count (the check's samples were
+#: not fitted: an effect that only fits noise does not improve them)
+CHECK_GAIN = 2.0
+#: BIC improvement that counts even when the base model is within the noise floor's uncertainty
+#: (about a 1 % lower MSE on a 10 000-sample record)
+STRONG = 100.0
+#: two effects whose scores differ by less than this explain the capture equally well
+AMBIGUOUS = 6.0
+
+SEPARATING_TESTS: dict[frozenset, str] = {
+    frozenset({"dead_time", "time_skew"}):
+        "record the AVR output or the field voltage at the exciter on a second channel (or efd and usetp "
+        "on the same channel group): a recorder skew delays only the efd channel, a dead time delays the response",
+    frozenset({"ceiling_limit", "rate_limit"}):
+        "repeat with a step of another size (e.g. half the amplitude): a ceiling caps the level at the same "
+        "value, a slew limit caps the slope",
+    frozenset({"recorder_gain", "saturation"}):
+        "repeat at another terminal voltage (e.g. Vt0 = 0.9 and 1.05 pu) or check the efd channel calibration: "
+        "saturation grows with the voltage, a gain error scales every level alike",
+    frozenset({"setpoint_ramp", "rate_limit"}):
+        "read the device's active setpoint during the test (a setpoint ramp shows there), or a step of "
+        "another size: a ramp lengthens the rise in proportion to the step, a slew limit caps the efd slope",
+    frozenset({"setpoint_ramp", "dead_time"}):
+        "read the device's active setpoint during the test, or a step of another size: a ramp's duration "
+        "scales with the step, a dead time does not",
+    frozenset({"transducer_lag", "dead_time"}):
+        "record the transducer output (the AVR's measured voltage) beside Vt: a transducer lag shows there",
+}
+DEFAULT_TEST = ("a step of another size and a record of the AVR input (the transducer output) beside efd")
+
+
+def separating_test(a: str, b: str) -> str:
+    return SEPARATING_TESTS.get(frozenset({a, b}), DEFAULT_TEST)
+
+
+def ambiguous_pairs(entries: Sequence[Mapping], tol: float = AMBIGUOUS) -> list[dict]:
+    """The significant effects whose score is within `tol` of the best one's (entries ranked best
+    first), each paired with the best one and the test that would separate the two."""
+    top = next((e for e in entries if e.get("significant")), None)  # the verdict's entry
+    if top is None:
+        return []
+    return [{"effects": [top["name"], e["name"]], "score_difference": e["score"] - top["score"],
+             "separating_test": separating_test(top["name"], e["name"])}
+            for e in entries if e is not top and e.get("significant") and e["score"] - top["score"] < tol]
+
+
+def gap(mse_base: float | None, mse_eff: float | None, floor: float, floor_se: float
+        ) -> tuple[float | None, float | None]:
+    """gap_closed with the denominator kept at least one standard error of the floor; and raw."""
+    if mse_base is None or mse_eff is None or not math.isfinite(mse_eff):
+        return None, None
+    num = mse_base - mse_eff
+    den = mse_base - floor
+    raw = num / den if den != 0 else None
+    return num / max(den, floor * floor_se), raw
+
+
+def model_params(unit: Unit, m: ModelFit) -> dict[str, float]:
+    params = m.params
+    return {n: params[n] for n in unit.identified_names}
+
+
+def significance(st: Setup, ref: ModelFit, m: ModelFit) -> tuple[float, float, bool]:
+    """(fit gain, check gain, significant) of m over ref: the BIC falls by more than SIGNIFICANT
+    and the check's deviance by more than CHECK_GAIN."""
+    gain_fit = bic(st.n, ref.mse, ref.k) - bic(st.n, m.mse, m.k)
+    gain_check = check_deviance(ref, m)
+    return gain_fit, gain_check, bool(gain_fit > SIGNIFICANT and gain_check > CHECK_GAIN and m.feasible)
+
+
+def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, ModelFit], variant: str) -> list[dict]:
+    """The ranked `effects` list of the JSON."""
+    n = st.n
+    s_base = score(base, n)
+    floor = st.floor
+    base_check = base.mse_check
+    use_check = base_check is not None and base_check > st.check_floor * (1 + 3 * st.check_se)
+    # a base model at the noise floor leaves no gap: a fraction of (nearly) nothing would be noise
+    # scaled up (values like -60), so the headline gap_closed is None; the raw figures stay below
+    at_floor = base.mse <= st.floor_tol
+    entries = []
+    for e, m in fits.items():
+        d_bic, d_check, significant = significance(st, base, m)
+        g_check, g_check_raw = gap(base_check, m.mse_check, st.check_floor, st.check_se)
+        g_fit, g_fit_raw = gap(base.mse, m.mse, floor.variance, floor.rel_se)
+        hold_b, hold_m = base.part("holdout"), m.part("holdout")
+        g_hold = g_hold_raw = None
+        if hold_b is not None and hold_m is not None:
+            g_hold, g_hold_raw = gap(hold_b.mse, hold_m.mse, st.validation["check"]["holdout"]["noise_floor"],
+                                      st.check_se)
+        params = m.effect_params()
+        entry = {
+            "name": e, "params": params, "fixed": dict(m.fixed),
+            "avr_params": model_params(unit, m),
+            "mse": m.mse, "mse_holdout": m.mse_check,
+            "gap_closed": None if at_floor else (g_check if use_check else g_fit),
+            "gap_closed_on": None if at_floor else ("check" if use_check else "fit"),
+            "gap_closed_fit": g_fit, "gap_closed_fit_raw": g_fit_raw,
+            "gap_closed_check": g_check, "gap_closed_check_raw": g_check_raw,
+            "gap_closed_holdout": g_hold if hold_b is not None else g_check,
+            "gap_closed_holdout_raw": g_hold_raw if hold_b is not None else g_check_raw,
+            "check": check_entry(m),
+            "score": score(m, n) - s_base if m.checks else math.inf,
+            "aic": aic(n, m.mse, m.k), "bic": bic(n, m.mse, m.k),
+            "delta_bic": d_bic, "delta_check": d_check, "significant": significant,
+            "k": m.k, "evaluations": m.evaluations, "start": {p: m.start.get(p) for p in params},
+        }
+        if e == "ceiling_limit":
+            entry["variant"] = variant
+        entries.append(entry)
+    entries.sort(key=lambda d: (d["score"], -d["delta_bic"]))
+    return entries
+
+
+def check_entry(m: ModelFit) -> dict[str, Any] | None:
+    if not m.checks:
+        return None
+    return {"mse": m.mse_check, "parts": [{"label": p.label, "samples": p.n, "mse": p.mse} for p in m.checks]}
+
+
+def choose_verdict(entries: list[dict], *, at_floor: bool, has_check: bool) -> str:
+    """The verdict from the ranked `entries` (best score first): the best-scored SIGNIFICANT
+    effect (one scored higher but worse on the check, or breaking a constraint, must not hide
+    it), or `none`. At the noise floor (within the floor estimate's uncertainty) only a strong
+    improvement counts: the floor comes from ~1000 pre-trigger samples, the likelihood ratio from
+    the whole record."""
+    top = next((e for e in entries if e["significant"]), None)
+    if top is None:
+        return "none"
+    strong = top["delta_bic"] > STRONG and (not has_check or top["delta_check"] > SIGNIFICANT)
+    return top["name"] if (strong or not at_floor) else "none"

@@ -1,0 +1,30 @@
+"""The MVMO option sets, named by what they search (`mvmo.DEFAULT_OPTIONS` for the rest).
+
+Why each: docs/decisions/0015-one-fitting-stack.md; the figures behind them: docs/benchmarks.md,
+"MVMO defaults and option sets" and "Diagnosis constants".
+"""
+from __future__ import annotations
+
+from types import MappingProxyType
+from typing import Any, Mapping
+
+__all__ = ["IDENTIFY", "WHOLE_BOX", "PROFILE", "EDGE_POLISH_SHARE", "EDGE_POLISH_MAX"]
+
+#: identification of a whole record (`bench-ctl identify`, the diagnosis' base model): 32
+#: particles, since a generation is one kernel call whose cost per candidate falls with the batch;
+#: longer local searches along the gain / lag ridge of the pulse response
+IDENTIFY: Mapping[str, Any] = MappingProxyType({"particles": 32, "local_search_evals": 500})
+
+#: the diagnosis' search of a model + effect over the whole box on the coarse record (restarts
+#: share the budget): a wide swarm finds a dead time's narrow basin more often than 8 particles
+WHOLE_BOX: Mapping[str, Any] = MappingProxyType({"particles": 32, "local_search_evals": None})
+
+#: the diagnosis' profile searches (the model with an effect held) and the blind suite's
+#: visibility fits: MVMO's defaults, whose many short local searches from good particles find the
+#: AVR model's narrow basins more reliably than one polish of the final best
+PROFILE: Mapping[str, Any] = MappingProxyType({"particles": 8, "local_search_evals": None})
+
+#: share of an identification's budget (at most EDGE_POLISH_MAX evaluations) given to the joint
+#: polish that follows an MVMO search with the setpoint edge instants held mid-interval
+EDGE_POLISH_SHARE = 0.15
+EDGE_POLISH_MAX = 200

@@ -1,0 +1,99 @@
+"""One capture prepared for the kernel, and its views: a time window, a decimated copy.
+`Problem` holds one `Record` per capture.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+
+from bench_ctl.capture import Capture
+from bench_ctl.model.edges import EdgeSpec
+
+from .timing import Edge
+
+__all__ = ["Record", "apply_window", "decimated", "segment_window", "ProblemError"]
+
+
+class ProblemError(ValueError):
+    """Names, bounds, weights or a window that cannot define an identification problem."""
+
+
+@dataclass(frozen=True, eq=False)
+class Record:
+    """One capture prepared for the kernel (window applied as the index range [i0, i1))."""
+    usetp: np.ndarray
+    efd: np.ndarray
+    vt: np.ndarray | None
+    dt: float
+    usetp_pre: float
+    alpha: float
+    i0: int
+    i1: int
+    source: str
+    edges: EdgeSpec = field(default_factory=EdgeSpec.none)
+    edge_list: tuple[Edge, ...] = ()
+    edge_slots: tuple[int | None, ...] = ()
+
+    @property
+    def full(self) -> bool:
+        return self.i0 == 0 and self.i1 == self.efd.size
+
+    @property
+    def n_scored(self) -> float:
+        """How many samples the objective and the MSE count."""
+        return float(self.i1 - self.i0)
+
+    @property
+    def scored_s(self) -> float:
+        """Seconds of record the objective integrates (the trapezoid: half a step at each end)."""
+        return float((self.i1 - self.i0 - 1) * self.dt)
+
+    def edges_upto(self, n: int) -> EdgeSpec:
+        """The edges inside the first n samples (a run that stops at a window's end)."""
+        keep = self.edges.index < n
+        if keep.all():
+            return self.edges
+        e = self.edges
+        return EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
+
+
+def apply_window(r: Record, window: tuple[float, float] | None, cap: Capture) -> Record:
+    n = cap.efd.size
+    if window is None:
+        return replace(r, i0=0, i1=n)
+    t0, t1 = (float(v) for v in window)
+    t = cap.time - cap.time[0]
+    i0 = int(np.searchsorted(t, t0 - 1e-9 * r.dt, side="left"))
+    i1 = int(np.searchsorted(t, t1 + 1e-9 * r.dt, side="right"))
+    if not (t0 < t1) or i1 - i0 < 2:
+        raise ProblemError(f"{cap.source or 'capture'}: fit window ({t0}, {t1}) s (from the record's "
+                           f"start) holds {max(0, i1 - i0)} samples; need t0 < t1 and at least 2")
+    return replace(r, i0=i0, i1=i1)
+
+
+def decimated(r: Record, q: int, n_max: int | None, offset: int) -> Record:
+    """Every q-th sample of `r` from offset (mod q) up to n_max, the window carried over."""
+    n = r.efd.size if n_max is None else min(int(n_max), r.efd.size)
+    first = offset % q if q > 1 else 0
+    idx = np.arange(first, n, max(1, q))
+    if q <= 1 and n == r.efd.size:
+        return r
+    if idx.size < 2:
+        raise ProblemError(f"{r.source}: decimating by {q} leaves {idx.size} sample(s)")
+    e = r.edges.decimated(q, offset, r.dt)
+    keep = e.index < idx.size
+    edges = EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
+    i0 = int(np.searchsorted(idx, r.i0))
+    i1 = int(np.searchsorted(idx, r.i1))
+    return replace(r, usetp=np.ascontiguousarray(r.usetp[idx]), efd=np.ascontiguousarray(r.efd[idx]),
+                   vt=None if r.vt is None else np.ascontiguousarray(r.vt[idx]), dt=r.dt * q, i0=i0,
+                   i1=max(i1, i0 + 2), edges=edges)
+
+
+def segment_window(seg: slice, cap: Capture) -> tuple[float, float]:
+    i0, i1, step = seg.indices(cap.efd.size)
+    if step != 1 or i1 - i0 < 2:
+        raise ProblemError(f"segment {seg!r}: need a contiguous slice of at least 2 samples")
+    return (float(i0 * cap.dt), float((i1 - 1) * cap.dt))
