@@ -51,4 +51,4 @@ def test_ruff_runs_with_the_projects_rules():
     assert out.returncode == 1
     for code in ("F401", "I001", "B006"):
         assert code in out.stdout, out.stdout
-    assert ruff("--stdin-filename", "bench_ctl/identification/probe.py", "-", stdin=text).returncode == 0
+    assert ruff("--stdin-filename", "bench_ctl/model/kernel/probe.py", "-", stdin=text).returncode == 0

@@ -15,12 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 FORMAT = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d{6})?\+00:00")
 
 #: where "now" is still formatted by hand, and why (each a module another change owns)
-ELSEWHERE = {
-    # the other helper's rewrite of identification / diagnosis switches these to utc_now_text
-    # (identify writes "+00:00" already, diagnose writes "Z"): temporary
-    "bench_ctl/identification/identify.py",
-    "bench_ctl/diagnosis/diagnose.py",
-}
+ELSEWHERE: set[str] = set()
 
 
 def test_the_format_reads_back_and_is_always_utc():

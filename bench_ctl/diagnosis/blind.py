@@ -8,28 +8,27 @@ physically plausible (see `draw_effect`), and visible: the base model refitted t
 record with the effect must miss it by at least `VISIBLE` (10 %) of the noise variance, else the
 magnitude is drawn again (`visibility`; the count is kept in the case). Two captures are made
 with the same unit: the main one (a 5 % pulse of 1 s) and a holdout with another pulse width
-(0.5 s or 1.5 s), each with recorder noise 0.01 pu and 12-bit quantisation. The diagnosis sees only the captures and the reference
-unit file; the scorer compares its verdict with the withheld effect.
+(0.5 s or 1.5 s), each with recorder noise 0.01 pu and 12-bit quantisation. The diagnosis sees
+only the captures and the reference unit file; the scorer compares its verdict with the withheld effect.
 """
 from __future__ import annotations
 
 import logging
 import math
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.identification.constraints import parse_constraints
-from bench_ctl.model.effects import EFFECT_NAMES
-from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate
-from bench_ctl.model.unit import Bound, Unit, load_unit
-
 from bench_ctl.identification.options import PROFILE
 from bench_ctl.identification.polish import polish
 from bench_ctl.identification.problem import make_problem
+from bench_ctl.model.effects import EFFECT_NAMES
+from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate
+from bench_ctl.model.unit import Bound, Unit, load_unit
 
 from .localize import find_edges
 from .models import coarse_factor

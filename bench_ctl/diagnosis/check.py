@@ -1,13 +1,14 @@
 """The check: a fitted model judged where it was not fitted, and the scores that rank models.
 
 The parts (`check_parts`): the holdout capture when there is one (the model held, only its own
-edge instants fitted), the recorded terminal voltage when there is one and the fit did not use
-it, and always the cross-validation windows of the capture - the leading edge, the plateau and
-the trailing edge in turn (never the recovery: `diagnose.CV_SEGMENTS`): the model re-fitted with the window left out of the objective (the
-simulation running through it) and scored on it, the re-fit being the Gauss-Newton step from the
-model's fit over the other samples, one Jacobian serving all windows. So an effect that acts at
-the edges (a ceiling, a slew limit, a setpoint ramp, a delay) is judged on an edge the fit never
-saw (docs/decisions/0010-diagnosis-one-objective-and-its-check.md).
+edge instants fitted), the recorded terminal voltage when there is one and the fit did not use it,
+and always the cross-validation windows of the capture - the leading edge, the plateau and the
+trailing edge in turn (never the recovery: `diagnose.CV_SEGMENTS`): the model re-fitted with the
+window left out of the objective (the simulation running through it) and scored on it, the re-fit
+being the Gauss-Newton step from the model's fit over the other samples, one Jacobian serving all
+windows. So an effect that acts at the edges (a ceiling, a slew limit, a setpoint ramp, a delay)
+is judged on an edge the fit never saw
+(docs/decisions/0010-diagnosis-one-objective-and-its-check.md).
 
 Ranking (`score`): BIC on the capture (n ln(mse) + k ln(n), k = added parameters) plus the
 predictive deviance on the check, the sum over its parts of n_i ln(mse_i).
@@ -15,8 +16,9 @@ predictive deviance on the check, the sum over its parts of n_i ln(mse_i).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import replace
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 

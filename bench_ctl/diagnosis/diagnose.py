@@ -26,14 +26,12 @@ given.
 """
 from __future__ import annotations
 
-import datetime as _dt
-import hashlib
 import logging
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import replace
-from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -41,18 +39,29 @@ import bench_ctl
 from bench_ctl.capture import Capture
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.space import SearchSpace
+from bench_ctl.limits import InputError, sha256_file
 from bench_ctl.model.effects import EFFECT_NAMES
 from bench_ctl.model.unit import Unit
+from bench_ctl.timestamps import utc_now_text
 
 from . import features as F
 from .check import bic, checked, describe_check, fit_holdout
 from .explain import explained_by, sequence
 from .localize import DiagnosisError, Edges, NoiseFloor, find_edges, localization, noise_floor, segments
-from .models import Budget, ModelFit, Setup, Window, Views, coarse_factor
+from .models import Budget, ModelFit, Setup, Views, Window, coarse_factor
 from .search import finish, fit_model, global_search, refine, refine_base
 from .starts import all_starts, lag_variants
-from .verdict import AMBIGUOUS, CHECK_GAIN, SIGNIFICANT, STRONG, ambiguous_pairs, check_entry, choose_verdict, \
-    model_params, rank_entries
+from .verdict import (
+    AMBIGUOUS,
+    CHECK_GAIN,
+    SIGNIFICANT,
+    STRONG,
+    ambiguous_pairs,
+    check_entry,
+    choose_verdict,
+    model_params,
+    rank_entries,
+)
 
 __all__ = ["SCHEMA", "Budget", "diagnose", "choose_verdict"]
 
@@ -62,9 +71,10 @@ SCHEMA = "bench-ctl/diagnosis/1"
 
 
 def _sha256(path: str) -> str | None:
+    """The capture file's SHA-256 (read bounded, as every input is); None when it cannot be read."""
     try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
+        return sha256_file(path, "a capture")
+    except (OSError, InputError):
         return None
 
 
@@ -258,10 +268,11 @@ def diagnose(*args: Any, **kwargs: Any) -> dict[str, Any]:
 
 
 def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, seed: int = 0,
-              budget: Budget = Budget(), base_params: Mapping[str, float] | None = None,
+              budget: Budget | None = None, base_params: Mapping[str, float] | None = None,
               command_line: str = "") -> dict[str, Any]:
     """The diagnosis of `capture` against `unit` (see the module docstring); a JSON-ready dict."""
     t_start = time.perf_counter()
+    budget = budget if budget is not None else Budget()
     src = capture.source or "capture"
     edges = find_edges(capture.usetp, src)
     efd_floor = noise_floor(capture.efd, capture.dt, edges, src)
@@ -312,7 +323,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
         "schema": SCHEMA,
         "software_version": getattr(bench_ctl, "__version__", "0.1.0"),
         "command_line": command_line,
-        "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "created_utc": utc_now_text(),
         "capture": _capture_ref(capture),
         "holdout": _capture_ref(holdout),
         "unit": unit.to_dict(),

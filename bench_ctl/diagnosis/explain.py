@@ -7,19 +7,19 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Mapping
+from collections.abc import Mapping
 
 from bench_ctl.capture import Capture
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.model.edges import EDGE_PARAMS
-from bench_ctl.model.effects import EFFECTS, EFFECT_NAMES
+from bench_ctl.model.effects import EFFECT_NAMES, EFFECTS
 
 from .check import bic, check_deviance, checked, score
 from .localize import Edges, localization
 from .models import Budget, ModelFit, Setup
 from .search import finish, fit_model, refine
 from .starts import effect_starts
-from .verdict import STRONG, SIGNIFICANT, check_entry, significance
+from .verdict import SIGNIFICANT, STRONG, check_entry, significance
 
 __all__ = ["sequence", "explained_by"]
 

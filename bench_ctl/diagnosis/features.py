@@ -143,7 +143,8 @@ def delay(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: f
         a = np.diff(_smooth(meas[max(0, k - 20):k + window], 3))
         b = np.diff(model[max(0, k - 20):k + window])
         L = int(round(0.1 / dt))
-        cc = np.array([np.dot(a[max(0, s):len(a) + min(0, s)], b[max(0, -s):len(b) - max(0, s)]) for s in range(-L, L + 1)])
+        cc = np.array([np.dot(a[max(0, s):len(a) + min(0, s)], b[max(0, -s):len(b) - max(0, s)])
+                       for s in range(-L, L + 1)])
         i = int(np.argmax(cc))
         frac = 0.0
         if 0 < i < cc.size - 1:
@@ -158,10 +159,11 @@ def delay(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: f
     d = float(np.median(lags)) if lags else math.nan
     vals["delay_s"] = d
     detected = math.isfinite(d) and d >= 2.0 * dt
+    onsets = ", ".join(f"{lab} {vals[f'{lab}_onset_s'] * 1e3:.1f} ms vs "
+                       f"{vals[f'{lab}_model_onset_s'] * 1e3:.1f} ms" for lab, _ in names)
+    lags = ", ".join(f"{vals[f'{lab}_xcorr_lag_s'] * 1e3:.1f} ms" for lab, _ in names)
     ev = (f"the measured efd leaves its pre-edge level {d * 1e3:.1f} ms later than the base model "
-          f"(onsets: " + ", ".join(f"{lab} {vals[f'{lab}_onset_s'] * 1e3:.1f} ms vs {vals[f'{lab}_model_onset_s'] * 1e3:.1f} ms"
-                                    for lab, _ in names)
-          + "; derivative cross-correlation lags " + ", ".join(f"{vals[f'{lab}_xcorr_lag_s'] * 1e3:.1f} ms" for lab, _ in names)
+          f"(onsets: " + onsets + "; derivative cross-correlation lags " + lags
           + "); a dead time and a recorder skew both delay the record, only the dead time changes the loop")
     return Feature("delay", detected, ev, vals)
 

@@ -9,8 +9,8 @@ docs/decisions/0010-diagnosis-one-objective-and-its-check.md, 0015-one-fitting-s
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 from bench_ctl.capture import Capture
 from bench_ctl.identification.problem import Problem, make_problem

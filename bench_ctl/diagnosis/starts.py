@@ -5,7 +5,7 @@ lags to TE (`lag_variants`), all scored on the coarse record at once (`all_start
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 

@@ -8,7 +8,8 @@ test that would separate them.
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 from bench_ctl.model.unit import Unit
 

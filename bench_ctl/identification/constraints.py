@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import logging
 import re
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -143,10 +143,10 @@ class _Affine:
     def is_constant(self) -> bool:
         return not self.coef
 
-    def scaled(self, k: float) -> "_Affine":
+    def scaled(self, k: float) -> _Affine:
         return _Affine({n: c * k for n, c in self.coef.items() if c * k != 0.0}, self.const * k)
 
-    def plus(self, other: "_Affine", sign: float = 1.0) -> "_Affine":
+    def plus(self, other: _Affine, sign: float = 1.0) -> _Affine:
         coef = dict(self.coef)
         for n, c in other.coef.items():
             coef[n] = coef.get(n, 0.0) + sign * c

@@ -6,8 +6,8 @@ central differences (all 2 d perturbed candidates in ONE batched kernel call per
 J that Jacobian and s^2 = SSE / (N - d) the residual variance, the Gauss-Newton approximation of
 the covariance of the log-parameters is s^2 (J^T J)^-1 (the inverse Fisher information for white
 noise). From it: the relative standard deviation (= std of ln x, first order), the standard
-deviation std = x * rel_std, and the correlation matrix. The relative sensitivity of a parameter is the RMS change of the
-simulated efd (pu) per unit relative change of the parameter.
+deviation std = x * rel_std, and the correlation matrix. The relative sensitivity of a parameter
+is the RMS change of the simulated efd (pu) per unit relative change of the parameter.
 
 A parameter is flagged as not determined when its relative std exceeds `max_rel_std` (25 %),
 when it is almost fully correlated with another (|corr| > `max_corr`, 0.999), when it takes part in a
@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

@@ -8,25 +8,26 @@ captures determine at the optimum (`identifiability.analyse`) and returns everyt
 """
 from __future__ import annotations
 
-import datetime as _dt
 import logging
 import math
 import os
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 import bench_ctl
 from bench_ctl.capture import Capture
-from bench_ctl.capture.capture import sha256_file
+from bench_ctl.limits import sha256_file
 from bench_ctl.model.kernel import optimisation_note, run_kernel
 from bench_ctl.model.params import RECORD_PARAMS
 from bench_ctl.model.simulate import param_matrix
 from bench_ctl.model.unit import Unit
 from bench_ctl.model.unit import outside_bounds as values_outside_bounds
+from bench_ctl.timestamps import utc_now_text
 
 from .identifiability import analyse
 from .peers import OPTIMIZERS, Progress, run_optimizer
@@ -229,7 +230,7 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
         "schema": RESULT_SCHEMA,
         "software_version": bench_ctl.__version__,
         "command_line": command_line,
-        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "created_utc": utc_now_text(),
         "unit": prob.unit.to_dict(),
         "captures": [_capture_entry(c, m, o, w, e) for c, m, o, w, e
                      in zip(prob.captures, mses, objs, prob.weights, edges)],

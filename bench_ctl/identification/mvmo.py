@@ -53,9 +53,10 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Callable, Mapping, Sequence, Union
+from typing import Any
 
 import numpy as np
 from scipy import optimize as _sopt
@@ -66,7 +67,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["DEFAULT_OPTIONS", "MVMOResult", "mapping", "minimize"]
 
-ConstraintLike = Union[LinearConstraint, Callable[[np.ndarray], float]]
+ConstraintLike = LinearConstraint | Callable[[np.ndarray], float]
 
 #: Option defaults (why: docs/benchmarks.md, "MVMO defaults and option sets"). ``None`` means
 #: derived from the number of variables ``d``: ``m_init = ceil(d / 2)``,

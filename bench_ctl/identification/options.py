@@ -5,8 +5,9 @@ Why each: docs/decisions/0015-one-fitting-stack.md; the figures behind them: doc
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
 
 __all__ = ["IDENTIFY", "WHOLE_BOX", "PROFILE", "EDGE_POLISH_SHARE", "EDGE_POLISH_MAX"]
 

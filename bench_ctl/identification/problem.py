@@ -29,8 +29,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numba
 import numpy as np
@@ -146,7 +147,7 @@ class Problem:
         """Kernel parameter matrix of a population X (n, d)."""
         return param_matrix(self.base, self.names, np.atleast_2d(np.asarray(X, dtype=float)))
 
-    def held(self, values: dict[str, float]) -> "Problem":
+    def held(self, values: dict[str, float]) -> Problem:
         """The same problem with the parameters in `values` no longer fitted but held there (they
         must not appear in a constraint with a fitted parameter)."""
         keep = [i for i, n in enumerate(self.names) if n not in values]
@@ -160,12 +161,12 @@ class Problem:
         return replace(self, names=names, bounds=tuple(self.bounds[i] for i in keep), constraints=cons,
                        base={**self.base, **{k: float(v) for k, v in values.items()}})
 
-    def with_window(self, window: tuple[float, float] | None) -> "Problem":
+    def with_window(self, window: tuple[float, float] | None) -> Problem:
         """The same problem with its objective and MSE over another time window (None = all)."""
         return replace(self, window=window, records=tuple(
             apply_window(r, window, c) for r, c in zip(self.records, self.captures)))
 
-    def decimated(self, q: int, *, n_max: int | None = None, offset: int = 0) -> "Problem":
+    def decimated(self, q: int, *, n_max: int | None = None, offset: int = 0) -> Problem:
         """Every q-th sample of each record from `offset` (give the leading edge's index so that it
         stays on the coarse grid), up to sample n_max: the kernel integrates at q times the step.
         The edges keep their nominal instants, so the EDGE offsets mean the same on both grids."""

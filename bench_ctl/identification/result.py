@@ -6,8 +6,9 @@ deviations and the bookkeeping a report needs; frozen, so a fit is a value.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 

@@ -7,7 +7,8 @@ that may be negative, parameters whose neutral value is 0). docs/decisions/0015-
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 

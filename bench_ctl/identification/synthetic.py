@@ -8,7 +8,7 @@ parameters inside the unit's bounds that satisfy its constraints and give a plau
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

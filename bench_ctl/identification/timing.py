@@ -17,8 +17,9 @@ fitted}), so a report re-simulates with the instants the fit found.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
