@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench_ctl.model import edges as model_edges
+
 log = logging.getLogger(__name__)
 
 #: guard samples left out before the first setpoint change (the response may start there)
@@ -46,20 +48,13 @@ class Edges:
 
 
 def find_edges(usetp: np.ndarray, source: str = "capture") -> Edges:
+    """The test's leading and trailing setpoint edges, by the one edge finder
+    (`bench_ctl.model.edges.find_edges`, a setpoint channel on a sample-index axis)."""
     u = np.asarray(usetp, float)
-    d = np.diff(u)
-    span = float(np.max(np.abs(u - u[0])))
-    if span <= 0.0:
+    lead, trail = model_edges.find_edges(np.arange(u.size, dtype=float), u, kind=model_edges.SETPOINT).pulse()
+    if lead is None:
         raise DiagnosisError(f"{source}: usetp never changes; the diagnosis needs a step or pulse test")
-    moving = np.flatnonzero(np.abs(d) > 1e-3 * span)
-    k_on = int(moving[0]) + 1
-    # group consecutive changes (a recorded ramp); the trailing edge is the first change back
-    sign_on = np.sign(d[moving[0]])
-    back = moving[np.sign(d[moving]) == -sign_on]
-    k_off = int(back[0]) + 1 if back.size else None
-    ups = moving[moving < (back[0] if back.size else u.size)]
-    amplitude = float(u[ups[-1] + 1] - u[k_on - 1])
-    return Edges(k_on, k_off, amplitude)
+    return Edges(lead.index, trail.index if trail is not None else None, lead.jump)
 
 
 def noise_floor(efd: np.ndarray, dt: float, edges: Edges, source: str = "capture") -> NoiseFloor:
