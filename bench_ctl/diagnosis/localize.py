@@ -81,15 +81,11 @@ class Segment:
 
 
 def segments(n: int, dt: float, edges: Edges) -> list[Segment]:
-    """pre_trigger, leading_edge, plateau, trailing_edge, recovery (step test: the first three)."""
-    k_on = edges.k_on
+    """pre_trigger, leading_edge, plateau, trailing_edge, recovery (step test: the first three);
+    the edge parts EDGE_S long, at most a quarter of the pulse (`model.edges.record_segments`)."""
     k_off = edges.k_off if edges.k_off is not None else n
-    w = max(1, int(round(min(EDGE_S, 0.25 * (k_off - k_on) * dt) / dt)))
-    cuts = [("pre_trigger", 0, k_on), ("leading_edge", k_on, min(k_on + w, k_off)),
-            ("plateau", min(k_on + w, k_off), k_off)]
-    if edges.k_off is not None:
-        cuts += [("trailing_edge", k_off, min(k_off + w, n)), ("recovery", min(k_off + w, n), n)]
-    return [Segment(name, a, b) for name, a, b in cuts if b > a]
+    w = max(1, int(round(min(EDGE_S, 0.25 * (k_off - edges.k_on) * dt) / dt)))
+    return [Segment(name, a, b) for name, a, b in model_edges.record_segments(n, edges.k_on, edges.k_off, w)]
 
 
 def segment_shares(residual: np.ndarray, dt: float, segs: list[Segment]) -> list[dict]:

@@ -305,3 +305,24 @@ def find_edges(time: np.ndarray, x: np.ndarray, *, kind: str = SETPOINT, channel
         lo = min(float(t[k - 1]), t1 - hidden)
         edges.append(FoundEdge(k, sign, level, sign * size, after, lo, float(t[k])))
     return EdgeSearch(channel, kind, tuple(edges), noise, h, w)
+
+
+#: the parts of a step / pulse record, in time order (a step test has the first three)
+SEGMENT_NAMES = ("pre_trigger", "leading_edge", "plateau", "trailing_edge", "recovery")
+
+
+def record_segments(n: int, lead: int, trail: int | None, edge_samples: int, *,
+                  keep_empty: bool = False) -> list[tuple[str, int, int]]:
+    """The record of `n` samples cut at its edges into (name, k0, k1), samples k0 <= k < k1:
+    pre_trigger [0, lead), leading_edge the `edge_samples` after the leading edge (never past the
+    trailing one), plateau up to the trailing edge (the record's end for a step), then
+    trailing_edge (`edge_samples`) and recovery. Empty parts are left out unless `keep_empty` (a
+    report lists every part of a pulse, an empty plateau too). The one segmentation
+    the diagnosis' localisation and the report's error figures share."""
+    w = max(1, int(edge_samples))
+    end = trail if trail is not None else n
+    cuts = [("pre_trigger", 0, lead), ("leading_edge", lead, min(lead + w, end)),
+            ("plateau", min(lead + w, end), end)]
+    if trail is not None:
+        cuts += [("trailing_edge", trail, min(trail + w, n)), ("recovery", min(trail + w, n), n)]
+    return [(name, a, b) for name, a, b in cuts if keep_empty or b > a]

@@ -93,22 +93,16 @@ def window_slice(time: np.ndarray, window: tuple[float, float] | None) -> slice:
 
 def segment_bounds(time: np.ndarray, edges: PulseEdges,
                    window_s: float = DEFAULT_EDGE_WINDOW_S) -> list[tuple[str, float, float]]:
-    """(name, t0, t1) of each segment; samples with t0 <= t < t1 belong to it (the last one
-    includes the final sample)."""
-    t_start, t_end = float(time[0]), float(time[-1])
-    if edges.leading_s is None:
-        return [("whole record", t_start, t_end)]
-    lead = edges.leading_s
-    if edges.trailing_s is None:
-        cut = min(lead + window_s, t_end)
-        return [("pre_trigger", t_start, lead), ("leading_edge", lead, cut),
-                ("plateau", cut, t_end)]
-    trail = edges.trailing_s
-    lead_end = min(lead + window_s, trail)
-    trail_end = min(trail + window_s, t_end)
-    return [("pre_trigger", t_start, lead), ("leading_edge", lead, lead_end),
-            ("plateau", lead_end, trail), ("trailing_edge", trail, trail_end),
-            ("recovery", trail_end, t_end)]
+    """(name, t0, t1) of each segment (`model.edges.record_segments`, the edge parts `window_s`
+    long); samples with t0 <= t < t1 belong to it (the last one includes the final sample)."""
+    time = np.asarray(time, float)
+    n = time.size
+    if edges.leading_index is None:
+        return [("whole record", float(time[0]), float(time[-1]))]
+    dt = float(time[-1] - time[0]) / (n - 1)
+    parts = edge_finder.record_segments(n, edges.leading_index, edges.trailing_index,
+                                        int(round(window_s / dt)), keep_empty=True)
+    return [(name, float(time[a]), float(time[b]) if b < n else float(time[-1])) for name, a, b in parts]
 
 
 def error_figures(time: np.ndarray, efd_meas: np.ndarray, efd_sim: np.ndarray, edges: PulseEdges,
