@@ -67,6 +67,9 @@ from bench_ctl.runner.safety import BenchBusy, PreconditionFailed, check_no_load
 
 log = logging.getLogger(__name__)
 
+#: the run is meant to leave a capture: when it ends without one, the outcome says so
+CAPTURES = True
+
 #: parameter -> (min, max, unit): every parameter is bounded (the bench limits bound the pulse
 #: further); `check_parameters` adds the bounds between parameters
 PARAMETERS: dict[str, tuple[float, float, str]] = {

@@ -15,6 +15,7 @@ import time
 
 import pytest
 
+from bench_ctl.commands.run import print_outcome
 from bench_ctl.runner.audit import read_audit
 from bench_ctl.runner.runner import run_procedure
 from simulators.bench import SimBench
@@ -206,7 +207,7 @@ def test_sigterm_sighup_and_sigquit_during_pulse_end_in_the_safe_state(bench, tm
     assert rows[-1]["kind"] == "run_end" and rows[-1]["exit_code"] == 2
 
 
-def test_exception_reply_to_the_pulse_write_leaves_nothing_changed(bench, tmp_path):
+def test_exception_reply_to_the_pulse_write_leaves_nothing_changed(bench, tmp_path, capsys):
     sim, proxy = bench
     sim.faults.set("exception", device="exciter", op="write", register="setpoint", code=4)
     out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
@@ -221,9 +222,13 @@ def test_exception_reply_to_the_pulse_write_leaves_nothing_changed(bench, tmp_pa
     assert device_writes(proxy) == [(MODE_ADDR, [3]), (SETPOINT_ADDR, SP_1_05), (MODE_ADDR, [1])]
     assert out.safe_state[1].action.startswith("disarmed")
     assert out.capture_path is None and out.audit_path.exists()
+    # the operator reads that there is no capture, not only an error
+    capsys.readouterr()
+    print_outcome(out)
+    assert "capture: NOT SAVED - the run ended before its capture was written" in capsys.readouterr().err
 
 
-def test_corrupted_download_is_retried_and_the_capture_complete(bench, tmp_path):
+def test_corrupted_download_is_retried_and_the_capture_complete(bench, tmp_path, capsys):
     sim, proxy = bench
     sim.faults.set("corrupt", device="recorder", register="block", skip=5, count=2)
     out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
@@ -233,6 +238,10 @@ def test_corrupted_download_is_retried_and_the_capture_complete(bench, tmp_path)
     side = out.capture_path.with_suffix(".json")
     assert side.exists() and out.raw_path.exists()
     assert len(out.capture_path.read_text().splitlines()) == 1 + 1500   # header + every sample
+    capsys.readouterr()
+    print_outcome(out)
+    printed = capsys.readouterr()
+    assert f"capture: {out.capture_path}" in printed.out and "NOT SAVED" not in printed.out + printed.err
 
 
 def test_download_that_stays_corrupted_fails_loudly_keeping_what_there_is(bench, tmp_path):

@@ -50,6 +50,10 @@ def _print_outcome(outcome: RunOutcome) -> None:
     for line in outcome.not_saved:
         if line not in outcome.message:
             click.secho(f"  {line}", fg="red", bold=True, err=True)
+    if outcome.expects_capture and outcome.safe_state and not _on_disk(outcome.capture_path) and \
+            not any("capture" in line for line in outcome.not_saved):
+        click.secho("  capture: NOT SAVED - the run ended before its capture was written (the reason is above)",
+                    fg="red", bold=True, err=True)
     for c in outcome.criteria:
         mark = "PASS" if c.passed else "FAIL"
         click.echo(f"  [{mark}] {c.name}: {c.text()}".rstrip())
@@ -59,8 +63,12 @@ def _print_outcome(outcome: RunOutcome) -> None:
     for label, path in (("capture", outcome.capture_path), ("sidecar", outcome.sidecar_path),
                         ("raw download", outcome.raw_path), ("audit", outcome.audit_path),
                         ("log", outcome.log_path)):
-        if path is not None and Path(path).exists():
+        if _on_disk(path):
             click.echo(f"  {label}: {path}")
+
+
+def _on_disk(path: Path | None) -> bool:
+    return path is not None and Path(path).exists()
 
 
 @click.command("run")

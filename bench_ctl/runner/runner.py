@@ -86,6 +86,7 @@ class RunOutcome:
     dry_run: bool
     duration_s: float
     not_saved: tuple[str, ...] = ()  # what the run could not save (disk full, read-only), and why
+    expects_capture: bool = False   # the procedure is meant to leave a capture (its module's CAPTURES)
 
     @property
     def safe(self) -> bool:
@@ -133,6 +134,12 @@ def procedure_params(fn: Any, config: BenchConfig, name: str,
         if problems:
             raise ConfigError(f"{config.source} / --param: procedures.{name}: " + "; ".join(problems))
     return params
+
+
+def records_capture(fn: Any) -> bool:
+    """Whether a procedure is meant to leave a capture (its module's CAPTURES, False unless it says
+    True): a run of it that ends without one says so."""
+    return bool(getattr(inspect.getmodule(fn), "CAPTURES", False))
 
 
 def writes_to_devices(fn: Any) -> bool:
@@ -325,7 +332,8 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
                       capture_path=ctx.capture_path, sidecar_path=ctx.sidecar_path,
                       raw_path=ctx.raw_path, safe_state=tuple(reports),
                       criteria=result.criteria, data=dict(result.data), dry_run=dry_run,
-                      duration_s=time.monotonic() - t_start, not_saved=tuple(not_saved))
+                      duration_s=time.monotonic() - t_start, not_saved=tuple(not_saved),
+                      expects_capture=records_capture(fn))
 
 
 def _usable_out(out: Path) -> None:
