@@ -59,7 +59,7 @@ from bench_ctl.capture import read_capture  # noqa: E402
 from cli_runs import bench_toml, run_argv, start_run  # noqa: E402
 from simulators.bench import SimBench  # noqa: E402
 from simulators.faults import parse_fault  # noqa: E402
-from test_runner_wire import WireProxy  # noqa: E402
+from wire_proxy import WireProxy  # noqa: E402
 
 PARAMS = {"pre_trigger_s": 0.3, "record_s": 2.0, "width_s": 0.5, "recovery_timeout_s": 3.0,
           "width_tolerance_s": 0.02}

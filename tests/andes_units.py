@@ -1,7 +1,7 @@
 """Units for the ANDES fixtures (tests/fixtures/andes): each capture's exciter structure with the
 values it was made with, and the kernel's generator from the GENROU data in the manifest.
 
-Shared by tests/test_structures.py and benchmarks/model_library.py. The GENROU -> kernel
+Shared by tests/model/test_structures.py and benchmarks/model_library.py. The GENROU -> kernel
 conversion is written out here from the GENROU equations (not taken from bench_ctl's own
 `generator_from_record`, which a test checks against it)."""
 from __future__ import annotations

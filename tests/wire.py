@@ -1,6 +1,6 @@
 """Raw Modbus RTU framing for the wire-level tests, written by hand so that golden frames do not
 depend on the Modbus library under test. Checked against the two frames every Modbus text quotes
-(tests/test_sim_golden.py::test_crc_helper_matches_the_textbook_frames)."""
+(tests/simulators/test_sim_golden.py::test_crc_helper_matches_the_textbook_frames)."""
 from __future__ import annotations
 
 

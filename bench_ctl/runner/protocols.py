@@ -6,7 +6,7 @@ thread): it reads and writes registers by name, asks whether an optional one is 
 (`has("efd")`), runs the test sequence the drivers implement, and reads what it must show
 (`endpoint_url`, `heartbeat_stats()`). `tests/test_layers.py` refuses a procedure that reaches
 `.link`, `.profile` or `.heartbeat`. The drivers (`drivers.exciter.Exciter`,
-`drivers.recorder.Recorder`) and the runner's `Bench` satisfy them; `tests/test_protocols.py`
+`drivers.recorder.Recorder`) and the runner's `Bench` satisfy them; `tests/runner/test_protocols.py`
 checks that they keep doing so.
 """
 from __future__ import annotations

@@ -15,7 +15,7 @@ import pytest
 
 from bench_ctl.capture import read_capture
 
-FIXTURES = Path(__file__).parent / "fixtures" / "andes"
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "andes"
 MANIFEST = json.loads((FIXTURES / "manifest.json").read_text(encoding="utf-8"))
 CAPTURES = MANIFEST["captures"]
 
@@ -47,7 +47,7 @@ def test_fixture_reads_and_matches_its_manifest(name):
 
 def test_regenerated_capture_equals_its_fixture(tmp_path):
     pytest.importorskip("andes")
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     subprocess.run([sys.executable, str(root / "benchmarks" / "andes_captures.py"), "--only", "SEXS",
                     "--out", str(tmp_path)], check=True, capture_output=True, timeout=600)
     for name in ("sexs_05pct",):

@@ -21,9 +21,9 @@ from bench_ctl.runner.config import ConfigError, config_from_dict
 from bench_ctl.runner.runner import run_procedure
 from cli_runs import FAST_PARAMS, ROOT, bench_toml
 from procedures import no_load_pulse as pulse_module
+from pulse_bench import bench_config, config_doc
 from simulators.bench import SimBench
-from test_procedure_pulse import bench_config, config_doc
-from test_runner_wire import WireProxy
+from wire_proxy import WireProxy
 
 PLAN_LINES = ("no_load_pulse on the exciter tcp://127.0.0.1:",
               "  setpoint  1.0000 pu -> 1.0500 pu for 0.300 s, then back to 1.0000 pu",

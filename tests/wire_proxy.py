@@ -1,4 +1,5 @@
-"""A Modbus TCP wire proxy for the runner and procedure tests, and its own tests.
+"""A Modbus TCP wire proxy for the runner, procedure and fault tests (its own tests:
+tests/runner/test_runner_wire.py).
 
 `WireProxy` sits between the driver and a simulated device: it records every request frame
 the device is sent (independently of the driver's own frame log, so a test can assert what
@@ -12,8 +13,6 @@ import socket
 import struct
 import threading
 import time
-
-import pytest
 
 
 class WireProxy:
@@ -134,57 +133,3 @@ class WireProxy:
                 s.close()
             except OSError:
                 pass
-
-
-# ------------------------------------------------------------------------------ self-tests
-@pytest.fixture
-def echo_server():
-    """A server that answers each chunk with the same bytes."""
-    srv = socket.socket()
-    srv.bind(("127.0.0.1", 0))
-    srv.listen(4)
-    stop = threading.Event()
-
-    def serve() -> None:
-        srv.settimeout(0.05)
-        while not stop.is_set():
-            try:
-                conn, _ = srv.accept()
-            except OSError:
-                continue
-            def echo(c: socket.socket = conn) -> None:
-                while (d := c.recv(4096)):
-                    c.sendall(d)
-            threading.Thread(target=echo, daemon=True).start()
-
-    t = threading.Thread(target=serve, daemon=True)
-    t.start()
-    yield srv.getsockname()
-    stop.set()
-    t.join()
-    srv.close()
-
-
-def test_proxy_logs_requests_and_cuts(echo_server):
-    proxy = WireProxy(echo_server)
-    try:
-        frame = bytes.fromhex("0001 0000 000b 01 10 0000 0002 04 3f86 6666")
-        c = socket.create_connection(proxy.address)
-        c.sendall(frame)
-        assert c.recv(100) == frame
-        assert proxy.writes() == [(0, [0x3F86, 0x6666])]
-        proxy.cut(0.3)
-        t0 = time.monotonic()
-        assert c.recv(100) == b""          # the cut closed the connection
-        with pytest.raises(ConnectionRefusedError):
-            socket.create_connection(proxy.address)
-        while True:                         # accepted again after the hold
-            try:
-                socket.create_connection(proxy.address).close()
-                break
-            except ConnectionRefusedError:
-                assert time.monotonic() - t0 < 3
-                time.sleep(0.01)
-        assert time.monotonic() - t0 >= 0.29
-    finally:
-        proxy.close()

@@ -123,7 +123,7 @@ def test_andes_reads_what_bench_ctl_writes(tmp_path, monkeypatch):
     andes = pytest.importorskip("andes")
     import sys
     from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     import andes_captures as ac
     andes.config_logger(stream_level=50)
     for model, vals, names in (

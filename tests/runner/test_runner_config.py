@@ -13,7 +13,7 @@ from bench_ctl.runner.audit import AuditLog, read_audit
 from bench_ctl.runner.config import ConfigError, config_from_dict, load_bench_config
 from bench_ctl.runner.safety import CtrlC, LimitViolation, PreconditionFailed, check_no_load, check_pulse
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "benches" / "example.toml"
 SIM_EXCITER = ROOT / "drivers" / "profiles" / "sim-exciter.toml"
 SIM_RECORDER = ROOT / "drivers" / "profiles" / "sim-recorder.toml"

@@ -15,7 +15,7 @@ from bench_ctl.runner.config import config_from_dict
 from drivers.exciter import Exciter
 from drivers.recorder import Recorder
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def members(proto: type) -> dict[str, object]:

@@ -20,9 +20,9 @@ from bench_ctl.runner.lock import BenchLock, endpoint_key
 from bench_ctl.runner.runner import run_procedure
 from bench_ctl.runner.safety import BenchBusy
 from cli_runs import FAST_PARAMS, ROOT, bench_toml, run_argv, run_env, start_run
+from pulse_bench import bench_config, config_doc
 from simulators.bench import SimBench
-from test_procedure_pulse import bench_config, config_doc
-from test_runner_wire import WireProxy
+from wire_proxy import WireProxy
 
 MODE, HEARTBEAT, STATUS = 3, 2, 10
 OTHER_MASTER = 1 << 4   # status.remote_other_master of the sim profile

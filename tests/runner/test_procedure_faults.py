@@ -18,9 +18,9 @@ import pytest
 from bench_ctl.commands.run import print_outcome
 from bench_ctl.runner.audit import read_audit
 from bench_ctl.runner.runner import run_procedure
+from pulse_bench import MODE_ADDR, SETPOINT_ADDR, SP_1_00, SP_1_05, bench_config, device_writes
 from simulators.bench import SimBench
-from test_procedure_pulse import MODE_ADDR, SETPOINT_ADDR, SP_1_00, SP_1_05, bench_config, device_writes
-from test_runner_wire import WireProxy
+from wire_proxy import WireProxy
 
 # short but real: 0.3 s pulse inside a 1.5 s record
 FAST = {"pre_trigger_s": 0.2, "record_s": 1.5, "width_s": 0.3, "recovery_timeout_s": 3.0,

@@ -80,7 +80,7 @@ def test_limits_merge_over_the_defaults_and_bad_ones_are_refused() -> None:
 
 
 def test_the_unit_file_carries_its_limits_into_the_result(tmp_path: Path) -> None:
-    base = Path(__file__).resolve().parents[1] / "bench_ctl" / "data" / "reference_unit.toml"
+    base = Path(__file__).resolve().parents[2] / "bench_ctl" / "data" / "reference_unit.toml"
     text = base.read_text(encoding="utf-8")
     good = tmp_path / "good.toml"
     good.write_text(text + "\n[acceptance]\nexclusion_s = 0.03\n[acceptance.during]\nMXE = 0.1\n",

@@ -19,9 +19,9 @@ from bench_ctl.runner.audit import read_audit
 from bench_ctl.runner.runner import run_procedure
 from cli_runs import FAST_PARAMS, audit_rows, bench_toml, run_argv, start_run, wait_for
 from drivers.profile import load_profile
+from pulse_bench import bench_config
 from simulators.bench import SimBench
-from test_procedure_pulse import bench_config
-from test_runner_wire import WireProxy
+from wire_proxy import WireProxy
 
 
 @pytest.fixture
@@ -100,7 +100,7 @@ def test_a_watchdog_shorter_than_the_heartbeat_period_is_named_as_such(sim_proxy
 def test_a_profile_naming_no_watchdog_register_is_refused(tmp_path):
     """A device whose watchdog cannot be read: nobody knows how long a pulse outlives the host."""
     from bench_ctl.runner.config import config_from_dict
-    from test_procedure_pulse import ROOT, config_doc
+    from pulse_bench import ROOT, config_doc
 
     text = (ROOT / "drivers" / "profiles" / "sim-exciter.toml").read_text()
     (tmp_path / "nowd.toml").write_text(text.replace('watchdog_register = "watchdog_timeout"', ""))
@@ -180,7 +180,7 @@ def test_a_tripped_watchdog_is_named_when_the_device_refuses_a_write():
 
 def test_the_watchdog_limit_in_the_bench_config():
     from bench_ctl.runner.config import ConfigError, config_from_dict
-    from test_procedure_pulse import config_doc
+    from pulse_bench import config_doc
 
     assert config_from_dict(config_doc(), source="b.toml").limits.watchdog_limit_s == 3.0
     assert config_from_dict(config_doc(pulse_width_max_s=1.0), source="b.toml").limits \

@@ -26,9 +26,9 @@ from bench_ctl.cli import main
 from bench_ctl.runner.audit import read_audit
 from bench_ctl.runner.runner import OutputUnusable, run_procedure
 from cli_runs import FAST_PARAMS, ROOT, bench_toml, run_argv, start_run
+from pulse_bench import bench_config
 from simulators.bench import SimBench
-from test_procedure_pulse import bench_config
-from test_runner_wire import WireProxy
+from wire_proxy import WireProxy
 
 ENOSPC = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
