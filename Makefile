@@ -18,7 +18,7 @@ demo: $(STAMP)
 	$(BIN)/bench-ctl demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=25
 
 bench: $(STAMP)
 	mkdir -p bench-out
