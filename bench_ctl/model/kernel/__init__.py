@@ -18,10 +18,11 @@ resolves) is marked failed at that step and frozen; its outputs stay finite (hel
 turns the failure step into a rankable penalty. No NaN ever leaves the kernel.
 
 The package, bottom up: `layout` (the derived columns `D_*`, constants), `jit` (the numba
-decorator, LLVM options, the stale-cache guard), `derive` (per-candidate factors in numpy, per
-block), `blocks` (each block's compiled algebra), `rhs` (the blocks wired into derivatives),
-`rk4` (the RK4 step, the vectorised loops over candidates, split steps), `chunk` (a chunk of
-candidates over the record, the parallel loop over chunks), and here `run_kernel`.
+decorator, LLVM options, the stale-cache guard), `blocks` (each block in one place: its derived
+factors, its compiled algebra, its steady state), `derive` (the derived matrix from a parameter
+matrix), `rhs` (the blocks wired into derivatives), `rk4` (the RK4 step, the vectorised loops
+over candidates, split steps), `chunk` (a chunk of candidates over the record, the parallel loop
+over chunks), and here `run_kernel`.
 """
 from __future__ import annotations
 
@@ -31,9 +32,20 @@ import numpy as np
 
 from ..edges import EdgeSpec
 from ..params import COL
-from .blocks import avr, ceilings, delayed_vr, field_voltage, hermite, rate_feedback, steady_state, terminal_voltage
+from .blocks import (
+    avr,
+    ceilings,
+    delayed_vr,
+    exciter_saturation_ab,
+    field_voltage,
+    hermite,
+    rate_feedback,
+    saturation_ab,
+    steady_state,
+    terminal_voltage,
+)
 from .chunk import Edges, Outputs, Record, Switches, run_chunk, run_chunks
-from .derive import derive, exciter_saturation_ab, saturation_ab
+from .derive import derive
 from .jit import DISPATCHERS, SOURCES, drop_stale_cache, njit, optimisation_note
 from .layout import (
     BLOWUP,

@@ -1,25 +1,39 @@
-"""The blocks of the kernel's unit, compiled, for one candidate `i` of a transposed derived
-matrix D (`layout`): each block's algebra, its steady state and its share of the output's slope.
+"""The blocks of the kernel's unit, each in one place: its derived factors (numpy, `derive_*`,
+called by `derive` once a call) and its compiled algebra for one candidate `i` of the transposed
+derived matrix D (`layout`), with its share of the output and the output's slope; the steady
+state a run starts from.
 
 The RK4 right-hand side (`rhs`) wires them; the plant (`plant_step`) and the open loop
-(`open_loop`) reuse them, so the three compute the same numbers. All are inlined into their
-caller (`jit.njit`) and branch-free where a loop over candidates runs them, so that it vectorises:
-plain compare-and-select rather than numba's min/max (which carry NaN branches).
+(`open_loop`) reuse them, so the three compute the same numbers. The compiled ones are inlined
+into their caller (`jit.njit`) and branch-free where a loop over candidates runs them, so that it
+vectorises: plain compare-and-select rather than numba's min/max (which carry NaN branches).
 """
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 from .jit import njit
 from .layout import (
     D_DCON,
     D_E0,
     D_EFD0,
+    D_IT2,
+    D_IT4,
+    D_ITD0P,
+    D_ITD0PP,
+    D_ITE,
+    D_ITEX,
+    D_ITF,
     D_KAVR,
     D_KC,
     D_KDA,
+    D_KE,
     D_KFT,
     D_KG,
+    D_KI1,
+    D_KIM,
     D_KPM,
     D_KPP,
     D_KPV,
@@ -31,6 +45,8 @@ from .layout import (
     D_SATA,
     D_SATB,
     D_SATVT,
+    D_SEA,
+    D_SEB,
     D_ST4,
     D_VBMAX,
     D_VMMAX,
@@ -46,7 +62,32 @@ from .layout import (
     ST4_ALL,
 )
 
+Params = dict[str, np.ndarray]
+
+
+def safe(valid: np.ndarray, x: np.ndarray) -> np.ndarray:
+    return np.where(valid, x, 1.0)
+
+
 # ---- regulator: AVR lead-lags (or the ESST4B's PI), rate feedback ------------------------------
+
+
+def derive_regulator(D: np.ndarray, g: Params, valid: np.ndarray, st4: np.ndarray) -> None:
+    """The AVR: gain, lead-lags (the first replaced by the PI where the potential-source stage is
+    on), the regulator lag."""
+    D[:, D_KAVR] = safe(valid, g["KAVR"])
+    D[:, D_R1] = np.where(st4, 0.0, safe(valid, g["TA1"] / g["TA2"]))
+    D[:, D_IT2] = np.where(st4, 0.0, safe(valid, 1.0 / g["TA2"]))
+    D[:, D_R2] = safe(valid, g["TA3"] / g["TA4"])
+    D[:, D_IT4] = safe(valid, 1.0 / g["TA4"])
+    D[:, D_ITE] = safe(valid, 1.0 / g["TE"])
+
+
+def derive_rate_feedback(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
+    """Rate feedback KF s / (1 + s TF): KF / TF and 1 / TF, 0 without (KF = 0)."""
+    fb = valid & (g["KF"] > 0.0)
+    D[:, D_KFT] = np.where(fb, g["KF"] / np.where(fb, g["TF"], 1.0), 0.0)
+    D[:, D_ITF] = np.where(fb, 1.0 / np.where(fb, g["TF"], 1.0), 0.0)
 
 
 @njit()
@@ -78,6 +119,34 @@ def rate_feedback(D, i, ef, xf, xe):
 # ---- generator at no load: terminal voltage, field current -------------------------------------
 
 
+def saturation_ab(s10: np.ndarray, s12: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quadratic saturation Sat(x) = B (x - A)^2 for x > A through S(1.0) = S10, S(1.2) = S12."""
+    s10 = np.asarray(s10, float)
+    s12 = np.asarray(s12, float)
+    on = (s10 > 0.0) & (s12 > s10)
+    r = np.sqrt(np.where(on, s12, 1.0) / np.where(on, s10, 1.0))
+    a = np.where(on, (r - 1.2) / np.where(on, r - 1.0, 1.0), 0.0)
+    b = np.where(on, s10 / np.where(on, (1.0 - a) ** 2, 1.0), 0.0)
+    return a, b
+
+
+def derive_generator(D: np.ndarray, g: Params, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The generator at no load (time constants, saturation, GENROU-like flux shares); returns Vt0
+    and the field voltage it needs at the steady state."""
+    a, b = saturation_ab(g["S10"], g["S12"])
+    vt0 = safe(valid, g["Vt0"])
+    sat0 = np.where(vt0 > a, b * (vt0 - a) ** 2, 0.0)
+    D[:, D_ITD0P] = safe(valid, 1.0 / g["Td0p"])
+    D[:, D_ITD0PP] = safe(valid, 1.0 / g["Td0pp"])
+    D[:, D_SATA] = a
+    D[:, D_SATB] = b
+    D[:, D_VT0] = vt0
+    D[:, D_KPP] = np.where(valid, g["KPP"], 0.0)
+    D[:, D_SATVT] = (D[:, D_KPP] > 0.0).astype(np.float64)
+    D[:, D_KDA] = np.where(valid, g["KDA"], 0.0)
+    return vt0, vt0 + sat0
+
+
 @njit()
 def terminal_voltage(D, i, eqp, eqpp):
     """Terminal voltage at no load: E''q, or with a GENROU-like flux share KPP of E'q,
@@ -93,6 +162,16 @@ def field_current(D, i, eqp, eqpp, vt):
     return eqp + D[D_KDA, i] * (eqp - eqpp) + D[D_SATB, i] * d * d
 
 # ---- exciter ceilings (ceiling_limit) ----------------------------------------------------------
+
+
+def derive_ceilings(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray) -> None:
+    """The ceilings, their variants (bus-fed, commutation) and whether they clamp the output rather
+    than the regulator lag (LIMOUT; not with a DC exciter)."""
+    D[:, D_VRMAX] = g["VRMAX"]
+    D[:, D_VRMIN] = g["VRMIN"]
+    D[:, D_VRVT] = np.where(valid, g["VRVT"], 0.0)
+    D[:, D_KC] = np.where(valid, g["KC"], 0.0)
+    D[:, D_LIMOUT] = np.where(valid & ~dc, g["LIMOUT"] > 0.5, False).astype(np.float64)
 
 
 @njit()
@@ -121,6 +200,34 @@ def ceilings_ref(D, i, eqp, eqpp):
     return D[D_VRMAX, i] * sc - D[D_KC, i] * ifd, D[D_VRMIN, i] * sc
 
 # ---- potential-source stage (ESST4B) -----------------------------------------------------------
+
+
+def bridge_voltage_np(ve: np.ndarray, kc_ifd: np.ndarray, vbmax: np.ndarray) -> np.ndarray:
+    """VB = VE FEX(KC Ifd / VE), at most VBMAX (numpy twin of `bridge_voltage`)."""
+    ve = np.maximum(ve, 1.0e-6)
+    x = kc_ifd / ve
+    f = np.where(x <= 0.0, 1.0, np.where(x <= 0.433, 1.0 - 0.577 * x, np.where(
+        x <= 0.75, np.sqrt(np.maximum(0.75 - x * x, 0.0)), np.where(x <= 1.0, 1.732 * (1.0 - x), 0.0))))
+    return np.minimum(ve * f, vbmax)
+
+
+def derive_potential_source(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray) -> np.ndarray:
+    """The potential-source stage (ESST4B: KP > 0, no DC exciter): the PI regulator in place of
+    lead-lag 1, the bridge (KP, VBMAX), the inner PI and KG; neutral elsewhere. Returns where on."""
+    st4 = valid & ~dc & (g["KPV"] > 0.0)
+    D[:, D_ST4] = st4.astype(np.float64)
+    D[:, D_P1] = np.where(st4, g["KPI"], 0.0)
+    D[:, D_KI1] = np.where(st4, g["KII"], 0.0)
+    D[:, D_Y1MAX] = np.where(st4, g["VPMAX"], np.inf)
+    D[:, D_Y1MIN] = np.where(st4, g["VPMIN"], -np.inf)
+    D[:, D_KPV] = np.where(st4, g["KPV"], 1.0)
+    D[:, D_VBMAX] = np.where(st4, g["VBMAX"], np.inf)
+    D[:, D_KPM] = np.where(st4, g["KPM"], 0.0)
+    D[:, D_KIM] = np.where(st4, g["KIM"], 0.0)
+    D[:, D_VMMAX] = np.where(st4, g["VMMAX"], np.inf)
+    D[:, D_VMMIN] = np.where(st4, g["VMMIN"], -np.inf)
+    D[:, D_KG] = np.where(st4, g["KG"], 0.0)
+    return st4
 
 
 @njit()
@@ -177,7 +284,31 @@ def output_slope(D, i, ef, xf, eqp, eqpp, def_, dxf, other, st4):
     sl = sl if f4 > lo else 0.0
     return sl if st4 == ST4_ALL else other + D[D_ST4, i] * (sl - other)
 
-# ---- the field voltage: the kernel's output ----------------------------------------------------
+# ---- DC exciter; the field voltage, the kernel's output ----------------------------------------------------
+
+
+def exciter_saturation_ab(e1, se1, e2, se2) -> tuple[np.ndarray, np.ndarray]:
+    """DC exciter saturation SE(Efd) Efd = B (Efd - A)^2 for Efd > A, through SE(E1) = SE1 and
+    SE(E2) = SE2 (the quadratic form of IEEE 421.5 as PSS/E and ANDES' ExcQuadSat use it).
+    Off (A = 0, B = 0) unless 0 < E1 < E2 and 0 < SE1 < SE2... with E2 SE2 > E1 SE1."""
+    e1, se1, e2, se2 = (np.asarray(x, float) for x in (e1, se1, e2, se2))
+    on = (e1 > 0) & (e2 > e1) & (se1 > 0) & (se2 * e2 > se1 * e1)
+    r = np.sqrt(np.where(on, (e2 * se2) / np.where(on, e1 * se1, 1.0), 4.0))
+    a = np.where(on, (r * e1 - e2) / np.where(on, r - 1.0, 1.0), 0.0)
+    b = np.where(on, e1 * se1 / np.where(on, (e1 - a) ** 2, 1.0), 0.0)
+    return a, b
+
+
+def derive_dc_exciter(D: np.ndarray, g: Params, valid: np.ndarray) -> np.ndarray:
+    """The DC exciter (TEX > 0): 1 / TEX, KE, its saturation; returns where it is on."""
+    dc = valid & (g["TEX"] > 0.0)
+    sea, seb = exciter_saturation_ab(g["E1"], g["SE1"], g["E2"], g["SE2"])
+    D[:, D_ITEX] = np.where(dc, 1.0 / np.where(dc, g["TEX"], 1.0), 0.0)
+    D[:, D_DCON] = dc.astype(np.float64)
+    D[:, D_KE] = np.where(dc, g["KE"], 0.0)
+    D[:, D_SEA] = np.where(dc, sea, 0.0)
+    D[:, D_SEB] = np.where(dc, seb, 0.0)
+    return dc
 
 
 @njit()

@@ -1,5 +1,6 @@
 """Per-candidate factors of the kernel (the derived matrix, columns `layout.D_*`), in numpy, once a
-call: each block's factors, then the steady state the run starts from.
+call: which candidates are valid, each block's factors (`blocks.derive_*`, beside the block's
+compiled algebra), the effects outside the blocks, then the steady state the run starts from.
 
 An invalid candidate (a parameter outside what the kernel can run) gets harmless factors and
 D_VALID = 0: the kernel marks it failed at step 0.
@@ -9,96 +10,41 @@ from __future__ import annotations
 import numpy as np
 
 from ..params import KERNEL_PARAMS, RECORD_PARAMS
+from .blocks import (
+    Params,
+    bridge_voltage_np,
+    derive_ceilings,
+    derive_dc_exciter,
+    derive_generator,
+    derive_potential_source,
+    derive_rate_feedback,
+    derive_regulator,
+)
 from .layout import (
     D_DCON,
     D_E0,
     D_EDGE0,
     D_EFD0,
     D_GAIN,
-    D_IT2,
-    D_IT4,
-    D_ITD0P,
-    D_ITD0PP,
-    D_ITE,
-    D_ITEX,
-    D_ITF,
     D_ITR,
     D_KAVR,
     D_KC,
-    D_KDA,
     D_KE,
-    D_KFT,
-    D_KG,
-    D_KI1,
-    D_KIM,
-    D_KPM,
-    D_KPP,
-    D_KPV,
-    D_LIMOUT,
     D_OUT0,
-    D_P1,
-    D_R1,
-    D_R2,
     D_RAMP,
     D_RATE,
-    D_SATA,
-    D_SATB,
-    D_SATVT,
     D_SEA,
     D_SEB,
     D_SKEW,
-    D_ST4,
     D_TD,
     D_TDON,
     D_TRON,
     D_UREF0,
     D_VALID,
-    D_VBMAX,
-    D_VMMAX,
-    D_VMMIN,
-    D_VRMAX,
-    D_VRMIN,
     D_VRVT,
-    D_VT0,
     D_XF0,
-    D_Y1MAX,
-    D_Y1MIN,
     N_DERIVED,
 )
-
-Params = dict[str, np.ndarray]
-
-
-def saturation_ab(s10: np.ndarray, s12: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Quadratic saturation Sat(x) = B (x - A)^2 for x > A through S(1.0) = S10, S(1.2) = S12."""
-    s10 = np.asarray(s10, float)
-    s12 = np.asarray(s12, float)
-    on = (s10 > 0.0) & (s12 > s10)
-    r = np.sqrt(np.where(on, s12, 1.0) / np.where(on, s10, 1.0))
-    a = np.where(on, (r - 1.2) / np.where(on, r - 1.0, 1.0), 0.0)
-    b = np.where(on, s10 / np.where(on, (1.0 - a) ** 2, 1.0), 0.0)
-    return a, b
-
-
-def exciter_saturation_ab(e1, se1, e2, se2) -> tuple[np.ndarray, np.ndarray]:
-    """DC exciter saturation SE(Efd) Efd = B (Efd - A)^2 for Efd > A, through SE(E1) = SE1 and
-    SE(E2) = SE2 (the quadratic form of IEEE 421.5 as PSS/E and ANDES' ExcQuadSat use it).
-    Off (A = 0, B = 0) unless 0 < E1 < E2 and 0 < SE1 < SE2... with E2 SE2 > E1 SE1."""
-    e1, se1, e2, se2 = (np.asarray(x, float) for x in (e1, se1, e2, se2))
-    on = (e1 > 0) & (e2 > e1) & (se1 > 0) & (se2 * e2 > se1 * e1)
-    r = np.sqrt(np.where(on, (e2 * se2) / np.where(on, e1 * se1, 1.0), 4.0))
-    a = np.where(on, (r * e1 - e2) / np.where(on, r - 1.0, 1.0), 0.0)
-    b = np.where(on, e1 * se1 / np.where(on, (e1 - a) ** 2, 1.0), 0.0)
-    return a, b
-
-
-def bridge_voltage_np(ve: np.ndarray, kc_ifd: np.ndarray, vbmax: np.ndarray) -> np.ndarray:
-    """VB = VE FEX(KC Ifd / VE), at most VBMAX (numpy twin of `bridge_voltage`)."""
-    ve = np.maximum(ve, 1.0e-6)
-    x = kc_ifd / ve
-    f = np.where(x <= 0.0, 1.0, np.where(x <= 0.433, 1.0 - 0.577 * x, np.where(
-        x <= 0.75, np.sqrt(np.maximum(0.75 - x * x, 0.0)), np.where(x <= 1.0, 1.732 * (1.0 - x), 0.0))))
-    return np.minimum(ve * f, vbmax)
 
 
 def derive(P: np.ndarray) -> np.ndarray:
@@ -111,12 +57,13 @@ def derive(P: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         valid = _valid(g)
         D[:, D_VALID] = valid.astype(np.float64)
-        vt0, fld0 = _generator(D, g, valid)
-        dc = _dc_exciter(D, g, valid)
-        st4 = _potential_source(D, g, valid, dc)
-        _regulator(D, g, valid, st4)
-        _rate_feedback(D, g, valid)
-        _effects(D, g, valid, dc)
+        vt0, fld0 = derive_generator(D, g, valid)
+        dc = derive_dc_exciter(D, g, valid)
+        st4 = derive_potential_source(D, g, valid, dc)
+        derive_regulator(D, g, valid, st4)
+        derive_rate_feedback(D, g, valid)
+        derive_ceilings(D, g, valid, dc)
+        _effects(D, g, valid)
         _steady_state(D, g, valid, dc, st4, vt0, fld0)
     return D
 
@@ -143,84 +90,9 @@ def _valid(g: Params) -> np.ndarray:
     return valid
 
 
-def _safe(valid: np.ndarray, x: np.ndarray) -> np.ndarray:
-    return np.where(valid, x, 1.0)
-
-
-def _generator(D: np.ndarray, g: Params, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The generator at no load (time constants, saturation, GENROU-like flux shares); returns Vt0
-    and the field voltage it needs at the steady state."""
-    a, b = saturation_ab(g["S10"], g["S12"])
-    vt0 = _safe(valid, g["Vt0"])
-    sat0 = np.where(vt0 > a, b * (vt0 - a) ** 2, 0.0)
-    D[:, D_ITD0P] = _safe(valid, 1.0 / g["Td0p"])
-    D[:, D_ITD0PP] = _safe(valid, 1.0 / g["Td0pp"])
-    D[:, D_SATA] = a
-    D[:, D_SATB] = b
-    D[:, D_VT0] = vt0
-    D[:, D_KPP] = np.where(valid, g["KPP"], 0.0)
-    D[:, D_SATVT] = (D[:, D_KPP] > 0.0).astype(np.float64)
-    D[:, D_KDA] = np.where(valid, g["KDA"], 0.0)
-    return vt0, vt0 + sat0
-
-
-def _dc_exciter(D: np.ndarray, g: Params, valid: np.ndarray) -> np.ndarray:
-    """The DC exciter (TEX > 0): 1 / TEX, KE, its saturation; returns where it is on."""
-    dc = valid & (g["TEX"] > 0.0)
-    sea, seb = exciter_saturation_ab(g["E1"], g["SE1"], g["E2"], g["SE2"])
-    D[:, D_ITEX] = np.where(dc, 1.0 / np.where(dc, g["TEX"], 1.0), 0.0)
-    D[:, D_DCON] = dc.astype(np.float64)
-    D[:, D_KE] = np.where(dc, g["KE"], 0.0)
-    D[:, D_SEA] = np.where(dc, sea, 0.0)
-    D[:, D_SEB] = np.where(dc, seb, 0.0)
-    return dc
-
-
-def _potential_source(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray) -> np.ndarray:
-    """The potential-source stage (ESST4B: KP > 0, no DC exciter): the PI regulator in place of
-    lead-lag 1, the bridge (KP, VBMAX), the inner PI and KG; neutral elsewhere. Returns where on."""
-    st4 = valid & ~dc & (g["KPV"] > 0.0)
-    D[:, D_ST4] = st4.astype(np.float64)
-    D[:, D_P1] = np.where(st4, g["KPI"], 0.0)
-    D[:, D_KI1] = np.where(st4, g["KII"], 0.0)
-    D[:, D_Y1MAX] = np.where(st4, g["VPMAX"], np.inf)
-    D[:, D_Y1MIN] = np.where(st4, g["VPMIN"], -np.inf)
-    D[:, D_KPV] = np.where(st4, g["KPV"], 1.0)
-    D[:, D_VBMAX] = np.where(st4, g["VBMAX"], np.inf)
-    D[:, D_KPM] = np.where(st4, g["KPM"], 0.0)
-    D[:, D_KIM] = np.where(st4, g["KIM"], 0.0)
-    D[:, D_VMMAX] = np.where(st4, g["VMMAX"], np.inf)
-    D[:, D_VMMIN] = np.where(st4, g["VMMIN"], -np.inf)
-    D[:, D_KG] = np.where(st4, g["KG"], 0.0)
-    return st4
-
-
-def _regulator(D: np.ndarray, g: Params, valid: np.ndarray, st4: np.ndarray) -> None:
-    """The AVR: gain, lead-lags (the first replaced by the PI where the potential-source stage is
-    on), the regulator lag."""
-    D[:, D_KAVR] = _safe(valid, g["KAVR"])
-    D[:, D_R1] = np.where(st4, 0.0, _safe(valid, g["TA1"] / g["TA2"]))
-    D[:, D_IT2] = np.where(st4, 0.0, _safe(valid, 1.0 / g["TA2"]))
-    D[:, D_R2] = _safe(valid, g["TA3"] / g["TA4"])
-    D[:, D_IT4] = _safe(valid, 1.0 / g["TA4"])
-    D[:, D_ITE] = _safe(valid, 1.0 / g["TE"])
-
-
-def _rate_feedback(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
-    """Rate feedback KF s / (1 + s TF): KF / TF and 1 / TF, 0 without (KF = 0)."""
-    fb = valid & (g["KF"] > 0.0)
-    D[:, D_KFT] = np.where(fb, g["KF"] / np.where(fb, g["TF"], 1.0), 0.0)
-    D[:, D_ITF] = np.where(fb, 1.0 / np.where(fb, g["TF"], 1.0), 0.0)
-
-
-def _effects(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray) -> None:
-    """The ceilings (and whether they clamp the output), transducer lag, dead time, slew limit,
-    setpoint ramp, recorder gain and skew, the setpoint edges' offsets."""
-    D[:, D_VRMAX] = g["VRMAX"]
-    D[:, D_VRMIN] = g["VRMIN"]
-    D[:, D_VRVT] = np.where(valid, g["VRVT"], 0.0)
-    D[:, D_KC] = np.where(valid, g["KC"], 0.0)
-    D[:, D_LIMOUT] = np.where(valid & ~dc, g["LIMOUT"] > 0.5, False).astype(np.float64)
+def _effects(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
+    """The transducer lag, dead time, slew limit, setpoint ramp, recorder gain and skew, the
+    setpoint edges' offsets."""
     D[:, D_ITR] = np.where(valid & (g["TR"] > 0.0), 1.0 / np.where(g["TR"] > 0, g["TR"], 1.0), 0.0)
     D[:, D_TRON] = (D[:, D_ITR] > 0.0).astype(np.float64)
     D[:, D_TD] = np.where(valid, g["TD"], 0.0)
