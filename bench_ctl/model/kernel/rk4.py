@@ -111,17 +111,13 @@ def _fixed_view(rows: int):
 _view_d, _view_s, _view_u, _view_v = (_fixed_view(r) for r in (N_DERIVED, 10, 2, 3))
 
 
-_view_d, _view_s, _view_u, _view_v = (_fixed_view(r) for r in (N_DERIVED, 10, 2, 3))
-
-
 @njit(fastmath=False)
 def fixed_views(D, S, U, V):
     """The chunk's arrays (derived factors, states, setpoint, delayed VR: N_DERIVED, 10, 2 and 3 rows
     of CHUNK columns) as views whose shape is a constant of the code. The RK4 loop reads ~50 rows
     and writes 10: with runtime row strides LLVM checks every written row against every other row
     for overlap before each call of the vectorised loop (~600 compares, 28 % of an ESST4B run in
-    `perf`, once a step for only 32 candidates)
-    with constant ones it checks each array once.
+    `perf`, once a step for only 32 candidates); with constant ones it checks each array once.
     See docs/decisions/0003."""
     if (D.shape[0] != N_DERIVED or S.shape[0] != 10 or U.shape[0] != 2 or V.shape[0] != 3
             or D.shape[1] != CHUNK or S.shape[1] != CHUNK or U.shape[1] != CHUNK or V.shape[1] != CHUNK):
@@ -133,9 +129,7 @@ def fixed_views(D, S, U, V):
 def rk4_all(D, S, U, V, dt, m):
     """One RK4 step for every candidate of a chunk: a branch-free loop LLVM vectorises across c.
 
-    Only four arrays take part (D, V read
-    U = [u at start, u at end] read
-    S = 8 states plus the
+    Only four arrays take part (D, V read; U = [u at start, u at end] read; S = 8 states plus the
     output's derivative at both ends, written), each seen with a constant shape (`fixed_views`), so
     LLVM checks them for overlap once per array before the loop. Kept as its own function: inside
     the big chunk loop numba's reference counting of the array arguments stops the vectoriser."""
@@ -219,8 +213,7 @@ def split_step(D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, v
     """Step k of candidate c from the state S0 at t_k, in RK4 sub-steps between the break points
     bs[:nbrk] (sorted fractions of the step in (0, 1)): where the setpoint jumps inside the step
     (a fitted edge instant, the target jumps by bj there) and where the delayed VR jumps (the
-    delayed sample boundary, a delayed setpoint jump). Writes the state at t_k+1 into S
-    returns
+    delayed sample boundary, a delayed setpoint jump). Writes the state at t_k+1 into S; returns
     (setpoint reference at t_k+1, efd' at t_k, efd' at t_k+1). With `skew_on` the efd kink at
     the (first) setpoint jump is kept for the recorder-skew readout (`kf`, `kef`, `kdl`, `kdr`)."""
     x0, x1, x2, x3, x4, x5, x6, x7 = S0[0, c], S0[1, c], S0[2, c], S0[3, c], S0[4, c], S0[5, c], S0[6, c], S0[7, c]
