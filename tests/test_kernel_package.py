@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import pkgutil
+import re
 from pathlib import Path
 
 import numba as nb
@@ -83,3 +84,14 @@ def test_the_guard_flushes_the_kernel_when_a_sibling_file_changes(tmp_path):
     blocks.write_text(blocks.read_text() + "\n# an edit\n")
     assert K.drop_stale_cache((FakeDispatcher(),), tuple(copies), "kernel") is True
     assert FakeCache.flushes == 2
+
+
+def test_what_the_model_modules_use_of_the_kernel_is_public():
+    """The plant, the open loop and the rest of bench_ctl.model reach the kernel through `K.name`:
+    every such name exists and is public (in `__all__`)."""
+    used = set()
+    for path in (PACKAGE.parent).glob("*.py"):
+        used |= set(re.findall(r"\bK\.(\w+)", path.read_text(encoding="utf-8")))
+    assert used, "no K.name found: the pattern no longer matches how bench_ctl.model imports the kernel"
+    assert sorted(n for n in used if n not in K.__all__) == []
+    assert all(hasattr(K, n) for n in K.__all__)

@@ -56,6 +56,7 @@ from .layout import (
     D_EFD0,
     D_GAIN,
     D_ITD0P,
+    D_ITD0PP,
     D_ITE,
     D_ITR,
     D_KDA,
@@ -80,12 +81,18 @@ from .rhs import rhs
 from .rk4 import rk4_step_ref
 
 __all__ = [
-    "BLOWUP", "CHUNK", "COLUMNS", "D_E0", "D_EDGE0", "D_EFD0", "D_GAIN", "D_ITD0P", "D_ITE", "D_ITR", "D_KDA",
-    "D_KPP", "D_LIMOUT", "D_OUT0", "D_RAMP", "D_RATE", "D_SATA", "D_SATB", "D_SATVT", "D_SKEW", "D_TD", "D_UREF0",
-    "D_VALID", "D_VT0", "D_XF0", "EDGE_EPS", "N_DERIVED", "SOURCES", "avr", "ceilings", "column", "delayed_vr",
-    "derive", "drop_stale_cache", "exciter_saturation_ab", "field_voltage", "hermite", "njit",
-    "optimisation_note", "rate_feedback", "rhs", "rk4_step_ref", "run_kernel", "saturation_ab", "steady_state",
-    "terminal_voltage",
+    # running it
+    "run_kernel", "derive", "column", "optimisation_note", "saturation_ab", "exciter_saturation_ab",
+    # its layout and constants
+    "COLUMNS", "N_DERIVED", "CHUNK", "BLOWUP", "EDGE_EPS",
+    "D_E0", "D_EDGE0", "D_EFD0", "D_GAIN", "D_ITD0P", "D_ITD0PP", "D_ITE", "D_ITR", "D_KDA", "D_KPP", "D_LIMOUT",
+    "D_OUT0", "D_RAMP", "D_RATE", "D_SATA", "D_SATB", "D_SATVT", "D_SKEW", "D_TD", "D_UREF0", "D_VALID", "D_VT0",
+    "D_XF0",
+    # its blocks, for the plant and the open loop
+    "avr", "ceilings", "delayed_vr", "field_voltage", "hermite", "rate_feedback", "rhs", "rk4_step_ref",
+    "steady_state", "terminal_voltage",
+    # its compilation
+    "njit", "SOURCES", "drop_stale_cache",
 ]
 
 # numba keys each function's cache on its own file: the loops inline the blocks of sibling files

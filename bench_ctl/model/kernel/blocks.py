@@ -66,6 +66,7 @@ Params = dict[str, np.ndarray]
 
 
 def safe(valid: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """x where the candidate is valid, else 1 (a harmless factor)."""
     return np.where(valid, x, 1.0)
 
 
@@ -284,7 +285,7 @@ def output_slope(D, i, ef, xf, eqp, eqpp, def_, dxf, other, st4):
     sl = sl if f4 > lo else 0.0
     return sl if st4 == ST4_ALL else other + D[D_ST4, i] * (sl - other)
 
-# ---- DC exciter; the field voltage, the kernel's output ----------------------------------------------------
+# ---- DC exciter; the field voltage, the kernel's output ----------------------------------------
 
 
 def exciter_saturation_ab(e1, se1, e2, se2) -> tuple[np.ndarray, np.ndarray]:
