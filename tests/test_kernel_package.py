@@ -57,7 +57,7 @@ def test_every_compiled_function_of_the_package_is_guarded():
     missing = [name for key, name in found.items() if key not in {id(d) for d in jit.DISPATCHERS}]
     assert missing == []
     for d in jit.DISPATCHERS:
-        assert d.targetoptions["cache"] is True and d.targetoptions["error_model"] == "numpy"
+        assert d._cache.cache_path and d.targetoptions["error_model"] == "numpy"   # cached (not a NullCache)
 
 
 def test_the_guard_flushes_the_kernel_when_a_sibling_file_changes(tmp_path):
