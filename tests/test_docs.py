@@ -13,8 +13,8 @@ And the paths the docs cite in backticks (`bench_ctl/...`, `tests/...`) must exi
 module cannot leave its documentation pointing at nothing.
 
 This file is not scanned: its fixtures are bad pointers on purpose. `PENDING` lists findings
-another branch removes (the kernel is being moved into a package);
-an entry that no longer matches anything fails, so it cannot outlive its reason.
+another branch removes (none today); an entry that no longer matches anything fails, so it cannot
+outlive its reason.
 """
 from __future__ import annotations
 
@@ -45,9 +45,7 @@ CITED_PATH = re.compile(r"`((?:bench_ctl|drivers|simulators|procedures|tests|ben
 
 #: (path, text of the finding): pointers another branch of issue 25 removes (re-run the repoint
 #: script after merging it, then delete the entry)
-PENDING: tuple[tuple[str, str], ...] = (
-    ("bench_ctl/model/kernel.py", "DES" "IGN.md"),
-)
+PENDING: tuple[tuple[str, str], ...] = ()
 
 
 def text_files(root: Path) -> list[Path]:

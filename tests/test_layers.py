@@ -5,8 +5,8 @@
   `LAYERS` (the longest matching name), and imports only its own layer, `SHARED` and the layers
   its entry lists (third-party packages are free). A module in no layer fails: a new package
   states its place here and in docs/architecture.md.
-- The kernel (`bench_ctl.model.kernel`) is imported only from bench_ctl.model and
-  bench_ctl.identification; identification never imports diagnosis.
+- The kernel (`bench_ctl.model.kernel`, any module of the package) is imported only from
+  bench_ctl.model and bench_ctl.identification; identification never imports diagnosis.
 - A procedure never reaches a device's insides: no `.link`, `.profile`, `.heartbeat` and no
   private name of anything it was given (it is typed against `bench_ctl.runner.protocols`).
 - No import cycles between modules.
@@ -201,14 +201,17 @@ def test_the_checker_catches_each_rule(tmp_path):
         "bench_ctl/__init__.py": "",
         "bench_ctl/limits.py": "",
         "bench_ctl/model/__init__.py": "",
-        "bench_ctl/model/kernel.py": "",
+        "bench_ctl/model/kernel/__init__.py": "from .rk4 import step\n",          # fine: inside
+        "bench_ctl/model/kernel/layout.py": "",
+        "bench_ctl/model/kernel/rk4.py": "from .layout import CHUNK\nfrom ..unit import U\n",  # fine
         "bench_ctl/model/edges.py": "from . import kernel as K\n",                 # fine: model
         "bench_ctl/model/unit.py": "from bench_ctl.limits import read_text\n",     # fine: shared
         "bench_ctl/identification/__init__.py": "",
         "bench_ctl/identification/i.py": "from bench_ctl.model import kernel\n"     # fine
                                          "from bench_ctl.diagnosis import d\n",     # refused
         "bench_ctl/diagnosis/__init__.py": "",
-        "bench_ctl/diagnosis/d.py": "from bench_ctl.model.kernel import run\n",  # refused
+        "bench_ctl/diagnosis/d.py": "from bench_ctl.model.kernel import run\n"   # refused
+                                    "from bench_ctl.model.kernel.rk4 import f\n",  # refused: a submodule
         "bench_ctl/commands/__init__.py": "",
         "bench_ctl/commands/c.py": "from bench_ctl.model import kernel\n",        # refused
         "bench_ctl/report/__init__.py": "",
@@ -237,6 +240,7 @@ def test_the_checker_catches_each_rule(tmp_path):
     expected = [
         "bench_ctl.identification.i imports bench_ctl.diagnosis.d (identification never imports diagnosis)",
         "bench_ctl.diagnosis.d imports bench_ctl.model.kernel (the kernel is imported only from",
+        "bench_ctl.diagnosis.d imports bench_ctl.model.kernel.rk4 (the kernel is imported only from",
         "bench_ctl.commands.c imports bench_ctl.model.kernel (the kernel",
         "bench_ctl.report.r imports bench_ctl.runner.bench (bench_ctl.report imports only",
         "bench_ctl.runner.bench imports simulators.bench",

@@ -2,7 +2,7 @@
 
 The check issue 13 asks of every structure: the AVR / exciter of the kernel, with the generator
 cut away, fed the Vt and Ifd another simulator (or a unit) recorded, must give the efd it
-recorded. It runs the kernel's own blocks (`kernel._rhs`, `_limits`, `_field`) so that what is
+recorded. It runs the kernel's own blocks (`kernel.rhs`, `ceilings`, `field_voltage`) so that what is
 checked is what identification simulates; only the generator's states are replaced by the record:
 with KPP = KDA = 0 and no generator saturation the kernel reads Vt = E''q and Ifd = E'q, so the
 recorded Vt and Ifd are fed in as those two states, linearly interpolated to each RK4 stage, and
@@ -18,7 +18,7 @@ skew) are refused.
 """
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numba as nb
 import numpy as np
@@ -53,7 +53,7 @@ def _open_loop(D, t0, dt, T, uref0, etimes, ejumps, vt, ifd, out):
     cuts = np.empty(ne + 2)
     for k in range(T):
         tk = t0 + k * dt
-        out[k] = D[K.D_GAIN, 0] * K._field(D, 0, ef, ifd[k], vt[k], xf, xe)
+        out[k] = D[K.D_GAIN, 0] * K.field_voltage(D, 0, ef, ifd[k], vt[k], xf, xe)
         if k == T - 1:
             break
         # the step [t_k, t_k+1], split at every setpoint edge inside it
@@ -77,16 +77,19 @@ def _open_loop(D, t0, dt, T, uref0, etimes, ejumps, vt, ifd, out):
             for j in range(ne):
                 if etimes[j] <= mid:
                     u += ejumps[j]
-            ga = _interp(t0, dt, ifd, a); va = _interp(t0, dt, vt, a)
-            gm = _interp(t0, dt, ifd, mid); vmid = _interp(t0, dt, vt, mid)
-            gb = _interp(t0, dt, ifd, b); vb = _interp(t0, dt, vt, b)
+            ga = _interp(t0, dt, ifd, a)
+            va = _interp(t0, dt, vt, a)
+            gm = _interp(t0, dt, ifd, mid)
+            vmid = _interp(t0, dt, vt, mid)
+            gb = _interp(t0, dt, ifd, b)
+            vb = _interp(t0, dt, vt, b)
             h2 = 0.5 * h
-            r1 = K._rhs(D, 0, u, 0.0, xm, x1, x2, ef, ga, va, xf, xe)
-            r2 = K._rhs(D, 0, u, 0.0, xm + h2 * r1[0], x1 + h2 * r1[1], x2 + h2 * r1[2], ef + h2 * r1[3],
+            r1 = K.rhs(D, 0, u, 0.0, xm, x1, x2, ef, ga, va, xf, xe)
+            r2 = K.rhs(D, 0, u, 0.0, xm + h2 * r1[0], x1 + h2 * r1[1], x2 + h2 * r1[2], ef + h2 * r1[3],
                         gm, vmid, xf + h2 * r1[6], xe + h2 * r1[7])
-            r3 = K._rhs(D, 0, u, 0.0, xm + h2 * r2[0], x1 + h2 * r2[1], x2 + h2 * r2[2], ef + h2 * r2[3],
+            r3 = K.rhs(D, 0, u, 0.0, xm + h2 * r2[0], x1 + h2 * r2[1], x2 + h2 * r2[2], ef + h2 * r2[3],
                         gm, vmid, xf + h2 * r2[6], xe + h2 * r2[7])
-            r4 = K._rhs(D, 0, u, 0.0, xm + h * r3[0], x1 + h * r3[1], x2 + h * r3[2], ef + h * r3[3],
+            r4 = K.rhs(D, 0, u, 0.0, xm + h * r3[0], x1 + h * r3[1], x2 + h * r3[2], ef + h * r3[3],
                         gb, vb, xf + h * r3[6], xe + h * r3[7])
             h6 = h / 6.0
             xm += h6 * (r1[0] + 2 * r2[0] + 2 * r3[0] + r4[0])
@@ -95,10 +98,14 @@ def _open_loop(D, t0, dt, T, uref0, etimes, ejumps, vt, ifd, out):
             y3 = ef + h6 * (r1[3] + 2 * r2[3] + 2 * r3[3] + r4[3])
             xf += h6 * (r1[6] + 2 * r2[6] + 2 * r3[6] + r4[6])
             xe += h6 * (r1[7] + 2 * r2[7] + 2 * r3[7] + r4[7])
-            hi, lo = K._limits(D, 0, gb, vb)
+            hi, lo = K.ceilings(D, 0, gb, vb)
             z3 = y3 if y3 > lo else lo
             z3 = z3 if z3 < hi else hi
             ef = z3 + D[K.D_LIMOUT, 0] * (y3 - z3)
+
+
+# numba keys the cache on this file alone: flush it when a file of the kernel package changes
+K.drop_stale_cache((_open_loop,), K.SOURCES, "open_loop")
 
 
 def run_open_loop(values: Mapping[str, float], time: np.ndarray, vt: np.ndarray, ifd: np.ndarray,

@@ -29,17 +29,51 @@ import os
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
 from . import kernel as K
-from .plant_step import (FLAG_CEILING, FLAG_FAILED, FLAG_RAMP, FLAG_RATE, N_OUT, O_EFD, O_EFD_REC,
-                         O_EQP, O_FLAGS, O_UREF, O_USETP, O_VT, _advance)
-from .realtime import (C_BURSTS, C_K, C_LATESP, C_MAXBURST, C_NSTAT, C_RESET, C_SPR, C_SPW,
-                       C_STALLS, C_STOP, F_BEHINDMAX, F_FIRSTLAG, F_LAGMAX, F_LASTLAG, F_USETP,
-                       MAX_BURST, N_CTRL, N_F, RING, SP_RING, STAT_RING, _rt_loop)
+from .plant_step import (
+    FLAG_CEILING,
+    FLAG_FAILED,
+    FLAG_RAMP,
+    FLAG_RATE,
+    N_OUT,
+    O_EFD,
+    O_EFD_REC,
+    O_EQP,
+    O_FLAGS,
+    O_UREF,
+    O_USETP,
+    O_VT,
+    _advance,
+)
+from .realtime import (
+    C_BURSTS,
+    C_K,
+    C_LATESP,
+    C_MAXBURST,
+    C_NSTAT,
+    C_RESET,
+    C_SPR,
+    C_SPW,
+    C_STALLS,
+    C_STOP,
+    F_BEHINDMAX,
+    F_FIRSTLAG,
+    F_LAGMAX,
+    F_LASTLAG,
+    F_USETP,
+    MAX_BURST,
+    N_CTRL,
+    N_F,
+    RING,
+    SP_RING,
+    STAT_RING,
+    _rt_loop,
+)
 from .simulate import param_matrix
 from .unit import Unit, load_unit
 

@@ -1,24 +1,19 @@
 """One parameter set of the reference unit stepped with carried state: the plant's numerics.
 
-`_advance` reuses the kernel's stage functions (`bench_ctl.model.kernel`: `_rhs`, `_rk4`, `_avr`,
-`_delayed`, `_hermite`) for candidate 0 of a transposed derived-parameter block, writing one
-row of `N_OUT` columns per step, so stepping it with a setpoint series reproduces
-`bench_ctl.model.simulate.simulate()`. `drop_stale_cache` keeps numba's disk cache of a module
-honest when the code it inlines lives in another file.
+`_advance` reuses the kernel's blocks (`bench_ctl.model.kernel`: `rk4_step_ref`, `avr`,
+`delayed_vr`, `hermite`, `ceilings`) for candidate 0 of a transposed derived-parameter block,
+writing one row of `N_OUT` columns per step, so stepping it with a setpoint series reproduces
+`bench_ctl.model.simulate.simulate()`. numba's disk cache of this module is flushed when a file
+of the kernel package changes (`kernel.drop_stale_cache`).
 """
 from __future__ import annotations
 
-import hashlib
-import logging
 import math
-from pathlib import Path
 
 import numba as nb
 import numpy as np
 
 from . import kernel as K
-
-log = logging.getLogger(__name__)
 
 #: columns of the per-sample output block
 (O_USETP, O_EFD_REC, O_VT, O_EFD, O_EQP, O_UREF, O_FLAGS) = range(7)
@@ -33,8 +28,8 @@ _FM = {"contract", "arcp", "reassoc", "afn"}
 def _rk4_step(D, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
     """The kernel's RK4 step (with the efd clamp) for candidate 0. Kept out of line: the
     kernel's stage functions are inlined, and three inlined copies would triple compile time.
-    The plant is the reference structure (`_rk4_ref`: no block of the standard structures)."""
-    return K._rk4_ref(D, 0, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h)
+    The plant is the reference structure (`rk4_step_ref`: no block of the standard structures)."""
+    return K.rk4_step_ref(D, 0, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h)
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
@@ -61,7 +56,7 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
             else:
                 j = int(math.floor(tau))
                 if j < k:
-                    y = K._hermite(ef_h[0, j % Ls], der_r[0, j % Ls], ef_h[0, (j + 1) % Ls],
+                    y = K.hermite(ef_h[0, j % Ls], der_r[0, j % Ls], ef_h[0, (j + 1) % Ls],
                                    der_l[0, (j + 1) % Ls], tau - j, dt)
         if X[8] == 0.0:
             X[7] = D[K.D_GAIN, 0] * y
@@ -85,24 +80,33 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
         v2 = 0.0
         if td > 0.0:
             vm0 = X[0] if D[K.D_ITR, 0] > 0.0 else X[5]
-            vr_r[0, k % L] = K._avr(D, 0, ua, vm0, X[1], X[2], 0.0)[0]
+            vr_r[0, k % L] = K.avr(D, 0, ua, vm0, X[1], X[2], 0.0)[0]
             base = k - td / dt
-            v0 = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base, k, e0, False)
-            v1 = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base + 0.5, k, e0, False)
-            v2 = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base + 1.0, k, e0, True)
+            v0 = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, base, k, e0, False)
+            v1 = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, base + 0.5, k, e0, False)
+            v2 = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, base + 1.0, k, e0, True)
         x0, x1, x2, x3, x4, x5 = X[0], X[1], X[2], X[3], X[4], X[5]
         r = _rk4_step(D, ua, ub, v0, v1, v2, x0, x1, x2, x3, x4, x5, dt)
         if skew > 0.0:
             ef_h[0, k % Ls] = x3
             der_r[0, k % Ls] = r[6]
             der_l[0, (k + 1) % Ls] = r[7]
-        X[0] = r[0]; X[1] = r[1]; X[2] = r[2]; X[3] = r[3]; X[4] = r[4]; X[5] = r[5]
+        X[0] = r[0]
+        X[1] = r[1]
+        X[2] = r[2]
+        X[3] = r[3]
+        X[4] = r[4]
+        X[5] = r[5]
         X[6] = ub
         mag = abs(X[0]) + abs(X[1]) + abs(X[2]) + abs(X[3]) + abs(X[4]) + abs(X[5])
         if not (mag < K.BLOWUP):
             X[8] = 1.0
-            X[0] = D[K.D_VT0, 0]; X[4] = D[K.D_VT0, 0]; X[5] = D[K.D_VT0, 0]
-            X[3] = e0; X[1] = D[K.D_E0, 0]; X[2] = D[K.D_E0, 0]
+            X[0] = D[K.D_VT0, 0]
+            X[4] = D[K.D_VT0, 0]
+            X[5] = D[K.D_VT0, 0]
+            X[3] = e0
+            X[1] = D[K.D_E0, 0]
+            X[2] = D[K.D_E0, 0]
         # ---- a dead time that is not a whole number of steps: split the step (as the kernel) ----
         if td > 0.0 and X[8] == 0.0:
             base = k - td / dt
@@ -111,28 +115,33 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
             if frac >= 1e-9 and j0 + 1 < k:
                 th = 1.0 - frac
                 uth = ua + th * (ub - ua)
-                va = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base, k, e0, False)
-                vam = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base + 0.5 * th, k, e0, False)
-                vae = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, j0 + 1.0, k, e0, True)
-                vb = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, j0 + 1.0, k, e0, False)
-                vbm = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, j0 + 1.0 + 0.5 * frac, k, e0, False)
-                vbe = K._delayed(vr_r, vr_l, jz, jz, jz, 0, L, base + 1.0, k, e0, True)
+                va = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, base, k, e0, False)
+                vam = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, base + 0.5 * th, k, e0, False)
+                vae = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, j0 + 1.0, k, e0, True)
+                vb = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, j0 + 1.0, k, e0, False)
+                vbm = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, j0 + 1.0 + 0.5 * frac, k, e0, False)
+                vbe = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, base + 1.0, k, e0, True)
                 ra = _rk4_step(D, ua, uth, va, vam, vae, x0, x1, x2, x3, x4, x5, th * dt)
                 rb = _rk4_step(D, uth, ub, vb, vbm, vbe, ra[0], ra[1], ra[2], ra[3], ra[4], ra[5],
                                frac * dt)
-                X[0] = rb[0]; X[1] = rb[1]; X[2] = rb[2]; X[3] = rb[3]; X[4] = rb[4]; X[5] = rb[5]
+                X[0] = rb[0]
+                X[1] = rb[1]
+                X[2] = rb[2]
+                X[3] = rb[3]
+                X[4] = rb[4]
+                X[5] = rb[5]
                 if skew > 0.0:
                     der_r[0, k % Ls] = ra[6]
                     der_l[0, (k + 1) % Ls] = rb[7]
         if skew > 0.0:
             ef_h[0, (k + 1) % Ls] = X[3]
         vm = X[0] if D[K.D_ITR, 0] > 0.0 else X[5]
-        vr = K._avr(D, 0, ub, vm, X[1], X[2], 0.0)[0]
+        vr = K.avr(D, 0, ub, vm, X[1], X[2], 0.0)[0]
         if td > 0.0:
             vr_l[0, (k + 1) % L] = vr
         # ---- limiter flags after the step ----
         flags = 0.0
-        hi, lo = K._limits(D, 0, X[4], X[5])
+        hi, lo = K.ceilings(D, 0, X[4], X[5])
         if X[3] >= hi or X[3] <= lo:
             flags += 1.0
         if abs((vr - X[3]) * D[K.D_ITE, 0]) > D[K.D_RATE, 0]:
@@ -144,36 +153,5 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
         out[s, 6] = flags
 
 
-def drop_stale_cache(dispatchers: tuple, sources: tuple[str, ...], name: str) -> bool:
-    """Flush the disk cache of `dispatchers` when any file in `sources` (the code they inline
-    from other modules) changed since the cache was written.
-
-    numba keys a function's disk cache on the stamp of its own file only, so after an edit of
-    kernel.py the plant would keep running the old numerics from its cache. A hash of `sources`
-    is kept beside the cache (`NAME.deps-sha256`); when it differs the cached code is flushed and
-    recompiled. Returns True when it flushed."""
-    caches = [c for c in (getattr(d, "_cache", None) for d in dispatchers) if c is not None]
-    paths = {c.cache_path for c in caches if c.cache_path}
-    if not paths:
-        return False
-    h = hashlib.sha256()
-    for source in sources:
-        h.update(Path(source).read_bytes())
-    digest = h.hexdigest()
-    stamp = Path(sorted(paths)[0]) / f"{name}.deps-sha256"
-    try:
-        if stamp.read_text(encoding="ascii").strip() == digest:
-            return False
-    except OSError:
-        pass
-    for c in caches:
-        c.flush()
-    try:
-        stamp.parent.mkdir(parents=True, exist_ok=True)
-        stamp.write_text(digest + "\n", encoding="ascii")
-    except OSError as exc:  # a read-only cache folder: the code still runs, compiled afresh
-        log.debug("cannot write %s: %s", stamp, exc)
-    return True
-
-
-drop_stale_cache((_rk4_step, _advance), (K.__file__,), "plant_step")
+# numba keys the cache on this file alone: flush it when a file of the kernel package changes
+K.drop_stale_cache((_rk4_step, _advance), K.SOURCES, "plant_step")

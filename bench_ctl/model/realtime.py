@@ -20,7 +20,7 @@ from numba.extending import intrinsic
 
 from . import kernel as K
 from . import plant_step
-from .plant_step import _FM, _advance, drop_stale_cache
+from .plant_step import _FM, _advance
 
 # ---------------------------------------------------------------------------- real-time loop
 # libc clock calls declared by symbol name (not ctypes pointers) so the loop can be cached.
@@ -175,4 +175,5 @@ def timer_jitter(seconds: float, *, dt: float = 1e-3, rt_priority: int | None = 
             "late_over_1ms": int(np.count_nonzero(ms > 1.0)), "late_over_5ms": int(np.count_nonzero(ms > 5.0))}
 
 
-drop_stale_cache((_now_ns, _rt_loop, _sleep_probe), (K.__file__, plant_step.__file__), "realtime")
+# numba keys the cache on this file alone; the loop inlines the plant step, which inlines the kernel
+K.drop_stale_cache((_now_ns, _rt_loop, _sleep_probe), (*K.SOURCES, plant_step.__file__), "realtime")

@@ -97,7 +97,7 @@ def test_numba_runs_the_optimisation_the_kernel_needs():
 
 
 def test_chunks_of_any_size_give_the_same_simulation():
-    """Every chunk is padded to CHUNK columns for the RK4 loops (`kernel._fixed`): chunks of another
+    """Every chunk is padded to CHUNK columns for the RK4 loops (`kernel.rk4.fixed_views`): chunks of another
     size give the same simulation, and one larger than the kernel holds is refused."""
     rng = np.random.default_rng(5)
     X = np.array([200, 1, 0.2, 0.5, 10, 0.02]) * (1 + 0.3 * (rng.random((CHUNK + 9, 6)) - 0.5))

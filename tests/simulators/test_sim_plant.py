@@ -124,9 +124,9 @@ def test_loop_catches_up_a_stall_in_one_burst():
 
 
 def test_plant_cache_is_flushed_when_the_kernel_source_changes(tmp_path):
-    """numba keys a module's cache on its own file alone; a kernel.py edit must still reach the
-    plant code that inlines it."""
-    from bench_ctl.model.plant_step import drop_stale_cache
+    """numba keys a module's cache on its own file alone; an edit of the kernel must still reach
+    the plant code that inlines it."""
+    from bench_ctl.model.kernel import drop_stale_cache
 
     class FakeCache:
         cache_path = str(tmp_path / "cache")

@@ -1,0 +1,128 @@
+"""Per-candidate factors of the kernel (the derived matrix, columns `layout.D_*`), in numpy, once a
+call: which candidates are valid, each block's factors (`blocks.derive_*`, beside the block's
+compiled algebra), the effects outside the blocks, then the steady state the run starts from.
+
+An invalid candidate (a parameter outside what the kernel can run) gets harmless factors and
+D_VALID = 0: the kernel marks it failed at step 0.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..params import KERNEL_PARAMS, RECORD_PARAMS
+from .blocks import (
+    Params,
+    bridge_voltage_np,
+    derive_ceilings,
+    derive_dc_exciter,
+    derive_generator,
+    derive_potential_source,
+    derive_rate_feedback,
+    derive_regulator,
+)
+from .layout import (
+    D_DCON,
+    D_E0,
+    D_EDGE0,
+    D_EFD0,
+    D_GAIN,
+    D_ITR,
+    D_KAVR,
+    D_KC,
+    D_KE,
+    D_OUT0,
+    D_RAMP,
+    D_RATE,
+    D_SEA,
+    D_SEB,
+    D_SKEW,
+    D_TD,
+    D_TDON,
+    D_TRON,
+    D_UREF0,
+    D_VALID,
+    D_VRVT,
+    D_XF0,
+    N_DERIVED,
+)
+
+
+def derive(P: np.ndarray) -> np.ndarray:
+    """Per-candidate factors for the kernel from the parameter matrix (n, len(KERNEL_PARAMS))."""
+    P = np.atleast_2d(np.asarray(P, dtype=np.float64))
+    if P.shape[1] != len(KERNEL_PARAMS):
+        raise ValueError(f"parameter matrix has {P.shape[1]} columns, expected {len(KERNEL_PARAMS)}")
+    g = {name: P[:, i] for i, name in enumerate(KERNEL_PARAMS)}
+    D = np.zeros((P.shape[0], N_DERIVED))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        valid = _valid(g)
+        D[:, D_VALID] = valid.astype(np.float64)
+        vt0, fld0 = derive_generator(D, g, valid)
+        dc = derive_dc_exciter(D, g, valid)
+        st4 = derive_potential_source(D, g, valid, dc)
+        derive_regulator(D, g, valid, st4)
+        derive_rate_feedback(D, g, valid)
+        derive_ceilings(D, g, valid, dc)
+        _effects(D, g, valid)
+        _steady_state(D, g, valid, dc, st4, vt0, fld0)
+    return D
+
+
+def _valid(g: Params) -> np.ndarray:
+    """The candidates the kernel can run: time constants, gains and limits in their domain."""
+    valid = np.ones(len(g["KAVR"]), bool)
+    for name in ("KAVR", "TA2", "TA4", "TE", "Td0p", "Td0pp"):
+        valid &= np.isfinite(g[name]) & (g[name] > 0.0)
+    for name in ("TA1", "TA3", "TR", "TD", "SKEW", "Vt0", "S10", "S12"):
+        valid &= np.isfinite(g[name]) & (g[name] >= 0.0)
+    valid &= (g["RATE"] > 0.0) & (g["RAMP"] > 0.0) & np.isfinite(g["GAIN"])
+    valid &= g["VRMAX"] > g["VRMIN"]
+    valid &= (g["VRVT"] >= 0.0) & (g["VRVT"] <= 1.0) & (g["KC"] >= 0.0) & np.isfinite(g["KC"])
+    valid &= np.isfinite(g["KF"]) & (g["KF"] >= 0.0) & ((g["KF"] == 0.0) | (g["TF"] > 0.0))
+    valid &= np.isfinite(g["TEX"]) & (g["TEX"] >= 0.0) & np.isfinite(g["KE"])
+    valid &= (g["KPP"] >= 0.0) & (g["KPP"] <= 1.0) & (g["KDA"] >= 0.0) & np.isfinite(g["KDA"])
+    valid &= np.isfinite(g["KPV"]) & (g["KPV"] >= 0.0) & (g["VBMAX"] > 0.0)
+    for name in ("KPI", "KII", "KPM", "KIM", "KG"):
+        valid &= np.isfinite(g[name]) & (g[name] >= 0.0)
+    valid &= (g["VPMAX"] > g["VPMIN"]) & (g["VMMAX"] > g["VMMIN"])
+    for name in RECORD_PARAMS:
+        valid &= np.isfinite(g[name])
+    return valid
+
+
+def _effects(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
+    """The transducer lag, dead time, slew limit, setpoint ramp, recorder gain and skew, the
+    setpoint edges' offsets."""
+    D[:, D_ITR] = np.where(valid & (g["TR"] > 0.0), 1.0 / np.where(g["TR"] > 0, g["TR"], 1.0), 0.0)
+    D[:, D_TRON] = (D[:, D_ITR] > 0.0).astype(np.float64)
+    D[:, D_TD] = np.where(valid, g["TD"], 0.0)
+    D[:, D_TDON] = (D[:, D_TD] > 0.0).astype(np.float64)
+    D[:, D_RATE] = g["RATE"]
+    D[:, D_RAMP] = g["RAMP"]
+    D[:, D_GAIN] = np.where(valid, g["GAIN"], 1.0)
+    D[:, D_SKEW] = np.where(valid, g["SKEW"], 0.0)
+    for slot, name in enumerate(RECORD_PARAMS):
+        D[:, D_EDGE0 + slot] = np.where(valid, g[name], 0.0)
+
+
+def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, st4: np.ndarray,
+                  vt0: np.ndarray, fld0: np.ndarray) -> None:
+    """The steady state at Vt0 the run starts from (`blocks.steady_state`): the regulator lag's
+    output, the lead-lags' states, the reference, the output, the rate feedback's state. A DC
+    exciter needs VR = (KE + SE(Efd)) Efd from the regulator, a static one Efd itself; the
+    potential-source stage Efd = VB VM, its regulator's error 0 and its PI and lag at KG Efd, the
+    inner integrator at Efd / VB (as ANDES initialises it)."""
+    efd0 = np.where(dc, D[:, D_KE] * fld0 + D[:, D_SEB] * np.maximum(fld0 - D[:, D_SEA], 0.0) ** 2, fld0)
+    vb0 = bridge_voltage_np(np.where(st4, g["KPV"], 1.0) * vt0, np.where(valid, g["KC"], 0.0) * fld0, g["VBMAX"])
+    efd0 = np.where(st4, np.where(st4, g["KG"], 0.0) * fld0, efd0)
+    # Ifd = E'q + Sat(E'q) = efd0, the limits at Vt0
+    scale0 = 1.0 + D[:, D_VRVT] * (vt0 - 1.0)
+    hi0 = g["VRMAX"] * scale0 - D[:, D_KC] * efd0
+    lo0 = g["VRMIN"] * scale0
+    D[:, D_EFD0] = np.clip(efd0, lo0, np.maximum(hi0, lo0))
+    D[:, D_E0] = D[:, D_EFD0] / D[:, D_KAVR]
+    D[:, D_UREF0] = vt0 + np.where(st4, 0.0, D[:, D_E0])
+    # the output: the DC exciter's Efd, VB VM of the potential source, else the regulator output
+    D[:, D_OUT0] = np.where(st4, fld0, np.where(dc, fld0, D[:, D_EFD0]))
+    D[:, D_XF0] = np.where(st4, fld0 / np.where(st4, vb0, 1.0),
+                           D[:, D_EFD0] + D[:, D_DCON] * (D[:, D_OUT0] - D[:, D_EFD0]))

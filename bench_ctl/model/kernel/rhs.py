@@ -1,0 +1,165 @@
+"""The kernel's right-hand side: the derivatives of the 8 states, the blocks (`blocks`) wired in
+diagram order; `rhs_ref` is the reference structure's alone (6 states), the fast path.
+"""
+from __future__ import annotations
+
+from .blocks import ceilings, ceilings_ref, field_current, lead_lag_or_pi, potential_source, terminal_voltage
+from .jit import njit
+from .layout import (
+    D_DCON,
+    D_IT2,
+    D_IT4,
+    D_ITD0P,
+    D_ITD0PP,
+    D_ITE,
+    D_ITEX,
+    D_ITF,
+    D_ITR,
+    D_KAVR,
+    D_KC,
+    D_KDA,
+    D_KE,
+    D_KFT,
+    D_KG,
+    D_KI1,
+    D_KIM,
+    D_KPP,
+    D_LIMOUT,
+    D_R1,
+    D_R2,
+    D_RATE,
+    D_SATA,
+    D_SATB,
+    D_SATVT,
+    D_SEA,
+    D_SEB,
+    D_ST4,
+    D_TDON,
+    D_TRON,
+    D_VRMAX,
+    D_VRMIN,
+    D_VRVT,
+    PI_TRACK,
+    ST4_ALL,
+    ST4_SOME,
+)
+
+
+@njit()
+def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
+    """Derivatives of (xm, x1, x2, VR lag (efd of a static exciter), E'q, E''q, rate feedback,
+    DC exciter Efd); branch-free so candidate loops vectorise. `st4` (ST4_*, a constant where the
+    caller passes one: the branches then fold away) includes the potential-source stage (ESST4B):
+    a chunk without it does not pay for its square root and divisions (measured: 1.35x of a
+    chunk's time), a chunk of ESST4B alone not for the DC exciter and the non-windup ceiling.
+
+    `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1)."""
+    tron = D[D_TRON, i]
+    vt = terminal_voltage(D, i, eqp, eqpp)
+    vm = tron * xm + (1.0 - tron) * vt
+    src = ef if st4 == ST4_ALL else ef + D[D_DCON, i] * (xe - ef)
+    e = uref - vm - D[D_KFT, i] * (src - xf)
+    y1, ys1 = lead_lag_or_pi(D, i, e, x1)
+    y2 = x2 + D[D_R2, i] * (y1 - x2)
+    vr = D[D_KAVR, i] * y2
+    dxm = (vt - xm) * D[D_ITR, i]
+    # lead-lag 1, or the PI's integrator with tracking anti-windup (ANDES' PITrackAW)
+    dx1 = (e - x1) * D[D_IT2, i] + D[D_KI1, i] * (e - PI_TRACK * (ys1 - y1))
+    dx2 = (y1 - x2) * D[D_IT4, i]
+    tdon = D[D_TDON, i]
+    drive = vr + tdon * (vrd - vr)
+    # plain compare-and-select (numba's min/max carry NaN branches that stop the vectoriser)
+    rate = D[D_RATE, i]
+    de = (drive - ef) * D[D_ITE, i]
+    de = de if de < rate else rate
+    de = de if de > -rate else -rate
+    hi, lo = ceilings(D, i, eqp, eqpp)
+    # saturation of E'q (the reference model) or, with a GENROU-like flux share, of Vt = psi''
+    satvt = D[D_SATVT, i]
+    d = eqp + satvt * (vt - eqp) - D[D_SATA, i]
+    d = d if d > 0.0 else 0.0
+    # the field voltage: VB VM of the potential-source stage, the DC exciter's state, else the
+    # regulator output (clamped when the ceilings clamp the output rather than the lag)
+    limout = D[D_LIMOUT, i]
+    if st4 == ST4_ALL:
+        # the potential-source stage alone (ESST4B): Efd = VB VM, state 6 the inner PI's
+        # integrator (tracking anti-windup as ANDES' PITrackAW); no DC exciter
+        f4, vm4, ys4, _vb4 = potential_source(D, i, ef, xf, vt, field_current(D, i, eqp, eqpp, vt), hi, lo)
+        fld = f4
+        dxf = D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4))
+        dxe = 0.0
+    else:
+        efc = ef if ef > lo else lo
+        efc = efc if efc < hi else hi
+        efc = ef + limout * (efc - ef)
+        dcon = D[D_DCON, i]
+        fld = efc + dcon * (xe - efc)
+        dx = xe - D[D_SEA, i]
+        dx = dx if dx > 0.0 else 0.0
+        dxe = (efc - D[D_KE, i] * xe - D[D_SEB, i] * dx * dx) * D[D_ITEX, i]
+        dxf = (src - xf) * D[D_ITF, i]
+        # the potential-source stage where a candidate has it, selected, not branched, so the
+        # loop vectorises
+        if st4 == ST4_SOME:
+            s4 = D[D_ST4, i]
+            f4, vm4, ys4, _vb4 = potential_source(D, i, ef, xf, vt, field_current(D, i, eqp, eqpp, vt), hi, lo)
+            fld = fld + s4 * (f4 - fld)
+            dxf = dxf + s4 * (D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4)) - dxf)
+    deqp = (fld - eqp - D[D_KDA, i] * (eqp - eqpp) - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
+    deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
+    dvt = deqpp + D[D_KPP, i] * (deqp - deqpp)
+    # non-windup ceiling: at a limit efd may not pass it, and follows it where it moves (with Vt
+    # for a bus-fed exciter, with Ifd through the commutation drop); fixed limits do not move.
+    # Not when the ceilings clamp the output (the lag winds up beyond them, ESST1A/EXST1), nor on
+    # ESST4B's regulator lag (its ceilings act on VM)
+    if st4 != ST4_ALL:
+        dsc = D[D_VRVT, i] * dvt
+        dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (deqp + D[D_KDA, i] * (deqp - deqpp)
+                                                  + 2.0 * D[D_SATB, i] * d * (deqp + satvt * (dvt - deqp)))
+        dlo = D[D_VRMIN, i] * dsc
+        dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
+        dlo = dlo if dlo == dlo else 0.0
+        nw = limout == 0.0
+        de = (de if de < dhi else dhi) if (ef >= hi and nw) else de
+        de = (de if de > dlo else dlo) if (ef <= lo and nw) else de
+    return dxm, dx1, dx2, de, deqp, deqpp, dxf, dxe
+
+
+@njit()
+def rhs_ref(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
+    """`rhs` of the reference blocks only (6 states): the fast path of a chunk none of whose
+    candidates uses a block of the standard structures (`run_chunk`). Derivatives of (xm, x1, x2,
+    efd, E'q, E''q); branch-free so candidate loops vectorise.
+
+    `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1)."""
+    tron = D[D_TRON, i]
+    vm = tron * xm + (1.0 - tron) * eqpp
+    e = uref - vm
+    y1 = x1 + D[D_R1, i] * (e - x1)
+    y2 = x2 + D[D_R2, i] * (y1 - x2)
+    vr = D[D_KAVR, i] * y2
+    dxm = (eqpp - xm) * D[D_ITR, i]
+    dx1 = (e - x1) * D[D_IT2, i]
+    dx2 = (y1 - x2) * D[D_IT4, i]
+    tdon = D[D_TDON, i]
+    drive = vr + tdon * (vrd - vr)
+    # plain compare-and-select (numba's min/max carry NaN branches that stop the vectoriser)
+    rate = D[D_RATE, i]
+    de = (drive - ef) * D[D_ITE, i]
+    de = de if de < rate else rate
+    de = de if de > -rate else -rate
+    d = eqp - D[D_SATA, i]
+    d = d if d > 0.0 else 0.0
+    deqp = (ef - eqp - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
+    deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
+    # non-windup ceiling: at a limit efd may not pass it, and follows it where it moves (with Vt
+    # for a bus-fed exciter, with Ifd through the commutation drop); fixed limits do not move
+    hi, lo = ceilings_ref(D, i, eqp, eqpp)
+    dsc = D[D_VRVT, i] * deqpp
+    dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (1.0 + 2.0 * D[D_SATB, i] * d) * deqp
+    dlo = D[D_VRMIN, i] * dsc
+    dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
+    dlo = dlo if dlo == dlo else 0.0
+    de = (de if de < dhi else dhi) if ef >= hi else de
+    de = (de if de > dlo else dlo) if ef <= lo else de
+    return dxm, dx1, dx2, de, deqp, deqpp

@@ -1,0 +1,97 @@
+"""The kernel package's own bookkeeping: the derived-column layout generated from one tuple, the
+numba options in one decorator, and the stale-cache guard covering every file of the package
+(numba keys a function's disk cache on its own file, while the loops inline sibling files)."""
+from __future__ import annotations
+
+import hashlib
+import importlib
+import pkgutil
+import re
+from pathlib import Path
+
+import numba as nb
+import numpy as np
+
+import bench_ctl.model.kernel as K
+from bench_ctl.model.kernel import jit, layout
+from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
+
+PACKAGE = Path(K.__file__).parent
+
+
+def _modules():
+    return [importlib.import_module(f"{K.__name__}.{m.name}") for m in pkgutil.iter_modules([str(PACKAGE)])]
+
+
+def test_the_columns_follow_the_layout_tuple():
+    """Every D_* constant is its entry's offset in COLUMNS; the entries tile 0..N_DERIVED-1."""
+    at = 0
+    for name, width, meaning in layout.COLUMNS:
+        assert getattr(layout, f"D_{name}") == at, name
+        assert meaning
+        at += width
+    assert at == layout.N_DERIVED == K.N_DERIVED
+    assert sorted(n for n in vars(layout) if n.startswith("D_")) == sorted(f"D_{n}" for n, _, _ in layout.COLUMNS)
+    assert layout.COLUMNS[[n for n, _, _ in layout.COLUMNS].index("EDGE0")][1] == len(RECORD_PARAMS)
+    assert K.derive(np.zeros((1, len(KERNEL_PARAMS)))).shape == (1, layout.N_DERIVED)
+
+
+def test_the_stale_cache_guard_hashes_every_file_of_the_package():
+    """SOURCES lists every module file of the package (a new file cannot be left out), and the
+    stamp the kernel's own guard wrote at import is the hash of exactly those files."""
+    on_disk = sorted(str(p) for p in PACKAGE.glob("*.py"))
+    assert list(K.SOURCES) == on_disk
+    assert {Path(m.__file__).name for m in _modules()} | {"__init__.py"} == {Path(p).name for p in on_disk}
+    digest = hashlib.sha256(b"".join(Path(p).read_bytes() for p in K.SOURCES)).hexdigest()
+    caches = [d._cache for d in jit.DISPATCHERS if d._cache.cache_path]
+    stamp = Path(sorted(c.cache_path for c in caches)[0]) / "kernel.deps-sha256"
+    assert stamp.read_text(encoding="ascii").strip() == digest
+
+
+def test_every_compiled_function_of_the_package_is_guarded():
+    """Every numba function of the package goes through `jit.njit` (one set of options) and is
+    therefore in the list the stale-cache guard flushes."""
+    found = {id(v): f"{m.__name__}.{n}" for m in _modules() for n, v in vars(m).items()
+             if isinstance(v, nb.core.registry.CPUDispatcher) and v.py_func.__module__ == m.__name__}
+    assert found, "no compiled function found"
+    missing = [name for key, name in found.items() if key not in {id(d) for d in jit.DISPATCHERS}]
+    assert missing == []
+    for d in jit.DISPATCHERS:
+        assert d._cache.cache_path and d.targetoptions["error_model"] == "numpy"   # cached (not a NullCache)
+
+
+def test_the_guard_flushes_the_kernel_when_a_sibling_file_changes(tmp_path):
+    """What the guard does with the package's files: a copy of SOURCES, one file edited, flushes."""
+    copies = []
+    for p in K.SOURCES:
+        q = tmp_path / Path(p).name
+        q.write_bytes(Path(p).read_bytes())
+        copies.append(str(q))
+
+    class FakeCache:
+        cache_path = str(tmp_path / "cache")
+        flushes = 0
+
+        def flush(self):
+            FakeCache.flushes += 1
+
+    class FakeDispatcher:
+        _cache = FakeCache()
+
+    assert K.drop_stale_cache((FakeDispatcher(),), tuple(copies), "kernel") is True
+    assert K.drop_stale_cache((FakeDispatcher(),), tuple(copies), "kernel") is False
+    blocks = tmp_path / "blocks.py"
+    blocks.write_text(blocks.read_text() + "\n# an edit\n")
+    assert K.drop_stale_cache((FakeDispatcher(),), tuple(copies), "kernel") is True
+    assert FakeCache.flushes == 2
+
+
+def test_what_the_model_modules_use_of_the_kernel_is_public():
+    """The plant, the open loop and the rest of bench_ctl.model reach the kernel through `K.name`:
+    every such name exists and is public (in `__all__`)."""
+    used = set()
+    for path in (PACKAGE.parent).glob("*.py"):
+        used |= set(re.findall(r"\bK\.(\w+)", path.read_text(encoding="utf-8")))
+    assert used, "no K.name found: the pattern no longer matches how bench_ctl.model imports the kernel"
+    assert sorted(n for n in used if n not in K.__all__) == []
+    assert all(hasattr(K, n) for n in K.__all__)
