@@ -6,7 +6,8 @@ Expensive Numerical Optimization", Nov. 2014) is taken from opfunu's CEC 2015 fu
 (`opfunu.cec_based.cec2015`, F1 rotated Bent Cigar ... F15 composition 3, bias 100 i): box
 [-100, 100]^D, 50 D evaluations, the error f(x) - f* of the best point, errors below 1e-8 counted
 as 0. Every function runs with the same options (the track forbids tuning per function; so does
-this project): `mvmo.DEFAULT_OPTIONS`, or `--mvmo-options`.
+this project): the option set for such searches, `bench_ctl/identification/options.py` `BLACK_BOX`
+(MVMO's defaults with central differences in the local search), updated by `--mvmo-options`.
 
 The published figures are the means of 20 runs of MVMO-PHM in J. L. Rueda and I. Erlich, "Solving
 the CEC2016 Real-Parameter Single Objective Optimization Problems through MVMO-PHM", Technical
@@ -40,6 +41,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from bench_ctl.identification import mvmo  # noqa: E402
+from bench_ctl.identification.options import BLACK_BOX  # noqa: E402
 
 #: mean error of 20 MVMO-PHM runs, Rueda & Erlich 2016, Table IV (D = 10) and Table V (D = 30)
 PUBLISHED_MEAN: dict[int, dict[int, float]] = {
@@ -79,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--evals", type=int, default=None, help="evaluations per run (default: the track's 50 * dim)")
     ap.add_argument("--functions", default=",".join(map(str, TARGET_FUNCTIONS)),
                     help="comma-separated function numbers 1-15, or 'all'")
-    ap.add_argument("--mvmo-options", default="{}", help="JSON dict of MVMO options (the same for every function)")
+    ap.add_argument("--mvmo-options", default="{}",
+                    help="JSON dict of MVMO options over options.BLACK_BOX (the same for every function)")
     ap.add_argument("--json", dest="json_out", default=None)
     args = ap.parse_args(argv)
     try:
@@ -89,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     funcs = list(range(1, 16)) if args.functions == "all" else [int(f) for f in args.functions.split(",") if f]
     evals = args.evals or 50 * args.dim
-    options = json.loads(args.mvmo_options)
+    options = {**BLACK_BOX, **json.loads(args.mvmo_options)}
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     published = PUBLISHED_MEAN[args.dim]
     out: dict[str, float | int | str] = {"dim": args.dim, "seeds": args.seeds, "first_seed": args.first_seed,
