@@ -168,7 +168,8 @@ def test_reference_lag_exchanged_with_te_is_equivalent_and_within_the_bounds(uni
     assert ta2["equivalent"] and ta2["allowed"]
     assert any("exchangeable (lag TA2 <-> bridge lag TE" in r for r in a["reasons"]["TE"])
     ta4 = sets["lag TA4 <-> "]
-    assert ta4["equivalent"] and not ta4["in_bounds"] and ta4["verdict"] == "equally good but ruled out by bounds"
+    assert ta4["equivalent"] and not ta4["in_bounds"] and ta4["constraints_violated"] == ["TA4 >= TA2"]
+    assert ta4["verdict"] == "equally good but ruled out by constraints TA4 >= TA2; bounds"
     # at the identification tests' truth (TA2 = 0.3 s, TE = 0.03 s) the bounds tell them apart
     truth = _unit_with(unit, TRUTH)
     q = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit, fit_edges=False)
