@@ -19,8 +19,9 @@ determined, but the capture fixes their combination better than each one.
 Equivalent sets: the reference AVR's transfer function KAVR (1 + s TA1)(1 + s TA3) /
 ((1 + s TA2)(1 + s TA4)) is unchanged when the lead-lag pairs (TA1, TA2) and (TA3, TA4) trade
 places, and when only the two leads (TA1, TA3) or only the two lags (TA2, TA4) trade places.
-A standard structure adds the near-symmetric pairs it declares (`Structure.swaps`, e.g.
-IEEEX1's TA and TE). Each swapped set is built, checked against the bounds and the constraints,
+Every structure adds the near-symmetric pairs it declares (`Structure.swaps`: the reference's
+lags TA2 and TA4 against TE, IEEEX1's TA and TE); a declared pair that is not fitted is named in the
+notes as not examined. Each swapped set is built, checked against the bounds and the constraints,
 simulated, and reported with its MSE and whether it is equivalent (same fit within the noise); a
 swap the constraints or bounds rule out is reported as such.
 """
@@ -184,18 +185,27 @@ def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
+def _exchanges(problem: Problem) -> list[tuple[str, dict[str, str]]]:
+    """Every exchange to examine, as (note, mapping new_name -> source_name): the reference AVR's
+    lead-lag symmetries (in a standard structure only where all four are fitted) and every pair the
+    structure declares (`Structure.swaps`), fitted or not, so that one left out is said."""
+    names = list(problem.names)
+    st = problem.unit.structure
+    swaps = list(SWAPS) if problem.unit.model == "REFERENCE" else [(n, m) for n, m in SWAPS if set(m) <= set(names)]
+    simulated = [p.kernel for p in st.params if p.kernel is not None]
+    for note, a, b in st.kernel_swaps(simulated):
+        mapping = {a: b, b: a}
+        if all(m != mapping for _, m in swaps):
+            swaps.append((note, mapping))
+    return swaps
+
+
 def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float,
                      reasons: dict[str, list[str]], notes: list[str]) -> list[dict[str, Any]]:
     names = list(problem.names)
     values = problem.values(x)
     cands, meta = [], []
-    swaps = list(SWAPS)
-    if getattr(problem.unit, "model", "REFERENCE") != "REFERENCE":
-        # a standard structure: the reference's lead-lag swaps where all four are fitted, and the
-        # near-symmetric pairs the structure declares (`Structure.swaps`)
-        swaps = [(n, m) for n, m in SWAPS if set(m) <= set(names)]
-        swaps += [(n, {a: b, b: a}) for n, a, b in problem.unit.structure.kernel_swaps(names)]
-    for note, mapping in swaps:
+    for note, mapping in _exchanges(problem):
         if not set(mapping) <= set(names):
             fixed = sorted(set(mapping) - set(names))
             notes.append(f"{note}: not examined, {', '.join(fixed)} not fitted")

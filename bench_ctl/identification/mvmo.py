@@ -87,7 +87,8 @@ DEFAULT_OPTIONS: Mapping[str, Any] = MappingProxyType(
         "local_search_after": 0.2,  # share of the budget before local searches may start
         "local_search_prob": 0.3,  # chance per generation of starting a local search
         "local_search_evals": None,  # evaluation budget of one local search
-        "fd_step": 1e-7,  # forward-difference step of the local search, normalised units
+        "fd_step": 1e-7,  # finite-difference step of the local search, normalised units
+        "fd_scheme": "forward",  # the local search's gradient: "forward" (d points) or "central" (2 d)
         "penalty": 1e3,  # weight of the violation sum when ranking infeasible candidates
         "constraint_tol": 1e-9,  # violation sum still counted as feasible
     }
@@ -259,7 +260,9 @@ def _resolve_options(options: Mapping[str, Any] | None, d: int) -> dict[str, Any
         if isinstance(opts[k], bool) or not isinstance(opts[k], (int, np.integer)) or opts[k] < 1:
             raise ValueError(f"option {k}={opts[k]!r}: need an integer >= 1")
         opts[k] = int(opts[k])
-    for k in set(opts) - set(ints):
+    if opts["fd_scheme"] not in ("forward", "central"):
+        raise ValueError(f"option fd_scheme={opts['fd_scheme']!r}: choose 'forward' or 'central'")
+    for k in set(opts) - set(ints) - {"fd_scheme"}:
         if isinstance(opts[k], bool) or not isinstance(opts[k], (int, float, np.number)) \
                 or not np.isfinite(opts[k]):
             raise ValueError(f"option {k}={opts[k]!r}: need a finite number")
@@ -284,12 +287,14 @@ def _resolve_options(options: Mapping[str, Any] | None, d: int) -> dict[str, Any
 
 # --------------------------------------------------------------------------- local search
 
-def _local_search(run: _Run, z0: np.ndarray, budget: int, fd_step: float
+def _local_search(run: _Run, z0: np.ndarray, budget: int, fd_step: float, central: bool = False
                   ) -> tuple[tuple[np.ndarray, float, bool, float] | None, bool]:
     """SLSQP from ``z0`` (normalised) with bounds, linear and callable constraints.
 
     The gradient is a forward difference evaluated as one batch of ``d`` points (the value at
-    ``z`` is cached from the line search). The objective is divided by ``|f(z0)|`` so that the
+    ``z`` is cached from the line search), or with ``central`` a central one of ``2 d`` points
+    (one-sided where a bound is within the step): exact for a quadratic, which is what lets the
+    search follow an ill-conditioned valley to its floor. The objective is divided by ``|f(z0)|`` so that the
     tolerances are relative. Returns the best point evaluated (z, f, infeasible, merit) or
     None, and whether the search ended by itself (False when the budget cut it short, so that
     it is worth continuing later).
@@ -328,6 +333,11 @@ def _local_search(run: _Run, z0: np.ndarray, budget: int, fd_step: float
     def gradient(z: np.ndarray) -> np.ndarray:
         z = np.clip(z, 0.0, 1.0)
         f = value(z)
+        if central:
+            up, down = np.minimum(z + fd_step, 1.0), np.maximum(z - fd_step, 0.0)
+            fz = evaluate(np.vstack([np.where(np.eye(d, dtype=bool), up, z),
+                                     np.where(np.eye(d, dtype=bool), down, z)])) / scale[0]
+            return (fz[:d] - fz[d:]) / (up - down)
         steps = np.where(z + fd_step <= 1.0, fd_step, -fd_step)
         fz = evaluate(z + np.diag(steps)) / scale[0]
         return (fz - f) / steps
@@ -516,7 +526,7 @@ def minimize(fun: Callable[[np.ndarray], Any], bounds: Sequence[Sequence[float]]
                 p = cands[0]
                 found, finished = _local_search(run, swarm.x[p, 0].copy(),
                                                  min(opts["local_search_evals"], run.remaining),
-                                                 opts["fd_step"])
+                                                 opts["fd_step"], opts["fd_scheme"] == "central")
                 if found is not None:
                     swarm.insert(np.array([p]), found[0][None, :], np.array([found[2]]),
                                  np.array([found[3]]))

@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
-__all__ = ["IDENTIFY", "WHOLE_BOX", "PROFILE", "EDGE_POLISH_SHARE", "EDGE_POLISH_MAX"]
+__all__ = ["IDENTIFY", "WHOLE_BOX", "PROFILE", "BLACK_BOX", "EDGE_POLISH_SHARE", "EDGE_POLISH_MAX"]
 
 #: identification of a whole record (`bench-ctl identify`, the diagnosis' base model): 32
 #: particles, since a generation is one kernel call whose cost per candidate falls with the batch;
@@ -24,6 +24,13 @@ WHOLE_BOX: Mapping[str, Any] = MappingProxyType({"particles": 32, "local_search_
 #: visibility fits: MVMO's defaults, whose many short local searches from good particles find the
 #: AVR model's narrow basins more reliably than one polish of the final best
 PROFILE: Mapping[str, Any] = MappingProxyType({"particles": 8, "local_search_evals": None})
+
+#: a box-constrained search of a few hundred evaluations with nothing known of the landscape (the
+#: CEC 2015 expensive suite, benchmarks/mvmo_cec.py): MVMO's defaults with the local search's
+#: gradient by central differences, which follow an ill-conditioned valley to its floor where
+#: forward ones stall (rotated Discus: below 1e-7 against 3-6), with a step 10x the forward one's
+#: (their error is second order in the step, so a longer step loses less to rounding)
+BLACK_BOX: Mapping[str, Any] = MappingProxyType({"fd_scheme": "central", "fd_step": 1e-6})
 
 #: share of an identification's budget (at most EDGE_POLISH_MAX evaluations) given to the joint
 #: polish that follows an MVMO search with the setpoint edge instants held mid-interval

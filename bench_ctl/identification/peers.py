@@ -162,23 +162,26 @@ def _swap_restarts(problem: Problem, space: SearchSpace, swaps: list[tuple[str, 
     """For each near-symmetric pair, the polish from res.x with the pair exchanged (clipped into
     the bounds), sharing the evaluations left of `max_evals`; the better end is kept. MVMO's swarm
     collapses into one basin, and for such a pair the exchanged basin can hold a local optimum
-    (docs/benchmarks.md, "Identification: edge instants held, swap restarts")."""
+    (docs/benchmarks.md, "Identification: edge instants held, swap restarts"). A pair whose two
+    exchanged values both lie outside their bounds is skipped (clipped, nothing of the exchange is
+    left) and leaves its share to the others."""
     tried = []
     x, f, nfev, history = res.x, res.fun, res.nfev, tuple(res.history)
     best = res
     for k, (note, i, j) in enumerate(swaps):
-        budget = (max_evals - nfev) // (len(swaps) - k)
-        if budget < 3 * (problem.d + 1):
-            tried.append({"swap": note, "skipped": f"{max_evals - nfev} evaluations left of {max_evals}"})
-            continue
-        xs = x.copy()
-        xs[i], xs[j] = x[j], x[i]
-        xs = np.clip(xs, problem.lower, problem.upper)
+        xs, outside = _exchanged(problem, x, i, j)
         entry: dict[str, Any] = {"swap": note, "start": problem.params(xs), "objective_before": float(f)}
         violated = problem.violated(xs)
-        if violated:
+        if len(outside) == 2:
+            entry["skipped"] = f"the exchanged values of {' and '.join(outside)} lie outside their bounds"
+        elif violated:
             entry["skipped"] = f"the exchanged point violates {', '.join(violated)}"
         else:
+            runs = 1 + sum(len(_exchanged(problem, x, a, b)[1]) < 2 for _, a, b in swaps[k + 1:])
+            budget = (max_evals - nfev) // runs
+            if budget < 3 * (problem.d + 1):
+                tried.append({"swap": note, "skipped": f"{max_evals - nfev} evaluations left of {max_evals}"})
+                continue
             pol = polish(problem, xs, budget=budget, space=space, progress=progress, nfev0=nfev, shown=f)
             nfev += pol.nfev
             history += tuple(pol.history)
@@ -189,6 +192,15 @@ def _swap_restarts(problem: Problem, space: SearchSpace, swaps: list[tuple[str, 
         tried.append(entry)
     settings = {**res.settings, "swap_restarts": tried} if tried else res.settings
     return replace(best, x=x, fun=f, nfev=nfev, history=history, settings=settings, message=res.message)
+
+
+def _exchanged(problem: Problem, x: np.ndarray, i: int, j: int) -> tuple[np.ndarray, list[str]]:
+    """x with parameters i and j exchanged and clipped into the bounds, and the names of those whose
+    exchanged value lay outside them."""
+    xs = x.copy()
+    xs[i], xs[j] = x[j], x[i]
+    outside = [problem.names[n] for n in (i, j) if not problem.lower[n] <= xs[n] <= problem.upper[n]]
+    return np.clip(xs, problem.lower, problem.upper), outside
 
 
 def _mvmo_search(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray | None,

@@ -14,7 +14,7 @@ from bench_ctl.identification.identifiability import analyse
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.synthetic import synthetic_capture
-from bench_ctl.model.unit import apply_overrides
+from bench_ctl.model.unit import apply_overrides, reference_unit
 from truth import TRUTH
 
 
@@ -65,7 +65,11 @@ def test_record_too_short_to_see_the_slow_lag(unit):
     a = analyse(p, p.x_start())
     assert a["determined"]["TA4"] is False and a["determined"]["KAVR"] is False
     assert a["rel_std"]["TA4"] is None or a["rel_std"]["TA4"] > 0.25
-    assert a["determined"]["TE"]
+    # TE is well fixed by the record; only its exchange with TA2 (0.2 s <-> 0.02 s, both inside
+    # the bounds) leaves it undetermined
+    assert a["rel_std"]["TE"] < 0.25
+    te = a["reasons"]["TE"]
+    assert te and all(r.startswith("exchangeable (lag TA2 <-> bridge lag TE") for r in te)
     assert "TA4" in a["notes"][-1]
     # the same unit over a 10 s record does determine the lag better
     long = make_problem([synthetic_capture(truth, duration=10.0, rate=500.0, seed=2)], unit, fit_edges=False)
@@ -125,3 +129,51 @@ def test_a_capture_of_weight_zero_changes_nothing(unit):
     for key in ("sensitivity", "rel_std"):
         for n in p.names:
             assert both[key][n] == pytest.approx(alone[key][n], rel=1e-9), (key, n)
+
+
+def test_every_declared_exchange_of_every_structure_is_examined():
+    """Each structure's declared exchanges (`Structure.swaps`) are built and reported among the
+    equivalent sets when both parameters are fitted, and named in the notes when one is not."""
+    from bench_ctl.model.structures import STRUCTURES
+    from bench_ctl.model.unit import with_model
+
+    examined = 0
+    for name, st in STRUCTURES.items():
+        u = with_model(reference_unit(), name)
+        p = make_problem([synthetic_capture(u, duration=3.0, rate=500.0, seed=11)], u, fit_edges=False)
+        a = analyse(p, p.x_start())
+        reported = {e["note"] for e in a["equivalent_sets"]}
+        for note, _pair in st.swaps:
+            assert note in reported or any(n.startswith(f"{note}: gives the same point") for n in a["notes"]), \
+                (name, note)
+            examined += 1
+    assert examined >= 3  # the reference's two lag exchanges and IEEEX1's
+
+    u = reference_unit()
+    p = make_problem([synthetic_capture(u, duration=3.0, rate=500.0, seed=11)], u, fit_edges=False,
+                     names=["KAVR", "TA1", "TA2", "TA3", "TA4"])
+    notes = analyse(p, p.x_start())["notes"]
+    for note, _pair in u.structure.swaps:
+        assert f"{note}: not examined, TE not fitted" in notes
+
+
+def test_reference_lag_exchanged_with_te_is_equivalent_and_within_the_bounds(unit):
+    # the unit's values: TA2 = 0.2 s and TE = 0.02 s can trade places inside their bounds and
+    # constraints; TA4 = 10 s cannot become TE (<= 0.2 s)
+    p = make_problem([synthetic_capture(unit, duration=3.0, rate=500.0, seed=3)], unit, fit_edges=False)
+    a = analyse(p, p.x_start())
+    sets = {e["note"][:12]: e for e in a["equivalent_sets"]}
+    ta2 = sets["lag TA2 <-> "]
+    assert ta2["params"]["TA2"] == 0.02 and ta2["params"]["TE"] == 0.2
+    assert ta2["equivalent"] and ta2["allowed"]
+    assert any("exchangeable (lag TA2 <-> bridge lag TE" in r for r in a["reasons"]["TE"])
+    ta4 = sets["lag TA4 <-> "]
+    assert ta4["equivalent"] and not ta4["in_bounds"] and ta4["constraints_violated"] == ["TA4 >= TA2"]
+    assert ta4["verdict"] == "equally good but ruled out by constraints TA4 >= TA2; bounds"
+    # at the identification tests' truth (TA2 = 0.3 s, TE = 0.03 s) the bounds tell them apart
+    truth = _unit_with(unit, TRUTH)
+    q = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit, fit_edges=False)
+    b = analyse(q, _x(q, TRUTH))
+    e = {s["note"][:12]: s for s in b["equivalent_sets"]}["lag TA2 <-> "]
+    assert e["equivalent"] and e["outside_bounds"] == ["TE = 0.3 outside [0.002, 0.2]"]
+    assert b["determined"]["TA2"] and b["determined"]["TE"]

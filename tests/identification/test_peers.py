@@ -125,3 +125,23 @@ def test_no_simulation_beyond_the_budget(problem, name, monkeypatch):
     r = run_optimizer(name, problem, max_evals=120, seed=0)
     assert r.nfev <= 120 and rows[0] == r.nfev, (r.nfev, rows[0])
     assert r.fun == pytest.approx(float(problem.objective(r.x[None])[0]), rel=1e-9)
+
+
+def test_the_reference_polishes_again_from_its_exchanged_lags(problem):
+    """A fit stalled with TA2 and TE exchanged (TE pressed on its 0.2 s bound, TA2 at the true TE):
+    the restart from the exchanged point reaches the truth's fit; TA4 <-> TE, whose two exchanged
+    values lie outside their bounds, is skipped and leaves the evaluations to it."""
+    from bench_ctl.identification import peers
+
+    swaps = peers._swaps(problem)
+    assert [(problem.names[i], problem.names[j]) for _, i, j in swaps] == [("TA2", "TE"), ("TA4", "TE")]
+    stalled = {**TRUTH, "TA2": TRUTH["TE"], "TE": 0.2}
+    x = np.array([stalled[n] for n in problem.names])
+    f = float(problem.objective(x[None])[0])
+    start = Result(x=x, fun=f, nfev=0, success=True, names=problem.names)
+    res = peers._swap_restarts(problem, SearchSpace(problem), swaps, 150, start, None)
+    ta2, ta4 = res.settings["swap_restarts"]
+    assert ta2["kept"] and ta4["skipped"] == "the exchanged values of TA4 and TE lie outside their bounds"
+    assert res.nfev <= 150 and res.fun < 0.5 * f
+    truth_fit = float(problem.objective(np.array([[TRUTH[n] for n in problem.names]]))[0])
+    assert res.fun <= 1.001 * truth_fit

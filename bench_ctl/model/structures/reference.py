@@ -22,6 +22,10 @@ STRUCTURE = Structure(
         StdParam("TR", "s", "voltage transducer time constant", 0.0, None, "TR"),
     ),
     constraints=("TA2 <= TA1", "TA4 >= TA2"),
+    swaps=(("lag TA2 <-> bridge lag TE (the forward path's lags 1/((1 + s TA2)(1 + s TA4)(1 + s TE)) trade places)",
+            ("TA2", "TE")),
+           ("lag TA4 <-> bridge lag TE (the forward path's lags 1/((1 + s TA2)(1 + s TA4)(1 + s TE)) trade places)",
+            ("TA4", "TE"))),
     dyr_model="ESST1A",
     source="the reference paper (docs/model.md)",
 )
