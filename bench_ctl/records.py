@@ -6,7 +6,8 @@ their JSON types as annotations (`str`, `int`, `float` (an integer is a number t
 `Record`). `from_json` refuses a missing key, a key of the wrong type and a key the record does
 not know with a `FormatError` naming the file and the key (`captures[0].sha256`), never a
 KeyError; `to_json` writes the keys back in field order, values as they were read (numbers are
-never converted), so a file read and written again is the same JSON. The fields named in
+never converted; a non-finite one, which only a record made in memory holds, is written as
+null), so a file read and written again is the same JSON. The fields named in
 `OMITTED_WHEN_NONE` are keys some writers leave out: absent on reading, they are None and are
 not written.
 
@@ -24,7 +25,7 @@ from typing import Any, ClassVar, TypeVar, Union
 
 import numpy as np
 
-__all__ = ["FormatError", "Record", "json_ready", "schema_version"]
+__all__ = ["FormatError", "Record", "plain", "schema_version"]
 
 R = TypeVar("R", bound="Record")
 
@@ -127,6 +128,8 @@ def _is_container(tp: Any) -> bool:
 
 
 def _write(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     if isinstance(value, Record):
         return value.to_json()
     if isinstance(value, (list, tuple)):
@@ -199,15 +202,13 @@ def schema_version(data: Mapping[str, Any], kind: str, supported: int, where: st
     return version
 
 
-def json_ready(x: Any) -> Any:
-    """`x` with every non-finite float as None, numpy scalars as Python numbers and tuples as
-    lists (strict JSON: what a record holds)."""
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
+def plain(x: Any) -> Any:
+    """`x` as a record holds it: numpy scalars as Python numbers, tuples as lists; non-finite
+    numbers stay as they are in memory (`to_json` writes them as null)."""
     if isinstance(x, dict):
-        return {k: json_ready(v) for k, v in x.items()}
+        return {k: plain(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [json_ready(v) for v in x]
+        return [plain(v) for v in x]
     if isinstance(x, np.generic):
-        return json_ready(x.item())
+        return x.item()
     return x

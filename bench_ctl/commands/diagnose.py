@@ -38,7 +38,7 @@ from bench_ctl.limits import InputError
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import Unit, UnitError
-from bench_ctl.records import FormatError, json_ready
+from bench_ctl.records import FormatError, plain
 
 from .options import fmt_value as _fmt
 from .options import model_args, model_options, resolve_unit
@@ -121,7 +121,7 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
     cons = []
     for c in parse_constraints(unit.constraints, names):
         cons.append({"expr": c.expr, "satisfied": c.satisfied(x), "margin": float(c.rhs - c.coef @ x)})
-    return IdentificationResult.from_json(json_ready({
+    return IdentificationResult.from_json(plain({
         "schema": RESULT_SCHEMA, "software_version": d.software_version,
         "command_line": d.command_line, "created_utc": d.created_utc, "unit": unit.to_dict(),
         "captures": [{"path": os.path.abspath(capture.source) if capture.source else d.capture["path"],
@@ -235,7 +235,8 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
         if report_out:
             from bench_ctl.report import ReportError, render_report
             try:
-                written = render_report(base_result(d, capture, unit), report_out, diagnosis=d,
+                written = render_report(base_result(d, capture, unit), report_out,
+                                        diagnosis=Diagnosis.from_json(d.to_json(), "the diagnosis"),
                                         report_command=command_line, outputs=out)
             except ReportError as exc:
                 click.echo(f"error: report not written: {exc}", err=True)

@@ -42,7 +42,7 @@ from bench_ctl.identification.space import SearchSpace
 from bench_ctl.limits import InputError, sha256_file
 from bench_ctl.model.effects import EFFECT_NAMES
 from bench_ctl.model.unit import Unit
-from bench_ctl.records import json_ready
+from bench_ctl.records import plain
 from bench_ctl.timestamps import utc_now_text
 
 from . import features as F
@@ -322,7 +322,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     added = [{"added": s["added"], "mse": s["model"].mse, "mse_holdout": s["model"].mse_check,
                  "params": s["model"].effect_params(), "dropped": s["dropped"]} for s in steps]
 
-    return Diagnosis.from_json(json_ready({
+    return Diagnosis.from_json(plain({
         "schema": SCHEMA,
         "software_version": getattr(bench_ctl, "__version__", "0.1.0"),
         "command_line": command_line,

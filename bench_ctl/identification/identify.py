@@ -27,7 +27,7 @@ from bench_ctl.model.params import RECORD_PARAMS
 from bench_ctl.model.simulate import param_matrix
 from bench_ctl.model.unit import Unit
 from bench_ctl.model.unit import outside_bounds as values_outside_bounds
-from bench_ctl.records import json_ready
+from bench_ctl.records import plain
 from bench_ctl.timestamps import utc_now_text
 
 from .identifiability import analyse
@@ -250,7 +250,7 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
                                   ident.get("determined") or {})
     if len(runs) > 1:
         result["comparison"] = [_run_summary(prob, r) for r in runs]
-    return Identification(result=IdentificationResult.from_json(json_ready(result), "the identification result"),
+    return Identification(result=IdentificationResult.from_json(plain(result), "the identification result"),
                           problem=prob, best=best, runs=tuple(runs))
 
 
