@@ -2,6 +2,7 @@
 the files the end-to-end runs write (docs/formats.md: read back, they give the same JSON)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -20,12 +21,19 @@ def capture_entry(path: str | Path, **keys: Any) -> dict[str, Any]:
             "mse": None, "objective": None, "weight": 1.0, **keys}
 
 
+def _in_order(cls: type, data: dict[str, Any]) -> dict[str, Any]:
+    """`data` with its keys in the order the class writes them (unknown keys last)."""
+    names = [f.name for f in dataclasses.fields(cls)]
+    return {**{k: data[k] for k in names if k in data}, **{k: v for k, v in data.items() if k not in names}}
+
+
 def result_json(**keys: Any) -> dict[str, Any]:
     """A complete result JSON object with neutral provenance and budget; `keys` give the rest."""
-    return {"schema": RESULT_SCHEMA, "software_version": "0.1.0", "command_line": "", "created_utc":
+    return _in_order(IdentificationResult, {
+        "schema": RESULT_SCHEMA, "software_version": "0.1.0", "command_line": "", "created_utc":
             "2025-01-01T00:00:00+00:00", "unit": {}, "captures": [], "params": {}, "fixed": {}, "bounds": {},
             "constraints": [], "objective": None, "mse": None, "evaluations": 0, "wall_s": 0.0, "compile_s": 0.0,
-            "optimizer": {"name": "mvmo", "settings": {}, "seed": 0}, "history": [], "fit_window": None, **keys}
+            "optimizer": {"name": "mvmo", "settings": {}, "seed": 0}, "history": [], "fit_window": None, **keys})
 
 
 def result_of(**keys: Any) -> IdentificationResult:
@@ -53,7 +61,13 @@ def effect_json(name: str, **keys: Any) -> dict[str, Any]:
             "gap_closed_check": None, "gap_closed_check_raw": None, "gap_closed_holdout": None,
             "gap_closed_holdout_raw": None, "check": None, "score": None, "aic": None, "bic": None,
             "delta_bic": None, "delta_check": None, "significant": False, "k": 1, "evaluations": 0, "start": {},
-            **keys}
+            **keys}   # variant, the one optional key, is the last one written
+
+
+def step_json(name: str, **keys: Any) -> dict[str, Any]:
+    """A complete step of a diagnosis' `explained_by`; `keys` give the figures."""
+    return {"name": name, "effects": [name], "dropped": [], "params": {}, "mse": None, "mse_over_floor": None,
+            "gap_closed": None, "edges": {}, "fit_gain": None, "check": {}, **keys}
 
 
 def assert_round_trip(path: str | Path) -> IdentificationResult | Diagnosis:

@@ -41,11 +41,11 @@ class CaptureEntry(Record):
     OMITTED_WHEN_NONE = ("edges",)
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class IdentificationResult(Record):
-    """An identification result; each field is the key of the same name (docs/formats.md).
-    `edges`, `identifiability`, `failed`, `message`, `model` and `comparison` are absent from a
-    diagnosis' base fit written as a result, `comparison` when one optimizer ran."""
+    """An identification result; each field is the key of the same name, in the order written
+    (docs/formats.md). `edges`, `identifiability`, `failed`, `message`, `model` and `comparison`
+    are absent from a diagnosis' base fit written as a result, `comparison` when one optimizer ran."""
     schema: str
     software_version: str
     command_line: str
@@ -55,6 +55,7 @@ class IdentificationResult(Record):
     params: dict[str, float]
     fixed: dict[str, float | None]
     bounds: dict[str, list[float]]
+    edges: list[dict[str, Any]] | None = None
     constraints: list[dict[str, Any]]
     objective: float | None
     mse: float | None
@@ -63,9 +64,8 @@ class IdentificationResult(Record):
     compile_s: float
     optimizer: dict[str, Any]
     history: list[list[float | None]]
-    fit_window: list[float] | None
-    edges: list[dict[str, Any]] | None = None
     identifiability: dict[str, Any] | None = None
+    fit_window: list[float] | None
     failed: bool | None = None
     message: str | None = None
     model: dict[str, Any] | None = None
