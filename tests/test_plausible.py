@@ -43,16 +43,19 @@ def test_identify_and_diagnose_refuse_an_implausible_capture(tmp_path, cap, caps
         assert expect in err and "bad.csv" in err, err
 
 
-def test_report_fails_unreadable_constraints_and_refuses_a_flat_record(tmp_path, cap, capsys):
+def test_report_refuses_unreadable_constraints_and_a_flat_record(tmp_path, cap, capsys):
     csv = _write(tmp_path, "cap.csv", cap)
     assert main(["identify", str(csv), "--json", str(tmp_path / "r.json"), "--evals", "64",
                  "--no-progress"]) in (0, 1)
     result = json.loads((tmp_path / "r.json").read_text())
     bad = dict(result, constraints="TA2 <= TA1")
     (tmp_path / "bad.json").write_text(json.dumps(bad))
-    assert main(["report", str(tmp_path / "bad.json"), "-o", str(tmp_path / "bad.html")]) == 1
-    html = (tmp_path / "bad.html").read_text(encoding="utf-8")
-    assert "cannot be checked" in html
+    capsys.readouterr()
+    # constraints that are not a list of objects: the result is refused, the key named (it was a
+    # FAIL report saying they "cannot be checked"; a result of the wrong shape is not reported on)
+    assert main(["report", str(tmp_path / "bad.json"), "-o", str(tmp_path / "bad.html")]) == 2
+    assert "key 'constraints' must be a list of an object" in capsys.readouterr().err
+    assert not (tmp_path / "bad.html").exists()
     # a capture whose efd never responds (its result forged to match the file): refused as identify
     # refuses it (issue 24 item 12: it was a FAIL report with "inf nan", rc 1), nothing written
     flat = Capture(cap.time, cap.usetp, np.full(cap.n, 1.0) + 0.002 * np.cos(np.arange(cap.n)))
