@@ -12,6 +12,7 @@ from bench_ctl.capture.plausible import implausible
 from bench_ctl.cli import main
 from bench_ctl.identification.synthetic import synthetic_capture
 from bench_ctl.model.unit import reference_unit
+from records import diagnosis_json
 
 
 @pytest.fixture(scope="module")
@@ -182,8 +183,7 @@ def test_report_with_another_captures_diagnosis_warns_on_the_console(tmp_path, c
     one = _write(tmp_path, "one.csv", cap)
     two = _write(tmp_path, "two.csv", synthetic_capture(reference_unit(), duration=3.0, rate=500.0, seed=9))
     assert main(["identify", str(one), "--evals", "64", "--no-progress", "--json", str(tmp_path / "r.json")]) in (0, 1)
-    diag = {"schema": "bench-ctl/diagnosis/1", "capture": {"path": str(two), "sha256": sha256_file(two)},
-            "verdict": "none", "noise_floor": 1e-9}
+    diag = diagnosis_json(capture={"path": str(two), "sha256": sha256_file(two)}, verdict="none", noise_floor=1e-9)
     (tmp_path / "d.json").write_text(json.dumps(diag))
     capsys.readouterr()
     rc = main(["report", str(tmp_path / "r.json"), "--diagnosis", str(tmp_path / "d.json"),

@@ -158,7 +158,7 @@ def errors(d: ReportData) -> Section:
             win = f" over the fit window {fmt(d.fit_window[0])} … {fmt(d.fit_window[1])} s"
         rows = [
             ("MSE (re-simulated)" + win, Num(a.fit_mse, f"mse{s}-capture"), "pu²", "mean(r²)"),
-            ("MSE (reported)", Num(num(e.get("mse")), f"mse{s}-capture-reported"), "pu²",
+            ("MSE (reported)", Num(num(e.mse), f"mse{s}-capture-reported"), "pu²",
              "captures[].mse of the result"),
             *([("MSE over the whole record", Num(f.mse, f"mse{s}-record"), "pu²",
                 "mean(r²), all samples")] if win else []),
@@ -171,7 +171,7 @@ def errors(d: ReportData) -> Section:
             ("time of peak error", Num(f.peak_time_s, f"peak-time{s}"), "s", ""),
             ("objective (re-simulated)" + win, Num(a.fit_objective, f"objective{s}-capture"),
              "pu² s", "trapezoidal ∫ w r² dt"),
-            ("objective (reported)", Num(num(e.get("objective")), f"objective{s}-capture-reported"),
+            ("objective (reported)", Num(num(e.objective), f"objective{s}-capture-reported"),
              "pu² s", "captures[].objective of the result"),
             ("pre-trigger efd variance", Num(f.noise_floor, f"noise-pre{s}"), "pu²",
              f"{f.noise_samples} samples before the leading edge (noise estimate)"),
