@@ -17,6 +17,7 @@ reads it (docs/formats.md).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -139,6 +140,12 @@ def _write(value: Any) -> Any:
     return value
 
 
+@functools.cache
+def _layout(cls: type) -> tuple[dict[str, Any], tuple[dataclasses.Field, ...]]:
+    """A record class's annotations (resolved) and fields, worked out once."""
+    return typing.get_type_hints(cls), tuple(f for f in dataclasses.fields(cls) if f.init)
+
+
 class Record:
     """Base of a typed JSON object; subclasses are frozen dataclasses (see the module docstring)."""
 
@@ -147,8 +154,7 @@ class Record:
 
     @classmethod
     def _from(cls: type[R], data: Mapping[str, Any], path: str, where: str) -> R:
-        hints = typing.get_type_hints(cls)
-        fields = [f for f in dataclasses.fields(cls) if f.init]   # type: ignore[arg-type]
+        hints, fields = _layout(cls)
         names = {f.name for f in fields}
         unknown = [k for k in data if k not in names]
         if unknown:
