@@ -72,15 +72,15 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         d = diagnose(cap, unit, seed=args.seed)
         wall = time.perf_counter() - t0
-        expl = [s["name"] for s in d["explained_by"]]
+        expl = [s.name for s in d.explained_by]
         limited = entry["ceiling_ms"] > 0 or entry["floor_ms"] > 0
-        ceiling = next((e for e in d["effects"] if e["name"] == "ceiling_limit"), {})
+        ceiling = d.effect("ceiling_limit")
         row = {"capture": name, "exciter": entry["exciter"], "limit_ms": entry["ceiling_ms"] + entry["floor_ms"],
-               "verdict": d["verdict"], "explained_by": expl,
-               "params": d["explained_by"][-1]["params"] if expl else {},
-               "base_over_floor": d["base"]["mse"] / d["noise_floor"],
-               "left_over_floor": d["left"]["mse_over_floor"], "note": d["left"]["note"],
-               "ceiling_variant": ceiling.get("variant"), "wall_s": wall,
+               "verdict": d.verdict, "explained_by": expl,
+               "params": d.explained_by[-1].params if expl else {},
+               "base_over_floor": d.base.mse / d.noise_floor,
+               "left_over_floor": d.left["mse_over_floor"], "note": d.left["note"],
+               "ceiling_variant": ceiling.variant if ceiling is not None else None, "wall_s": wall,
                "sat_and_ceiling": ({"saturation", "ceiling_limit"} <= set(expl)) if limited else None}
         rows.append(row)
         print(f"{name:<14} {entry['exciter']:<7} limit {row['limit_ms']:5.0f} ms  base {row['base_over_floor']:7.2f}x  "

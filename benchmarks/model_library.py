@@ -89,17 +89,17 @@ def identification(args: argparse.Namespace, out: dict) -> None:
             ident = run_identification([cap], unit, max_evals=args.evals, seed=seed)
             r = ident.result
             var = float(np.mean(noise ** 2))
-            ratio = float(r["mse"]) / var
-            model = r["model"]
+            ratio = float(r.mse) / var
+            model = r.model
             errs = {}
             for p in model["identified"]:
                 errs[p] = (float(model["params"][p]) / float(truth[p]) - 1.0, bool(model["determined"].get(p)))
             det = [abs(e) for e, d in errs.values() if d]
-            row = {"capture": name, "seed": seed, "ratio": ratio, "wall_s": float(r["wall_s"]),
+            row = {"capture": name, "seed": seed, "ratio": ratio, "wall_s": float(r.wall_s),
                    "worst_determined": max(det) if det else float("nan"), "errors": errs}
             by_model.setdefault(exc, []).append(row)
             cells = "  ".join(f"{p} {100 * e:+.1f}%{'' if d else '(u)'}" for p, (e, d) in errs.items())
-            print(f"  {name:<14} seed {seed}  mse/noise {ratio:.4f}  {r['wall_s']:.2f} s  {cells}", flush=True)
+            print(f"  {name:<14} seed {seed}  mse/noise {ratio:.4f}  {r.wall_s:.2f} s  {cells}", flush=True)
     print()
     print(f"{'model':<8}{'median ratio':>13}{'worst':>8}{'<=1.05':>8}{'worst det. err':>15}{'<=10 %':>8}{'wall s':>8}")
     for exc, rows in by_model.items():

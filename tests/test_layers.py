@@ -24,8 +24,10 @@ ROOT = Path(__file__).resolve().parents[1]
 TOPS = ("bench_ctl", "drivers", "simulators", "procedures")
 
 #: what every layer may import: the package itself (its version) and the leaf helpers, which
-#: import nothing of the tree (checked below): exit codes, input files, output files, timestamps
-SHARED = ("bench_ctl", "bench_ctl.exitcodes", "bench_ctl.limits", "bench_ctl.outputs", "bench_ctl.timestamps")
+#: import nothing of the tree (checked below): exit codes, input files, output files, typed JSON
+#: records, timestamps
+SHARED = ("bench_ctl", "bench_ctl.exitcodes", "bench_ctl.limits", "bench_ctl.outputs", "bench_ctl.records",
+          "bench_ctl.timestamps")
 ANALYSIS = ("bench_ctl.model", "bench_ctl.capture", "bench_ctl.identification", "bench_ctl.diagnosis",
             "bench_ctl.report")
 #: the pure analysis helpers of bench_ctl.model a procedure may use on what it recorded: numpy
@@ -39,6 +41,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "bench_ctl.limits": (),
     "bench_ctl.timestamps": (),
     "bench_ctl.outputs": (),
+    "bench_ctl.records": (),
     "drivers": (),
     "simulators": ("drivers", "bench_ctl.model"),
     "procedures": ("bench_ctl.runner", *PURE_ANALYSIS),

@@ -20,7 +20,6 @@ from bench_ctl.exitcodes import ExitCode
 from bench_ctl.runner.config import ConfigError
 from bench_ctl.runner.runner import OutputExists, OutputUnusable, run_procedure
 
-from .diagnose import clean_json
 from .diagnose import for_file as diagnosis_for_file
 from .run import print_outcome
 
@@ -93,21 +92,21 @@ def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, 
     result = identify([capture], unit, optimizer="mvmo", compare=("de", "local", "open-loop"),
                       max_evals=evals, seed=seed, command_line=command_line)
     result_path = out / "result.json"
-    guard.write_json(result_path, result_for_file(result, result_path))
-    det = (result.get("identifiability") or {}).get("determined") or {}
+    guard.write_json(result_path, result_for_file(result, result_path).to_json())
+    det = (result.identifiability or {}).get("determined") or {}
     click.echo("    identified: " + ", ".join(
-        f"{n} {v:.4g}{'' if det.get(n, True) else ' (not determined)'}" for n, v in result["params"].items()))
-    click.echo(f"    mse {result['mse']:.3e} pu^2; setpoint edges at "
-               + ", ".join(f"{e['fitted_s']:.5f} s" for e in result.get("edges", [])))
-    for row in result.get("comparison", []):
+        f"{n} {v:.4g}{'' if det.get(n, True) else ' (not determined)'}" for n, v in result.params.items()))
+    click.echo(f"    mse {result.mse:.3e} pu^2; setpoint edges at "
+               + ", ".join(f"{e['fitted_s']:.5f} s" for e in result.edges or []))
+    for row in result.comparison or []:
         click.echo(f"    {row['optimizer']:<10} mse {row['mse']:.3e}  evals {row['evaluations']:>5}  "
                    f"{row['wall_s']:.2f} s  violated: {', '.join(row['constraints_violated']) or '-'}")
 
     click.echo("3/4 gap diagnosis (each unmodelled effect added to the fitted model)")
     diag = diagnose(capture, unit, seed=seed, command_line=command_line)
     diag_path = out / "diagnosis.json"
-    guard.write_json(diag_path, clean_json(diagnosis_for_file(diag, diag_path)))
-    click.echo(f"    verdict: {diag['verdict']}")
+    guard.write_json(diag_path, diagnosis_for_file(diag, diag_path).to_json())
+    click.echo(f"    verdict: {diag.verdict}")
 
     click.echo("4/4 validation report")
     data = analyse(result, diagnosis=diag, report_command=command_line)
@@ -123,5 +122,4 @@ def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, 
                         ("diagnosis", diag_path), ("report", paths[0])):
         click.echo(f"  {label:<9} {path}")
     click.echo(f"  total     {time.perf_counter() - t_start:.1f} s")
-    failed = [c["expr"] for c in result["constraints"] if not c["satisfied"]]
-    return ExitCode.FAILED if failed or result.get("failed") else ExitCode.OK
+    return ExitCode.FAILED if result.constraints_violated or result.failed else ExitCode.OK

@@ -20,8 +20,8 @@ import math
 import os
 import shlex
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import click
 import numpy as np
@@ -29,13 +29,16 @@ import numpy as np
 from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
+from bench_ctl.diagnosis.diagnosis_file import Diagnosis
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
+from bench_ctl.identification.result_file import RESULT_SCHEMA, IdentificationResult, read_result
 from bench_ctl.identification.timing import edge_spec_of
-from bench_ctl.limits import InputError, read_json
+from bench_ctl.limits import InputError
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import Unit, UnitError
+from bench_ctl.records import FormatError, plain
 
 from .options import fmt_value as _fmt
 from .options import model_args, model_options, resolve_unit
@@ -43,113 +46,97 @@ from .options import model_args, model_options, resolve_unit
 log = logging.getLogger(__name__)
 
 
-def summary(d: dict[str, Any]) -> str:
+def summary(d: Diagnosis) -> str:
     """Human-readable summary of a diagnosis."""
-    b = d["base"]
-    lines = [f"capture: {d['capture']['path']}   holdout: {(d['holdout'] or {}).get('path', 'none')} "
-             f"(check: {d['validation']['kind']})",
-             f"noise floor {_fmt(d['noise_floor'])} pu^2   base model mse {_fmt(b['mse'])}, on the check "
-             f"record {_fmt(b['mse_holdout'])}   at the noise floor: {b['at_noise_floor']}", "",
+    b = d.base
+    lines = [f"capture: {d.capture['path']}   holdout: {(d.holdout or {}).get('path', 'none')} "
+             f"(check: {d.validation['kind']})",
+             f"noise floor {_fmt(d.noise_floor)} pu^2   base model mse {_fmt(b.mse)}, on the check "
+             f"record {_fmt(b.mse_holdout)}   at the noise floor: {b.at_noise_floor}", "",
              "where the base model misses (share of the residual energy):"]
-    lines.append("  " + "  ".join(f"{s['name']} {s['share']:.2f}" for s in d["localization"]["segments"]))
+    lines.append("  " + "  ".join(f"{s['name']} {s['share']:.2f}" for s in d.localization["segments"]))
     lines.append("  " + "  ".join(f"{s['name']} ({s['f0_hz']:g}-{s['f1_hz']:g} Hz) {s['share']:.2f}"
-                                  for s in d["localization"]["bands"]))
+                                  for s in d.localization["bands"]))
     lines += ["", "features:"]
-    for f in d["features"]:
+    for f in d.features:
         lines.append(f"  [{'x' if f['detected'] else ' '}] {f['name']}: {f['evidence']}")
     lines += ["", f"{'effect':<16}{'mse':>11}{'mse check':>11}{'gap closed':>12}{'score':>11}  params"]
-    if b["at_noise_floor"]:
+    if b.at_noise_floor:
         lines.append("  (gap closed: n/a, the base model is already at the noise floor)")
-    for e in d["effects"]:
-        params = ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items())
-        lines.append(f"{e['name']:<16}{_fmt(e['mse']):>11}{_fmt(e['mse_holdout']):>11}"
-                     f"{_fmt(e['gap_closed'], '.3f'):>12}{e['score']:>11.1f}  {params}"
-                     + ("" if e["significant"] else "  (not significant)"))
-    for a in d["ambiguous"]:
+    for e in d.effects:
+        params = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in e.params.items())
+        lines.append(f"{e.name:<16}{_fmt(e.mse):>11}{_fmt(e.mse_holdout):>11}"
+                     f"{_fmt(e.gap_closed, '.3f'):>12}{_fmt(e.score, '.1f'):>11}  {params}"
+                     + ("" if e.significant else "  (not significant)"))
+    for a in d.ambiguous:
         lines.append(f"ambiguous: {' / '.join(a['effects'])}: {a['separating_test']}")
-    if d.get("explained_by"):
+    if d.explained_by:
         lines += ["", "explained by (each step re-fitted jointly; error over the noise floor):",
-                  f"  base model {b['mse'] / d['noise_floor']:.2f}x"]
-        for s in d["explained_by"]:
-            params = ", ".join(f"{k}={v:.4g}" for k, v in s["params"].items())
-            lines.append(f"  + {s['name']:<15} {s['mse_over_floor']:.2f}x   {params}"
-                         + (f"   (dropped {', '.join(s['dropped'])})" if s.get("dropped") else ""))
-    if d.get("left"):
-        lines.append(f"left: {d['left']['note']}")
-    lines += ["", f"verdict: {d['verdict']}   ({d['wall_s']:.1f} s)"]
+                  f"  base model {_ratio(b.mse, d.noise_floor)}x"]
+        for s in d.explained_by:
+            params = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in s.params.items())
+            lines.append(f"  + {s.name:<15} {_fmt(s.mse_over_floor, '.2f')}x   {params}"
+                         + (f"   (dropped {', '.join(s.dropped)})" if s.dropped else ""))
+    if d.left:
+        lines.append(f"left: {d.left['note']}")
+    lines += ["", f"verdict: {d.verdict}   ({d.wall_s:.1f} s)"]
     return "\n".join(lines)
 
 
-def write_json(path: str | Path, data: dict[str, Any], *, force: bool = False) -> None:
-    """Write JSON through the output guard (atomic; NaN / inf become null)."""
-    outputs.write_json(path, clean_json(data), force=force)
+def _ratio(a: float | None, b: float | None) -> str:
+    return f"{a / b:.2f}" if a is not None and b else "n/a"
 
 
-def for_file(d: dict[str, Any], path: str | Path) -> dict[str, Any]:
+def for_file(d: Diagnosis, path: str | Path) -> Diagnosis:
     """The diagnosis as written to `path`: the capture and holdout paths relative to its folder
     (as a result's, issue 24 item 14)."""
     folder = Path(os.path.abspath(path)).parent
-    out = dict(d)
+    moved = {}
     for key in ("capture", "holdout"):
-        ref = d.get(key)
+        ref = getattr(d, key)
         if isinstance(ref, dict) and isinstance(ref.get("path"), str) and ref["path"]:
             try:
                 rel = Path(os.path.relpath(os.path.abspath(ref["path"]), folder)).as_posix()
             except ValueError:
                 rel = os.path.abspath(ref["path"])
-            out[key] = {**ref, "path": rel}
-    return out
+            moved[key] = {**ref, "path": rel}
+    return replace(d, **moved)
 
 
-def clean_json(x: Any) -> Any:
-    """`x` with every non-finite float as None and numpy scalars as Python numbers (strict JSON)."""
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {k: clean_json(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [clean_json(v) for v in x]
-    if isinstance(x, np.generic):
-        return clean_json(x.item())
-    return x
-
-
-def base_result(d: dict[str, Any], capture: Capture, unit: Unit) -> dict[str, Any]:
+def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationResult:
     """The diagnosis' base fit as an identification result (schema bench-ctl/result/1), so that
     the report can re-simulate and show it next to the diagnosis."""
     values = unit.values()
-    values.update(d["base"]["params"])
-    edges = [{k: v for k, v in e.items() if k != "capture"} for e in d.get("edges", [])
-             if e.get("capture") == "capture"]
+    values.update(d.base.params)
+    edges = [{k: v for k, v in e.items() if k != "capture"} for e in d.edges if e.get("capture") == "capture"]
     spec, offsets = edge_spec_of(edges, capture.n)
     efd, _vt, _fail = simulate({**values, **offsets}, capture.usetp, capture.dt, edges=spec)
-    val = d["validation"]
-    t1 = val["fit"]["t1"]
+    t1 = d.validation["fit"]["t1"]
     k1 = min(capture.n, int(round(t1 / capture.dt)) + 1)  # t1 included (the whole capture today)
     r = capture.efd[:k1] - efd[:k1]
     objective = float(capture.dt * (np.sum(r * r) - 0.5 * (r[0] ** 2 + r[-1] ** 2)))
     mse = float(np.mean(r * r))  # a result's mse is the plain mean (the diagnosis' the trapezoidal one)
     names = list(unit.identified_names)
-    x = np.array([d["base"]["params"][n] for n in names])
+    x = np.array([d.base.params[n] for n in names])
     cons = []
     for c in parse_constraints(unit.constraints, names):
         cons.append({"expr": c.expr, "satisfied": c.satisfied(x), "margin": float(c.rhs - c.coef @ x)})
-    return {
-        "schema": "bench-ctl/result/1", "software_version": d["software_version"],
-        "command_line": d["command_line"], "created_utc": d["created_utc"], "unit": unit.to_dict(),
-        "captures": [{"path": os.path.abspath(capture.source) if capture.source else d["capture"]["path"],
-                      "sha256": d["capture"]["sha256"], "n": capture.n,
+    return IdentificationResult.from_json(plain({
+        "schema": RESULT_SCHEMA, "software_version": d.software_version,
+        "command_line": d.command_line, "created_utc": d.created_utc, "unit": unit.to_dict(),
+        "captures": [{"path": os.path.abspath(capture.source) if capture.source else d.capture["path"],
+                      "sha256": d.capture["sha256"], "n": capture.n,
                       "rate_hz": capture.rate_hz, "meta": capture.meta, "mse": mse,
                       "objective": objective, "weight": 1.0, "edges": edges}],
-        "params": dict(d["base"]["params"]),
+        "params": dict(d.base.params),
         "fixed": {k: (v if math.isfinite(v) else None) for k, v in values.items()
-                  if k in KERNEL_PARAMS and k not in d["base"]["params"] and k not in RECORD_PARAMS},
+                  if k in KERNEL_PARAMS and k not in d.base.params and k not in RECORD_PARAMS},
         "bounds": {n: [b.min, b.max] for n, b in unit.identify.items()},
         "constraints": cons, "objective": objective, "mse": mse,
-        "evaluations": d["base"]["evaluations"], "wall_s": d["wall_s"], "compile_s": 0.0,
+        "evaluations": d.base.evaluations, "wall_s": d.wall_s, "compile_s": 0.0,
         "optimizer": {"name": "mvmo + least squares (diagnosis base fit)", "settings": {}, "seed": None},
         "history": [], "fit_window": None if k1 >= capture.n else [0.0, t1],
-    }
+    }), "the diagnosis' base fit")
 
 
 def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str], model_kw: dict,
@@ -209,19 +196,16 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
                 check_plausible(c)
         base_params = None
         if result_path:
-            data = read_json(result_path, "a result JSON")
-            params = data.get("params") if isinstance(data, dict) else None
-            if not isinstance(params, dict):
-                raise UnitError(f"{result_path}: not an identification result (no 'params' table)")
+            previous = read_result(result_path)
             base_params = {}
-            for k, v in params.items():
+            for k, v in previous.params.items():
                 if k in unit.identify:
-                    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    if not math.isfinite(v):
                         raise UnitError(f"{result_path}: params.{k} = {v!r} is not a finite number")
                     base_params[k] = float(v)
             if not base_params:
                 raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
-    except (CaptureError, UnitError, ConstraintError, InputError, ValueError) as exc:
+    except (CaptureError, UnitError, ConstraintError, InputError, FormatError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
     except OSError as exc:
@@ -246,12 +230,13 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     click.echo(summary(d))
     try:
         if json_out:
-            out.write_json(json_out, clean_json(for_file(d, json_out)))
+            out.write_json(json_out, for_file(d, json_out).to_json())
             click.echo(f"diagnosis written to {json_out}")
         if report_out:
             from bench_ctl.report import ReportError, render_report
             try:
-                written = render_report(base_result(d, capture, unit), report_out, diagnosis=clean_json(d),
+                written = render_report(base_result(d, capture, unit), report_out,
+                                        diagnosis=Diagnosis.from_json(d.to_json(), "the diagnosis"),
                                         report_command=command_line, outputs=out)
             except ReportError as exc:
                 click.echo(f"error: report not written: {exc}", err=True)
@@ -263,4 +248,4 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     except OSError as exc:
         click.echo(f"error: {outputs.why_not_written(exc, json_out or report_out or '')}", err=True)
         return ExitCode.ABORTED
-    return ExitCode.OK if d["verdict"] == "none" else ExitCode.FAILED  # FAILED: an effect found
+    return ExitCode.OK if d.verdict == "none" else ExitCode.FAILED  # FAILED: an effect found

@@ -33,10 +33,12 @@ NO_LIMIT = 999.0
 def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: bool = False) -> int:
     """Write the identified model of RESULT.json as a PSS/E dynamic data record."""
     from bench_ctl import outputs
-    from bench_ctl.limits import InputError, read_json
+    from bench_ctl.identification.result_file import read_result
+    from bench_ctl.limits import InputError
     from bench_ctl.model.dyr import DyrError, DyrRecord, dyr_text
     from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of, not_carried
     from bench_ctl.model.structures import StructureError
+    from bench_ctl.records import FormatError
 
     try:
         out = outputs.guard_outputs({"--dyr": dyr_out}, [result_path], force=force)
@@ -44,26 +46,24 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
     try:
-        result = read_json(result_path, "a result JSON")
-        if not isinstance(result, dict) or "params" not in result:
-            raise ValueError("not an identification result (no 'params')")
-        st, std = dyr_values_of(result)
+        result = read_result(result_path)
+        st, std = dyr_values_of(result.to_json())
         fields = dyr_fields(st)
         values = st.dyr_values(std, fields)
         for k, v in values.items():
             if not math.isfinite(v):
                 raise ValueError(f"field {k} = {v} is not finite")
-        missing = not_carried(result, st, std)
-    except InputError as exc:
+        missing = not_carried(result.to_json(), st, std)
+    except (InputError, FormatError) as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
     except (ValueError, TypeError, StructureError, DyrError) as exc:
         click.echo(f"error: {result_path}: {exc}", err=True)
         return ExitCode.ABORTED
-    model = result.get("model") or {}
+    model = result.model or {}
     identified = set(model.get("identified") or [])
     if st.name == "ESST1A" and model.get("name") == "REFERENCE":
-        identified = {st.std_name(k) for k in (result.get("params") or {})} - {None}
+        identified = {st.std_name(k) for k in result.params} - {None}
     typical = st.typical()
     notes = []
     for f in fields:
@@ -80,8 +80,8 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
     if missing:
         notes.append("NOT IN THIS RECORD (the model has them, the record cannot hold them): " + "; ".join(missing))
     header = (f"bench-ctl export of {result_path} (model {model.get('name', st.name)} as PSS/E {st.dyr_model})\n"
-              f"command: {result.get('command_line', '')}\n"
-              f"fit: mse {result.get('mse')} pu^2 over {len(result.get('captures') or [])} capture(s)")
+              f"command: {result.command_line}\n"
+              f"fit: mse {result.mse} pu^2 over {len(result.captures)} capture(s)")
     icons = {"UEL": 1, "VOS": 1} if st.dyr_model == "ESST1A" else {}
     rec = DyrRecord(bus, st.dyr_model, str(machine_id), values, icons)  # type: ignore[arg-type]
     try:

@@ -30,6 +30,7 @@ from bench_ctl.identification.identify import Identification, result_for_file, r
 from bench_ctl.identification.options import IDENTIFY
 from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
+from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.model.unit import UnitError
 
 from .options import fmt_value as _fmt
@@ -43,27 +44,27 @@ MIN_EVALS = int(IDENTIFY["particles"])
 DE_POPSIZE = 5
 
 
-def _kernel_names(r: dict) -> list[str]:
+def _kernel_names(r: IdentificationResult) -> list[str]:
     """The identified kernel names in the order the result's model lists their standard names."""
-    return [n for n in r["params"]]
+    return [n for n in r.params]
 
 
 def summary(ident: Identification) -> str:
     """The human-readable summary table of a result."""
     r = ident.result
-    idn = r["identifiability"]
-    lines = [f"unit: {r['unit']['name']}   optimizer: {r['optimizer']['name']} "
-             f"(seed {r['optimizer']['seed']})   evaluations: {r['evaluations']}   "
-             f"wall: {r['wall_s']:.2f} s (compile {r['compile_s']:.2f} s)", ""]
+    idn = r.identifiability or {}
+    lines = [f"unit: {r.unit['name']}   optimizer: {r.optimizer['name']} "
+             f"(seed {r.optimizer['seed']})   evaluations: {r.evaluations}   "
+             f"wall: {r.wall_s:.2f} s (compile {r.compile_s:.2f} s)", ""]
     head = f"{'param':<7}{'value':>12}{'min':>10}{'max':>10}{'std':>11}{'rel std':>9}  determined"
     lines += [head, "-" * len(head)]
-    model = r.get("model") or {}
+    model = r.model or {}
     std = (lambda n: n) if model.get("name", "REFERENCE") == "REFERENCE" else \
         (lambda n: {k: s for k, s in zip(_kernel_names(r), model.get("identified") or [])}.get(n, n))
     if model.get("name", "REFERENCE") != "REFERENCE":
         lines.insert(1, f"model: {model['name']} ({model.get('title', '')})")
-    for n, v in r["params"].items():
-        lo, hi = r["bounds"][n]
+    for n, v in r.params.items():
+        lo, hi = r.bounds[n]
         rel = idn.get("rel_std", {}).get(n)
         det = idn.get("determined", {}).get(n)
         why = "; ".join(idn.get("reasons", {}).get(n, []))
@@ -72,25 +73,25 @@ def summary(ident: Identification) -> str:
                      f"{(_fmt(100 * rel, '.1f') + ' %') if rel is not None else '-':>9}  "
                      f"{'yes' if det else 'NO'}{('  (' + why + ')') if why else ''}")
     lines.append("")
-    for c in r["captures"]:
-        lines.append(f"capture {c['path'] or '<memory>'}: n {c['n']}, {c['rate_hz']:g} Hz, "
-                     f"mse {_fmt(c['mse'], '.4g')}, objective {_fmt(c['objective'], '.4g')}")
-    lines.append(f"mse {_fmt(r['mse'], '.4g')}   objective {_fmt(r['objective'], '.4g')}")
+    for c in r.captures:
+        lines.append(f"capture {c.path or '<memory>'}: n {c.n}, {c.rate_hz:g} Hz, "
+                     f"mse {_fmt(c.mse, '.4g')}, objective {_fmt(c.objective, '.4g')}")
+    lines.append(f"mse {_fmt(r.mse, '.4g')}   objective {_fmt(r.objective, '.4g')}")
     lines.append("constraints: " + ", ".join(
-        f"{c['expr']} {'ok' if c['satisfied'] else 'VIOLATED'}" for c in r["constraints"]) if r["constraints"]
+        f"{c['expr']} {'ok' if c['satisfied'] else 'VIOLATED'}" for c in r.constraints) if r.constraints
         else "constraints: none")
     for e in idn.get("equivalent_sets", []):
         vals = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in e["params"].items() if k.startswith("TA"))
         lines.append(f"equivalent set? {e['note']}: {vals}; mse {_fmt(e['mse'], '.4g')}: {e['verdict']}")
     for note in idn.get("notes", []):
         lines.append(f"note: {note}")
-    if "comparison" in r:
+    if r.comparison is not None:
         lines += ["", f"{'optimizer':<11}{'mse':>12}{'objective':>12}{'evals':>7}{'wall s':>8}  violated"]
-        for c in r["comparison"]:
+        for c in r.comparison:
             lines.append(f"{c['optimizer']:<11}{_fmt(c['mse'], '.5g'):>12}{_fmt(c['objective'], '.5g'):>12}"
                          f"{c['evaluations']:>7}{c['wall_s']:>8.2f}  {', '.join(c['constraints_violated']) or '-'}")
-    if r.get("failed"):
-        lines.append(f"FIT FAILED: {r.get('message', '')}")
+    if r.failed:
+        lines.append(f"FIT FAILED: {r.message or ''}")
     return "\n".join(lines)
 
 
@@ -225,7 +226,7 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
     click.echo(summary(ident))
     try:
         if json_out:
-            out.write_json(json_out, result_for_file(ident.result, json_out))
+            out.write_json(json_out, result_for_file(ident.result, json_out).to_json())
             click.echo(f"result written to {json_out}")
         if plot_out:
             plot_fit(ident, plot_out, out)
@@ -237,7 +238,7 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         click.echo(f"error: {outputs.why_not_written(exc, json_out or plot_out or '')}", err=True)
         return ExitCode.ABORTED
     if not ident.ok:
-        bad = [c["expr"] for c in ident.result["constraints"] if not c["satisfied"]]
+        bad = ident.result.constraints_violated
         why = [f"constraint(s) violated: {', '.join(bad)}"] if bad else []
         if ident.outside_bounds:
             why.append(f"outside its bounds: {', '.join(ident.outside_bounds)}")

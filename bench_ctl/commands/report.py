@@ -26,9 +26,9 @@ import click
 
 from bench_ctl import outputs
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.report import ReportError, analyse, claim_report, load_json, write_report
+from bench_ctl.report import ReportError, analyse, claim_report, load_diagnosis, load_result, write_report
 from bench_ctl.report.checks import DEFAULT_NOISE_RATIO_LIMIT, FAIL
-from bench_ctl.report.inputs import DIAGNOSIS_SCHEMA, RESULT_SCHEMA, resolve_capture_path
+from bench_ctl.report.inputs import resolve_capture_path
 from bench_ctl.report.metrics import DEFAULT_EDGE_WINDOW_S
 
 log = logging.getLogger(__name__)
@@ -68,14 +68,14 @@ def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | No
            edge_window: float, noise_ratio_limit: float, force: bool = False) -> int:
     """Write the validation report for RESULT.json (from `bench-ctl identify --json`)."""
     try:
-        result = load_json(result_json, RESULT_SCHEMA)
+        result = load_result(result_json)
         # the captures the result names (and their sidecars) are inputs too
-        named = [c.get("path") for c in result.get("captures", []) if isinstance(c, dict)]
+        named = [c.path for c in result.captures]
         base = Path(result_json).resolve().parent
-        caps = [str(resolve_capture_path(p, base)) for p in named if isinstance(p, str)]
+        caps = [str(resolve_capture_path(p, base)) for p in named if p]
         out_set = outputs.Outputs([result_json, diagnosis_json, *caps], force=force, make_folders=True)
         claim_report(out_set, out, n_captures=max(1, len(named)), pdf=pdf)
-        diagnosis = load_json(diagnosis_json, DIAGNOSIS_SCHEMA) if diagnosis_json else None
+        diagnosis = load_diagnosis(diagnosis_json) if diagnosis_json else None
         data = analyse(result, diagnosis=diagnosis, base_dir=base,
                        where=result_json, window_s=edge_window,
                        noise_ratio_limit=noise_ratio_limit,

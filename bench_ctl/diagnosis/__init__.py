@@ -1,9 +1,11 @@
 """Sim-to-real gap diagnosis: where the model misses, which unmodelled effect, how far it shrinks.
 
-`diagnose(capture, unit, holdout=...)` -> diagnosis dict (docs/formats.md, schema "bench-ctl/diagnosis/1");
+`diagnose(capture, unit, holdout=...)` -> `Diagnosis` (docs/formats.md, schema "bench-ctl/diagnosis/1");
 `blind` generates and scores the blind suite.
 """
 from .diagnose import SCHEMA, Budget, diagnose
+from .diagnosis_file import BaseFit, Diagnosis, EffectEntry, Step, read_diagnosis
 from .localize import DiagnosisError
 
-__all__ = ["SCHEMA", "Budget", "DiagnosisError", "diagnose"]
+__all__ = ["SCHEMA", "BaseFit", "Budget", "Diagnosis", "DiagnosisError", "EffectEntry", "Step", "diagnose",
+           "read_diagnosis"]

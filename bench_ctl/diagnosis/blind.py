@@ -30,6 +30,7 @@ from bench_ctl.model.effects import EFFECT_NAMES
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate
 from bench_ctl.model.unit import Bound, Unit, load_unit
 
+from .diagnosis_file import Diagnosis
 from .localize import find_edges
 from .models import coarse_factor
 from .search import fit, mean
@@ -231,7 +232,7 @@ class CaseResult:
     explained: list[str] = field(default_factory=list)   # explained_by names, in order
 
 
-def run_suite(cases: Sequence[Case], diagnose_fn: Callable[..., dict], *, seed: int = 0,
+def run_suite(cases: Sequence[Case], diagnose_fn: Callable[..., Diagnosis], *, seed: int = 0,
               progress: Callable[[CaseResult], None] | None = None, **kwargs) -> list[CaseResult]:
     """Diagnose every case blind (the function sees the captures and the unit only: the case's
     when it has one, else the reference unit file)."""
@@ -243,21 +244,21 @@ def run_suite(cases: Sequence[Case], diagnose_fn: Callable[..., dict], *, seed: 
         dt, cpu = time.perf_counter() - t0, time.process_time() - c0
         gap = None
         if case.effect != NONE:
-            for e in diag["effects"]:
-                if e["name"] == case.effect:
-                    gap = e.get("gap_closed_holdout")
-                    mse_h = e.get("mse_holdout")
+            for e in diag.effects:
+                if e.name == case.effect:
+                    gap = e.gap_closed_holdout
+                    mse_h = e.mse_holdout
                     if gap is None and mse_h is not None and not math.isfinite(mse_h):
                         gap = -math.inf  # the true effect's fit failed on the holdout: it closed nothing
-                    gap = e.get("gap_closed") if gap is None else gap
+                    gap = e.gap_closed if gap is None else gap
                     if gap is not None and math.isnan(gap):
                         gap = -math.inf  # the base model failed there: no gap measured, a failure
                     break
-        r = CaseResult(case.case_id, case.effect, diag["verdict"], gap, dt, cpu,
-                       [e["name"] for e in diag["effects"]],
-                       [a["effects"] for a in diag.get("ambiguous", [])],
-                       [q["added"] for q in diag.get("sequence", [])],
-                       [q["name"] for q in diag.get("explained_by", [])])
+        r = CaseResult(case.case_id, case.effect, diag.verdict, gap, dt, cpu,
+                       [e.name for e in diag.effects],
+                       [a["effects"] for a in diag.ambiguous],
+                       [q["added"] for q in diag.sequence],
+                       [q.name for q in diag.explained_by])
         results.append(r)
         if progress:
             progress(r)

@@ -1,7 +1,7 @@
 """Sim-to-real gap diagnosis of one capture: where the model misses, which effects, how far it shrinks.
 
-`diagnose(capture, unit, holdout=...)` returns the diagnosis JSON (schema "bench-ctl/diagnosis/1",
-docs/formats.md). Every model is identification's `Problem` on the whole capture (the unit's
+`diagnose(capture, unit, holdout=...)` returns the diagnosis (`diagnosis_file.Diagnosis`, schema
+"bench-ctl/diagnosis/1", docs/formats.md). Every model is identification's `Problem` on the whole capture (the unit's
 identified parameters, the effects' parameters and the instant of every setpoint edge,
 `models.Views`), fitted with identification's stack (`search`):
 
@@ -42,10 +42,12 @@ from bench_ctl.identification.space import SearchSpace
 from bench_ctl.limits import InputError, sha256_file
 from bench_ctl.model.effects import EFFECT_NAMES
 from bench_ctl.model.unit import Unit
+from bench_ctl.records import plain
 from bench_ctl.timestamps import utc_now_text
 
 from . import features as F
 from .check import bic, checked, describe_check, fit_holdout
+from .diagnosis_file import DIAGNOSIS_SCHEMA, Diagnosis
 from .explain import explained_by, sequence
 from .localize import DiagnosisError, Edges, NoiseFloor, find_edges, localization, noise_floor, segments
 from .models import Budget, ModelFit, Setup, Views, Window, coarse_factor
@@ -67,7 +69,7 @@ __all__ = ["SCHEMA", "Budget", "diagnose", "choose_verdict"]
 
 log = logging.getLogger(__name__)
 
-SCHEMA = "bench-ctl/diagnosis/1"
+SCHEMA = DIAGNOSIS_SCHEMA
 
 
 def _sha256(path: str) -> str | None:
@@ -258,7 +260,7 @@ def _edges_json(st: Setup, m: ModelFit) -> list[dict[str, Any]]:
     return out
 
 
-def diagnose(*args: Any, **kwargs: Any) -> dict[str, Any]:
+def diagnose(*args: Any, **kwargs: Any) -> Diagnosis:
     """`_diagnose` with BLAS on one thread (the same answer on any machine, alone or in a batch;
     see identification.identify.run_identification)."""
     from threadpoolctl import threadpool_limits
@@ -269,8 +271,9 @@ def diagnose(*args: Any, **kwargs: Any) -> dict[str, Any]:
 
 def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, seed: int = 0,
               budget: Budget | None = None, base_params: Mapping[str, float] | None = None,
-              command_line: str = "") -> dict[str, Any]:
-    """The diagnosis of `capture` against `unit` (see the module docstring); a JSON-ready dict."""
+              command_line: str = "") -> Diagnosis:
+    """The diagnosis of `capture` against `unit` (see the module docstring); non-finite figures
+    are None, as the JSON writes them."""
     t_start = time.perf_counter()
     budget = budget if budget is not None else Budget()
     src = capture.source or "capture"
@@ -319,7 +322,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     added = [{"added": s["added"], "mse": s["model"].mse, "mse_holdout": s["model"].mse_check,
                  "params": s["model"].effect_params(), "dropped": s["dropped"]} for s in steps]
 
-    return {
+    return Diagnosis.from_json(plain({
         "schema": SCHEMA,
         "software_version": getattr(bench_ctl, "__version__", "0.1.0"),
         "command_line": command_line,
@@ -349,4 +352,4 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
                      "score": "BIC on the capture + sum over the check's parts of n ln(mse), relative to the base "
                               "model"},
         "wall_s": time.perf_counter() - t_start,
-    }
+    }), "the diagnosis")

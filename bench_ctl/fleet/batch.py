@@ -22,19 +22,24 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
+from bench_ctl.diagnosis.diagnosis_file import read_diagnosis
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.limits import InputError, read_json
+from bench_ctl.identification.result_file import read_result
+from bench_ctl.limits import InputError
 from bench_ctl.outputs import OutputRefused, Outputs, why_not_written
+from bench_ctl.records import FormatError
 
 from . import tasks
 from .manifest import Entry, read_manifest
 
 if TYPE_CHECKING:
     from distributed import LocalCluster
+
+R = TypeVar("R")
 
 log = logging.getLogger(__name__)
 
@@ -114,31 +119,36 @@ def _report_step(id_row: dict | None, dg_row: dict | None, entry: Entry, folder:
     return tasks.run_step("report", entry, folder, evals, seed)
 
 
-def _read(path: Path) -> dict:
-    """A result or diagnosis the batch wrote ({} when absent or unreadable), read bounded."""
+def _read(path: Path, read: Callable[[Path], R], errors: list[str]) -> R | None:
+    """A result or diagnosis the batch wrote (None when absent or unreadable, read bounded); one
+    that is not what its name says is an error of the row."""
+    if not path.exists():
+        return None
     try:
-        data = read_json(path, "a result JSON")
+        return read(path)
     except InputError:
-        return {}
-    return data if isinstance(data, dict) else {}
+        return None
+    except FormatError as exc:
+        errors.append(str(exc))
+        return None
 
 
 def summary_row(entry: Entry, folder: Path, steps: dict[str, dict], *, skipped: bool = False) -> dict[str, Any]:
-    res, dia = _read(folder / tasks.RESULT), _read(folder / tasks.DIAGNOSIS)
     errors = [f"{s}: {r['error']}" for s, r in steps.items() if r.get("error")]
+    res = _read(folder / tasks.RESULT, read_result, errors)
+    dia = _read(folder / tasks.DIAGNOSIS, read_diagnosis, errors)
     rcs = [r.get("rc") for r in steps.values()]
     status = ("skipped (up to date)" if skipped else "error" if errors or any(rc not in DONE_CODES for rc in rcs)
               else "criteria failed" if ExitCode.FAILED in rcs else "ok")
     rep_out = steps.get("report", {}).get("output", "")
     warnings = [ln.strip() for ln in rep_out.splitlines() if ln.startswith(("WARN:", "FAIL:"))]
-    mse, floor = res.get("mse"), dia.get("noise_floor")
-    explained = dia.get("explained_by") or []
+    mse = res.mse if res is not None else None
+    floor = dia.noise_floor if dia is not None else None
     rel = lambda n: str((folder / n).relative_to(folder.parent)) if (folder / n).exists() else ""  # noqa: E731
     return {"capture": str(entry.capture), "status": status, "mse": mse, "noise_floor": floor,
-            "mse_over_floor": (mse / floor) if isinstance(mse, (int, float)) and isinstance(floor, (int, float))
-            and floor > 0 else None,
-            "verdict": dia.get("verdict", ""), "explained_by": "+".join(
-                e.get("name", "") if isinstance(e, dict) else str(e) for e in explained),
+            "mse_over_floor": (mse / floor) if mse is not None and floor is not None and floor > 0 else None,
+            "verdict": dia.verdict if dia is not None else "",
+            "explained_by": "+".join(s.name for s in dia.explained_by) if dia is not None else "",
             "warnings": " | ".join(warnings), "result": rel(tasks.RESULT), "diagnosis": rel(tasks.DIAGNOSIS),
             "report": rel(tasks.REPORT), "error": " | ".join(errors),
             "wall_s": round(sum(r.get("wall_s", 0.0) for r in steps.values()), 3),

@@ -4,7 +4,7 @@
 compile / cache-load time is reported as `compile_s`, outside `wall_s`), runs the chosen
 optimizer and any others asked for comparison through `peers.run_optimizer`, analyses what the
 captures determine at the optimum (`identifiability.analyse`) and returns everything;
-`identify` returns only the result dict ("bench-ctl/result/1").
+`identify` returns only the result (`result_file.IdentificationResult`, "bench-ctl/result/1").
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import math
 import os
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,24 +27,23 @@ from bench_ctl.model.params import RECORD_PARAMS
 from bench_ctl.model.simulate import param_matrix
 from bench_ctl.model.unit import Unit
 from bench_ctl.model.unit import outside_bounds as values_outside_bounds
+from bench_ctl.records import plain
 from bench_ctl.timestamps import utc_now_text
 
 from .identifiability import analyse
 from .peers import OPTIMIZERS, Progress, run_optimizer
 from .problem import Problem, make_problem
 from .result import Result
+from .result_file import RESULT_SCHEMA, IdentificationResult
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["Identification", "identify", "run_identification", "warm_up", "RESULT_SCHEMA"]
 
-RESULT_SCHEMA = "bench-ctl/result/1"
-
-
 @dataclass(frozen=True, eq=False)
 class Identification:
-    """Everything one identification produced: the result dict and the objects behind it."""
-    result: dict[str, Any]
+    """Everything one identification produced: the result and the objects behind it."""
+    result: IdentificationResult
     problem: Problem
     best: Result
     runs: tuple[Result, ...]  # every optimizer run, the chosen one first
@@ -53,13 +52,12 @@ class Identification:
     def ok(self) -> bool:
         """The fit succeeded, satisfies every constraint and lies inside the bounds (exit code 0
         of the CLI; the `local` peer ignores bounds by design)."""
-        return (self.best.success and all(c["satisfied"] for c in self.result["constraints"])
-                and not self.outside_bounds)
+        return self.best.success and not self.result.constraints_violated and not self.outside_bounds
 
     @property
     def outside_bounds(self) -> list[str]:
         """'NAME = value [lo, hi]' for each identified value beyond its bounds."""
-        return values_outside_bounds(self.result["params"], self.result["bounds"])
+        return values_outside_bounds(self.result.params, self.result.bounds)
 
 
 _warned = False
@@ -103,25 +101,22 @@ def _capture_entry(c: Capture, mse: float, obj: float, weight: float,
             "weight": float(weight), "edges": edges}
 
 
-def result_for_file(result: Mapping[str, Any], result_path: str | os.PathLike[str]) -> dict[str, Any]:
+def result_for_file(result: IdentificationResult, result_path: str | os.PathLike[str]) -> IdentificationResult:
     """`result` as written to `result_path`: each capture path relative to the result file's
     folder (issue 24 item 14), so the result still finds its captures from any working directory
     and when the folder is moved as a whole. A path with no relative form (another drive) stays
     absolute; a capture held in memory (no path) stays so."""
     folder = Path(os.path.abspath(result_path)).parent
-    out = dict(result)
     caps = []
-    for c in result.get("captures") or []:
-        c = dict(c)
-        if isinstance(c.get("path"), str) and c["path"]:
-            absolute = os.path.abspath(c["path"])
+    for c in result.captures:
+        if c.path:
+            absolute = os.path.abspath(c.path)
             try:
-                c["path"] = Path(os.path.relpath(absolute, folder)).as_posix()
+                c = replace(c, path=Path(os.path.relpath(absolute, folder)).as_posix())
             except ValueError:
-                c["path"] = absolute
+                c = replace(c, path=absolute)
         caps.append(c)
-    out["captures"] = caps
-    return out
+    return replace(result, captures=tuple(caps))
 
 
 def _model_only(ident: dict[str, Any]) -> dict[str, Any]:
@@ -255,14 +250,15 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
                                   ident.get("determined") or {})
     if len(runs) > 1:
         result["comparison"] = [_run_summary(prob, r) for r in runs]
-    return Identification(result=result, problem=prob, best=best, runs=tuple(runs))
+    return Identification(result=IdentificationResult.from_json(plain(result), "the identification result"),
+                          problem=prob, best=best, runs=tuple(runs))
 
 
 def identify(captures: Sequence[Capture], unit: Unit, *, optimizer: str = "mvmo",
              max_evals: int = 1000, seed: int | None = 0, x0: Sequence[float] | None = None,
              progress: Progress | None = None, command_line: str = "",
-             compare: Sequence[str] = (), options: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """The result dict ("bench-ctl/result/1") of identifying `unit` from `captures`."""
+             compare: Sequence[str] = (), options: Mapping[str, Any] | None = None) -> IdentificationResult:
+    """The result ("bench-ctl/result/1") of identifying `unit` from `captures`."""
     return run_identification(captures, unit, optimizer=optimizer, compare=compare,
                               max_evals=max_evals, seed=seed, x0=x0, progress=progress,
                               command_line=command_line, options=options).result

@@ -1,6 +1,7 @@
 """The validation report an engineer hands to the grid operator (issue 6).
 
-`render_report(result, out_html, diagnosis=None, pdf=None)` re-simulates the identified model on
+`render_report(result, out_html, diagnosis=None, pdf=None)` (an `IdentificationResult`, a
+`Diagnosis`; `load_result` / `load_diagnosis` read their files) re-simulates the identified model on
 the capture(s) the result names (after checking their SHA-256), and writes one self-contained
 HTML page (inline CSS, figures as base64 PNG, nothing fetched from the network, print CSS for A4),
 each figure as a PNG beside it, and optionally a PDF made with matplotlib's PdfPages.
@@ -11,8 +12,8 @@ bounds, uncertainty, identifiability and equivalent sets; constraints; convergen
 comparison; diagnosis (when given); unit, test and capture metadata; software and command lines.
 """
 from bench_ctl.report.analysis import ReportData, analyse
-from bench_ctl.report.inputs import ReportError, load_json
+from bench_ctl.report.inputs import ReportError, load_diagnosis, load_result
 from bench_ctl.report.render import claim_report, figure_path, possible_figure_paths, render_report, write_report
 
-__all__ = ["ReportData", "ReportError", "analyse", "claim_report", "figure_path", "load_json",
+__all__ = ["ReportData", "ReportError", "analyse", "claim_report", "figure_path", "load_diagnosis", "load_result",
            "possible_figure_paths", "render_report", "write_report"]

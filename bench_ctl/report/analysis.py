@@ -1,6 +1,6 @@
 """Re-simulating the identified model on its captures and computing what the report shows.
 
-`analyse` takes a result dict (schema bench-ctl/result/1), verifies its captures, simulates the
+`analyse` takes a result (`IdentificationResult`, schema bench-ctl/result/1), verifies its captures, simulates the
 model from `params` + `fixed` with `bench_ctl.model.simulate.simulate` (it does not call the
 identification code, so the report is an independent check of the figures it prints), computes
 the error figures, re-evaluates the constraints and sets up the pass / fail checks.
@@ -16,17 +16,17 @@ from typing import Any
 
 import numpy as np
 
+from bench_ctl.diagnosis.diagnosis_file import Diagnosis
+from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.acceptance import Acceptance, AcceptanceError, acceptance_limits, evaluate
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import outside_bounds
 from bench_ctl.report import checks as chk
 from bench_ctl.report.inputs import (
-    DIAGNOSIS_SCHEMA,
     LoadedCapture,
     ReportError,
     check_result,
-    check_schema,
     load_captures,
     model_values,
     same_file,
@@ -69,8 +69,8 @@ class CaptureAnalysis:
 
 @dataclass(frozen=True)
 class ReportData:
-    result: dict[str, Any]
-    diagnosis: dict[str, Any] | None
+    result: IdentificationResult
+    diagnosis: Diagnosis | None
     values: dict[str, float]
     captures: tuple[CaptureAnalysis, ...]
     mse: float                       # mean over captures of the fit-window MSE (re-simulated)
@@ -91,7 +91,7 @@ def _num(x: Any, default: float) -> float:
     return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else default
 
 
-def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = None,
+def analyse(result: IdentificationResult, *, diagnosis: Diagnosis | None = None,
             base_dir: Path | None = None, where: str = "result",
             window_s: float = DEFAULT_EDGE_WINDOW_S,
             noise_ratio_limit: float = chk.DEFAULT_NOISE_RATIO_LIMIT,
@@ -102,17 +102,13 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
     capture paths are looked for when they do not exist relative to the current directory.
     Raises `ReportError` (see `inputs`) for input that cannot be reported on.
     """
-    result = dict(result)
     check_result(result, where)
-    if diagnosis is not None:
-        check_schema(diagnosis, DIAGNOSIS_SCHEMA, "diagnosis")
-        diagnosis = dict(diagnosis)
-    values = model_values(result, where)
+    values = model_values(result.params, result.fixed, where)
     loaded = load_captures(result, where, base_dir)
-    weights = dict((result.get("unit") or {}).get("weights") or {})
+    unit = result.unit
+    weights = unit.get("weights") if isinstance(unit.get("weights"), Mapping) else {}
     w_efd, w_vt = _num(weights.get("efd"), 1.0), _num(weights.get("vt"), 0.0)
-    window = _fit_window(result.get("fit_window"), where)
-    unit = result.get("unit") if isinstance(result.get("unit"), Mapping) else {}
+    window = _fit_window(result.fit_window, where)
     try:
         limits = acceptance_limits(unit.get("acceptance"), f"{where}: unit")
     except AcceptanceError as exc:
@@ -122,30 +118,23 @@ def analyse(result: Mapping[str, Any], *, diagnosis: Mapping[str, Any] | None = 
     failures = [f"{a.loaded.path.name}: the model blew up at t = "
                 f"{a.loaded.capture.time[a.fail_step]:.3f} s" for a in analyses if a.fail_step >= 0]
     mse = float(np.mean([a.fit_mse for a in analyses]))
-    objective = float(sum(_num(a.loaded.entry.get("weight"), 1.0) * a.fit_objective
-                          for a in analyses))
-    raw_cons = result.get("constraints")
-    cons_ok = raw_cons is None or (isinstance(raw_cons, list) and all(isinstance(c, Mapping) for c in raw_cons))
-    constraints = chk.recheck_constraints(raw_cons if cons_ok and raw_cons else [], values)
-    if not cons_ok:
-        failures.append(f"the result's 'constraints' is {type(raw_cons).__name__} {str(raw_cons)[:60]!r}, "
-                        "not a list of objects: the constraints cannot be checked")
-    unit_cons = (result.get("unit") or {}).get("constraints") if isinstance(result.get("unit"), Mapping) else None
-    if cons_ok and not constraints and isinstance(unit_cons, list) and unit_cons:
+    objective = float(sum(a.loaded.entry.weight * a.fit_objective for a in analyses))
+    constraints = chk.recheck_constraints(result.constraints, values)
+    unit_cons = unit.get("constraints")
+    if not constraints and isinstance(unit_cons, list) and unit_cons:
         failures.append(f"the unit has constraints ({', '.join(map(str, unit_cons))}) but the result "
                         "reports none: they cannot be checked")
     other = _diagnosis_of_another(diagnosis, loaded)
     noise_floor, noise_source = _noise_floor(None if other else diagnosis, analyses)
-    ident = result.get("identifiability") if isinstance(result.get("identifiability"), Mapping) else {}
-    if result.get("failed") is True:
-        failures.insert(0, f"identification reported a failed fit: {result.get('message', '')}")
+    ident = result.identifiability or {}
+    if result.failed is True:
+        failures.insert(0, f"identification reported a failed fit: {result.message or ''}")
     checks = chk.summary_checks(
-        sim_failures=failures, mse_recomputed=mse, mse_reported=result.get("mse"),
+        sim_failures=failures, mse_recomputed=mse, mse_reported=result.mse,
         constraints=constraints, noise_floor=noise_floor, noise_source=noise_source,
         noise_ratio_limit=noise_ratio_limit, determined=ident.get("determined"),
-        at_bounds=chk.params_at_bounds(dict(result.get("params") or {}),
-                                       dict(result.get("bounds") or {})),
-        outside_bounds=outside_bounds(dict(result.get("params") or {}), dict(result.get("bounds") or {})),
+        at_bounds=chk.params_at_bounds(result.params, result.bounds),
+        outside_bounds=outside_bounds(result.params, result.bounds),
         n_captures=len(analyses))
     checks.append(_acceptance_check(analyses))
     if other:
@@ -165,8 +154,7 @@ def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
     cap = lc.capture
     # the setpoint edges at the instants the fit found (none recorded: the zero-order hold)
     try:
-        spec, offsets = edge_spec_of(lc.entry.get("edges") if isinstance(lc.entry.get("edges"), list) else None,
-                                     cap.n)
+        spec, offsets = edge_spec_of(lc.entry.edges, cap.n)
     except (KeyError, TypeError, ValueError) as exc:
         raise ReportError(f"{where}: captures[{lc.index}].edges: unreadable edge entry ({exc})") from None
     efd, vt, fail = simulate({**values, **offsets}, cap.usetp, cap.dt, edges=spec)
@@ -214,12 +202,12 @@ def _fit_window(value: Any, where: str) -> tuple[float, float] | None:
     return vals[0], vals[1]
 
 
-def _diagnosis_of_another(diagnosis: Mapping[str, Any] | None, loaded: list[LoadedCapture]) -> str:
+def _diagnosis_of_another(diagnosis: Diagnosis | None, loaded: list[LoadedCapture]) -> str:
     """'' when there is no diagnosis or it was made on a capture of the result (by SHA-256), else
     what the reader must be told: its noise floor and effects describe another record."""
     if diagnosis is None:
         return ""
-    cap = diagnosis.get("capture") if isinstance(diagnosis.get("capture"), Mapping) else {}
+    cap = diagnosis.capture
     if any(same_file(cap, lc) for lc in loaded):
         return ""
     sha = str(cap.get("sha256", "?"))
@@ -228,11 +216,11 @@ def _diagnosis_of_another(diagnosis: Mapping[str, Any] | None, loaded: list[Load
             "not used here")
 
 
-def _noise_floor(diagnosis: Mapping[str, Any] | None,
+def _noise_floor(diagnosis: Diagnosis | None,
                  analyses: list[CaptureAnalysis]) -> tuple[float | None, str]:
     if diagnosis is not None:
-        nf = diagnosis.get("noise_floor")
-        if isinstance(nf, (int, float)) and not isinstance(nf, bool) and nf > 0:
+        nf = diagnosis.noise_floor
+        if nf is not None and nf > 0:
             return float(nf), "from the diagnosis"
     own = [a.figures.noise_floor for a in analyses]
     if own and all(v is not None for v in own):

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure, SubFigure
 
+from bench_ctl.diagnosis.diagnosis_file import EffectEntry, Step
 from bench_ctl.report.metrics import ErrorFigures, PulseEdges
 
 DPI = 110
@@ -129,10 +130,9 @@ def draw_convergence(fig: Canvas, history: Sequence[Sequence[float]], label: str
     ax.legend(loc="upper right", fontsize=8)
 
 
-def draw_effects(fig: Canvas, effects: Sequence[Mapping[str, Any]]) -> None:
-    names = [str(e.get("name", "?")) for e in effects][::-1]
-    gaps = [float(e["gap_closed"]) if isinstance(e.get("gap_closed"), (int, float)) else 0.0
-            for e in effects][::-1]
+def draw_effects(fig: Canvas, effects: Sequence[EffectEntry]) -> None:
+    names = [e.name for e in effects][::-1]
+    gaps = [float(e.gap_closed) if e.gap_closed is not None else 0.0 for e in effects][::-1]
     ax = fig.subplots()
     y = np.arange(len(names))
     ax.barh(y, gaps, color=COLORS["bar"], label="gap closed")
@@ -142,12 +142,12 @@ def draw_effects(fig: Canvas, effects: Sequence[Mapping[str, Any]]) -> None:
     ax.axvline(0.0, color="0.3", lw=0.6)
     ax.grid(alpha=0.3, axis="x")
     ax.legend(loc="lower right", fontsize=8)
-def draw_staircase(fig: Canvas, base_mse: float, floor: float, steps: Sequence[Mapping[str, Any]],
+def draw_staircase(fig: Canvas, base_mse: float, floor: float, steps: Sequence[Step],
                    left: Mapping[str, Any] | None = None, base_check: float | None = None) -> None:
     """The error after each effect added (explained_by), over the noise floor, down to it."""
-    labels = ["base model"] + [f"+ {s.get('name', '?')}" for s in steps]
-    vals = [base_mse / floor] + [float(s.get("mse", math.nan)) / floor for s in steps]
-    checks = [base_check] + [(s.get("check") or {}).get("mse") for s in steps]
+    labels = ["base model"] + [f"+ {s.name}" for s in steps]
+    vals = [base_mse / floor] + [(s.mse if s.mse is not None else math.nan) / floor for s in steps]
+    checks = [base_check] + [s.check.get("mse") for s in steps]
     ax = fig.subplots()
     x = np.arange(len(labels))
     ax.step(x, vals, where="mid", color=COLORS["bar"], lw=2, label="MSE on the capture / noise floor")

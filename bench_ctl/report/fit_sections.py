@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.model.acceptance import SOURCE
 from bench_ctl.model.params import PARAMS
 from bench_ctl.model.structures import StructureError, structure
@@ -39,8 +40,8 @@ def summary(d: ReportData) -> Section:
     counts = {s: sum(c.status == s for c in d.checks) for s in ("pass", "warn", "fail", "n/a")}
     text = (f"{counts['pass']} passed, {counts['warn']} warning(s), {counts['fail']} failed, "
             f"{counts['n/a']} not applicable")
-    unit = r.get("unit") or {}
-    opt = r.get("optimizer") or {}
+    unit = r.unit
+    opt = r.optimizer
     diag = d.diagnosis
     rows = [
         ("unit", str(unit.get("name", NOT_AVAILABLE)), "", ""),
@@ -50,15 +51,15 @@ def summary(d: ReportData) -> Section:
             "identification fitted this part of each record; MSE and objective below are over it")]
           if d.fit_window else []),
         ("MSE (re-simulated)", Num(d.mse, "mse"), "pu²", "mean over captures of mean(r²)"),
-        ("MSE (reported by identification)", Num(num(r.get("mse")), "mse-reported"), "pu²", ""),
+        ("MSE (reported by identification)", Num(num(r.mse), "mse-reported"), "pu²", ""),
         ("objective (re-simulated)", Num(d.objective, "objective"), "pu² s",
          "trapezoidal integral of the weighted squared error"),
-        ("objective (reported)", Num(num(r.get("objective")), "objective-reported"), "pu² s", ""),
+        ("objective (reported)", Num(num(r.objective), "objective-reported"), "pu² s", ""),
         ("noise floor", Num(d.noise_floor, "noise-floor"), "pu²", d.noise_source),
         ("optimizer", str(opt.get("name", NOT_AVAILABLE)), "",
-         f"seed {fmt(opt.get('seed'))}, {fmt(r.get('evaluations'))} evaluations"),
+         f"seed {fmt(opt.get('seed'))}, {fmt(r.evaluations)} evaluations"),
         *_single_capture_rows(d),
-        ("diagnosis verdict", str(diag.get("verdict", NOT_AVAILABLE)) if diag else NOT_AVAILABLE,
+        ("diagnosis verdict", diag.verdict if diag else NOT_AVAILABLE,
          "", "see Diagnosis" if diag else "no diagnosis given"),
     ]
     return Section("summary", "Summary", (
@@ -91,8 +92,8 @@ def _edge_text(a: CaptureAnalysis) -> str:
 
 def _edge_timing_table(a: CaptureAnalysis) -> Table | None:
     """The setpoint edge instants the fit estimated (result `captures[i].edges`), in ms."""
-    entries = a.loaded.entry.get("edges")
-    if not isinstance(entries, list) or not entries:
+    entries = a.loaded.entry.edges
+    if not entries:
         return None
     rows = []
     for i, e in enumerate(entries, 1):
@@ -157,7 +158,7 @@ def errors(d: ReportData) -> Section:
             win = f" over the fit window {fmt(d.fit_window[0])} … {fmt(d.fit_window[1])} s"
         rows = [
             ("MSE (re-simulated)" + win, Num(a.fit_mse, f"mse{s}-capture"), "pu²", "mean(r²)"),
-            ("MSE (reported)", Num(num(e.get("mse")), f"mse{s}-capture-reported"), "pu²",
+            ("MSE (reported)", Num(num(e.mse), f"mse{s}-capture-reported"), "pu²",
              "captures[].mse of the result"),
             *([("MSE over the whole record", Num(f.mse, f"mse{s}-record"), "pu²",
                 "mean(r²), all samples")] if win else []),
@@ -170,7 +171,7 @@ def errors(d: ReportData) -> Section:
             ("time of peak error", Num(f.peak_time_s, f"peak-time{s}"), "s", ""),
             ("objective (re-simulated)" + win, Num(a.fit_objective, f"objective{s}-capture"),
              "pu² s", "trapezoidal ∫ w r² dt"),
-            ("objective (reported)", Num(num(e.get("objective")), f"objective{s}-capture-reported"),
+            ("objective (reported)", Num(num(e.objective), f"objective{s}-capture-reported"),
              "pu² s", "captures[].objective of the result"),
             ("pre-trigger efd variance", Num(f.noise_floor, f"noise-pre{s}"), "pu²",
              f"{f.noise_samples} samples before the leading edge (noise estimate)"),
@@ -254,11 +255,11 @@ def _determined(det: Any, reasons: Any) -> str:
     return text
 
 
-def _model_blocks(r: Mapping[str, Any]) -> list[Block]:
+def _model_blocks(r: IdentificationResult) -> list[Block]:
     """The structure by name and its parameters under their standard names: value, unit, meaning,
     identified (and determined by the capture) or fixed, simulated or kept for the record."""
-    model = r.get("model")
-    if not isinstance(model, Mapping) or not model.get("name"):
+    model = r.model
+    if model is None or not model.get("name"):
         return [Para("AVR / exciter model: the reference structure (this result names no model).", "note")]
     try:
         st = structure(str(model["name"]))
@@ -290,12 +291,12 @@ def _model_blocks(r: Mapping[str, Any]) -> list[Block]:
 
 def parameters(d: ReportData) -> Section:
     r = d.result
-    params = dict(r.get("params") or {})
-    bounds = dict(r.get("bounds") or {})
-    ident = r.get("identifiability") if isinstance(r.get("identifiability"), Mapping) else None
+    params = r.params
+    bounds = r.bounds
+    ident = r.identifiability
     get = (lambda key, name: (ident.get(key) or {}).get(name)) if ident else (lambda k, n: None)
     rows = []
-    model = r.get("model") if isinstance(r.get("model"), Mapping) else {}
+    model = r.model or {}
     try:
         st = structure(str(model.get("name"))) if model.get("name") else None
     except StructureError:
@@ -341,7 +342,7 @@ def parameters(d: ReportData) -> Section:
                                 caption=f"Strongly correlated estimates (|r| ≥ {STRONG_CORRELATION:g})"))
         for note in ident.get("notes") or []:
             blocks.append(Para(str(note), "note"))
-    fixed = dict(r.get("fixed") or {})
+    fixed = r.fixed
     frows = []
     for name, value in fixed.items():
         info = PARAMS.get(name)
@@ -380,17 +381,17 @@ def constraints(d: ReportData) -> Section:
 
 def convergence(d: ReportData) -> Section:
     r = d.result
-    opt = r.get("optimizer") or {}
+    opt = r.optimizer
     blocks: list[Block] = []
     # entries whose best is still null (no finite objective yet) or not positive are left out
-    pts = [(float(p[0]), float(p[1])) for p in (r.get("history") or [])
+    pts = [(float(p[0]), float(p[1])) for p in r.history
            if isinstance(p, list) and len(p) == 2 and num(p[0]) is not None
            and num(p[1]) is not None and p[1] > 0]
     h = np.asarray(pts, float).reshape(-1, 2)
     ok = h.shape[0] > 0
     if ok:
         name = str(opt.get("name", "optimizer"))
-        left_out = len(r.get("history") or []) - h.shape[0]
+        left_out = len(r.history) - h.shape[0]
         blocks.append(Fig("convergence", "Best objective found vs number of objective "
                           "evaluations (log scale)." + (f" {left_out} history entries without a "
                                                         "finite positive objective are not drawn."
@@ -402,11 +403,11 @@ def convergence(d: ReportData) -> Section:
         blocks.append(Para(f"Convergence history: {NOT_AVAILABLE}.", "na"))
         best, reached = None, None
     rows = [("optimizer", str(opt.get("name", NOT_AVAILABLE))), ("seed", fmt(opt.get("seed"))),
-            ("evaluations", Num(num(r.get("evaluations")), "evaluations")),
+            ("evaluations", Num(num(r.evaluations), "evaluations")),
             ("best objective in history", Num(best)),
             ("best reached after (evaluations)", Num(reached, "best-reached")),
-            ("optimizer wall time (s)", Num(num(r.get("wall_s")), "wall-s", 4)),
-            ("compile time (s), excluded", Num(num(r.get("compile_s")), digits=4))]
+            ("optimizer wall time (s)", Num(num(r.wall_s), "wall-s", 4)),
+            ("compile time (s), excluded", Num(num(r.compile_s), digits=4))]
     for key, value in dict(opt.get("settings") or {}).items():
         rows.append((f"setting: {key}", fmt(value)))
     blocks.append(table(("item", "value"), rows, id="optimizer", kind="kv"))
@@ -415,11 +416,11 @@ def convergence(d: ReportData) -> Section:
 
 def comparison(d: ReportData) -> Section:
     r = d.result
-    comp = [c for c in (r.get("comparison") or []) if isinstance(c, Mapping)]
+    comp = list(r.comparison or [])
     if not comp:
         return Section("comparison", "Optimizer comparison", (
             Para(f"Optimizer comparison: {NOT_AVAILABLE} (one optimizer was run).", "na"),))
-    main = str((r.get("optimizer") or {}).get("name", "this result"))
+    main = str(r.optimizer.get("name", "this result"))
     rows = [(str(c.get("optimizer", "?")) + (" (this result)" if c.get("optimizer") == main else ""),
              Num(num(c.get("mse"))), Num(num(c.get("objective"))), Num(num(c.get("evaluations"))),
              Num(num(c.get("wall_s")), digits=4),
@@ -428,9 +429,9 @@ def comparison(d: ReportData) -> Section:
             for c in comp]
     if not any(c.get("optimizer") == main for c in comp):  # the chosen run is not listed: add it
         violated = [str(c.get("expr")) for c in d.constraints if c.get("satisfied") is not True]
-        rows.insert(0, (main + " (this result)", Num(num(r.get("mse"))),
-                        Num(num(r.get("objective"))), Num(num(r.get("evaluations"))),
-                        Num(num(r.get("wall_s")), digits=4), ", ".join(violated) or "none", ""))
+        rows.insert(0, (main + " (this result)", Num(num(r.mse)),
+                        Num(num(r.objective)), Num(num(r.evaluations)),
+                        Num(num(r.wall_s), digits=4), ", ".join(violated) or "none", ""))
     return Section("comparison", "Optimizer comparison", (
         table(("optimizer", "MSE (pu²)", "objective (pu² s)", "evaluations", "wall time (s)",
                "constraints violated", "note"), rows, id="comparison",

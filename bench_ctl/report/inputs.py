@@ -18,63 +18,46 @@ from typing import Any
 
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import implausible
-from bench_ctl.limits import InputError, read_json, sha256_file
+from bench_ctl.diagnosis.diagnosis_file import Diagnosis, read_diagnosis
+from bench_ctl.identification.result_file import CaptureEntry, IdentificationResult, read_result
+from bench_ctl.limits import InputError, sha256_file
 from bench_ctl.model.params import KERNEL_PARAMS, PARAMS, neutral_values
+from bench_ctl.records import FormatError
 
 log = logging.getLogger(__name__)
-
-RESULT_SCHEMA = "bench-ctl/result/1"
-DIAGNOSIS_SCHEMA = "bench-ctl/diagnosis/1"
-RESULT_REQUIRED = ("captures", "params", "objective", "mse")
-
 
 class ReportError(ValueError):
     """Input a report cannot be made from; the message names the file and key."""
 
 
-def load_json(path: str | os.PathLike[str], schema: str) -> dict[str, Any]:
-    """Read a result or diagnosis JSON file and check its `schema` tag."""
-    path = Path(path)
-    kind = "a diagnosis JSON" if schema == DIAGNOSIS_SCHEMA else "a result JSON"
+def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
+    """Read a result JSON file: every key checked (`IdentificationResult.from_json`)."""
     try:
-        data = read_json(path, kind)
-    except InputError as exc:
+        return read_result(path)
+    except (InputError, FormatError) as exc:
         raise ReportError(str(exc)) from None
-    if not isinstance(data, dict):
-        raise ReportError(f"{path}: expected a JSON object, got {type(data).__name__}")
-    check_schema(data, schema, str(path))
-    return data
 
 
-def check_schema(data: Mapping[str, Any], schema: str, where: str) -> None:
-    got = data.get("schema")
-    if got != schema:
-        raise ReportError(f"{where}: key 'schema' is {got!r}, expected {schema!r}")
+def load_diagnosis(path: str | os.PathLike[str]) -> Diagnosis:
+    """Read a diagnosis JSON file: every key checked (`Diagnosis.from_json`)."""
+    try:
+        return read_diagnosis(path)
+    except (InputError, FormatError) as exc:
+        raise ReportError(str(exc)) from None
 
 
-def check_result(result: Mapping[str, Any], where: str) -> None:
-    """The keys the report cannot do without, with the types it relies on."""
-    check_schema(result, RESULT_SCHEMA, where)
-    missing = [k for k in RESULT_REQUIRED if k not in result]
-    if missing:
-        raise ReportError(f"{where}: missing key(s) {missing}")
-    caps = result["captures"]
-    if not isinstance(caps, list) or not caps:
+def check_result(result: IdentificationResult, where: str) -> None:
+    """What the report needs beyond the format: at least one capture."""
+    if not result.captures:
         raise ReportError(f"{where}: key 'captures' must be a non-empty list")
-    for i, cap in enumerate(caps):
-        if not isinstance(cap, Mapping) or "path" not in cap or "sha256" not in cap:
-            raise ReportError(f"{where}: captures[{i}] must be an object with 'path' and 'sha256'")
-    for key in ("params", "fixed", "bounds"):
-        if key in result and not isinstance(result[key], Mapping):
-            raise ReportError(f"{where}: key {key!r} must be an object")
 
 
-def model_values(result: Mapping[str, Any], where: str) -> dict[str, float]:
+def model_values(params: Mapping[str, Any], fixed: Mapping[str, Any], where: str) -> dict[str, float]:
     """Every kernel parameter for the re-simulation: neutral effects, then `fixed` (null = the
     parameter's infinite neutral value, as the contract writes inf), then the identified `params`."""
     values: dict[str, float] = dict(neutral_values())
-    for section in ("fixed", "params"):
-        for name, value in dict(result.get(section) or {}).items():
+    for section, table in (("fixed", fixed), ("params", params)):
+        for name, value in table.items():
             key = f"{where}: {section}.{name}"
             if name not in PARAMS:
                 raise ReportError(f"{key}: unknown model parameter; known: {', '.join(PARAMS)}")
@@ -102,7 +85,7 @@ class LoadedCapture:
     path: Path
     sha256: str
     capture: Capture
-    entry: dict[str, Any]
+    entry: CaptureEntry
 
 
 def resolve_capture_path(raw: str, base_dir: Path | None) -> Path:
@@ -118,20 +101,22 @@ def resolve_capture_path(raw: str, base_dir: Path | None) -> Path:
     return path
 
 
-def load_captures(result: Mapping[str, Any], where: str,
+def load_captures(result: IdentificationResult, where: str,
                   base_dir: Path | None = None) -> list[LoadedCapture]:
     """Read every capture of the result, refusing a missing file, a SHA-256 / n / rate mismatch
     and a record that is not a plausible setpoint test (`bench_ctl.capture.plausible`)."""
     out = []
-    for i, entry in enumerate(result["captures"]):
+    for i, entry in enumerate(result.captures):
         key = f"{where}: captures[{i}]"
-        path = resolve_capture_path(str(entry["path"]), base_dir)
+        if not entry.path:
+            raise ReportError(f"{key}.path: the result names no capture file (it was identified in memory)")
+        path = resolve_capture_path(entry.path, base_dir)
         if not path.is_file():
             raise ReportError(f"{key}.path: capture file {path} not found")
-        if not isinstance(entry["sha256"], str) or not entry["sha256"]:
+        if not entry.sha256:
             raise ReportError(f"{key}.sha256: the result records no SHA-256 for {path}, so the "
                               "capture cannot be verified")
-        expected = entry["sha256"].lower()
+        expected = entry.sha256.lower()
         actual = sha256_file(path)
         if actual != expected:
             raise ReportError(f"{key}.sha256: capture {path} has SHA-256 {actual}, the result "
@@ -140,18 +125,18 @@ def load_captures(result: Mapping[str, Any], where: str,
             capture = read_capture(path)
         except CaptureError as exc:
             raise ReportError(f"{key}: {exc}") from None
-        n = entry.get("n")
-        if n is not None and int(n) != capture.n:
+        n = entry.n
+        if n != capture.n:
             raise ReportError(f"{key}.n: result says {n} samples, {path} has {capture.n}")
-        rate = entry.get("rate_hz")
-        if rate is not None and not math.isclose(float(rate), capture.rate_hz, rel_tol=1e-6):
+        rate = entry.rate_hz
+        if not math.isclose(float(rate), capture.rate_hz, rel_tol=1e-6):
             raise ReportError(f"{key}.rate_hz: result says {rate} Hz, {path} has "
                               f"{capture.rate_hz:g} Hz")
         err = implausible(capture)
         if err is not None:   # refused as identify refuses it: no report on a broken record
             raise ReportError(f"{key}: {err}")
         log.debug("capture %d %s verified (sha256 %s)", i, path, actual)
-        out.append(LoadedCapture(i, path, actual, capture, dict(entry)))
+        out.append(LoadedCapture(i, path, actual, capture, entry))
     return out
 
 

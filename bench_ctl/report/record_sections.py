@@ -9,6 +9,7 @@ from functools import partial
 from typing import Any
 
 import bench_ctl
+from bench_ctl.diagnosis.diagnosis_file import Diagnosis
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import ReportData
 from bench_ctl.report.blocks import NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section, flatten, fmt, num, table
@@ -28,37 +29,33 @@ def diagnosis(d: ReportData) -> Section | None:
     if g is None:
         return None
     blocks: list[Block] = []
-    cap = g.get("capture") if isinstance(g.get("capture"), Mapping) else {}
+    cap = g.capture
     if not any(same_file(cap, a.loaded) for a in d.captures):
         blocks.append(Para(f"Note: the diagnosis was made on {cap.get('path', '?')} (SHA-256 "
                            f"{cap.get('sha256', '?')}), not on a capture of this result.", "note"))
-    base = g.get("base") if isinstance(g.get("base"), Mapping) else {}
-    hold = g.get("holdout") if isinstance(g.get("holdout"), Mapping) else None
-    rows = [("verdict", str(g.get("verdict", NOT_AVAILABLE))),
-            ("noise floor (pu²)", Num(num(g.get("noise_floor")), "diag-noise-floor")),
-            ("base model MSE (pu²)", Num(num(base.get("mse")), "diag-base-mse")),
-            ("base model MSE on hold-out (pu²)", Num(num(base.get("mse_holdout")))),
+    base = g.base
+    hold = g.holdout
+    rows = [("verdict", g.verdict),
+            ("noise floor (pu²)", Num(num(g.noise_floor), "diag-noise-floor")),
+            ("base model MSE (pu²)", Num(num(base.mse), "diag-base-mse")),
+            ("base model MSE on hold-out (pu²)", Num(num(base.mse_holdout))),
             ("capture", f"{cap.get('path', '?')} (SHA-256 {cap.get('sha256', '?')})"),
             ("hold-out capture", f"{hold.get('path', '?')} (SHA-256 {hold.get('sha256', '?')})"
              if hold else "none")]
-    if isinstance(base.get("at_noise_floor"), bool):
-        rows.insert(3, ("base model at the noise floor", fmt(base["at_noise_floor"])))
-    for key, label in (("validation", "validation (fit / check records)"),
-                       ("criteria", "decision criteria")):
-        if isinstance(g.get(key), Mapping):
-            rows.append((label, fmt(g[key], 5)))
+    rows.insert(3, ("base model at the noise floor", fmt(base.at_noise_floor)))
+    rows.append(("validation (fit / check records)", fmt(g.validation, 5)))
+    rows.append(("decision criteria", fmt(g.criteria, 5)))
     blocks.append(table(("item", "value"), rows, id="diagnosis-summary", kind="kv"))
-    effects = _objs(g.get("effects"))
-    at_floor = base.get("at_noise_floor") is True
+    effects = g.effects
+    at_floor = base.at_noise_floor
     if effects:
         blocks.append(table(
             ("rank", "effect", "parameters", "MSE (pu²)", "MSE hold-out (pu²)", "gap closed",
              "score", "AIC", "significant"),
-            [(str(i + 1), str(e.get("name", "?")), fmt(e.get("params") or {}, 4),
-              Num(num(e.get("mse"))), Num(num(e.get("mse_holdout"))),
-              (NO_GAP if at_floor else Num(num(e.get("gap_closed")), f"gap-{e.get('name')}", 3)),
-              Num(num(e.get("score")), digits=4), Num(num(e.get("aic")), digits=5),
-              fmt(e["significant"]) if isinstance(e.get("significant"), bool) else "—")
+            [(str(i + 1), e.name, fmt(e.params, 4),
+              Num(num(e.mse)), Num(num(e.mse_holdout)),
+              (NO_GAP if at_floor else Num(num(e.gap_closed), f"gap-{e.name}", 3)),
+              Num(num(e.score), digits=4), Num(num(e.aic), digits=5), fmt(e.significant))
              for i, e in enumerate(effects)], id="diagnosis-effects",
             caption="Effects ranked, best first (gap closed: fraction of the base model's "
                     "excess MSE over the noise floor that the effect removes)"))
@@ -66,14 +63,14 @@ def diagnosis(d: ReportData) -> Section | None:
             blocks.append(Para("Gap closed is not applicable: the base model already fits to within the "
                                "noise floor, so there is no gap to close. Effects are ranked by score "
                                "(likelihood on the fit and check records).", "na"))
-        elif any(num(e.get("gap_closed")) is not None for e in effects):
+        elif any(e.gap_closed is not None for e in effects):
             blocks.append(Fig("diagnosis_effects", "How much of the gap between the base model "
                               "and the noise floor each effect closes.",
                               partial(F.draw_effects, effects=effects),
                               size=(F.FIGSIZE[0], 1.6 + 0.45 * len(effects))))
     else:
         blocks.append(Para(f"Effects: {NOT_AVAILABLE}.", "na"))
-    loc = g.get("localization") if isinstance(g.get("localization"), Mapping) else {}
+    loc = g.localization
     segs, bands = _objs(loc.get("segments")), _objs(loc.get("bands"))
     if segs:
         blocks.append(table(("segment", "from (s)", "to (s)", "share", "MSE (pu²)"),
@@ -90,17 +87,17 @@ def diagnosis(d: ReportData) -> Section | None:
                             caption="Localization: residual share per frequency band"))
     if not segs and not bands:
         blocks.append(Para(f"Localization: {NOT_AVAILABLE}.", "na"))
-    feats = _objs(g.get("features"))
+    feats = _objs(g.features)
     blocks.append(table(("feature", "detected", "evidence"),
                         [(str(f.get("name", "?")), fmt(f.get("detected")), str(f.get("evidence", "")))
                          for f in feats], id="diagnosis-features", caption="Features of the residual")
                   if feats else Para(f"Features: {NOT_AVAILABLE}.", "na"))
-    amb = _objs(g.get("ambiguous"))
+    amb = _objs(g.ambiguous)
     blocks.append(table(("effects", "test that would separate them"),
                         [(", ".join(map(str, a.get("effects") or [])), str(a.get("separating_test", "")))
                          for a in amb], id="diagnosis-ambiguous", caption="Ambiguities")
                   if amb else Para("Ambiguities: none reported.", "note"))
-    seq = _objs(g.get("sequence"))
+    seq = _objs(g.sequence)
     blocks.append(table(("step", "effect added", "MSE hold-out (pu²)"),
                         [(str(i + 1), str(s.get("added", "?")), Num(num(s.get("mse_holdout"))))
                          for i, s in enumerate(seq)], id="diagnosis-sequence",
@@ -111,49 +108,42 @@ def diagnosis(d: ReportData) -> Section | None:
     return Section("diagnosis", "Diagnosis of the remaining gap", tuple(blocks))
 
 
-def _explained_by(g: Mapping[str, Any]) -> list[Block]:
+def _explained_by(g: Diagnosis) -> list[Block]:
     """The staircase: the error after each effect added (jointly re-fitted), down to what is left."""
-    steps = _objs(g.get("explained_by"))
-    left = g.get("left") if isinstance(g.get("left"), Mapping) else None
-    if not steps and left is None:
-        return []
-    base = g.get("base") if isinstance(g.get("base"), Mapping) else {}
-    floor = num(g.get("noise_floor"))
-    rows = [("base model", "", Num(num(base.get("mse")), digits=4),
-             Num(num(base.get("mse")) / floor if floor and num(base.get("mse")) is not None else None, digits=3),
-             "", Num(num(base.get("mse_holdout")), digits=4))]
+    steps = g.explained_by
+    left = g.left
+    base = g.base
+    floor = num(g.noise_floor)
+    rows = [("base model", "", Num(num(base.mse), digits=4),
+             Num(base.mse / floor if floor and base.mse is not None else None, digits=3),
+             "", Num(num(base.mse_holdout), digits=4))]
     for s in steps:
-        params = ", ".join(f"{k} {fmt(v, 4)}" for k, v in (s.get("params") or {}).items())
-        check = s.get("check") if isinstance(s.get("check"), Mapping) else {}
-        rows.append((f"+ {s.get('name', '?')}", params, Num(num(s.get("mse")), digits=4),
-                     Num(num(s.get("mse_over_floor")), digits=3), Num(num(s.get("gap_closed")), digits=3),
-                     Num(num(check.get("mse")), digits=4)))
+        params = ", ".join(f"{k} {fmt(v, 4)}" for k, v in s.params.items())
+        rows.append((f"+ {s.name}", params, Num(num(s.mse), digits=4),
+                     Num(num(s.mse_over_floor), digits=3), Num(num(s.gap_closed), digits=3),
+                     Num(num(s.check.get("mse")), digits=4)))
     out: list[Block] = [table(("model", "effect parameters", "MSE (pu²)", "MSE / noise floor", "gap closed",
                                "check MSE (pu²)"), rows, id="diagnosis-explained-by",
                               caption="The effects that together explain the record, in the order added "
                                       "(each step re-fits every parameter): the error after each, down to "
                                       "the noise floor")]
-    base_mse = num(base.get("mse"))
+    base_mse = num(base.mse)
     if steps and floor and base_mse is not None:
         out.append(Fig("diagnosis_staircase", "The staircase: the error after each effect added, over the noise "
                        "floor (log scale), down to it; squares: the same on the check.",
                        partial(F.draw_staircase, base_mse=base_mse, floor=floor, steps=steps, left=left,
-                               base_check=num((base.get("check") or {}).get("mse")))))
-    if left is not None:
-        out.append(Para(f"What is left: {left.get('note', '')}.", "note"))
+                               base_check=num((base.check or {}).get("mse")))))
+    out.append(Para(f"What is left: {left.get('note', '')}.", "note"))
     return out
 
 
-def _check(g: Mapping[str, Any]) -> list[Block]:
+def _check(g: Diagnosis) -> list[Block]:
     """What every model was judged on: the holdout and the cross-validation windows."""
-    chk = g.get("check") if isinstance(g.get("check"), Mapping) else None
-    if chk is None:
-        return []
+    chk = g.check
     parts_in = [("holdout", f"holdout capture {h.get('capture') or ''}", h) for h in (chk.get("holdout"),)
                 if isinstance(h, Mapping)]
     parts_in += [(str(w.get("label", "?")), str(w.get("label", "?")), w) for w in _objs(chk.get("windows"))]
-    base = g.get("base") if isinstance(g.get("base"), Mapping) else {}
-    mse = {str(p.get("label")): num(p.get("mse")) for p in _objs((base.get("check") or {}).get("parts"))}
+    mse = {str(p.get("label")): num(p.get("mse")) for p in _objs((g.base.check or {}).get("parts"))}
     rows = [(name, Num(num(w.get("t0")), digits=4), Num(num(w.get("t1")), digits=4), Num(mse.get(key), digits=4))
             for key, name, w in parts_in]
     return [table(("check part", "from (s)", "to (s)", "base model MSE there (pu²)"), rows, id="diagnosis-check",
@@ -178,7 +168,7 @@ def _unit_rows(unit: Mapping[str, Any]) -> list[tuple[str, str]]:
 
 
 def metadata(d: ReportData) -> Section:
-    unit = d.result.get("unit") if isinstance(d.result.get("unit"), Mapping) else None
+    unit = d.result.unit
     blocks: list[Block] = [Heading("Unit")]
     if unit:
         blocks.append(table(("key", "value"), _unit_rows(unit), id="unit", kind="kv"))
@@ -190,8 +180,8 @@ def metadata(d: ReportData) -> Section:
         rows = [("file", str(a.loaded.path)), ("SHA-256 (verified)", a.loaded.sha256),
                 ("samples", Num(cap.n)), ("rate (Hz)", Num(cap.rate_hz)),
                 ("duration (s)", Num(float(cap.time[-1] - cap.time[0]))),
-                ("weight in the objective", Num(num(a.loaded.entry.get("weight"))))]
-        meta = cap.meta or a.loaded.entry.get("meta") or {}
+                ("weight in the objective", Num(num(a.loaded.entry.weight)))]
+        meta = cap.meta or a.loaded.entry.meta
         rows += [(f"sidecar: {k}", v) for k, v in flatten(meta)] if meta else \
             [("sidecar", "none (no test / bench description recorded)")]
         blocks.append(table(("key", "value"), rows, id=f"capture{a.suffix or '_1'}",
@@ -201,14 +191,15 @@ def metadata(d: ReportData) -> Section:
 
 def provenance(d: ReportData, pdf: bool) -> Section:
     r = d.result
-    rows = [("result schema", str(r.get("schema"))),
-            ("result software version", str(r.get("software_version", NOT_AVAILABLE))),
-            ("result command line", str(r.get("command_line", NOT_AVAILABLE))),
-            ("result created (UTC)", str(r.get("created_utc", NOT_AVAILABLE)))]
+    rows = [("result schema", r.schema),
+            ("result software version", r.software_version),
+            ("result command line", r.command_line),
+            ("result created (UTC)", r.created_utc)]
     if d.diagnosis is not None:
-        rows += [("diagnosis software version", str(d.diagnosis.get("software_version", "?"))),
-                 ("diagnosis command line", str(d.diagnosis.get("command_line", "?"))),
-                 ("diagnosis created (UTC)", str(d.diagnosis.get("created_utc", "?")))]
+        rows += [("diagnosis schema", d.diagnosis.schema),
+                 ("diagnosis software version", d.diagnosis.software_version),
+                 ("diagnosis command line", d.diagnosis.command_line),
+                 ("diagnosis created (UTC)", d.diagnosis.created_utc)]
     rows += [("report software version", bench_ctl.__version__),
              ("report command line", d.report_command or NOT_AVAILABLE),
              ("report generated (UTC)", d.generated_utc),

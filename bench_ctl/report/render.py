@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
+from bench_ctl.diagnosis.diagnosis_file import Diagnosis
+from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.outputs import Outputs
 from bench_ctl.report import checks as chk
 from bench_ctl.report.analysis import ReportData, analyse
@@ -61,16 +61,15 @@ def claim_report(outputs: Outputs, out_html: str | os.PathLike[str], *, n_captur
 
 
 def _titles(d: ReportData) -> tuple[str, str]:
-    unit = d.result.get("unit") if isinstance(d.result.get("unit"), Mapping) else {}
-    title = f"AVR model validation report: {unit.get('name', 'unit not named')}"
+    title = f"AVR model validation report: {d.result.unit.get('name', 'unit not named')}"
     caps = ", ".join(a.loaded.path.name for a in d.captures)
-    sub = (f"Capture(s) {caps}; result of {d.result.get('created_utc', 'unknown date')}; "
+    sub = (f"Capture(s) {caps}; result of {d.result.created_utc}; "
            f"report generated {d.generated_utc}; overall {d.verdict}")
     return title, sub
 
 
-def render_report(result: Mapping[str, Any], out_html: str | os.PathLike[str], *,
-                  diagnosis: Mapping[str, Any] | None = None,
+def render_report(result: IdentificationResult, out_html: str | os.PathLike[str], *,
+                  diagnosis: Diagnosis | None = None,
                   pdf: str | os.PathLike[str] | None = None,
                   base_dir: str | os.PathLike[str] | None = None,
                   window_s: float = DEFAULT_EDGE_WINDOW_S,

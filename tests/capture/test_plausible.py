@@ -12,6 +12,7 @@ from bench_ctl.capture.plausible import implausible
 from bench_ctl.cli import main
 from bench_ctl.identification.synthetic import synthetic_capture
 from bench_ctl.model.unit import reference_unit
+from records import diagnosis_json
 
 
 @pytest.fixture(scope="module")
@@ -43,16 +44,19 @@ def test_identify_and_diagnose_refuse_an_implausible_capture(tmp_path, cap, caps
         assert expect in err and "bad.csv" in err, err
 
 
-def test_report_fails_unreadable_constraints_and_refuses_a_flat_record(tmp_path, cap, capsys):
+def test_report_refuses_unreadable_constraints_and_a_flat_record(tmp_path, cap, capsys):
     csv = _write(tmp_path, "cap.csv", cap)
     assert main(["identify", str(csv), "--json", str(tmp_path / "r.json"), "--evals", "64",
                  "--no-progress"]) in (0, 1)
     result = json.loads((tmp_path / "r.json").read_text())
     bad = dict(result, constraints="TA2 <= TA1")
     (tmp_path / "bad.json").write_text(json.dumps(bad))
-    assert main(["report", str(tmp_path / "bad.json"), "-o", str(tmp_path / "bad.html")]) == 1
-    html = (tmp_path / "bad.html").read_text(encoding="utf-8")
-    assert "cannot be checked" in html
+    capsys.readouterr()
+    # constraints that are not a list of objects: the result is refused, the key named (it was a
+    # FAIL report saying they "cannot be checked"; a result of the wrong shape is not reported on)
+    assert main(["report", str(tmp_path / "bad.json"), "-o", str(tmp_path / "bad.html")]) == 2
+    assert "key 'constraints' must be a list of an object" in capsys.readouterr().err
+    assert not (tmp_path / "bad.html").exists()
     # a capture whose efd never responds (its result forged to match the file): refused as identify
     # refuses it (issue 24 item 12: it was a FAIL report with "inf nan", rc 1), nothing written
     flat = Capture(cap.time, cap.usetp, np.full(cap.n, 1.0) + 0.002 * np.cos(np.arange(cap.n)))
@@ -179,8 +183,7 @@ def test_report_with_another_captures_diagnosis_warns_on_the_console(tmp_path, c
     one = _write(tmp_path, "one.csv", cap)
     two = _write(tmp_path, "two.csv", synthetic_capture(reference_unit(), duration=3.0, rate=500.0, seed=9))
     assert main(["identify", str(one), "--evals", "64", "--no-progress", "--json", str(tmp_path / "r.json")]) in (0, 1)
-    diag = {"schema": "bench-ctl/diagnosis/1", "capture": {"path": str(two), "sha256": sha256_file(two)},
-            "verdict": "none", "noise_floor": 1e-9}
+    diag = diagnosis_json(capture={"path": str(two), "sha256": sha256_file(two)}, verdict="none", noise_floor=1e-9)
     (tmp_path / "d.json").write_text(json.dumps(diag))
     capsys.readouterr()
     rc = main(["report", str(tmp_path / "r.json"), "--diagnosis", str(tmp_path / "d.json"),

@@ -235,10 +235,13 @@ def diag(unit, ceiling_case):
 
 
 def test_diagnosis_json_keys(diag):
+    assert diag.schema == SCHEMA
+    scores = [e.score for e in diag.effects]
+    assert scores == sorted(scores)
+    diag = diag.to_json()
     for key in ("schema", "software_version", "command_line", "created_utc", "capture", "holdout", "base",
                 "noise_floor", "localization", "features", "effects", "ambiguous", "sequence", "verdict"):
         assert key in diag
-    assert diag["schema"] == SCHEMA
     assert set(diag["base"]) >= {"params", "mse", "mse_holdout"}
     assert {s["name"] for s in diag["localization"]["segments"]} == {
         "pre_trigger", "leading_edge", "plateau", "trailing_edge", "recovery"}
@@ -247,46 +250,44 @@ def test_diagnosis_json_keys(diag):
     assert len(diag["effects"]) == 8
     for e in diag["effects"]:
         assert set(e) >= {"name", "params", "mse", "mse_holdout", "gap_closed", "score", "aic"}
-    scores = [e["score"] for e in diag["effects"]]
-    assert scores == sorted(scores)
-    json.dumps(diag, allow_nan=True)  # serialisable (the command maps inf / nan to null)
+    json.dumps(diag, allow_nan=False)  # strict JSON: inf / nan written as null
 
 
 def test_diagnosis_finds_the_ceiling_and_reports_the_gap(diag, ceiling_case):
-    assert diag["verdict"] == "ceiling_limit"
-    top = diag["effects"][0]
-    assert top["params"]["VRMAX"] == pytest.approx(ceiling_case.effect_params["VRMAX"], abs=0.03)
+    assert diag.verdict == "ceiling_limit"
+    top = diag.effects[0]
+    assert top.params["VRMAX"] == pytest.approx(ceiling_case.effect_params["VRMAX"], abs=0.03)
     # gap_closed on the holdout, recomputed from the reported figures (the holdout part of the check)
-    floor_h = diag["noise_floor_detail"]["holdout"]
-    hold = {e: next(p["mse"] for p in c["check"]["parts"] if p["label"] == "holdout") for e, c in
-            (("base", diag["base"]), ("top", top))}
+    floor_h = diag.noise_floor_detail["holdout"]
+    hold = {e: next(p["mse"] for p in c.check["parts"] if p["label"] == "holdout") for e, c in
+            (("base", diag.base), ("top", top))}
     expect = (hold["base"] - hold["top"]) / (hold["base"] - floor_h)
-    assert top["gap_closed_holdout"] == pytest.approx(expect)
-    assert top["gap_closed_holdout"] > 0.8
-    assert diag["sequence"][0]["added"] == "ceiling_limit"
-    assert [s["name"] for s in diag["explained_by"]] == ["ceiling_limit"]
+    assert top.gap_closed_holdout == pytest.approx(expect)
+    assert top.gap_closed_holdout > 0.8
+    assert diag.sequence[0]["added"] == "ceiling_limit"
+    assert [s.name for s in diag.explained_by] == ["ceiling_limit"]
     # the check: the holdout and the capture's windows, each window left out of a re-fit
-    labels = [p["label"] for p in top["check"]["parts"]]
+    labels = [p["label"] for p in top.check["parts"]]
     assert labels == ["holdout", "leading_edge", "plateau", "trailing_edge", "vt"]  # vt: recorded, not fitted
-    assert diag["validation"]["kind"] == "holdout + windows"
+    assert diag.validation["kind"] == "holdout + windows"
 
 
 def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling_case):
     """No holdout: every model is fitted on the whole capture and judged by cross-validation over
     its windows; the ceiling acts at the edges, so that is where its check gain lies."""
     d = diagnose(ceiling_case.capture, unit, budget=FAST)
-    v = d["validation"]
+    v = d.validation
     cap = ceiling_case.capture
-    assert v["kind"] == "windows" and d["holdout"] is None
+    assert v["kind"] == "windows" and d.holdout is None
     assert v["fit"] == {"t0": 0.0, "t1": pytest.approx((cap.n - 1) * cap.dt)}
     wins = {w["label"]: (w["t0"], w["t1"]) for w in v["check"]["windows"]}
     assert list(wins) == ["leading_edge", "plateau", "trailing_edge"]
     assert wins["leading_edge"][0] == pytest.approx(1.0, abs=cap.dt) and wins["trailing_edge"][0] == pytest.approx(
         2.0, abs=cap.dt)
-    assert d["verdict"] == "ceiling_limit"
-    top = next(e for e in d["effects"] if e["name"] == "ceiling_limit")
-    base_parts = {p["label"]: p["mse"] for p in d["base"]["check"]["parts"]}
-    top_parts = {p["label"]: p["mse"] for p in top["check"]["parts"]}
+    assert d.verdict == "ceiling_limit"
+    top = d.effect("ceiling_limit")
+    base_parts = {p["label"]: p["mse"] for p in d.base.check["parts"]}
+    top_parts = {p["label"]: p["mse"] for p in top.check["parts"]}
     gain = {k: base_parts[k] / top_parts[k] for k in base_parts}
     assert gain["leading_edge"] > 2.0 and gain["trailing_edge"] > 2.0, gain
     # the report re-simulates the base fit over the whole record with the fitted edge instants
@@ -295,26 +296,26 @@ def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling
     from bench_ctl.model.simulate import simulate
 
     res = base_result(d, cap, unit)
-    assert res["fit_window"] is None
-    spec, offsets = edge_spec_of(res["captures"][0]["edges"], cap.n)
+    assert res.fit_window is None
+    spec, offsets = edge_spec_of(res.captures[0].edges, cap.n)
     assert set(offsets) == {"EDGE1", "EDGE2"} and all(-cap.dt <= v <= 0 for v in offsets.values())
-    efd, _, _ = simulate({**unit.values(), **d["base"]["params"], **offsets}, cap.usetp, cap.dt, edges=spec)
+    efd, _, _ = simulate({**unit.values(), **d.base.params, **offsets}, cap.usetp, cap.dt, edges=spec)
     e2 = (cap.efd - efd) ** 2
-    assert np.mean(e2) == pytest.approx(res["mse"], rel=1e-9)
+    assert np.mean(e2) == pytest.approx(res.mse, rel=1e-9)
     # the diagnosis' mse is the objective per second: the trapezoidal mean of the squared error
-    assert (np.sum(e2) - 0.5 * (e2[0] + e2[-1])) / (cap.n - 1) == pytest.approx(d["base"]["mse"], rel=1e-9)
+    assert (np.sum(e2) - 0.5 * (e2[0] + e2[-1])) / (cap.n - 1) == pytest.approx(d.base.mse, rel=1e-9)
 
 
 def test_effect_free_capture_gives_none(unit):
     case = make_case("none", 12, SMALL)
     d = diagnose(case.capture, unit, holdout=case.holdout, budget=FAST)
-    assert d["verdict"] == "none"
-    assert d["sequence"] == [] and d["ambiguous"] == []
-    assert d["base"]["mse"] < 1.2 * d["noise_floor"]
+    assert d.verdict == "none"
+    assert d.sequence == [] and d.ambiguous == []
+    assert d.base.mse < 1.2 * d.noise_floor
     # no gap to close: the headline fraction is withheld, the raw figures stay for the record
-    assert d["base"]["at_noise_floor"] is True
-    assert all(e["gap_closed"] is None and e["gap_closed_on"] is None for e in d["effects"])
-    assert all(e["gap_closed_fit"] is not None for e in d["effects"])
+    assert d.base.at_noise_floor is True
+    assert all(e.gap_closed is None and e.gap_closed_on is None for e in d.effects)
+    assert all(e.gap_closed_fit is not None for e in d.effects)
 
 
 def test_cli_writes_the_diagnosis(tmp_path, ceiling_case):

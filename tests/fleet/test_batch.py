@@ -12,6 +12,7 @@ from bench_ctl.cli import main
 from bench_ctl.fleet.batch import local_cluster
 from bench_ctl.fleet.manifest import ManifestError, read_manifest
 from bench_ctl.fleet.tasks import VOLATILE_KEYS
+from records import assert_round_trip
 
 distributed = pytest.importorskip("distributed")
 
@@ -87,6 +88,8 @@ def test_batch_on_a_cluster_by_address(cluster, fleet, capsys):
     assert rows["c2.csv"]["diagnosis"] == ""  # its steps were identify+report
     for name in ("result.json", "diagnosis.json", "report.html"):
         assert (out / "c1" / name).is_file()
+    for name in ("result.json", "diagnosis.json"):   # written in a worker: read back here
+        assert_round_trip(out / "c1" / name)
     assert float(rows["c1.csv"]["mse_over_floor"]) > 0.5 and rows["c1.csv"]["verdict"] == "none"
     index = (out / "index.html").read_text()
     assert "c1/report.html" in index and "<script>" in index and "http" not in index

@@ -172,7 +172,8 @@ def test_each_structures_export_reads_back_and_simulates_the_same(model, tmp_pat
     assert main(["simulate", "--from-dyr", str(dyr), "-o", str(back), "--duration", "3", "--rate", "500",
                  "--noise", "0", "--lsb", "0"]) == 0
     result = json.loads(res.read_text())
-    values = {k: v for k, v in model_values(result, "r.json").items() if not k.startswith("EDGE")}
+    values = {k: v for k, v in model_values(result["params"], result["fixed"], "r.json").items()
+              if not k.startswith("EDGE")}
     b = read_capture(back)
     efd, _vt, fail = simulate(values, b.usetp, b.dt)
     assert fail < 0 and float(np.max(np.abs(efd - b.efd))) <= 1e-6

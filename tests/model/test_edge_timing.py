@@ -58,7 +58,7 @@ def test_identify_finds_edges_between_samples_and_reaches_the_noise_floor(seed, 
     t, u, efd = _fine_record(on, off, 1000.0, 4.0, seed=seed)
     cap = Capture(time=t, usetp=u, efd=efd)
     unit = reference_unit()
-    r = identify([cap], unit, max_evals=1000, seed=0)
+    r = identify([cap], unit, max_evals=1000, seed=0).to_json()
     fitted = [e["fitted_s"] for e in r["edges"]]
     np.testing.assert_allclose(fitted, [on, off], atol=1.5e-4)  # within 0.15 of a sample
     assert all(e["std_s"] is not None and 0 < e["std_s"] < 3e-4 for e in r["edges"])
@@ -91,7 +91,7 @@ def test_an_edge_given_two_source_samples_off_is_found_within_a_tenth_of_a_sampl
     edges = record_edges(cap)
     assert [e.how for e in edges] == ["described", "described"]
     assert edges[0].lo_s == pytest.approx(-3 * step)
-    r = identify([cap], reference_unit(), max_evals=1000, seed=0)
+    r = identify([cap], reference_unit(), max_evals=1000, seed=0).to_json()
     fitted = [e["fitted_s"] for e in r["edges"]]
     np.testing.assert_allclose(fitted, [on, off], atol=0.1 * step)
 

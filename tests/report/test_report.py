@@ -31,6 +31,7 @@ from bench_ctl.model.params import AVR_PARAMS, PARAMS, REFERENCE_BOUNDS, REFEREN
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
 from bench_ctl.model.unit import load_unit
 from bench_ctl.report import figures as F
+from records import diagnosis_json, effect_json, step_json
 
 START_S, WIDTH_S, RATE_HZ, EDGE_WINDOW_S = 1.0, 1.0, 1000.0, 0.2
 FIT = {**{k: REFERENCE_VALUES[k] for k in AVR_PARAMS}, "KAVR": 185.0, "TE": 0.024}
@@ -168,27 +169,28 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> dict:
             "notes": ["lead/lag pairs are interchangeable"]},
         "comparison": [{"optimizer": "de", "mse": 2 * exp["mse"], "objective": 0.5,
                         "evaluations": 1000, "wall_s": 1.5, "constraints_violated": ["TA2 <= TA1"]}],
+        "fit_window": None,
     }
-    diagnosis = {
-        "schema": "bench-ctl/diagnosis/1", "software_version": "0.1.0",
-        "command_line": "bench-ctl diagnose result.json", "created_utc": "2025-01-02",
-        "capture": {"path": str(csv), "sha256": sha256_file(csv)}, "holdout": None,
-        "base": {"params": FIT, "mse": exp["mse"], "mse_holdout": exp["mse"]},
-        "noise_floor": 1.0e-4,
-        "localization": {"segments": [{"name": "leading_edge", "t0": 1.0, "t1": 1.2,
-                                       "share": 0.61, "mse": 1e-3}],
-                         "bands": [{"name": "high", "f0_hz": 5.0, "f1_hz": 50.0, "share": 0.3}]},
-        "features": [{"name": "flat_top", "detected": True, "evidence": HOSTILE}],
-        "effects": [{"name": "rate_limit", "params": {"RATE": 40.0}, "mse": 1.1e-4,
-                     "mse_holdout": 1.2e-4, "gap_closed": 0.93, "score": 2.0, "aic": -100.0},
-                    {"name": "dead_time", "params": {"TD": 0.004}, "mse": 1.5e-4,
-                     "mse_holdout": 1.6e-4, "gap_closed": 0.4, "score": 1.0, "aic": -90.0}],
-        "ambiguous": [{"effects": ["rate_limit", "ceiling_limit"],
-                       "separating_test": "a 2 % pulse stays below the ceiling"}],
-        "sequence": [{"added": "rate_limit", "mse_holdout": 1.2e-4},
-                     {"added": "dead_time", "mse_holdout": 1.15e-4}],
-        "verdict": "rate_limit",
-    }
+    diagnosis = diagnosis_json(
+        command_line="bench-ctl diagnose result.json", created_utc="2025-01-02",
+        capture={"path": str(csv), "sha256": sha256_file(csv)}, holdout=None,
+        base={"params": FIT, "mse": exp["mse"], "mse_holdout": exp["mse"], "check": None, "evaluations": 100,
+              "at_noise_floor": False},
+        noise_floor=1.0e-4,
+        localization={"segments": [{"name": "leading_edge", "t0": 1.0, "t1": 1.2,
+                                    "share": 0.61, "mse": 1e-3}],
+                      "bands": [{"name": "high", "f0_hz": 5.0, "f1_hz": 50.0, "share": 0.3}]},
+        features=[{"name": "flat_top", "detected": True, "evidence": HOSTILE}],
+        effects=[effect_json("rate_limit", params={"RATE": 40.0}, mse=1.1e-4,
+                             mse_holdout=1.2e-4, gap_closed=0.93, score=2.0, aic=-100.0),
+                 effect_json("dead_time", params={"TD": 0.004}, mse=1.5e-4,
+                             mse_holdout=1.6e-4, gap_closed=0.4, score=1.0, aic=-90.0)],
+        ambiguous=[{"effects": ["rate_limit", "ceiling_limit"],
+                    "separating_test": "a 2 % pulse stays below the ceiling"}],
+        sequence=[{"added": "rate_limit", "mse_holdout": 1.2e-4},
+                  {"added": "dead_time", "mse_holdout": 1.15e-4}],
+        verdict="rate_limit",
+    )
     (d / "result.json").write_text(json.dumps(result), encoding="utf-8")
     (d / "diag.json").write_text(json.dumps(diagnosis), encoding="utf-8")
     out = d / "out"
@@ -344,8 +346,8 @@ def test_minimal_result_not_available_and_failed_constraint(bench: dict, tmp_pat
     d.mkdir()
     shutil.copy(bench["csv"], d / "pulse.csv")
     shutil.copy(bench["csv"].with_suffix(".json"), d / "pulse.json")
-    result = {k: v for k, v in bench["result"].items()
-              if k not in ("identifiability", "comparison", "history", "unit")}
+    result = {k: v for k, v in bench["result"].items() if k not in ("identifiability", "comparison")}
+    result["history"], result["unit"] = [], {}
     result["captures"] = [{**result["captures"][0], "path": "pulse.csv"}]  # relative to the result
     result["constraints"] = [{"expr": "TA2 <= TA1", "satisfied": True, "margin": 0.8},
                              {"expr": "TA4 <= 5", "satisfied": False, "margin": -5.0}]
@@ -397,10 +399,10 @@ def test_diagnosis_staircase_and_check_windows(bench: dict, tmp_path: Path) -> N
                                                     {"label": "leading_edge", "mse": 9.1e-4},
                                                     {"label": "plateau", "mse": 1.7e-4}]}
     diag["explained_by"] = [
-        {"name": "rate_limit", "params": {"RATE": 40.0}, "mse": 1.6e-4, "mse_over_floor": 1.6, "gap_closed": 0.8,
-         "check": {"mse": 1.8e-4}},
-        {"name": "dead_time", "params": {"RATE": 41.0, "TD": 0.004}, "mse": 1.02e-4, "mse_over_floor": 1.02,
-         "gap_closed": 0.99, "check": {"mse": 1.1e-4}}]
+        step_json("rate_limit", params={"RATE": 40.0}, mse=1.6e-4, mse_over_floor=1.6, gap_closed=0.8,
+                  check={"mse": 1.8e-4}),
+        step_json("dead_time", params={"RATE": 41.0, "TD": 0.004}, mse=1.02e-4, mse_over_floor=1.02,
+                  gap_closed=0.99, check={"mse": 1.1e-4})]
     diag["left"] = {"mse": 1.02e-4, "mse_over_floor": 1.02, "note": "at the noise floor: nothing left to explain"}
     (tmp_path / "diag.json").write_text(json.dumps(diag), encoding="utf-8")
     rc = main(["report", str(bench["dir"] / "result.json"), "--diagnosis", str(tmp_path / "diag.json"),

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bench_ctl.capture import write_capture
-from bench_ctl.limits import sha256_file
+from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.model.params import AVR_PARAMS, REFERENCE_VALUES, neutral_values
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
 from bench_ctl.model.unit import load_unit
@@ -20,6 +20,7 @@ from bench_ctl.report.checks import constraint_margin
 from bench_ctl.report.inputs import model_values
 from bench_ctl.report.metrics import error_figures, find_edges, segment_bounds
 from bench_ctl.report.outline import sections
+from records import capture_entry, result_json, result_of
 
 
 def test_edges_of_a_pulse_a_negative_pulse_a_step_and_nothing() -> None:
@@ -69,16 +70,15 @@ def test_constraint_margin_refuses_what_it_cannot_evaluate(expr: str) -> None:
 
 def test_model_values_from_result() -> None:
     fixed = {"Td0p": 7.5, "Td0pp": 0.05, "Vt0": 1.0, "VRMAX": None, "VRMIN": None, "RATE": 50.0}
-    values = model_values({"params": {k: REFERENCE_VALUES[k] for k in AVR_PARAMS},
-                           "fixed": fixed}, "r.json")
+    values = model_values({k: REFERENCE_VALUES[k] for k in AVR_PARAMS}, fixed, "r.json")
     assert values["VRMAX"] == math.inf and values["VRMIN"] == -math.inf
     assert values["RATE"] == 50.0 and values["TD"] == neutral_values()["TD"]
     with pytest.raises(ReportError, match=r"r.json: fixed.Td0p: null is only allowed"):
-        model_values({"params": {}, "fixed": {"Td0p": None}}, "r.json")
+        model_values({}, {"Td0p": None}, "r.json")
     with pytest.raises(ReportError, match=r"r.json: params.KAVR: expected a number"):
-        model_values({"params": {"KAVR": "200"}, "fixed": fixed}, "r.json")
+        model_values({"KAVR": "200"}, fixed, "r.json")
     with pytest.raises(ReportError, match=r"no value for model parameter\(s\) \['KAVR'"):
-        model_values({"params": {}, "fixed": fixed}, "r.json")
+        model_values({}, fixed, "r.json")
 
 
 def test_two_captures_mean_mse_weighted_objective_and_figures_per_capture(tmp_path: Path) -> None:
@@ -92,13 +92,13 @@ def test_two_captures_mean_mse_weighted_objective_and_figures_per_capture(tmp_pa
         r = rec["efd"] - sim
         mses.append(float(np.mean(r ** 2)))
         objs.append(weight * float(np.trapezoid(r ** 2, dx=1 / 500.0)))
-        entries.append({"path": str(csv), "sha256": sha256_file(csv), "weight": weight})
+        entries.append(capture_entry(csv, weight=weight))
     values = unit.values()
-    result = {"schema": "bench-ctl/result/1", "captures": entries, "mse": float(np.mean(mses)),
-              "objective": sum(objs), "params": {k: values[k] for k in AVR_PARAMS},
-              "fixed": {k: (None if math.isinf(v) else v) for k, v in values.items()
-                        if k not in AVR_PARAMS}}
-    d = analyse(json.loads(json.dumps(result)))
+    result = result_json(captures=entries, mse=float(np.mean(mses)),
+                         objective=sum(objs), params={k: values[k] for k in AVR_PARAMS},
+                         fixed={k: (None if math.isinf(v) else v) for k, v in values.items()
+                                if k not in AVR_PARAMS})
+    d = analyse(IdentificationResult.from_json(json.loads(json.dumps(result))))
     assert d.mse == pytest.approx(np.mean(mses), rel=1e-12)
     assert d.objective == pytest.approx(sum(objs), rel=1e-12)
     assert d.verdict == "PASS"
@@ -106,7 +106,7 @@ def test_two_captures_mean_mse_weighted_objective_and_figures_per_capture(tmp_pa
     assert figs == ["response_1", "residual_1", "edges_1", "response_2", "residual_2", "edges_2"]
     # a wrong reported MSE is caught
     result["mse"] *= 1.01
-    bad = analyse(result)
+    bad = analyse(IdentificationResult.from_json(result))
     assert bad.verdict == "FAIL"
     assert [c.status for c in bad.checks if c.name == "reported MSE reproduced"] == ["fail"]
 
@@ -115,10 +115,10 @@ def test_sample_count_mismatch_is_refused(tmp_path: Path) -> None:
     t, u = pulse_usetp(duration=1.0, rate=100.0)
     csv, _ = write_capture(tmp_path / "c.csv", {"time": t, "usetp": u, "efd": np.ones_like(t)})
     values = load_unit(None).values()
-    result = {"schema": "bench-ctl/result/1", "mse": 0.0, "objective": 0.0,
-              "params": {k: v for k, v in values.items() if math.isfinite(v)},
-              "fixed": {k: None for k, v in values.items() if not math.isfinite(v)},
-              "captures": [{"path": str(csv), "sha256": sha256_file(csv), "n": 5}]}
+    result = result_of(mse=0.0, objective=0.0,
+                       params={k: v for k, v in values.items() if math.isfinite(v)},
+                       fixed={k: None for k, v in values.items() if not math.isfinite(v)},
+                       captures=[capture_entry(csv, n=5)])
     with pytest.raises(ReportError, match=r"captures\[0\].n: result says 5 samples, .*c.csv has 101"):
         analyse(result)
 
@@ -131,14 +131,14 @@ def test_fit_window_failed_flag_and_null_history(tmp_path: Path) -> None:
     values = {**unit.values(), "KAVR": 170.0}
     sim, _, _ = simulate(values, u, 1 / 500.0)
     r = (rec["efd"] - sim)[250:1001]  # 0.5 s .. 2.0 s, both ends included
-    result = {"schema": "bench-ctl/result/1", "fit_window": [0.5, 2.0], "mse": float(np.mean(r ** 2)),
-              "objective": float(np.trapezoid(r ** 2, dx=1 / 500.0)),
-              "captures": [{"path": str(csv), "sha256": sha256_file(csv)}],
-              "params": {k: values[k] for k in AVR_PARAMS},
-              "fixed": {k: (None if math.isinf(v) else v) for k, v in values.items()
-                        if k not in AVR_PARAMS},
-              "history": [[8, None], [16, 0.5], [24, 0.2]]}
-    d = analyse(result)
+    result = result_json(fit_window=[0.5, 2.0], mse=float(np.mean(r ** 2)),
+                         objective=float(np.trapezoid(r ** 2, dx=1 / 500.0)),
+                         captures=[capture_entry(csv)],
+                         params={k: values[k] for k in AVR_PARAMS},
+                         fixed={k: (None if math.isinf(v) else v) for k, v in values.items()
+                                if k not in AVR_PARAMS},
+                         history=[[8, None], [16, 0.5], [24, 0.2]])
+    d = analyse(IdentificationResult.from_json(result))
     # KAVR off by 15 %: far above the noise floor (a warning), and beyond the default numeric
     # acceptance limits (a failure), nothing else
     assert d.verdict == "FAIL", d.checks
@@ -151,11 +151,11 @@ def test_fit_window_failed_flag_and_null_history(tmp_path: Path) -> None:
     secs = {s.id: s for s in sections(d)}
     conv = [b for b in secs["convergence"].blocks if isinstance(b, Fig)]
     assert len(conv) == 1 and "1 history entries without" in conv[0].caption
-    failed = analyse({**result, "failed": True, "message": "max_evals reached"})
+    failed = analyse(IdentificationResult.from_json({**result, "failed": True, "message": "max_evals reached"}))
     assert failed.verdict == "FAIL"
     assert "failed fit: max_evals reached" in failed.checks[1].detail
     with pytest.raises(ReportError, match=r"fit_window must be null or \[t0, t1\]"):
-        analyse({**result, "fit_window": [2.0, 0.5]})
+        analyse(IdentificationResult.from_json({**result, "fit_window": [2.0, 0.5]}))
 
 
 def test_a_value_outside_its_bounds_fails_the_report() -> None:

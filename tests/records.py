@@ -1,0 +1,80 @@
+"""Helpers for tests that make result and diagnosis files by hand, and the round-trip check of
+the files the end-to-end runs write (docs/formats.md: read back, they give the same JSON)."""
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+from bench_ctl.capture import read_capture
+from bench_ctl.diagnosis.diagnosis_file import DIAGNOSIS_SCHEMA, Diagnosis
+from bench_ctl.identification.result_file import RESULT_SCHEMA, IdentificationResult
+from bench_ctl.limits import sha256_file
+
+
+def capture_entry(path: str | Path, **keys: Any) -> dict[str, Any]:
+    """A result's `captures` entry for a capture file: its hash, size and rate as read; `keys`
+    replace any of them."""
+    cap = read_capture(path)
+    return {"path": str(path), "sha256": sha256_file(path), "n": cap.n, "rate_hz": cap.rate_hz, "meta": {},
+            "mse": None, "objective": None, "weight": 1.0, **keys}
+
+
+def _in_order(cls: type, data: dict[str, Any]) -> dict[str, Any]:
+    """`data` with its keys in the order the class writes them (unknown keys last)."""
+    names = [f.name for f in dataclasses.fields(cls)]
+    return {**{k: data[k] for k in names if k in data}, **{k: v for k, v in data.items() if k not in names}}
+
+
+def result_json(**keys: Any) -> dict[str, Any]:
+    """A complete result JSON object with neutral provenance and budget; `keys` give the rest."""
+    return _in_order(IdentificationResult, {
+        "schema": RESULT_SCHEMA, "software_version": "0.1.0", "command_line": "", "created_utc":
+            "2025-01-01T00:00:00+00:00", "unit": {}, "captures": [], "params": {}, "fixed": {}, "bounds": {},
+            "constraints": [], "objective": None, "mse": None, "evaluations": 0, "wall_s": 0.0, "compile_s": 0.0,
+            "optimizer": {"name": "mvmo", "settings": {}, "seed": 0}, "history": [], "fit_window": None, **keys})
+
+
+def result_of(**keys: Any) -> IdentificationResult:
+    return IdentificationResult.from_json(result_json(**keys), "test result")
+
+
+def diagnosis_json(**keys: Any) -> dict[str, Any]:
+    """A complete diagnosis JSON object with empty tables; `keys` give the rest."""
+    return {"schema": DIAGNOSIS_SCHEMA, "software_version": "0.1.0", "command_line": "",
+            "created_utc": "2025-01-01T00:00:00+00:00", "capture": {"path": None, "sha256": None}, "holdout": None,
+            "unit": {}, "validation": {"kind": "windows", "fit": {"t0": 0.0, "t1": 1.0}, "check": {}},
+            "check": {"kind": "windows", "windows": [], "how": "", "holdout": None, "vt": False}, "edges": [],
+            "base": {"params": {}, "mse": None, "mse_holdout": None, "check": None, "evaluations": 0,
+                     "at_noise_floor": False},
+            "noise_floor": None, "noise_floor_detail": {}, "localization": {"segments": [], "bands": []},
+            "features": [], "effects": [], "ambiguous": [], "sequence": [], "explained_by": [],
+            "left": {"mse": None, "mse_over_floor": None, "effects": [], "note": "", "localization": {}},
+            "verdict": "none", "criteria": {}, "wall_s": 0.0, **keys}
+
+
+def effect_json(name: str, **keys: Any) -> dict[str, Any]:
+    """A complete `effects` entry of a diagnosis; `keys` give the figures."""
+    return {"name": name, "params": {}, "fixed": {}, "avr_params": {}, "mse": None, "mse_holdout": None,
+            "gap_closed": None, "gap_closed_on": None, "gap_closed_fit": None, "gap_closed_fit_raw": None,
+            "gap_closed_check": None, "gap_closed_check_raw": None, "gap_closed_holdout": None,
+            "gap_closed_holdout_raw": None, "check": None, "score": None, "aic": None, "bic": None,
+            "delta_bic": None, "delta_check": None, "significant": False, "k": 1, "evaluations": 0, "start": {},
+            **keys}   # variant, the one optional key, is the last one written
+
+
+def step_json(name: str, **keys: Any) -> dict[str, Any]:
+    """A complete step of a diagnosis' `explained_by`; `keys` give the figures."""
+    return {"name": name, "effects": [name], "dropped": [], "params": {}, "mse": None, "mse_over_floor": None,
+            "gap_closed": None, "edges": {}, "fit_gain": None, "check": {}, **keys}
+
+
+def assert_round_trip(path: str | Path) -> IdentificationResult | Diagnosis:
+    """The result or diagnosis file at `path` reads into its class and writes the same JSON."""
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    cls = Diagnosis if str(data.get("schema", "")).startswith("bench-ctl/diagnosis/") else IdentificationResult
+    record = cls.from_json(data, str(path))
+    assert record.to_json() == data, path
+    assert json.dumps(record.to_json(), indent=1) == json.dumps(data, indent=1), path   # keys in the same order
+    return record
