@@ -43,11 +43,6 @@ MIN_EVALS = int(IDENTIFY["particles"])
 DE_POPSIZE = 5
 
 
-def _kernel_names(r: dict) -> list[str]:
-    """The identified kernel names in the order the result's model lists their standard names."""
-    return [n for n in r["params"]]
-
-
 def summary(ident: Identification) -> str:
     """The human-readable summary table of a result."""
     r = ident.result
@@ -58,8 +53,6 @@ def summary(ident: Identification) -> str:
     head = f"{'param':<7}{'value':>12}{'min':>10}{'max':>10}{'std':>11}{'rel std':>9}  determined"
     lines += [head, "-" * len(head)]
     model = r.get("model") or {}
-    std = (lambda n: n) if model.get("name", "REFERENCE") == "REFERENCE" else \
-        (lambda n: {k: s for k, s in zip(_kernel_names(r), model.get("identified") or [])}.get(n, n))
     if model.get("name", "REFERENCE") != "REFERENCE":
         lines.insert(1, f"model: {model['name']} ({model.get('title', '')})")
     for n, v in r["params"].items():
@@ -67,7 +60,7 @@ def summary(ident: Identification) -> str:
         rel = idn.get("rel_std", {}).get(n)
         det = idn.get("determined", {}).get(n)
         why = "; ".join(idn.get("reasons", {}).get(n, []))
-        lines.append(f"{std(n):<7}{_fmt(v, '.6g'):>12}{_fmt(lo, '.4g'):>10}{_fmt(hi, '.4g'):>10}"
+        lines.append(f"{n:<7}{_fmt(v, '.6g'):>12}{_fmt(lo, '.4g'):>10}{_fmt(hi, '.4g'):>10}"
                      f"{_fmt(idn.get('std', {}).get(n), '.3g'):>11}"
                      f"{(_fmt(100 * rel, '.1f') + ' %') if rel is not None else '-':>9}  "
                      f"{'yes' if det else 'NO'}{('  (' + why + ')') if why else ''}")
@@ -80,7 +73,9 @@ def summary(ident: Identification) -> str:
         f"{c['expr']} {'ok' if c['satisfied'] else 'VIOLATED'}" for c in r["constraints"]) if r["constraints"]
         else "constraints: none")
     for e in idn.get("equivalent_sets", []):
-        vals = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in e["params"].items() if k.startswith("TA"))
+        # the values the exchange moved (the result's names: the structure's)
+        vals = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in e["params"].items()
+                         if k in r["params"] and v != r["params"][k])
         lines.append(f"equivalent set? {e['note']}: {vals}; mse {_fmt(e['mse'], '.4g')}: {e['verdict']}")
     for note in idn.get("notes", []):
         lines.append(f"note: {note}")

@@ -19,6 +19,7 @@ from typing import Any
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import implausible
 from bench_ctl.limits import InputError, read_json, sha256_file
+from bench_ctl.model.dialect import kernel_sections
 from bench_ctl.model.params import KERNEL_PARAMS, PARAMS, neutral_values
 
 log = logging.getLogger(__name__)
@@ -73,8 +74,9 @@ def model_values(result: Mapping[str, Any], where: str) -> dict[str, float]:
     """Every kernel parameter for the re-simulation: neutral effects, then `fixed` (null = the
     parameter's infinite neutral value, as the contract writes inf), then the identified `params`."""
     values: dict[str, float] = dict(neutral_values())
+    sections = kernel_sections(result)   # the structure's names -> the kernel's (bench_ctl.model.dialect)
     for section in ("fixed", "params"):
-        for name, value in dict(result.get(section) or {}).items():
+        for name, value in sections[section].items():
             key = f"{where}: {section}.{name}"
             if name not in PARAMS:
                 raise ReportError(f"{key}: unknown model parameter; known: {', '.join(PARAMS)}")

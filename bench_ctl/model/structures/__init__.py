@@ -70,6 +70,10 @@ class Structure:
         for p in self.params:
             if p.name == name:
                 return p
+        drivers = [p.name for p in self.params if p.kernel == name]
+        if drivers:   # a kernel name: say which of the structure's names it is
+            raise StructureError(f"model {self.name} has no parameter {name!r}: {name} is the kernel's name, "
+                                 f"{self.name} calls it {drivers[0]}; use {drivers[0]}")
         raise StructureError(f"model {self.name} has no parameter {name!r}; it has "
                              f"{', '.join(p.name for p in self.params)}")
 
@@ -157,18 +161,24 @@ class Structure:
                 out.append((note, ka, kb))
         return out
 
-    def describe(self) -> str:
+    def describe(self, kernel: bool = False) -> str:
+        """`bench-ctl models NAME`: in the structure's names; `kernel` adds the kernel parameter
+        each one drives and the kernel settings the structure implies (debugging)."""
         lines = [f"{self.name}: {self.title}", ""]
         lines += ["Block diagram:"] + [f"  {d}" for d in self.diagram] + [""]
-        lines.append(f"{'parameter':<9} {'unit':<6} {'typical':>9}  {'bounds':<17} {'kernel':<7} meaning")
+        kcol = f" {'kernel':<7}" if kernel else ""
+        lines.append(f"{'parameter':<9} {'unit':<6} {'typical':>9}  {'bounds':<17}{kcol} meaning")
         for p in self.params:
             b = f"[{p.bounds[0]:g}, {p.bounds[1]:g}]" if p.bounds else "-"
             mark = "*" if p.identify else " "
-            kern = p.kernel or "(record)"
-            lines.append(f"{p.name + mark:<9} {p.unit:<6} {p.typical:>9g}  {b:<17} {kern:<7} {p.info}"
+            kern = f" {p.kernel or '-':<7}" if kernel else ""
+            record = "" if p.kernel else " (record)"
+            lines.append(f"{p.name + mark:<9} {p.unit:<6} {p.typical:>9g}  {b:<17}{kern} {p.info}{record}"
                          + (f" [{p.note}]" if p.note else ""))
         lines.append("")
         lines.append("* identified by default; (record): written to the .dyr, not simulated")
+        if kernel and self.settings:
+            lines.append("kernel settings: " + ", ".join(f"{k} = {v:g}" for k, v in self.settings.items()))
         if self.constraints:
             lines.append("constraints: " + ", ".join(self.constraints))
         if self.dyr_model:
