@@ -138,7 +138,7 @@ def test_no_kernel_name_on_any_surface_of_a_standard_structure(name, tmp_path, c
     result = json.loads(res.read_text())
     assert "kernel" in result and set(result["kernel"]["params"]) <= set(hidden) | set(st.names)
     user = _without_kernel_key(result)
-    for key in ("params", "bounds", "fixed", "constraints", "identifiability", "unit", "model"):
+    for key in ("params", "bounds", "fixed", "constraints", "identifiability", "unit", "model", "optimizer"):
         seen = _words(json.dumps(user[key]))
         assert not seen & hidden, (key, seen & hidden)
     assert set(user["params"]) == set(st.default_identified())

@@ -30,6 +30,7 @@ from bench_ctl.identification.identify import Identification, result_for_file, r
 from bench_ctl.identification.options import IDENTIFY
 from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
+from bench_ctl.model.dialect import std_text
 from bench_ctl.model.unit import UnitError
 
 from .options import fmt_value as _fmt
@@ -166,8 +167,11 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         for c in caps:
             check_plausible(c)
         problem = make_problem(caps, unit)
-    except (CaptureError, UnitError, ProblemError, ConstraintError) as exc:
+    except (CaptureError, UnitError) as exc:
         click.echo(f"error: {exc}", err=True)
+        return ExitCode.ABORTED
+    except (ProblemError, ConstraintError) as exc:   # said on the kernel's names: in the structure's
+        click.echo(f"error: {std_text(unit.structure, str(exc))}", err=True)
         return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)

@@ -145,6 +145,12 @@ def result_to_std(st: Structure, result: Mapping[str, Any]) -> dict[str, Any]:
         out["comparison"] = [{**c, "params": std_keys(st, c.get("params") or {}),
                               "constraints_violated": [std_text(st, t) for t in c.get("constraints_violated", [])]}
                              for c in result["comparison"]]
+    opt = result.get("optimizer")
+    if isinstance(opt, Mapping) and isinstance(opt.get("settings"), Mapping) and "swap_restarts" in opt["settings"]:
+        restarts = [{**e, **({"start": std_keys(st, e["start"])} if isinstance(e.get("start"), Mapping) else {}),
+                     **({"skipped": std_text(st, e["skipped"])} if isinstance(e.get("skipped"), str) else {})}
+                    for e in opt["settings"]["swap_restarts"]]
+        out["optimizer"] = {**opt, "settings": {**opt["settings"], "swap_restarts": restarts}}
     out["kernel"] = {k: result.get(k) for k in ("params", "bounds", "fixed", "constraints")}
     return out
 
