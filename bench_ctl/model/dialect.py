@@ -24,7 +24,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from .effects import EFFECTS
-from .params import GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, RECORD_PARAMS
+from .params import GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS
 from .structures import DEFAULT, Structure, StructureError, structure
 
 __all__ = ["std_name", "namer", "std_text", "kernel_text", "std_keys", "kernel_keys", "refusal",
@@ -73,22 +73,26 @@ def describe(st: Structure, name: str) -> tuple[str, str, float | None] | None:
 
 
 def hidden_kernel_names(st: Structure) -> tuple[str, ...]:
-    """Kernel names a user of `st` never reads: those its parameters drive under another name and
-    those its settings fix, less any that is also one of its standard names (IEEEX1's `TE`)."""
+    """Kernel names a user of a standard structure `st` never reads: every kernel parameter that
+    is neither one of its names nor a name all structures share (`shared_names`), e.g. the ones
+    its parameters drive under another name, its settings and other structures' blocks."""
+    shared = set(shared_names())
     own = {p.kernel for p in st.params if p.kernel} | set(st.settings)
-    return tuple(sorted(n for n in own if n not in st.names))
+    return tuple(sorted(n for n in PARAMS if n not in st.names and (n not in shared or n in own)))
 
 
 def _std_fixed(st: Structure, kernel: Mapping[str, Any], std_values: Mapping[str, Any],
                skip: set[str]) -> dict[str, Any]:
     """A `fixed` table in the structure's names: its parameters not in `skip` (standard values),
-    then the kernel parameters it does not name (generator, effects, dead time, ...). Kernel
-    names its parameters drive or its settings fix are left out (implied by the structure), and
-    so is a kernel name that is one of its standard names with another meaning (ESST4B's VRMAX
-    is the kernel's VPMAX; the kernel's VRMAX, the diagnosis' ceiling, is under `unit.effects`)."""
+    then the names all structures share (generator, effects, dead time, ...). Kernel names its
+    parameters drive or its settings fix are left out (implied by the structure), so are other
+    structures' blocks (neutral) and a shared name that is one of its standard names with
+    another meaning (ESST4B's VRMAX is the kernel's VPMAX; the kernel's VRMAX, the diagnosis'
+    ceiling, is under `unit.effects`)."""
     out = {p.name: std_values[p.name] for p in st.params if p.name not in skip and p.name in std_values}
     own = {p.kernel for p in st.params if p.kernel} | set(st.settings) | set(st.names)
-    out.update({k: v for k, v in kernel.items() if k not in own and k not in RECORD_PARAMS})
+    shared = set(shared_names())
+    out.update({k: v for k, v in kernel.items() if k in shared and k not in own})
     return out
 
 
@@ -245,11 +249,11 @@ def kernel_sections(result: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     if _plain(st) or "kernel" not in result:
         return {"fixed": fixed, "params": params}
     kfixed: dict[str, Any] = dict(st.settings)
+    kfixed.update(kernel_keys(st, fixed))
     unit = result.get("unit") if isinstance(result.get("unit"), Mapping) else {}
-    for ps in (unit.get("effects") or {}).values():
+    for ps in (unit.get("effects") or {}).values():     # on top, as `Unit.values` has them
         if isinstance(ps, Mapping):
             kfixed.update(ps)
-    kfixed.update(kernel_keys(st, fixed))
     kparams = kernel_keys(st, params)
     for lead, lag in st.lead_lags:      # a bypassed lead-lag (both 0 in the standard) is 1, 1
         merged = {**kfixed, **kparams}
