@@ -151,3 +151,32 @@ def test_no_kernel_name_on_any_surface_of_a_standard_structure(name, tmp_path, c
         assert main(["export", str(res), "--dyr", str(dyr)]) == 0
         text = dyr.read_text()     # its comments say how each field was obtained
         assert not _words(text) & hidden, _words(text) & hidden
+
+
+@pytest.mark.parametrize("name", list(STRUCTURES))
+@pytest.mark.parametrize("effects", [{}, {"ceiling_limit": {"VRMAX": 2.5, "VRMIN": -1.0}, "dead_time": {"TD": 0.01}}])
+def test_a_result_in_standard_names_reads_back_to_the_kernel_values_it_was_made_of(name, effects):
+    """kernel -> standard at output, standard -> kernel at input: the same kernel values (the
+    report re-simulates, export and diagnose --result read them)."""
+    import math
+
+    from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS, neutral_values
+
+    unit = with_model(reference_unit(), name).with_effects(effects)
+    values = unit.values()
+    none = lambda v: v if math.isfinite(v) else None  # noqa: E731
+    kernel = {"model": {"name": name, "params": {k: none(v) for k, v in unit.standard_values().items()}},
+              "unit": unit.to_dict(),
+              "params": {k: values[k] for k in unit.identify},
+              "fixed": {k: none(v) for k, v in values.items() if k not in unit.identify and k not in RECORD_PARAMS},
+              "bounds": {k: [b.min, b.max] for k, b in unit.identify.items()}, "constraints": []}
+    std = result_to_std(structure(name), kernel)
+    back = kernel_sections(json.loads(json.dumps(std)))
+    got = dict(neutral_values())
+    for section in ("fixed", "params"):
+        got.update({k: (neutral_values()[k] if v is None else v) for k, v in back[section].items()})
+    for k in KERNEL_PARAMS:
+        if k not in RECORD_PARAMS:
+            assert got[k] == values[k], (k, got[k], values[k])
+    if name != "REFERENCE":
+        assert not set(std["fixed"]) & set(hidden_kernel_names(structure(name)))
