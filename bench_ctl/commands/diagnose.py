@@ -205,7 +205,7 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
             previous = read_result(result_path)
             params = kernel_sections(previous.to_json())["params"]      # the result's names -> the kernel's
             base_params = {}
-            for k, v in previous.params.items():
+            for k, v in params.items():
                 if k in unit.identify:
                     if not math.isfinite(v):
                         raise UnitError(f"{result_path}: params.{std_name(unit.structure, k)} = {v!r} "

@@ -229,18 +229,18 @@ def _variants(st: Setup, fits: dict[str, ModelFit], budget: Budget, seed: int) -
     form by its label."""
     views, n = st.views, st.n
     kept = {}
-    for e, plain in list(fits.items()):
+    for e, first in list(fits.items()):
         eff = EFFECTS[e]
         if not eff.variants:
             continue
-        best, name = plain, eff.plain
+        best, name = first, eff.plain
         for v in eff.variants:
             if v.needs is not None and v.needs not in views.capture.extra:
                 continue
-            start = {**plain.params, **v.extra}
+            start = {**first.params, **v.extra}
             m = fit_model(views, (e,), [start], evals=0, seed=seed + 41, fixed=dict(v.fixed), extra=tuple(v.extra),
                           polish_coarse=budget.polish_coarse, polish_fine=budget.effect_polish)
-            log.info("%s variant %s: mse %.4g (%s %.4g)", e, v.label, m.mse, eff.plain, plain.mse)
+            log.info("%s variant %s: mse %.4g (%s %.4g)", e, v.label, m.mse, eff.plain, first.mse)
             if m.feasible and bic(n, m.mse, m.k) < bic(n, best.mse, best.k) - 2.0:
                 best, name = m, v.label
         fits[e] = best
