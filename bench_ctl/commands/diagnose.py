@@ -35,6 +35,7 @@ from bench_ctl.identification.constraints import ConstraintError, parse_constrai
 from bench_ctl.identification.result_file import RESULT_SCHEMA, IdentificationResult, read_result
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.limits import InputError
+from bench_ctl.model.dialect import kernel_keys, kernel_sections, result_to_std, std_name
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import Unit, UnitError
@@ -106,8 +107,12 @@ def for_file(d: Diagnosis, path: str | Path) -> Diagnosis:
 def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationResult:
     """The diagnosis' base fit as an identification result (schema bench-ctl/result/1), so that
     the report can re-simulate and show it next to the diagnosis."""
+    from bench_ctl.identification.identify import model_entry
+
+    st = unit.structure
+    base_params = kernel_keys(st, d.base.params)   # the diagnosis speaks the structure's names
     values = unit.values()
-    values.update(d.base.params)
+    values.update(base_params)
     edges = [{k: v for k, v in e.items() if k != "capture"} for e in d.edges if e.get("capture") == "capture"]
     spec, offsets = edge_spec_of(edges, capture.n)
     efd, _vt, _fail = simulate({**values, **offsets}, capture.usetp, capture.dt, edges=spec)
@@ -117,26 +122,27 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
     objective = float(capture.dt * (np.sum(r * r) - 0.5 * (r[0] ** 2 + r[-1] ** 2)))
     mse = float(np.mean(r * r))  # a result's mse is the plain mean (the diagnosis' the trapezoidal one)
     names = list(unit.identified_names)
-    x = np.array([d.base.params[n] for n in names])
+    x = np.array([base_params[n] for n in names])
     cons = []
     for c in parse_constraints(unit.constraints, names):
         cons.append({"expr": c.expr, "satisfied": c.satisfied(x), "margin": float(c.rhs - c.coef @ x)})
-    return IdentificationResult.from_json(plain({
+    return IdentificationResult.from_json(plain(result_to_std(st, {
         "schema": RESULT_SCHEMA, "software_version": d.software_version,
         "command_line": d.command_line, "created_utc": d.created_utc, "unit": unit.to_dict(),
         "captures": [{"path": os.path.abspath(capture.source) if capture.source else d.capture["path"],
                       "sha256": d.capture["sha256"], "n": capture.n,
                       "rate_hz": capture.rate_hz, "meta": capture.meta, "mse": mse,
                       "objective": objective, "weight": 1.0, "edges": edges}],
-        "params": dict(d.base.params),
+        "params": dict(base_params),
         "fixed": {k: (v if math.isfinite(v) else None) for k, v in values.items()
-                  if k in KERNEL_PARAMS and k not in d.base.params and k not in RECORD_PARAMS},
+                  if k in KERNEL_PARAMS and k not in base_params and k not in RECORD_PARAMS},
         "bounds": {n: [b.min, b.max] for n, b in unit.identify.items()},
         "constraints": cons, "objective": objective, "mse": mse,
         "evaluations": d.base.evaluations, "wall_s": d.wall_s, "compile_s": 0.0,
         "optimizer": {"name": "mvmo + least squares (diagnosis base fit)", "settings": {}, "seed": None},
         "history": [], "fit_window": None if k1 >= capture.n else [0.0, t1],
-    }), "the diagnosis' base fit")
+        "model": model_entry(unit, values, names, {}),
+    })), "the diagnosis' base fit")
 
 
 def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str], model_kw: dict,
@@ -197,11 +203,13 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
         base_params = None
         if result_path:
             previous = read_result(result_path)
+            params = kernel_sections(previous.to_json())["params"]      # the result's names -> the kernel's
             base_params = {}
-            for k, v in previous.params.items():
+            for k, v in params.items():
                 if k in unit.identify:
                     if not math.isfinite(v):
-                        raise UnitError(f"{result_path}: params.{k} = {v!r} is not a finite number")
+                        raise UnitError(f"{result_path}: params.{std_name(unit.structure, k)} = {v!r} "
+                                        "is not a finite number")
                     base_params[k] = float(v)
             if not base_params:
                 raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")

@@ -30,7 +30,8 @@ from bench_ctl.identification.identify import Identification, result_for_file, r
 from bench_ctl.identification.options import IDENTIFY
 from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
-from bench_ctl.identification.result_file import IdentificationResult
+from bench_ctl.identification.result_file import IdentificationResult  # noqa: F401 (the summary's input)
+from bench_ctl.model.dialect import std_text
 from bench_ctl.model.unit import UnitError
 
 from .options import fmt_value as _fmt
@@ -44,11 +45,6 @@ MIN_EVALS = int(IDENTIFY["particles"])
 DE_POPSIZE = 5
 
 
-def _kernel_names(r: IdentificationResult) -> list[str]:
-    """The identified kernel names in the order the result's model lists their standard names."""
-    return [n for n in r.params]
-
-
 def summary(ident: Identification) -> str:
     """The human-readable summary table of a result."""
     r = ident.result
@@ -59,8 +55,6 @@ def summary(ident: Identification) -> str:
     head = f"{'param':<7}{'value':>12}{'min':>10}{'max':>10}{'std':>11}{'rel std':>9}  determined"
     lines += [head, "-" * len(head)]
     model = r.model or {}
-    std = (lambda n: n) if model.get("name", "REFERENCE") == "REFERENCE" else \
-        (lambda n: {k: s for k, s in zip(_kernel_names(r), model.get("identified") or [])}.get(n, n))
     if model.get("name", "REFERENCE") != "REFERENCE":
         lines.insert(1, f"model: {model['name']} ({model.get('title', '')})")
     for n, v in r.params.items():
@@ -68,7 +62,7 @@ def summary(ident: Identification) -> str:
         rel = idn.get("rel_std", {}).get(n)
         det = idn.get("determined", {}).get(n)
         why = "; ".join(idn.get("reasons", {}).get(n, []))
-        lines.append(f"{std(n):<7}{_fmt(v, '.6g'):>12}{_fmt(lo, '.4g'):>10}{_fmt(hi, '.4g'):>10}"
+        lines.append(f"{n:<7}{_fmt(v, '.6g'):>12}{_fmt(lo, '.4g'):>10}{_fmt(hi, '.4g'):>10}"
                      f"{_fmt(idn.get('std', {}).get(n), '.3g'):>11}"
                      f"{(_fmt(100 * rel, '.1f') + ' %') if rel is not None else '-':>9}  "
                      f"{'yes' if det else 'NO'}{('  (' + why + ')') if why else ''}")
@@ -81,7 +75,9 @@ def summary(ident: Identification) -> str:
         f"{c['expr']} {'ok' if c['satisfied'] else 'VIOLATED'}" for c in r.constraints) if r.constraints
         else "constraints: none")
     for e in idn.get("equivalent_sets", []):
-        vals = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in e["params"].items() if k.startswith("TA"))
+        # the values the exchange moved (the result's names: the structure's)
+        vals = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in e["params"].items()
+                         if k in r.params and v != r.params[k])
         lines.append(f"equivalent set? {e['note']}: {vals}; mse {_fmt(e['mse'], '.4g')}: {e['verdict']}")
     for note in idn.get("notes", []):
         lines.append(f"note: {note}")
@@ -172,8 +168,11 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         for c in caps:
             check_plausible(c)
         problem = make_problem(caps, unit)
-    except (CaptureError, UnitError, ProblemError, ConstraintError) as exc:
+    except (CaptureError, UnitError) as exc:
         click.echo(f"error: {exc}", err=True)
+        return ExitCode.ABORTED
+    except (ProblemError, ConstraintError) as exc:   # said on the kernel's names: in the structure's
+        click.echo(f"error: {std_text(unit.structure, str(exc))}", err=True)
         return ExitCode.ABORTED
     except OSError as exc:
         click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)

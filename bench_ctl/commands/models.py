@@ -1,8 +1,9 @@
 """`bench-ctl models [NAME]`: the AVR / exciter structures of the model library.
 
 Without NAME: one line per structure (name, PSS/E record, what it is). With NAME: its block
-diagram in words and every parameter with unit, typical value, default bounds, the kernel block
-it drives and its meaning (`bench_ctl.model.structures`).
+diagram in words and every parameter with unit, typical value, default bounds and its meaning,
+under the structure's own names (`bench_ctl.model.structures`); `--kernel` adds the kernel
+parameter each one drives and the kernel settings the structure implies (for debugging).
 """
 from __future__ import annotations
 
@@ -14,7 +15,9 @@ from bench_ctl.model.structures import STRUCTURES, StructureError, structure
 
 @click.command("models")
 @click.argument("name", required=False)
-def models(name: str | None) -> int:
+@click.option("--kernel", "show_kernel", is_flag=True,
+              help="Also show the kernel parameter each one drives and the structure's kernel settings.")
+def models(name: str | None, show_kernel: bool = False) -> int:
     """List the AVR / exciter structures, or show one with its block diagram."""
     if name is None:
         for s in STRUCTURES.values():
@@ -25,7 +28,7 @@ def models(name: str | None) -> int:
                    "`bench-ctl models NAME` shows it.")
         return ExitCode.OK
     try:
-        click.echo(structure(name).describe())
+        click.echo(structure(name).describe(kernel=show_kernel))
     except StructureError as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED

@@ -10,6 +10,7 @@ import click
 from bench_ctl import __version__, outputs
 from bench_ctl.capture import write_capture
 from bench_ctl.exitcodes import ExitCode
+from bench_ctl.model.dialect import unit_to_std
 from bench_ctl.model.simulate import RecorderModel, pulse_usetp, synthetic_record
 from bench_ctl.model.unit import UnitError
 
@@ -66,7 +67,7 @@ def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, am
     meta = {
         "test": {"kind": "pulse", "amplitude_pu": amplitude, "start_s": start, "width_s": width},
         "source": "simulation",
-        "unit": unit.to_dict(),
+        "unit": unit_to_std(unit.structure, unit.to_dict()),   # the structure's names
         "recorder": {"noise_pu": noise, "lsb_pu": lsb, "seed": seed,
                      "usetp": "the AVR's digital setpoint, recorded exactly",
                      "efd": "measured: noise + quantisation", "vt": "measured: noise + quantisation"},

@@ -40,7 +40,8 @@ from bench_ctl.capture import Capture
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.limits import InputError, sha256_file
-from bench_ctl.model.effects import EFFECT_NAMES
+from bench_ctl.model.dialect import diagnosis_to_std
+from bench_ctl.model.effects import EFFECT_NAMES, EFFECTS
 from bench_ctl.model.unit import Unit
 from bench_ctl.records import plain
 from bench_ctl.timestamps import utc_now_text
@@ -221,31 +222,30 @@ def _fit_effects(st: Setup, base: ModelFit, hints: Mapping[str, float], budget: 
     return fits
 
 
-FIXED_LIMITS = "fixed limits"
-BUS_FED = "bus-fed: VRMAX*Vt, VRMIN*Vt"
-COMMUTATION = "bus-fed with commutation drop: VRMAX*Vt - KC*Ifd, VRMIN*Vt"
-
-
-def _ceiling_variants(st: Setup, fits: dict[str, ModelFit], budget: Budget, seed: int) -> str:
-    """The ceiling of a bus-fed static exciter (limits x Vt, VRVT = 1) tried beside the fixed one
-    from the fixed fit's values, and, when the capture records the field current (an `ifd`
-    column), with the commutation drop KC*Ifd fitted too; the best by BIC is kept in `fits`.
-    Returns the variant's name."""
+def _variants(st: Setup, fits: dict[str, ModelFit], budget: Budget, seed: int) -> dict[str, str]:
+    """Each effect's variants (`Effect.variants`: the ceiling of a bus-fed static exciter, limits
+    x Vt; with a recorded field current, also with the commutation drop KC*Ifd fitted) tried from
+    the plain fit's values; the best by BIC is kept in `fits`. Returns each such effect's kept
+    form by its label."""
     views, n = st.views, st.n
-    fixed = fits["ceiling_limit"]
-    tries = [(BUS_FED, {"VRVT": 1.0}, ())]
-    if "ifd" in views.capture.extra:
-        tries.append((COMMUTATION, {"VRVT": 1.0}, ("KC",)))
-    best, name = fixed, FIXED_LIMITS
-    for label, var, extra in tries:
-        start = {**fixed.params, "KC": 0.05} if extra else dict(fixed.params)
-        m = fit_model(views, ("ceiling_limit",), [start], evals=0, seed=seed + 41, fixed=var, extra=extra,
-                      polish_coarse=budget.polish_coarse, polish_fine=budget.effect_polish)
-        log.info("ceiling variant %s: mse %.4g (fixed limits %.4g)", label, m.mse, fixed.mse)
-        if m.feasible and bic(n, m.mse, m.k) < bic(n, best.mse, best.k) - 2.0:
-            best, name = m, label
-    fits["ceiling_limit"] = best
-    return name
+    kept = {}
+    for e, first in list(fits.items()):
+        eff = EFFECTS[e]
+        if not eff.variants:
+            continue
+        best, name = first, eff.plain
+        for v in eff.variants:
+            if v.needs is not None and v.needs not in views.capture.extra:
+                continue
+            start = {**first.params, **v.extra}
+            m = fit_model(views, (e,), [start], evals=0, seed=seed + 41, fixed=dict(v.fixed), extra=tuple(v.extra),
+                          polish_coarse=budget.polish_coarse, polish_fine=budget.effect_polish)
+            log.info("%s variant %s: mse %.4g (%s %.4g)", e, v.label, m.mse, eff.plain, first.mse)
+            if m.feasible and bic(n, m.mse, m.k) < bic(n, best.mse, best.k) - 2.0:
+                best, name = m, v.label
+        fits[e] = best
+        kept[e] = name
+    return kept
 
 
 def _edges_json(st: Setup, m: ModelFit) -> list[dict[str, Any]]:
@@ -295,7 +295,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
                              p0.steady_efd(p0.x_start()))
 
     fits = _fit_effects(st, base, hints, budget, seed)
-    variant = _ceiling_variants(st, fits, budget, seed)
+    variants = _variants(st, fits, budget, seed)
     # the base fit may sit in a worse basin than the model parameters an effect fit reached
     better = refine_base(views, base, [m.params for m in fits.values()], polish_evals=budget.base_polish)
     if better is not None:
@@ -313,7 +313,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
         if g > SIGNIFICANT:
             fits[e] = checked(views, fits[e])
 
-    entries = rank_entries(unit, st, base, fits, variant)
+    entries = rank_entries(unit, st, base, fits, variants)
     at_floor = base.mse <= st.floor_tol
     verdict = choose_verdict(entries, at_floor=at_floor, has_check=True)
     ambiguous = ambiguous_pairs(entries) if verdict != "none" else []
@@ -322,7 +322,8 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     added = [{"added": s["added"], "mse": s["model"].mse, "mse_holdout": s["model"].mse_check,
                  "params": s["model"].effect_params(), "dropped": s["dropped"]} for s in steps]
 
-    return Diagnosis.from_json(plain({
+    # the boundary: model parameters in the structure's names (bench_ctl.model.dialect)
+    return Diagnosis.from_json(plain(diagnosis_to_std(unit.structure, {
         "schema": SCHEMA,
         "software_version": getattr(bench_ctl, "__version__", "0.1.0"),
         "command_line": command_line,
@@ -352,4 +353,4 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
                      "score": "BIC on the capture + sum over the check's parts of n ln(mse), relative to the base "
                               "model"},
         "wall_s": time.perf_counter() - t_start,
-    }), "the diagnosis")
+    })), "the diagnosis")

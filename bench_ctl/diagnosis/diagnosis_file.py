@@ -109,6 +109,10 @@ class Diagnosis(Record):
     verdict: str
     criteria: dict[str, Any]
     wall_s: float
+    #: a standard structure's diagnosis: the model parameters in the kernel's names
+    kernel: dict[str, Any] | None = None
+
+    OMITTED_WHEN_NONE = ("kernel",)
 
     @classmethod
     def from_json(cls, data: Any, where: str = "") -> Diagnosis:

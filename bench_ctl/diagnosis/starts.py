@@ -4,7 +4,6 @@ lags to TE (`lag_variants`), all scored on the coarse record at once (`all_start
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -18,50 +17,17 @@ from .models import Views
 __all__ = ["effect_starts", "lag_variants", "all_starts", "ORDER_SENSITIVE"]
 
 
-def _clip(name: str, v: float, effect: str) -> float:
-    lo, hi = EFFECTS[effect].bounds[name]
-    return float(min(max(v, lo), hi))
-
-
 def effect_starts(effect: str, hints: Mapping[str, float]) -> list[dict[str, float]]:
-    """Starting values of an effect's parameters: from the feature tests plus a small grid."""
-    c = lambda n, v: _clip(n, v, effect)  # noqa: E731
-    if effect == "ceiling_limit":
-        # both limits where the measured efd turns flat: a limit that is not there moves away
-        # (its gradient pushes it out), one started outside the record would get no gradient
-        return [{"VRMAX": c("VRMAX", hints["top_level"]), "VRMIN": c("VRMIN", hints["bottom_level"])}]
-    if effect in ("dead_time", "time_skew"):
-        p = "TD" if effect == "dead_time" else "SKEW"
-        d = hints.get("delay_s", math.nan)
-        grid = [0.003, 0.01, 0.02, 0.04]
-        if math.isfinite(d) and d > 0:
-            grid = [d, 0.6 * d, 1.5 * d] + grid
-        return [{p: c(p, v)} for v in grid]
-    if effect == "transducer_lag":
-        return [{"TR": v} for v in (0.01, 0.03, 0.06, 0.1, 0.15, 0.2)]
-    if effect == "saturation":
-        s = hints.get("sat0", 0.0)
-        s10s = [s] if s > 0.005 else []
-        s10s += [0.03, 0.1]
-        return [{"S10": c("S10", a), "S12": c("S12", a * r)} for a in s10s for r in (2.0, 4.0)]
-    if effect == "rate_limit":
-        s = max(hints.get("slope_up", math.nan), hints.get("slope_down", math.nan))
-        grid = [3.0, 10.0, 30.0, 80.0]
-        if math.isfinite(s) and s > 0:
-            grid = [s, 0.8 * s, 1.2 * s] + grid
-        return [{"RATE": c("RATE", v)} for v in grid]
-    if effect == "setpoint_ramp":
-        grid = [0.05, 0.1, 0.2, 0.4, 0.8, 2.0, 5.0]
-        return [{"RAMP": c("RAMP", v)} for v in grid]
-    if effect == "recorder_gain":
-        g = hints.get("gain", 1.0)
-        return [{"GAIN": c("GAIN", g)}, {"GAIN": 1.0}]
-    raise ValueError(f"unknown effect {effect!r}")
+    """Starting values of an effect's parameters: from the feature tests plus a small grid (the
+    effect's own, `Effect.starts`)."""
+    if effect not in EFFECTS:
+        raise ValueError(f"unknown effect {effect!r}")
+    return EFFECTS[effect].starts(hints)
 
 
 #: effects acting between the exciter lag TE and the record (limits on the efd state): for them
 #: it matters which of the equivalent lags of the linear model is TE, so every assignment is tried
-ORDER_SENSITIVE = ("ceiling_limit", "rate_limit")
+ORDER_SENSITIVE = tuple(e.name for e in EFFECTS.values() if e.order_sensitive)
 VARIANT_LAGS = ("TA2", "TA4", "TE")
 
 
@@ -103,7 +69,7 @@ def all_starts(views: Views, avr_sets: Sequence[Mapping[str, float]], hints: Map
     coarse = views.coarse(views.problem((), fixed))
     rows, owners = [], []
     for e in effects:
-        sets = avr_sets if e in ORDER_SENSITIVE else avr_sets[:1]
+        sets = avr_sets if EFFECTS[e].order_sensitive else avr_sets[:1]
         for avr in sets:
             for s in effect_starts(e, hints):
                 rows.append({**avr, **s})

@@ -11,6 +11,8 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from bench_ctl.model.effects import EFFECTS
+from bench_ctl.model.effects import separating_test as effect_separating_test
 from bench_ctl.model.unit import Unit
 
 from .check import aic, bic, check_deviance, score
@@ -30,30 +32,9 @@ STRONG = 100.0
 #: two effects whose scores differ by less than this explain the capture equally well
 AMBIGUOUS = 6.0
 
-SEPARATING_TESTS: dict[frozenset, str] = {
-    frozenset({"dead_time", "time_skew"}):
-        "record the AVR output or the field voltage at the exciter on a second channel (or efd and usetp "
-        "on the same channel group): a recorder skew delays only the efd channel, a dead time delays the response",
-    frozenset({"ceiling_limit", "rate_limit"}):
-        "repeat with a step of another size (e.g. half the amplitude): a ceiling caps the level at the same "
-        "value, a slew limit caps the slope",
-    frozenset({"recorder_gain", "saturation"}):
-        "repeat at another terminal voltage (e.g. Vt0 = 0.9 and 1.05 pu) or check the efd channel calibration: "
-        "saturation grows with the voltage, a gain error scales every level alike",
-    frozenset({"setpoint_ramp", "rate_limit"}):
-        "read the device's active setpoint during the test (a setpoint ramp shows there), or a step of "
-        "another size: a ramp lengthens the rise in proportion to the step, a slew limit caps the efd slope",
-    frozenset({"setpoint_ramp", "dead_time"}):
-        "read the device's active setpoint during the test, or a step of another size: a ramp's duration "
-        "scales with the step, a dead time does not",
-    frozenset({"transducer_lag", "dead_time"}):
-        "record the transducer output (the AVR's measured voltage) beside Vt: a transducer lag shows there",
-}
-DEFAULT_TEST = ("a step of another size and a record of the AVR input (the transducer output) beside efd")
-
-
 def separating_test(a: str, b: str) -> str:
-    return SEPARATING_TESTS.get(frozenset({a, b}), DEFAULT_TEST)
+    """The test that would separate effects `a` and `b` (their records hold it)."""
+    return effect_separating_test(a, b)
 
 
 def ambiguous_pairs(entries: Sequence[Mapping], tol: float = AMBIGUOUS) -> list[dict]:
@@ -91,8 +72,10 @@ def significance(st: Setup, ref: ModelFit, m: ModelFit) -> tuple[float, float, b
     return gain_fit, gain_check, bool(gain_fit > SIGNIFICANT and gain_check > CHECK_GAIN and m.feasible)
 
 
-def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, ModelFit], variant: str) -> list[dict]:
-    """The ranked `effects` list of the JSON."""
+def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, ModelFit],
+                 variants: Mapping[str, str]) -> list[dict]:
+    """The ranked `effects` list of the JSON; `variants`: the variant kept for each effect that has
+    variants (`Effect.variants`), by its label."""
     n = st.n
     s_base = score(base, n)
     floor = st.floor
@@ -128,8 +111,8 @@ def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, Model
             "delta_bic": d_bic, "delta_check": d_check, "significant": significant,
             "k": m.k, "evaluations": m.evaluations, "start": {p: m.start.get(p) for p in params},
         }
-        if e == "ceiling_limit":
-            entry["variant"] = variant
+        if EFFECTS[e].variants:
+            entry["variant"] = variants[e]
         entries.append(entry)
     entries.sort(key=lambda d: (d["score"], -d["delta_bic"]))
     return entries

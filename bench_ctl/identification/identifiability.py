@@ -34,7 +34,9 @@ from typing import Any
 
 import numpy as np
 
+from bench_ctl.model.dialect import namer, std_text
 from bench_ctl.model.params import RECORD_PARAMS
+from bench_ctl.model.structures import Structure, structure
 
 from .problem import Problem
 
@@ -80,6 +82,8 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
     x = np.asarray(x, dtype=float).reshape(-1)
     names = list(problem.names)
     d = len(names)
+    st = _structure(problem)
+    nm = namer(st)      # texts name parameters as the structure does (bench_ctl.model.dialect)
     notes: list[str] = []
     reasons: dict[str, list[str]] = {n: [] for n in names}
     # log steps for positive model parameters; additive (s) for the edge offsets, whose sign is free
@@ -118,7 +122,7 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
         v = Vt[k]
         involved = [names[i] for i in np.flatnonzero(np.abs(v) > 0.2)]
         notes.append(f"singular direction (singular value {sv[k]:.3g} vs max {smax:.3g}) involving "
-                     f"{', '.join(involved)}: the capture cannot tell these apart")
+                     f"{', '.join(map(nm, involved))}: the capture cannot tell these apart")
         for n in involved:
             reasons[n].append("part of a singular direction")
             std_log[names.index(n)] = math.inf
@@ -135,8 +139,8 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
             reasons[n].append(f"relative std {shown} > {max_rel_std:.0%}")
         for j, m in enumerate(names):
             if j != i and abs(corr[i, j]) > max_corr:
-                reasons[n].append(f"|corr| with {m} = {abs(corr[i, j]):.4f} > {max_corr}")
-    pairs = [f"{names[i]}-{names[j]} ({corr[i, j]:+.4f})" for i in range(d) for j in range(i + 1, d)
+                reasons[n].append(f"|corr| with {nm(m)} = {abs(corr[i, j]):.4f} > {max_corr}")
+    pairs = [f"{nm(names[i])}-{nm(names[j])} ({corr[i, j]:+.4f})" for i in range(d) for j in range(i + 1, d)
              if abs(corr[i, j]) > note_corr]
     if pairs:
         notes.append(f"strongly correlated: {', '.join(pairs)}; the capture fixes their combination "
@@ -145,22 +149,22 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
     for i, n in enumerate(names):
         span = hi[i] - lo[i]
         if x[i] <= lo[i] + 1e-6 * span or x[i] >= hi[i] - 1e-6 * span:
-            notes.append(f"{n} = {x[i]:.6g} sits on its bound; the capture may want it beyond")
+            notes.append(f"{nm(n)} = {x[i]:.6g} sits on its bound; the capture may want it beyond")
     for c in problem.constraint_report(x):
         if c["margin"] is not None and c["satisfied"] and abs(c["margin"]) <= 1e-6 * (1 + np.max(np.abs(x))):
-            notes.append(f"constraint {c['expr']} is active: it, not the capture, fixes the "
+            notes.append(f"constraint {std_text(st, c['expr'])} is active: it, not the capture, fixes the "
                          "parameters it links")
 
     mse_opt = float(np.mean(problem.mse(x)))
     n_efd = int(efd_rows.sum())
     tol = equivalence_tol if equivalence_tol is not None else max(1e-3 * mse_opt,
                                                                    3.0 * mse_opt * math.sqrt(2.0 / n_efd))
-    eq_sets = _equivalent_sets(problem, x, mse_opt, tol, reasons, notes)
+    eq_sets = _equivalent_sets(problem, x, mse_opt, tol, reasons, notes, st)
 
     determined = {n: not reasons[n] for n in names}
     undetermined = [n for n in names if not determined[n]]
     if undetermined:
-        notes.append(f"not determined by this capture: {', '.join(undetermined)}")
+        notes.append(f"not determined by this capture: {', '.join(map(nm, undetermined))}")
     logger.info("identifiability: s2 %.3g, rel std %s, undetermined %s", s2,
                 dict(zip(names, np.round(rel_std, 4))), undetermined)
     return {
@@ -185,13 +189,19 @@ def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-def _exchanges(problem: Problem) -> list[tuple[str, dict[str, str]]]:
-    """Every exchange to examine, as (note, mapping new_name -> source_name): the reference AVR's
-    lead-lag symmetries (in a standard structure only where all four are fitted) and every pair the
-    structure declares (`Structure.swaps`), fitted or not, so that one left out is said."""
+def _structure(problem: Problem) -> Structure:
+    unit = problem.unit
+    return unit.structure if hasattr(unit, "structure") else structure(None)
+
+
+def _exchanges(problem: Problem, st: Structure) -> list[tuple[str, dict[str, str]]]:
+    """Every exchange to examine, as (note in the structure's names, mapping new_name ->
+    source_name, kernel names): the reference AVR's lead-lag symmetries (in a standard structure
+    only where all four are fitted) and every pair the structure declares (`Structure.swaps`),
+    fitted or not, so that one left out is said."""
     names = list(problem.names)
-    st = problem.unit.structure
-    swaps = list(SWAPS) if problem.unit.model == "REFERENCE" else [(n, m) for n, m in SWAPS if set(m) <= set(names)]
+    swaps = list(SWAPS) if st.name == "REFERENCE" else \
+        [(std_text(st, n), m) for n, m in SWAPS if set(m) <= set(names)]
     simulated = [p.kernel for p in st.params if p.kernel is not None]
     for note, a, b in st.kernel_swaps(simulated):
         mapping = {a: b, b: a}
@@ -201,14 +211,15 @@ def _exchanges(problem: Problem) -> list[tuple[str, dict[str, str]]]:
 
 
 def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float,
-                     reasons: dict[str, list[str]], notes: list[str]) -> list[dict[str, Any]]:
+                     reasons: dict[str, list[str]], notes: list[str], st: Structure) -> list[dict[str, Any]]:
+    nm = namer(st)
     names = list(problem.names)
     values = problem.values(x)
     cands, meta = [], []
-    for note, mapping in _exchanges(problem):
+    for note, mapping in _exchanges(problem, st):
         if not set(mapping) <= set(names):
             fixed = sorted(set(mapping) - set(names))
-            notes.append(f"{note}: not examined, {', '.join(fixed)} not fitted")
+            notes.append(f"{note}: not examined, {', '.join(map(nm, fixed))} not fitted")
             continue
         new = dict(values)
         for dst, src in mapping.items():
@@ -218,10 +229,10 @@ def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float
             notes.append(f"{note}: gives the same point (the swapped values are equal)")
             continue
         lo, hi = problem.lower, problem.upper
-        out = [f"{n} = {xs[i]:.6g} outside [{lo[i]:g}, {hi[i]:g}]" for i, n in enumerate(names)
+        out = [f"{nm(n)} = {xs[i]:.6g} outside [{lo[i]:g}, {hi[i]:g}]" for i, n in enumerate(names)
                if not lo[i] <= xs[i] <= hi[i]]
         cands.append(xs)
-        meta.append((note, mapping, out, problem.violated(xs)))
+        meta.append((note, mapping, out, [std_text(st, v) for v in problem.violated(xs)]))
     if not cands:
         return []
     mses = problem.mse_many(np.array(cands)).mean(axis=0)

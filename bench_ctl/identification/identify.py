@@ -22,6 +22,7 @@ import numpy as np
 import bench_ctl
 from bench_ctl.capture import Capture
 from bench_ctl.limits import sha256_file
+from bench_ctl.model.dialect import result_to_std
 from bench_ctl.model.kernel import optimisation_note, run_kernel
 from bench_ctl.model.params import RECORD_PARAMS
 from bench_ctl.model.simulate import param_matrix
@@ -250,6 +251,7 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
                                   ident.get("determined") or {})
     if len(runs) > 1:
         result["comparison"] = [_run_summary(prob, r) for r in runs]
+    result = result_to_std(prob.unit.structure, result)   # the boundary: the structure's names
     return Identification(result=IdentificationResult.from_json(plain(result), "the identification result"),
                           problem=prob, best=best, runs=tuple(runs))
 

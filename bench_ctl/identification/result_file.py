@@ -45,7 +45,8 @@ class CaptureEntry(Record):
 class IdentificationResult(Record):
     """An identification result; each field is the key of the same name, in the order written
     (docs/formats.md). `edges`, `identifiability`, `failed`, `message`, `model` and `comparison`
-    are absent from a diagnosis' base fit written as a result, `comparison` when one optimizer ran."""
+    are absent from a diagnosis' base fit written as a result, `comparison` when one optimizer ran,
+    `kernel` from a result of the reference structure (whose names are the kernel's)."""
     schema: str
     software_version: str
     command_line: str
@@ -70,8 +71,11 @@ class IdentificationResult(Record):
     message: str | None = None
     model: dict[str, Any] | None = None
     comparison: list[dict[str, Any]] | None = None
+    #: a standard structure's result: params, bounds, fixed and constraints in the kernel's names
+    #: (the other keys speak the structure's own; docs/formats.md)
+    kernel: dict[str, Any] | None = None
 
-    OMITTED_WHEN_NONE = ("edges", "identifiability", "failed", "message", "model", "comparison")
+    OMITTED_WHEN_NONE = ("edges", "identifiability", "failed", "message", "model", "comparison", "kernel")
 
     @classmethod
     def from_json(cls, data: Any, where: str = "") -> IdentificationResult:

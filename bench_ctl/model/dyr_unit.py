@@ -33,6 +33,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from .dialect import describe, kernel_sections, std_name
 from .dyr import FIELDS, DyrError, DyrRecord, find, read_dyr
 from .params import PARAMS
 from .structures import STRUCTURES, Structure, structure
@@ -247,7 +248,7 @@ def dyr_values_of(result: Mapping[str, Any]) -> tuple[Structure, dict[str, float
     st = structure(model.get("name"))
     if st.name == "REFERENCE":      # the reference blocks under ESST1A's names, limits open
         st = structure("ESST1A")
-        kern = {**(result.get("fixed") or {}), **(result.get("params") or {})}
+        kern = {**(result.get("fixed") or {}), **(result.get("params") or {})}   # REFERENCE: kernel names
         base = {k: _kernel_value(k, v) for k, v in kern.items()}
         params = st.std_values(base, {"VRMAX": math.inf, "VRMIN": -math.inf, "KC": 0.0})
     else:
@@ -276,8 +277,9 @@ def not_carried(result: Mapping[str, Any], st: Structure, std: Mapping[str, floa
     from .params import neutral_values
 
     have = dict(neutral_values())
+    sections = kernel_sections(result)
     for section in ("fixed", "params"):
-        for k, v in dict(result.get(section) or {}).items():
+        for k, v in sections[section].items():
             if k in PARAMS:
                 have[k] = _kernel_value(k, v)
     read = {k: (_open_side(st, k) if abs(v) == NO_LIMIT and st.param(k).kernel else v)
@@ -292,6 +294,8 @@ def not_carried(result: Mapping[str, Any], st: Structure, std: Mapping[str, floa
         b = back[k]
         if a == b or (math.isfinite(a) and math.isfinite(b) and math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-15)):
             continue
-        unit = "" if PARAMS[k].unit in ("", "1") else f" {PARAMS[k].unit}"
-        out.append(f"{k} = {a:g}{unit} (read back: {b:g}; {PARAMS[k].info})")
+        name = std_name(st, k)
+        what = describe(st, name) or (PARAMS[k].unit, PARAMS[k].info, None)
+        unit = "" if what[0] in ("", "1") else f" {what[0]}"
+        out.append(f"{name} = {a:g}{unit} (read back: {b:g}; {what[1]})")
     return out

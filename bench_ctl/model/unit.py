@@ -25,6 +25,7 @@ from pathlib import Path
 from bench_ctl.limits import InputError, read_text
 
 from .acceptance import AcceptanceError, acceptance_limits
+from .dialect import kernel_text, refusal, shared_names, std_name
 from .effects import EFFECTS, effect
 from .params import AVR_PARAMS, GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, neutral_values
 from .structures import DEFAULT as DEFAULT_MODEL
@@ -151,19 +152,21 @@ def check_unit(unit: Unit, source: str) -> Unit:
     """What a whole unit must satisfy, once every override is in: every AVR parameter given,
     identified values finite and inside their bounds, bounds and fixed values inside the
     physical ranges, fixed names apart from the generator's."""
+    st = unit.structure
     for name in AVR_PARAMS:
         if name not in unit.identify and name not in unit.fixed:
             raise UnitError(f"{source}: AVR parameter {name} is neither under [identify] nor [fixed]")
     for name, b in unit.identify.items():
+        shown = std_name(st, name)   # messages in the structure's names (bench_ctl.model.dialect)
         for what, v in (("min", b.min), ("max", b.max), ("value", b.value)):
             if not math.isfinite(v):
-                raise UnitError(f"{source}: identify.{name}.{what} = {v!r} must be finite")
+                raise UnitError(f"{source}: identify.{shown}.{what} = {v!r} must be finite")
             try:
-                PARAMS[name].check(v, where=f"{source}: identify.{name}.{what}: ")
+                _check_value(st, name, v, where=f"{source}: identify.{shown}.{what}: ")
             except ValueError as exc:
                 raise UnitError(str(exc)) from None
         if not b.min <= b.value <= b.max:
-            raise UnitError(f"{source}: identify.{name}.value = {b.value!r} is outside its bounds "
+            raise UnitError(f"{source}: identify.{shown}.value = {b.value!r} is outside its bounds "
                             f"[{b.min!r}, {b.max!r}]")
     for name, params in unit.effects.items():
         try:
@@ -174,10 +177,21 @@ def check_unit(unit: Unit, source: str) -> Unit:
         if name in unit.generator:
             raise UnitError(f"{source}: fixed.{name}: a generator constant; set it under [generator]")
         try:
-            PARAMS[name].check(v, where=f"{source}: fixed.")
+            _check_value(st, name, v, where=f"{source}: fixed.")
         except ValueError as exc:
             raise UnitError(str(exc)) from None
     return unit
+
+
+def _check_value(st: Structure, kernel_name: str, value: float, where: str) -> None:
+    """The kernel parameter's physical range check, its message naming the parameter as the
+    structure does (ESST1A's `TA`, not the kernel's `TE`)."""
+    info = PARAMS[kernel_name]
+    name = std_name(st, kernel_name)
+    if name != kernel_name:
+        p = st.param(name)
+        info = replace(info, name=name, unit=p.unit, info=p.info)
+    info.check(value, where=where)
 _WEIGHT_KEYS = {"efd", "vt"}
 
 
@@ -212,7 +226,9 @@ def _translate(st: Structure, data: Mapping, source: str) -> tuple[dict, dict[st
     for name, v in fixed_raw.items():
         if name in st.names:
             std_vals[name] = _num(v, f"{source}: fixed.{name}")
-        elif name in PARAMS and name not in {p.kernel for p in st.params}:
+        elif refusal(st, name):
+            raise UnitError(f"{source}: fixed.{name}: {refusal(st, name)}")
+        elif name in PARAMS:
             fixed[name] = v      # a kernel parameter the structure does not name (TD, ...)
         else:
             raise UnitError(f"{source}: fixed.{name}: model {st.name} has no parameter {name!r}; "
@@ -224,21 +240,24 @@ def _translate(st: Structure, data: Mapping, source: str) -> tuple[dict, dict[st
     for k, v in kern.items():
         if k not in identify:
             fixed[k] = v
-    constraints = [_rename(c, st) for c in data.get("constraints", list(st.constraints)) or []] \
+    constraints = [_rename(c, st, source) for c in data.get("constraints", list(st.constraints)) or []] \
         if isinstance(data.get("constraints", []), list) else data.get("constraints")
     out = {k: v for k, v in data.items() if k != "avr"}
     out.update(identify=identify, fixed=fixed, constraints=constraints)
     return out, std_vals
 
 
-def _rename(text: object, st: Structure) -> object:
-    """A constraint's standard names in the kernel's ("TB1 <= TC1" -> "TA4 <= TA3")."""
+def _rename(text: object, st: Structure, source: str) -> object:
+    """A constraint's standard names in the kernel's ("TB1 <= TC1" -> "TA4 <= TA3"); a kernel
+    name the structure calls otherwise is refused, naming the standard one."""
     if not isinstance(text, str):
         return text
     import re
-    return re.sub(r"[A-Za-z_][A-Za-z0-9_]*",
-                  lambda m: (st.param(m.group(0)).kernel or m.group(0)) if m.group(0) in st.names
-                  else m.group(0), text)
+    for word in re.findall(r"[A-Za-z_][A-Za-z0-9_]*", text):
+        why = refusal(st, word)
+        if why:
+            raise UnitError(f"{source}: constraint {text!r}: {why}")
+    return kernel_text(st, text)
 
 
 def _acceptance(raw: object, source: str) -> dict | None:
@@ -288,7 +307,7 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
 
     identify: dict[str, Bound] = {}
     for name, spec in data.get("identify", {}).items():
-        where = f"{source}: identify.{name}"
+        where = f"{source}: identify.{std_name(st, name)}"
         if name not in PARAMS:
             raise UnitError(f"{where}: unknown parameter; known: {', '.join(PARAMS)}")
         if not isinstance(spec, Mapping) or set(spec) - {"value", "min", "max"} or not {"min", "max"} <= set(spec):
@@ -304,8 +323,8 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
         if name not in PARAMS:
             raise UnitError(f"{source}: fixed.{name}: unknown parameter; known: {', '.join(PARAMS)}")
         if name in identify:
-            raise UnitError(f"{source}: fixed.{name}: also listed under [identify]")
-        fixed[name] = _num(v, f"{source}: fixed.{name}")
+            raise UnitError(f"{source}: fixed.{std_name(st, name)}: also listed under [identify]")
+        fixed[name] = _num(v, f"{source}: fixed.{std_name(st, name)}")
 
     weights = {"efd": 1.0, "vt": 0.0}
     for name, v in data.get("weights", {}).items():
@@ -410,6 +429,9 @@ def _std_to_kernel(unit: Unit, key: str, item: str) -> str:
             return st.kernel_name(base) + dot + attr
         except StructureError as exc:
             raise UnitError(f"--set {item!r}: {exc}") from None
+    why = refusal(st, base)
+    if why:
+        raise UnitError(f"--set {item!r}: {why}")
     return key
 
 
@@ -428,8 +450,9 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     if "." in key:
         name, attr = key.split(".", 1)
         if name not in unit.identify or attr not in ("min", "max", "value"):
-            raise UnitError(f"--set {item!r}: {name!r} is not an identified parameter with min/max/value"
-                            f" (identified: {', '.join(unit.identify)})")
+            shown = std_name(unit.structure, name)
+            raise UnitError(f"--set {item!r}: {shown!r} is not an identified parameter with min/max/value"
+                            f" (identified: {', '.join(std_name(unit.structure, n) for n in unit.identify)})")
         b = replace(unit.identify[name], **{attr: value})
         if not b.min < b.max:
             raise UnitError(f"--set {item!r}: min {b.min} must be below max {b.max}")
@@ -440,7 +463,7 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     if key in unit.identify:
         return replace(unit, identify={**unit.identify, key: replace(unit.identify[key], value=value)})
     if key in unit.fixed:
-        PARAMS[key].check(value, where="--set ")
+        _check_value(unit.structure, key, value, where="--set ")
         return replace(unit, fixed={**unit.fixed, key: value})
     for eff in EFFECTS.values():
         if key in eff.params:
@@ -451,4 +474,6 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     if key in PARAMS:
         PARAMS[key].check(value, where="--set ")
         return replace(unit, fixed={**unit.fixed, key: value})
-    raise UnitError(f"--set {item!r}: unknown name {key!r}; known: {', '.join(PARAMS)}")
+    known = list(PARAMS) if unit.model == DEFAULT_MODEL else \
+        [*unit.structure.names, *(n for n in shared_names() if n not in unit.structure.names)]
+    raise UnitError(f"--set {item!r}: unknown name {key!r}; known: {', '.join(known)}")

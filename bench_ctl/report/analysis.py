@@ -103,7 +103,7 @@ def analyse(result: IdentificationResult, *, diagnosis: Diagnosis | None = None,
     Raises `ReportError` (see `inputs`) for input that cannot be reported on.
     """
     check_result(result, where)
-    values = model_values(result.params, result.fixed, where)
+    values = model_values(result, where)
     loaded = load_captures(result, where, base_dir)
     unit = result.unit
     weights = unit.get("weights") if isinstance(unit.get("weights"), Mapping) else {}

@@ -12,7 +12,7 @@ import numpy as np
 
 from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.model.acceptance import SOURCE
-from bench_ctl.model.params import PARAMS
+from bench_ctl.model.dialect import describe
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
@@ -301,15 +301,15 @@ def parameters(d: ReportData) -> Section:
         st = structure(str(model.get("name"))) if model.get("name") else None
     except StructureError:
         st = None
+    st = st or structure(None)
     for name, value in params.items():
-        info = PARAMS.get(name)
-        std = st.std_name(name) if st is not None and st.name != "REFERENCE" else None
+        info = describe(st, name)   # the result speaks the structure's names (bench_ctl.model.dialect)
         b = bounds.get(name) if isinstance(bounds.get(name), (list, tuple)) else (None, None)
         rel = num(get("rel_std", name))
         det = get("determined", name)
-        rows.append((f"{std} ({name})" if std and std != name else name, Num(num(value), f"param-{name}"),
-                     info.unit if info else "?",
-                     info.info if info else "", Num(num(b[0])), Num(num(b[1])),
+        rows.append((name, Num(num(value), f"param-{name}"),
+                     info[0] if info else "?",
+                     info[1] if info else "", Num(num(b[0])), Num(num(b[1])),
                      Num(num(get("std", name)), f"std-{name}", 3),
                      Num(None if rel is None else 100.0 * rel, digits=3),
                      Num(num(get("sensitivity", name)), digits=3),
@@ -345,13 +345,13 @@ def parameters(d: ReportData) -> Section:
     fixed = r.fixed
     frows = []
     for name, value in fixed.items():
-        info = PARAMS.get(name)
+        info = describe(st, name)
         if value is None:
-            neutral = info.neutral if info and info.neutral is not None else float("inf")
+            neutral = info[2] if info and info[2] is not None else float("inf")
             text: Any = f"{fmt(neutral)} (effect off)"
         else:
             text = Num(num(value), f"fixed-{name}")
-        frows.append((name, text, info.unit if info else "?", info.info if info else ""))
+        frows.append((name, text, info[0] if info else "?", info[1] if info else ""))
     if frows:
         blocks.append(table(("parameter", "value", "unit", "meaning"), frows, id="fixed",
                             caption="Fixed parameters used in the simulation"))

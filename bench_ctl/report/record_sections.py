@@ -150,10 +150,20 @@ def _check(g: Diagnosis) -> list[Block]:
                   caption=f"The check ({chk.get('kind', '?')}): {chk.get('how', '')}")]
 
 
+def _user_view(x: Any) -> Any:
+    """`x` without its `kernel` keys: the kernel's names are for debugging, the report speaks the
+    structure's (docs/formats.md)."""
+    if isinstance(x, Mapping):
+        return {k: _user_view(v) for k, v in x.items() if k != "kernel"}
+    if isinstance(x, list):
+        return [_user_view(v) for v in x]
+    return x
+
+
 def _unit_rows(unit: Mapping[str, Any]) -> list[tuple[str, str]]:
     """Unit.to_dict() as rows: one per identified parameter, the rest as flattened keys."""
     rows = []
-    for key, value in unit.items():
+    for key, value in _user_view(unit).items():
         if key == "identify" and isinstance(value, Mapping):
             for name, spec in value.items():
                 spec = spec if isinstance(spec, Mapping) else {}
@@ -181,7 +191,7 @@ def metadata(d: ReportData) -> Section:
                 ("samples", Num(cap.n)), ("rate (Hz)", Num(cap.rate_hz)),
                 ("duration (s)", Num(float(cap.time[-1] - cap.time[0]))),
                 ("weight in the objective", Num(num(a.loaded.entry.weight)))]
-        meta = cap.meta or a.loaded.entry.meta
+        meta = _user_view(cap.meta or a.loaded.entry.meta or {})
         rows += [(f"sidecar: {k}", v) for k, v in flatten(meta)] if meta else \
             [("sidecar", "none (no test / bench description recorded)")]
         blocks.append(table(("key", "value"), rows, id=f"capture{a.suffix or '_1'}",

@@ -2,15 +2,17 @@
 
 Each structure lives in one file of this package and declares, once, its parameters under their
 standard (IEEE 421.5 / PSS/E) names with unit, meaning, typical value and default identification
-bounds, the kernel column each one drives, the kernel settings the structure implies, its block
-diagram in words and its PSS/E dynamic data record. All structures run on the one compiled kernel
+bounds (`blocks.Param`), its blocks in diagram order (`blocks.Transducer`, `LeadLag`,
+`RegulatorLag`, ...) and its PSS/E dynamic data record; `declare` generates from the blocks the
+kernel column each parameter drives, the kernel settings the structure implies and its block
+diagram in words, so that they cannot drift. All structures run on the one compiled kernel
 (`bench_ctl.model.kernel`): its blocks are a superset (two lead-lags, a regulator lag whose
 ceilings scale with Vt and drop by KC*Ifd, non-windup or output clamp, rate feedback, a DC
 exciter with quadratic saturation, a potential-source stage with PI regulators and the output
 VB VM), a structure picks and names the ones it has. The effects of
 the diagnosis stay switchable on top of every structure.
 
-Adding a structure: one file here with a `STRUCTURE = Structure(...)`, its name in `_MODULES`,
+Adding a structure: one file here with a `STRUCTURE = declare(...)`, its name in `_MODULES`,
 and an ANDES fixture (benchmarks/andes_captures.py) that checks it (docs/decisions/0009).
 """
 from __future__ import annotations
@@ -21,6 +23,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from ..params import PARAMS
+from .blocks import Block, Param, generate
 
 
 class StructureError(ValueError):
@@ -64,12 +67,18 @@ class Structure:
     #: polish from the exchanged point (`peers._swap_restarts`)
     swaps: tuple[tuple[str, tuple[str, str]], ...] = ()
     source: str = ""
+    #: the blocks in diagram order the mapping, settings and diagram were generated from
+    blocks: tuple[Block, ...] = ()
 
     # ---- names ----
     def param(self, name: str) -> StdParam:
         for p in self.params:
             if p.name == name:
                 return p
+        drivers = [p.name for p in self.params if p.kernel == name]
+        if drivers:   # a kernel name: say which of the structure's names it is
+            raise StructureError(f"model {self.name} has no parameter {name!r}: {name} is the kernel's name, "
+                                 f"{self.name} calls it {drivers[0]}; use {drivers[0]}")
         raise StructureError(f"model {self.name} has no parameter {name!r}; it has "
                              f"{', '.join(p.name for p in self.params)}")
 
@@ -157,18 +166,24 @@ class Structure:
                 out.append((note, ka, kb))
         return out
 
-    def describe(self) -> str:
+    def describe(self, kernel: bool = False) -> str:
+        """`bench-ctl models NAME`: in the structure's names; `kernel` adds the kernel parameter
+        each one drives and the kernel settings the structure implies (debugging)."""
         lines = [f"{self.name}: {self.title}", ""]
         lines += ["Block diagram:"] + [f"  {d}" for d in self.diagram] + [""]
-        lines.append(f"{'parameter':<9} {'unit':<6} {'typical':>9}  {'bounds':<17} {'kernel':<7} meaning")
+        kcol = f" {'kernel':<7}" if kernel else ""
+        lines.append(f"{'parameter':<9} {'unit':<6} {'typical':>9}  {'bounds':<17}{kcol} meaning")
         for p in self.params:
             b = f"[{p.bounds[0]:g}, {p.bounds[1]:g}]" if p.bounds else "-"
             mark = "*" if p.identify else " "
-            kern = p.kernel or "(record)"
-            lines.append(f"{p.name + mark:<9} {p.unit:<6} {p.typical:>9g}  {b:<17} {kern:<7} {p.info}"
+            kern = f" {p.kernel or '-':<7}" if kernel else ""
+            record = "" if p.kernel else " (record)"
+            lines.append(f"{p.name + mark:<9} {p.unit:<6} {p.typical:>9g}  {b:<17}{kern} {p.info}{record}"
                          + (f" [{p.note}]" if p.note else ""))
         lines.append("")
         lines.append("* identified by default; (record): written to the .dyr, not simulated")
+        if kernel and self.settings:
+            lines.append("kernel settings: " + ", ".join(f"{k} = {v:g}" for k, v in self.settings.items()))
         if self.constraints:
             lines.append("constraints: " + ", ".join(self.constraints))
         if self.dyr_model:
@@ -191,6 +206,29 @@ class Structure:
         for _note, pair in self.swaps:
             for n in pair:
                 self.kernel_name(n)
+
+
+def declare(*, name: str, title: str, params: tuple[Param, ...], blocks: tuple[Block, ...],
+            remarks: tuple[str, ...] = (), constraints: tuple[str, ...] = (), dyr_model: str | None = None,
+            dyr_special: Mapping[str, tuple[Callable[[Mapping[str, float]], float],
+                                            Callable[[Mapping[str, float]], tuple[str, float]]]] | None = None,
+            swaps: tuple[tuple[str, tuple[str, str]], ...] = (), source: str = "") -> Structure:
+    """A structure from its parameters and blocks: each parameter drives the kernel parameter its
+    block wires it to (none: kept for the record, its `note` says why), the settings and the
+    diagram (plus `remarks`) are the blocks'."""
+    placed, wiring, settings, lead_lags, lines = generate(blocks)
+    names = {p.name for p in params}
+    unknown = sorted(set(wiring) - names)
+    if unknown:
+        raise StructureError(f"model {name}: blocks use undeclared parameter(s) {unknown}")
+    std = tuple(StdParam(p.name, p.unit, p.info, p.typical, p.bounds, wiring.get(p.name), p.identify, p.note)
+                for p in params)
+    for p in std:
+        if p.kernel is None and not p.note:
+            raise StructureError(f"model {name}: {p.name} drives no block; say why it is kept (note)")
+    return Structure(name=name, title=title, diagram=lines + remarks, params=std, settings=settings,
+                     constraints=constraints, dyr_model=dyr_model, dyr_special=dict(dyr_special or {}),
+                     lead_lags=lead_lags, swaps=swaps, source=source, blocks=placed)
 
 
 _MODULES = ("reference", "sexs", "exst1", "esst1a", "ieeex1", "esst4b")

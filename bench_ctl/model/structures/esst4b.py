@@ -1,45 +1,47 @@
 """ESST4B, the IEEE 421.5 type ST4B potential-source static exciter (PSS/E ESST4B; ANDES `ESST4B`)."""
-from . import StdParam, Structure
+from . import declare
+from .blocks import FieldVoltagePI, Param, PIRegulator, PotentialSource, RegulatorLag, Transducer
 
 _NL = "no load: the generator carries no current, so VE = |KP e^(j THETAP) Vt| = KP Vt"
 _VG = "VG = KG Efd reaches VGMAX only far above a pulse test's field voltage (ANDES only, not in the .dyr)"
 
-STRUCTURE = Structure(
+STRUCTURE = declare(
     name="ESST4B",
     title="IEEE 421.5 ST4B potential-source static exciter: PI regulator, lag, inner field-voltage PI, "
           "output VB VM with the rectifier regulation FEX",
-    diagram=(
-        "Vc = Vt / (1 + s TR)",
-        "VR = (KPR + KIR/s)(Vref - Vc), limited to [VRMIN, VRMAX] (anti-windup by tracking)",
-        "VA = VR / (1 + s TA)",
-        "VM = (KPM + KIM/s)(VA - KG Efd), limited to [VMMIN, VMMAX] (anti-windup by tracking)",
-        "VB = VE FEX(IN), VE = KP Vt (no load), IN = KC Ifd / VE, VB <= VBMAX",
-        "FEX = 1 - 0.577 IN (IN <= 0.433), sqrt(0.75 - IN^2) (<= 0.75), 1.732 (1 - IN) (<= 1), 0",
-        "Efd = VB VM  (the loop through KG solved in closed form)",
-    ),
     params=(
-        StdParam("TR", "s", "voltage transducer time constant", 0.01, None, "TR"),
-        StdParam("KPR", "pu", "proportional gain of the voltage regulator", 3.15, (0.3, 30.0), "KPI", True),
-        StdParam("KIR", "pu/s", "integral gain of the voltage regulator", 3.15, (0.0, 30.0), "KII", True),
-        StdParam("VRMAX", "pu", "maximum voltage regulator output", 1.0, None, "VPMAX"),
-        StdParam("VRMIN", "pu", "minimum voltage regulator output", -0.87, None, "VPMIN"),
-        StdParam("TA", "s", "voltage regulator time constant", 0.02, (0.002, 0.5), "TE", True),
-        StdParam("KPM", "pu", "proportional gain of the field-voltage regulator", 1.0, None, "KPM"),
-        StdParam("KIM", "pu/s", "integral gain of the field-voltage regulator", 0.0, None, "KIM"),
-        StdParam("VMMAX", "pu", "maximum field-voltage regulator output", 1.0, None, "VMMAX"),
-        StdParam("VMMIN", "pu", "minimum field-voltage regulator output", -0.87, None, "VMMIN"),
-        StdParam("KG", "pu", "feedback gain of the field-voltage regulator", 0.0, None, "KG"),
-        StdParam("KP", "pu", "potential circuit gain", 6.5, None, "KPV"),
-        StdParam("KI", "pu", "compound circuit (current) gain", 0.0, None, None, note=_NL),
-        StdParam("VBMAX", "pu", "maximum available exciter voltage", 8.41, None, "VBMAX"),
-        StdParam("KC", "pu", "rectifier loading factor (commutating reactance)", 0.08, None, "KC"),
-        StdParam("XL", "pu", "reactance of the potential source", 0.0, None, None, note=_NL),
-        StdParam("THETAP", "deg", "potential circuit phase angle", 0.0, None, None, note=_NL),
+        Param(name="TR", unit="s", info="voltage transducer time constant", typical=0.01),
+        Param(name="KPR", unit="pu", info="proportional gain of the voltage regulator", typical=3.15,
+              bounds=(0.3, 30.0), identify=True),
+        Param(name="KIR", unit="pu/s", info="integral gain of the voltage regulator", typical=3.15,
+              bounds=(0.0, 30.0), identify=True),
+        Param(name="VRMAX", unit="pu", info="maximum voltage regulator output", typical=1.0),
+        Param(name="VRMIN", unit="pu", info="minimum voltage regulator output", typical=-0.87),
+        Param(name="TA", unit="s", info="voltage regulator time constant", typical=0.02, bounds=(0.002, 0.5),
+              identify=True),
+        Param(name="KPM", unit="pu", info="proportional gain of the field-voltage regulator", typical=1.0),
+        Param(name="KIM", unit="pu/s", info="integral gain of the field-voltage regulator", typical=0.0),
+        Param(name="VMMAX", unit="pu", info="maximum field-voltage regulator output", typical=1.0),
+        Param(name="VMMIN", unit="pu", info="minimum field-voltage regulator output", typical=-0.87),
+        Param(name="KG", unit="pu", info="feedback gain of the field-voltage regulator", typical=0.0),
+        Param(name="KP", unit="pu", info="potential circuit gain", typical=6.5),
+        Param(name="KI", unit="pu", info="compound circuit (current) gain", typical=0.0, note=_NL),
+        Param(name="VBMAX", unit="pu", info="maximum available exciter voltage", typical=8.41),
+        Param(name="KC", unit="pu", info="rectifier loading factor (commutating reactance)", typical=0.08),
+        Param(name="XL", unit="pu", info="reactance of the potential source", typical=0.0, note=_NL),
+        Param(name="THETAP", unit="deg", info="potential circuit phase angle", typical=0.0, note=_NL),
     ),
-    # the kernel's first lead-lag becomes the PI (KPV > 0), the second is bypassed, the regulator
-    # lag is TA and carries no ceiling of its own (LIMOUT 1: the kernel's ceilings, which only the
-    # diagnosis' ceiling_limit sets, bound Efd = VB VM through VM, not the lag)
-    settings={"KAVR": 1.0, "TA1": 1.0, "TA2": 1.0, "TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "LIMOUT": 1.0},
+    # the PI takes the kernel's first lead-lag's place, the regulator lag TA carries no ceiling of
+    # its own (the kernel's ceilings, which only the diagnosis' ceiling_limit sets, bound Efd = VB VM
+    # through VM, not the lag)
+    blocks=(
+        Transducer(T="TR"),
+        PIRegulator(KP="KPR", KI="KIR", upper="VRMAX", lower="VRMIN"),
+        RegulatorLag(gain=None, T="TA", vt_scaled=False, output_clamp=True),
+        FieldVoltagePI(KP="KPM", KI="KIM", upper="VMMAX", lower="VMMIN", KG="KG"),
+        PotentialSource(KP="KP", VBMAX="VBMAX", KC="KC"),
+    ),
+    remarks=("the loop through KG is solved in closed form; KI, XL, THETAP: record only (no load)",),
     dyr_model="ESST4B",
     source="IEEE Std 421.5-2016 ST4B; PSS/E model library, ESST4B; ANDES andes/models/exciter/esst4b.py "
            "(PI regulators with tracking anti-windup, gain 2; " + _VG + ")",

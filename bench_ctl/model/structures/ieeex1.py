@@ -1,36 +1,36 @@
 """IEEEX1, the IEEE type 1 DC exciter (PSS/E IEEEX1, the ESDC1A family; ANDES `IEEEX1`)."""
-from . import StdParam, Structure
+from . import declare
+from .blocks import DCExciter, LeadLag, Param, RateFeedback, RegulatorLag, Transducer
 
-STRUCTURE = Structure(
+STRUCTURE = declare(
     name="IEEEX1",
     title="IEEE type 1 DC exciter: lead-lag, regulator with non-windup limits, DC exciter with "
           "saturation, rate feedback",
-    diagram=(
-        "Vc = Vt / (1 + s TR)",
-        "VR = KA/(1 + s TA) (1 + s TC)/(1 + s TB) (Vref - Vc - VF), non-windup VRMIN <= VR <= VRMAX",
-        "TE dEfd/dt = VR - (KE + SE(Efd)) Efd,  SE(Efd) Efd = B (Efd - A)^2 through (E1, SE1), (E2, SE2)",
-        "VF = s KF/(1 + s TF1) Efd",
-    ),
     params=(
-        StdParam("TR", "s", "voltage transducer time constant", 0.01, None, "TR"),
-        StdParam("KA", "pu/pu", "regulator gain", 40.0, (5.0, 400.0), "KAVR", True),
-        StdParam("TA", "s", "regulator time constant", 0.04, (0.002, 0.5), "TE", True),
-        StdParam("TB", "s", "lag time constant", 1.0, None, "TA2"),
-        StdParam("TC", "s", "lead time constant", 1.0, None, "TA1"),
-        StdParam("VRMAX", "pu", "maximum regulator output", 7.3, None, "VRMAX"),
-        StdParam("VRMIN", "pu", "minimum regulator output", -7.3, None, "VRMIN"),
-        StdParam("KE", "pu", "exciter self-excitation constant", 1.0, None, "KE"),
-        StdParam("TE", "s", "exciter time constant", 0.5, (0.05, 3.0), "TEX", True),
-        StdParam("KF", "pu", "rate feedback gain", 0.03, (0.002, 0.3), "KF", True),
-        StdParam("TF1", "s", "rate feedback time constant", 1.0, None, "TF"),
-        StdParam("SWITCH", "1", "PSS/E's unused switch field", 0.0, None, None, note="kept at 0"),
-        StdParam("E1", "pu", "Efd of the first saturation point", 2.5, None, "E1"),
-        StdParam("SE1", "pu", "exciter saturation at E1", 0.05, None, "SE1"),
-        StdParam("E2", "pu", "Efd of the second saturation point", 3.5, None, "E2"),
-        StdParam("SE2", "pu", "exciter saturation at E2", 0.3, None, "SE2"),
+        Param(name="TR", unit="s", info="voltage transducer time constant", typical=0.01),
+        Param(name="KA", unit="pu/pu", info="regulator gain", typical=40.0, bounds=(5.0, 400.0), identify=True),
+        Param(name="TA", unit="s", info="regulator time constant", typical=0.04, bounds=(0.002, 0.5), identify=True),
+        Param(name="TB", unit="s", info="lag time constant", typical=1.0),
+        Param(name="TC", unit="s", info="lead time constant", typical=1.0),
+        Param(name="VRMAX", unit="pu", info="maximum regulator output", typical=7.3),
+        Param(name="VRMIN", unit="pu", info="minimum regulator output", typical=-7.3),
+        Param(name="KE", unit="pu", info="exciter self-excitation constant", typical=1.0),
+        Param(name="TE", unit="s", info="exciter time constant", typical=0.5, bounds=(0.05, 3.0), identify=True),
+        Param(name="KF", unit="pu", info="rate feedback gain", typical=0.03, bounds=(0.002, 0.3), identify=True),
+        Param(name="TF1", unit="s", info="rate feedback time constant", typical=1.0),
+        Param(name="SWITCH", unit="1", info="PSS/E's unused switch field", typical=0.0, note="kept at 0"),
+        Param(name="E1", unit="pu", info="Efd of the first saturation point", typical=2.5),
+        Param(name="SE1", unit="pu", info="exciter saturation at E1", typical=0.05),
+        Param(name="E2", unit="pu", info="Efd of the second saturation point", typical=3.5),
+        Param(name="SE2", unit="pu", info="exciter saturation at E2", typical=0.3),
     ),
-    settings={"TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "KC": 0.0, "LIMOUT": 0.0},
-    lead_lags=(("TA1", "TA2"),),
+    blocks=(
+        Transducer(T="TR"),
+        LeadLag(lead="TC", lag="TB"),
+        RegulatorLag(gain="KA", T="TA", upper="VRMAX", lower="VRMIN", vt_scaled=False, output_clamp=False),
+        DCExciter(T="TE", KE="KE", E1="E1", SE1="SE1", E2="E2", SE2="SE2"),
+        RateFeedback(K="KF", T="TF1", source="Efd"),
+    ),
     swaps=(("regulator lag TA <-> exciter time constant TE (the forward path KA/((1 + s TA)(KE + s TE)) "
             "is symmetric in them when KE = 1 and saturation is small)", ("TA", "TE")),),
     dyr_model="IEEEX1",

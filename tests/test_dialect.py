@@ -1,0 +1,182 @@
+"""One dialect a user reads (issue 25 section 4): every surface of a standard structure speaks its
+own IEEE 421.5 / PSS/E names; kernel names only under a `kernel` key; input refuses them."""
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+
+from bench_ctl.cli import main
+from bench_ctl.model.dialect import hidden_kernel_names, kernel_sections, result_to_std, std_text
+from bench_ctl.model.effects import EFFECTS, separating_test
+from bench_ctl.model.structures import STRUCTURES, structure
+from bench_ctl.model.unit import UnitError, apply_overrides, reference_unit, unit_from_dict, with_model
+
+STANDARD = [n for n in STRUCTURES if n != "REFERENCE"]
+
+#: the column mapping and settings as they were written by hand before the blocks generated them
+#: (the kernel calls must not change): standard name -> kernel parameter, and the settings
+MAPPING = {
+    "REFERENCE": ({"KAVR": "KAVR", "TA1": "TA1", "TA2": "TA2", "TA3": "TA3", "TA4": "TA4", "TE": "TE", "TR": "TR"},
+                  {}),
+    "SEXS": ({"K": "KAVR", "TA": "TA1", "TB": "TA2", "TE": "TE", "EMIN": "VRMIN", "EMAX": "VRMAX"},
+             {"TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "KC": 0.0, "LIMOUT": 0.0, "TR": 0.0}),
+    "EXST1": ({"TR": "TR", "TC": "TA1", "TB": "TA2", "KA": "KAVR", "TA": "TE", "VRMAX": "VRMAX",
+               "VRMIN": "VRMIN", "KC": "KC", "KF": "KF", "TF": "TF"},
+              {"TA3": 1.0, "TA4": 1.0, "VRVT": 1.0, "LIMOUT": 1.0}),
+    "ESST1A": ({"TR": "TR", "TC": "TA1", "TB": "TA2", "TC1": "TA3", "TB1": "TA4", "KA": "KAVR", "TA": "TE",
+                "VRMAX": "VRMAX", "VRMIN": "VRMIN", "KC": "KC", "KF": "KF", "TF": "TF"},
+               {"VRVT": 1.0, "LIMOUT": 1.0}),
+    "IEEEX1": ({"TR": "TR", "KA": "KAVR", "TA": "TE", "TB": "TA2", "TC": "TA1", "VRMAX": "VRMAX",
+                "VRMIN": "VRMIN", "KE": "KE", "TE": "TEX", "KF": "KF", "TF1": "TF", "E1": "E1", "SE1": "SE1",
+                "E2": "E2", "SE2": "SE2"},
+               {"TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "KC": 0.0, "LIMOUT": 0.0}),
+    "ESST4B": ({"TR": "TR", "KPR": "KPI", "KIR": "KII", "VRMAX": "VPMAX", "VRMIN": "VPMIN", "TA": "TE",
+                "KPM": "KPM", "KIM": "KIM", "VMMAX": "VMMAX", "VMMIN": "VMMIN", "KG": "KG", "KP": "KPV",
+                "VBMAX": "VBMAX", "KC": "KC"},
+               {"KAVR": 1.0, "TA1": 1.0, "TA2": 1.0, "TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "LIMOUT": 1.0}),
+}
+
+
+@pytest.mark.parametrize("name", list(STRUCTURES))
+def test_blocks_generate_the_same_kernel_mapping_and_settings(name):
+    st = structure(name)
+    mapping, settings = MAPPING[name]
+    assert {p.name: p.kernel for p in st.params if p.kernel} == mapping
+    assert dict(st.settings) == settings
+    # the diagram is the blocks', in their order, in the structure's names
+    assert len(st.diagram) >= len(st.blocks)
+    for line in st.diagram:
+        assert not set(re.findall(r"[A-Za-z_]\w*", line)) & set(hidden_kernel_names(st)), line
+
+
+def test_texts_translate_at_once_both_ways():
+    x1 = structure("IEEEX1")     # kernel TE is its TA, kernel TEX its TE: no chaining
+    assert std_text(x1, "TE <= TEX") == "TA <= TE"
+    st = structure("ESST1A")
+    assert std_text(st, "TE <= TA4") == "TA <= TB1"
+
+
+@pytest.mark.parametrize("name", STANDARD)
+def test_set_and_unit_files_refuse_kernel_names_naming_the_standard_one(name):
+    st = structure(name)
+    unit = with_model(reference_unit(), name)
+    for kern in hidden_kernel_names(st):
+        drivers = [p.name for p in st.params if p.kernel == kern]
+        with pytest.raises(UnitError) as exc:
+            apply_overrides(unit, [f"{kern}=1.0"])
+        if drivers:
+            assert f"calls it {drivers[0]}" in str(exc.value)
+        with pytest.raises(UnitError) as exc:
+            unit_from_dict({"avr": {"model": name}, "generator": {"Td0p": 7.5, "Td0pp": 0.05, "Vt0": 1.0},
+                            "fixed": {kern: 1.0}}, "u.toml")
+        assert "u.toml" in str(exc.value) and kern in str(exc.value)
+        if drivers:
+            assert drivers[0] in str(exc.value)
+    # the standard names are accepted
+    ident = st.default_identified()[0]
+    b = unit.identify[st.kernel_name(ident)]
+    assert apply_overrides(unit, [f"{ident}={b.value}", f"{ident}.max={b.max}"]).identify[st.kernel_name(ident)]
+
+
+def test_a_unit_file_constraint_in_kernel_names_is_refused():
+    with pytest.raises(UnitError, match="calls it TA"):
+        unit_from_dict({"avr": {"model": "ESST1A"}, "generator": {"Td0p": 7.5, "Td0pp": 0.05, "Vt0": 1.0},
+                        "constraints": ["TE <= TA4"]}, "u.toml")
+
+
+def test_effects_carry_their_starts_variants_and_separating_tests():
+    hints = {"top_level": 3.0, "bottom_level": -1.0, "delay_s": 0.02, "sat0": 0.05, "slope_up": 40.0,
+             "slope_down": 30.0, "gain": 1.05}
+    for e in EFFECTS.values():
+        starts = e.starts(hints)
+        assert starts, e.name
+        for s in starts:
+            assert set(s) == set(e.params)
+            assert all(e.bounds[p][0] <= v <= e.bounds[p][1] for p, v in s.items())
+    assert EFFECTS["dead_time"].starts(hints)[0] == {"TD": 0.02}
+    assert [v.label for v in EFFECTS["ceiling_limit"].variants][0].startswith("bus-fed")
+    assert separating_test("time_skew", "dead_time") == separating_test("dead_time", "time_skew")
+    assert "second channel" in separating_test("time_skew", "dead_time")
+
+
+def test_an_old_result_in_kernel_names_is_still_read():
+    st = structure("ESST1A")
+    old = {"model": {"name": "ESST1A", "params": {}}, "params": {"KAVR": 210.0, "TE": 0.03},
+           "fixed": {"TA1": 1.0}, "bounds": {"KAVR": [20, 800], "TE": [0.002, 0.2]}, "constraints": []}
+    assert kernel_sections(old)["params"] == {"KAVR": 210.0, "TE": 0.03}
+    new = result_to_std(st, old)
+    assert new["params"] == {"KA": 210.0, "TA": 0.03} and "kernel" in new
+    assert kernel_sections(new)["params"] == {"KAVR": 210.0, "TE": 0.03}
+
+
+def _words(text: str) -> set[str]:
+    return set(re.findall(r"(?<![\w.-])[A-Za-z_][A-Za-z0-9_]*(?![\w-])", text))
+
+
+def _without_kernel_key(x):
+    if isinstance(x, dict):
+        return {k: _without_kernel_key(v) for k, v in x.items() if k != "kernel"}
+    if isinstance(x, list):
+        return [_without_kernel_key(v) for v in x]
+    return x
+
+
+@pytest.mark.parametrize("name", STANDARD)
+def test_no_kernel_name_on_any_surface_of_a_standard_structure(name, tmp_path, capsys):
+    """Result JSON (params, bounds, fixed, constraints, identifiability, unit), the identify
+    console table, the report's HTML and the .dyr comments: none names a kernel parameter that
+    the structure calls otherwise."""
+    st = structure(name)
+    hidden = set(hidden_kernel_names(st))
+    cap, res, html, dyr = (tmp_path / f for f in ("cap.csv", "r.json", "r.html", "u.dyr"))
+    assert main(["simulate", "--model", name, "-o", str(cap), "--duration", "4", "--seed", "3"]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(cap), "--model", name, "--evals", "60", "--json", str(res)]) in (0, 1)
+    console = capsys.readouterr().out
+    result = json.loads(res.read_text())
+    assert "kernel" in result and set(result["kernel"]["params"]) <= set(hidden) | set(st.names)
+    user = _without_kernel_key(result)
+    for key in ("params", "bounds", "fixed", "constraints", "identifiability", "unit", "model", "optimizer"):
+        seen = _words(json.dumps(user[key]))
+        assert not seen & hidden, (key, seen & hidden)
+    assert set(user["params"]) == set(st.default_identified())
+    assert not _words(console) & hidden, _words(console) & hidden
+    assert main(["report", str(res), "-o", str(html)]) in (0, 1)
+    page = re.sub(r"<[^>]+>", " ", html.read_text(encoding="utf-8"))
+    page = re.sub(r"data:image/[^\"' ]+", " ", page)
+    assert not _words(page) & hidden, _words(page) & hidden
+    if st.dyr_model:
+        assert main(["export", str(res), "--dyr", str(dyr)]) == 0
+        text = dyr.read_text()     # its comments say how each field was obtained
+        assert not _words(text) & hidden, _words(text) & hidden
+
+
+@pytest.mark.parametrize("name", list(STRUCTURES))
+@pytest.mark.parametrize("effects", [{}, {"ceiling_limit": {"VRMAX": 2.5, "VRMIN": -1.0}, "dead_time": {"TD": 0.01}}])
+def test_a_result_in_standard_names_reads_back_to_the_kernel_values_it_was_made_of(name, effects):
+    """kernel -> standard at output, standard -> kernel at input: the same kernel values (the
+    report re-simulates, export and diagnose --result read them)."""
+    import math
+
+    from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS, neutral_values
+
+    unit = with_model(reference_unit(), name).with_effects(effects)
+    values = unit.values()
+    none = lambda v: v if math.isfinite(v) else None  # noqa: E731
+    kernel = {"model": {"name": name, "params": {k: none(v) for k, v in unit.standard_values().items()}},
+              "unit": unit.to_dict(),
+              "params": {k: values[k] for k in unit.identify},
+              "fixed": {k: none(v) for k, v in values.items() if k not in unit.identify and k not in RECORD_PARAMS},
+              "bounds": {k: [b.min, b.max] for k, b in unit.identify.items()}, "constraints": []}
+    std = result_to_std(structure(name), kernel)
+    back = kernel_sections(json.loads(json.dumps(std)))
+    got = dict(neutral_values())
+    for section in ("fixed", "params"):
+        got.update({k: (neutral_values()[k] if v is None else v) for k, v in back[section].items()})
+    for k in KERNEL_PARAMS:
+        if k not in RECORD_PARAMS:
+            assert got[k] == values[k], (k, got[k], values[k])
+    if name != "REFERENCE":
+        assert not set(std["fixed"]) & set(hidden_kernel_names(structure(name)))
