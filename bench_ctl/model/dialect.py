@@ -24,7 +24,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from .effects import EFFECTS
-from .params import GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS
+from .params import GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, RECORD_PARAMS
 from .structures import DEFAULT, Structure, StructureError, structure
 
 __all__ = ["std_name", "namer", "std_text", "kernel_text", "std_keys", "kernel_keys", "refusal",
@@ -150,13 +150,20 @@ def result_to_std(st: Structure, result: Mapping[str, Any]) -> dict[str, Any]:
                               "constraints_violated": [std_text(st, t) for t in c.get("constraints_violated", [])]}
                              for c in result["comparison"]]
     opt = result.get("optimizer")
-    if isinstance(opt, Mapping) and isinstance(opt.get("settings"), Mapping) and "swap_restarts" in opt["settings"]:
-        restarts = [{**e, **({"start": std_keys(st, e["start"])} if isinstance(e.get("start"), Mapping) else {}),
-                     **({"skipped": std_text(st, e["skipped"])} if isinstance(e.get("skipped"), str) else {})}
-                    for e in opt["settings"]["swap_restarts"]]
-        out["optimizer"] = {**opt, "settings": {**opt["settings"], "swap_restarts": restarts}}
+    if isinstance(opt, Mapping) and isinstance(opt.get("settings"), Mapping):
+        # the search space, the polishes and the swap restarts name parameters in keys and texts
+        out["optimizer"] = {**opt, "settings": _deep_std(st, opt["settings"])}
     out["kernel"] = {k: result.get(k) for k in ("params", "bounds", "fixed", "constraints")}
     return out
+
+
+def _deep_std(st: Structure, x: Any) -> Any:
+    """`x` (nested dicts, lists, texts) with every name in a key or a text in the structure's."""
+    if isinstance(x, Mapping):
+        return {(std_text(st, k) if isinstance(k, str) else k): _deep_std(st, v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_deep_std(st, v) for v in x]
+    return std_text(st, x) if isinstance(x, str) else x
 
 
 def diagnosis_to_std(st: Structure, d: Mapping[str, Any]) -> dict[str, Any]:
@@ -221,10 +228,11 @@ def refusal(st: Structure, name: str) -> str | None:
 
 
 def shared_names() -> tuple[str, ...]:
-    """Names every structure shares with the kernel: the generator's and the effects' (their
-    options included; docs/model.md)."""
+    """Names every structure shares with the kernel: the generator's, the effects' (their options
+    included; docs/model.md) and the record's edge offsets (`EDGE1`..: the fitted instant of a
+    setpoint edge less its nominal sample, the same for every structure)."""
     return (*GENERATOR_PARAMS, *GENERATOR_OPTIONAL,
-            *(p for e in EFFECTS.values() for p in (*e.params, *e.options)))
+            *(p for e in EFFECTS.values() for p in (*e.params, *e.options)), *RECORD_PARAMS)
 
 
 def structure_of(result: Mapping[str, Any]) -> Structure:
