@@ -17,7 +17,12 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/bench-ctl demo
 
+# the kernel is compiled (or loaded from numba's cache) before the tests: a fresh compilation takes
+# minutes, and inside a test it would count against that test's time limit
 test: $(STAMP)
+	$(BIN)/python -c 'from bench_ctl.identification.identify import warm_up; \
+	  from bench_ctl.model.unit import reference_unit; \
+	  print(f"kernel compiled or loaded from its cache in {warm_up(reference_unit()):.0f} s")'
 	$(BIN)/python -m pytest -q --durations=25
 
 bench: $(STAMP)
