@@ -103,7 +103,7 @@ def analyse(result: IdentificationResult, *, diagnosis: Diagnosis | None = None,
     Raises `ReportError` (see `inputs`) for input that cannot be reported on.
     """
     check_result(result, where)
-    values = model_values(result, where)
+    values = model_values(*_kernel_view(result), where)
     loaded = load_captures(result, where, base_dir)
     unit = result.unit
     weights = unit.get("weights") if isinstance(unit.get("weights"), Mapping) else {}
@@ -227,3 +227,10 @@ def _noise_floor(diagnosis: Diagnosis | None,
         return float(np.mean(own)), "variance of the measured efd before the trigger"
     return None, "not available"
 
+
+def _kernel_view(result: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The result's `params` and `fixed` in the kernel's names (bench_ctl.model.dialect)."""
+    from bench_ctl.model.dialect import kernel_sections
+
+    sections = kernel_sections(result.to_json())
+    return sections["params"], sections["fixed"]

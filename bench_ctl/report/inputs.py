@@ -21,7 +21,6 @@ from bench_ctl.capture.plausible import implausible
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis, read_diagnosis
 from bench_ctl.identification.result_file import CaptureEntry, IdentificationResult, read_result
 from bench_ctl.limits import InputError, sha256_file
-from bench_ctl.model.dialect import kernel_sections
 from bench_ctl.model.params import KERNEL_PARAMS, PARAMS, neutral_values
 from bench_ctl.records import FormatError
 
@@ -53,13 +52,12 @@ def check_result(result: IdentificationResult, where: str) -> None:
         raise ReportError(f"{where}: key 'captures' must be a non-empty list")
 
 
-def model_values(result: IdentificationResult, where: str) -> dict[str, float]:
+def model_values(params: Mapping[str, Any], fixed: Mapping[str, Any], where: str) -> dict[str, float]:
     """Every kernel parameter for the re-simulation: neutral effects, then `fixed` (null = the
     parameter's infinite neutral value, as the contract writes inf), then the identified `params`."""
     values: dict[str, float] = dict(neutral_values())
-    sections = kernel_sections(result.to_json())   # the structure's names -> the kernel's (bench_ctl.model.dialect)
-    for section in ("fixed", "params"):
-        for name, value in sections[section].items():
+    for section, table in (("fixed", fixed), ("params", params)):
+        for name, value in table.items():
             key = f"{where}: {section}.{name}"
             if name not in PARAMS:
                 raise ReportError(f"{key}: unknown model parameter; known: {', '.join(PARAMS)}")

@@ -157,6 +157,7 @@ def test_each_structures_export_reads_back_and_simulates_the_same(model, tmp_pat
     import numpy as np
 
     from bench_ctl.capture import read_capture
+    from bench_ctl.model.dialect import kernel_sections
     from bench_ctl.model.simulate import simulate
     from bench_ctl.report.inputs import model_values
 
@@ -171,8 +172,8 @@ def test_each_structures_export_reads_back_and_simulates_the_same(model, tmp_pat
             assert (v < 0) == k.endswith("MIN"), (k, v)
     assert main(["simulate", "--from-dyr", str(dyr), "-o", str(back), "--duration", "3", "--rate", "500",
                  "--noise", "0", "--lsb", "0"]) == 0
-    result = json.loads(res.read_text())
-    values = {k: v for k, v in model_values(result["params"], result["fixed"], "r.json").items()
+    kernel = kernel_sections(json.loads(res.read_text()))   # the result speaks the structure's names
+    values = {k: v for k, v in model_values(kernel["params"], kernel["fixed"], "r.json").items()
               if not k.startswith("EDGE")}
     b = read_capture(back)
     efd, _vt, fail = simulate(values, b.usetp, b.dt)
