@@ -95,3 +95,47 @@ def test_what_the_model_modules_use_of_the_kernel_is_public():
     assert used, "no K.name found: the pattern no longer matches how bench_ctl.model imports the kernel"
     assert sorted(n for n in used if n not in K.__all__) == []
     assert all(hasattr(K, n) for n in K.__all__)
+
+
+def test_the_parts_compiled_ahead_have_the_types_the_chunk_runner_calls_them_with():
+    """`precompile` compiles the RK4 loops and the split step ahead, from example arguments. After
+    a run through every part (dead time and a fitted edge: split steps), numba's disk cache holds
+    exactly that one signature of each part: the chunk runner asked for no other."""
+    from bench_ctl.model.edges import EdgeSpec
+    from bench_ctl.model.kernel import precompile, rk4
+    from bench_ctl.model.params import COL
+    from bench_ctl.model.simulate import param_matrix
+    from bench_ctl.model.unit import reference_unit
+
+    P = np.repeat(param_matrix(reference_unit().values()), 3, axis=0)
+    P[1, COL["TD"]] = 0.0123
+    u = np.r_[np.ones(50), np.full(50, 1.05)]
+    edges = EdgeSpec(np.array([50]), np.array([0.05]), np.array([0.0493]), np.array([0]))
+    K.run_kernel(P, u, 1e-3, 1.0, edges=edges)
+    for name in precompile.PARTS:
+        index = getattr(rk4, name)._cache._cache_file._load_index()  # numba's cache index (private)
+        assert [key[0] for key in index] == [precompile.signature(name)], name
+    assert precompile.compile_parts() == {}  # all in the cache: nothing compiled, no child started
+
+
+def test_a_read_only_record_runs_on_the_same_compiled_code():
+    """A capture's arrays are read-only, and numba types those apart from writable ones: the
+    kernel copies them, so any mix of read-only series runs on the one chunk runner it compiled,
+    with the same results."""
+    from bench_ctl.model.kernel import chunk
+    from bench_ctl.model.simulate import param_matrix
+    from bench_ctl.model.unit import reference_unit
+
+    P = np.repeat(param_matrix(reference_unit().values()), 40, axis=0)  # serial and parallel paths
+    u = np.r_[np.ones(50), np.full(50, 1.05)]
+    meas = np.linspace(1.0, 1.2, 100)
+    first = K.run_kernel(P[:1], u, 1e-3, 1.0, efd_meas=meas, vt_meas=meas, w_vt=0.5)
+    for frozen in ("u", "efd", "vt", "all"):
+        uu, ee, vv = u.copy(), meas.copy(), meas.copy()
+        for name, a in (("u", uu), ("efd", ee), ("vt", vv)):
+            if frozen in (name, "all"):
+                a.setflags(write=False)
+        for rows in (P[:1], P):
+            out = K.run_kernel(rows, uu, 1e-3, 1.0, efd_meas=ee, vt_meas=vv, w_vt=0.5)
+            assert np.array_equal(out["efd"][0], first["efd"][0]) and out["obj"][0] == first["obj"][0]
+    assert len(chunk.run_chunk.signatures) == 1 and len(chunk.run_chunks.signatures) == 1

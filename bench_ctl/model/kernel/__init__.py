@@ -22,7 +22,8 @@ decorator, LLVM options, the stale-cache guard), `blocks` (each block in one pla
 factors, its compiled algebra, its steady state), `derive` (the derived matrix from a parameter
 matrix), `rhs` (the blocks wired into derivatives), `rk4` (the RK4 step, the vectorised loops
 over candidates, split steps), `chunk` (a chunk of candidates over the record, the parallel loop
-over chunks), and here `run_kernel`.
+over chunks), `precompile` (the large parts compiled side by side before a first run), and here
+`run_kernel`.
 """
 from __future__ import annotations
 
@@ -77,6 +78,7 @@ from .layout import (
     EDGE_EPS,
     N_DERIVED,
 )
+from .precompile import compile_parts
 from .rhs import rhs
 from .rk4 import rk4_step_ref
 
@@ -92,7 +94,7 @@ __all__ = [
     "avr", "ceilings", "delayed_vr", "field_voltage", "hermite", "rate_feedback", "rhs", "rk4_step_ref",
     "steady_state", "terminal_voltage",
     # its compilation
-    "njit", "SOURCES", "drop_stale_cache",
+    "compile_parts", "njit", "SOURCES", "drop_stale_cache",
 ]
 
 # numba keys each function's cache on its own file: the loops inline the blocks of sibling files
@@ -113,6 +115,14 @@ def edge_window(D: np.ndarray, edges: EdgeSpec, dt: float, T: int) -> np.ndarray
 
 
 
+def _kernel_array(a: np.ndarray, dtype: type) -> np.ndarray:
+    """`a` as the kernel's compiled code takes it: contiguous, of `dtype`, writable. numba types a
+    read-only array (a capture's) apart from a writable one and compiles the chunk runner again for
+    each mix of the record's three series; copying a read-only series (one pass over the record)
+    keeps it to one compilation."""
+    return np.require(a, dtype, ("C", "W"))
+
+
 def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
                efd_meas: np.ndarray | None = None, vt_meas: np.ndarray | None = None,
                w_efd: float = 1.0, w_vt: float = 0.0, store: bool = True, chunk: int | None = None,
@@ -129,7 +139,7 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
     """
     D = derive(P)
     n = D.shape[0]
-    usetp = np.ascontiguousarray(usetp, dtype=np.float64)
+    usetp = _kernel_array(usetp, np.float64)
     T = usetp.shape[0]
     if T < 2:
         raise ValueError("a simulation needs at least two samples")
@@ -141,8 +151,8 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
     Ls = int(math.ceil(sk_max / dt)) + 3 if sk_max > 0 else 1
     have_efd = efd_meas is not None
     have_vt = vt_meas is not None
-    em = np.ascontiguousarray(efd_meas if have_efd else np.zeros(T), dtype=np.float64)
-    vm = np.ascontiguousarray(vt_meas if have_vt else np.zeros(T), dtype=np.float64)
+    em = _kernel_array(efd_meas if have_efd else np.zeros(T), np.float64)
+    vm = _kernel_array(vt_meas if have_vt else np.zeros(T), np.float64)
     if em.shape[0] != T or vm.shape[0] != T:
         raise ValueError("measured signals must have the same length as usetp")
     we = float(w_efd) if have_efd else 0.0
@@ -169,7 +179,8 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
         record = Record(usetp, float(usetp_pre), float(dt), em, vm, we, wv)
         switches = Switches(bool(store), td_max > 0, sk_max > 0, bool(np.any(D[:, D_RAMP] < 1.0e300)), L, Ls)
         window = edge_window(D, edges, float(dt), T) if edges.n else np.zeros(T, dtype=np.uint8)
-        earr = Edges(edges.index, edges.jump, edges.nominal_s, edges.slot, window)
+        earr = Edges(_kernel_array(edges.index, np.int64), _kernel_array(edges.jump, np.float64),
+                     _kernel_array(edges.nominal_s, np.float64), _kernel_array(edges.slot, np.int64), window)
         outputs = Outputs(efd_out, vt_out, sse_efd, sse_vt, obj, fail_step)
         if n <= chunk:  # one chunk: waking the thread pool costs more than it saves
             run_chunk(Dt, 0, n, record, switches, earr, outputs)

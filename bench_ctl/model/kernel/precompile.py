@@ -1,0 +1,105 @@
+"""Compiling the kernel before its first run, its large parts side by side.
+
+A fresh compilation takes minutes, and most of it goes to five functions LLVM optimises one
+after the other: the four vectorised RK4 loops and the split step (docs/decisions/0003). None
+calls another, so `compile_parts` compiles the ones numba's disk cache lacks side by side, each
+in a child process that writes the cache, and loads them all here; the chunk runners that call
+them then compile without waiting for them. With a warm cache it only loads them, in this
+process. (Child processes, not multiprocessing: a spawned worker re-imports the caller's main
+script, which need not guard itself.)
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numba as nb
+import numpy as np
+
+from . import rk4
+from .layout import CHUNK, N_DERIVED, N_STATES
+
+log = logging.getLogger(__name__)
+
+#: the parts, the longest to compile first (so that the workers end about together)
+PARTS: tuple[str, ...] = ("rk4_all_st4_only", "rk4_all_st4", "split_step", "rk4_all_ref", "rk4_all")
+
+
+def _arguments(name: str) -> tuple:
+    """Arguments of the types `chunk.run_chunk` calls part `name` with (their values unused)."""
+    cols = np.zeros
+    loop = (cols((N_DERIVED, CHUNK)), cols((10, CHUNK)), cols((2, CHUNK)), cols((3, CHUNK)), 1e-3, 0)
+    if name != "split_step":
+        return loop
+    D, S = loop[0], loop[1]
+    ring = cols((1, 1))
+    # D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, vr_r, vr_l, jf, vjl, vjr,
+    # skew_on, Ls, kf, kef, kdl, kdr
+    return (D, 0, 0, 1e-3, S, cols((N_STATES, 1)), 0, cols(3), cols(3), 0.0, 0.0, 0.0, False, 1,
+            ring, ring, ring, ring, ring, False, 1, ring, ring, ring, ring)
+
+
+def signature(name: str) -> tuple:
+    """The numba signature `chunk.run_chunk` calls part `name` with."""
+    return tuple(nb.typeof(a) for a in _arguments(name))
+
+
+def cached(name: str) -> bool:
+    """Whether numba's disk cache holds part `name` for this machine (loading it if so)."""
+    dispatcher = getattr(rk4, name)
+    sig = signature(name)
+    if sig in dispatcher.overloads:
+        return True
+    cache = getattr(dispatcher, "_cache", None)  # numba's per-function disk cache (no public API)
+    try:
+        return cache is not None and cache.load_overload(sig, dispatcher.targetctx) is not None
+    except Exception:  # pragma: no cover - an unreadable cache entry: compile it afresh
+        return False
+
+
+def compile_part(name: str) -> float:
+    """Compile (or load) part `name` for its signature; seconds."""
+    t0 = time.perf_counter()
+    getattr(rk4, name).compile(signature(name))
+    return time.perf_counter() - t0
+
+
+def compile_parts(workers: int | None = None) -> dict[str, float]:
+    """Compile the parts the disk cache lacks, up to `workers` at once (default: one a core), each
+    in a child process (`child_main`) that writes the cache, and load every part here. Returns the
+    seconds each compiled part took (empty when all came from the cache). With one worker, or
+    for a part whose child failed, this process compiles it itself."""
+    missing = [name for name in PARTS if not cached(name)]
+    workers = max(1, min(len(missing), workers or os.cpu_count() or 1))
+    seconds: dict[str, float] = {}
+    if workers > 1:
+        log.info("compiling the kernel's %s, %d at a time", ", ".join(missing), workers)
+
+        def child(name: str) -> None:
+            done = subprocess.run([sys.executable, "-c", CHILD, name], stdout=subprocess.PIPE, text=True)
+            if done.returncode == 0:
+                seconds.update(json.loads(done.stdout))
+            else:
+                log.warning("compiling %s in a child process failed (exit %s)", name, done.returncode)
+
+        with ThreadPoolExecutor(workers) as pool:  # threads that wait on the children
+            list(pool.map(child, missing))
+    for name in PARTS:  # compiled here when no child did; else loaded from the cache
+        took = compile_part(name)
+        if name in missing and name not in seconds:
+            seconds[name] = took
+    return seconds
+
+
+def child_main(names: list[str]) -> None:
+    """A child process of `compile_parts`: compile `names`, print their seconds as JSON."""
+    print(json.dumps({name: compile_part(name) for name in names}))
+
+
+#: what a child process runs (not `-m` on this module: the package imports it first)
+CHILD = "import sys; from bench_ctl.model.kernel.precompile import child_main; child_main(sys.argv[1:])"
