@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean bench
+.PHONY: demo test test-slow install clean bench
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,12 +18,20 @@ demo: $(STAMP)
 	$(BIN)/bench-ctl demo
 
 # the kernel is compiled (or loaded from numba's cache) before the tests: a fresh compilation takes
-# minutes, and inside a test it would count against that test's time limit
-test: $(STAMP)
-	$(BIN)/python -c 'from bench_ctl.identification.identify import warm_up; \
+# minutes, and inside a test it would count against that test's time limit. `make test` leaves
+# out the slow tier (long end-to-end and statistical checks, marked `slow`); `make test-slow`
+# runs it, and CI runs both
+WARM_UP = $(BIN)/python -c 'from bench_ctl.identification.identify import warm_up; \
 	  from bench_ctl.model.unit import reference_unit; \
 	  print(f"kernel compiled or loaded from its cache in {warm_up(reference_unit()):.0f} s")'
-	$(BIN)/python -m pytest -q --durations=25
+
+test: $(STAMP)
+	$(WARM_UP)
+	$(BIN)/python -m pytest -q -m "not slow" --durations=25
+
+test-slow: $(STAMP)
+	$(WARM_UP)
+	$(BIN)/python -m pytest -q -m slow --durations=25
 
 bench: $(STAMP)
 	mkdir -p bench-out

@@ -138,6 +138,7 @@ def test_diagnose_report_side_files_are_claimed_before_the_diagnosis(made, capsy
         link.unlink()
 
 
+@pytest.mark.slow
 def test_every_output_follows_the_umask(made, tmp_path):
     """One policy for results, captures, reports, figures, PDFs and records (issue 24 item 20:
     results were 0600, captures 0644): 0666 minus the umask, as any tool's."""

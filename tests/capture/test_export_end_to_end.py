@@ -8,6 +8,7 @@ import datetime as dt
 import json
 
 import numpy as np
+import pytest
 
 import independent_plant as ip
 from bench_ctl.cli import main
@@ -32,6 +33,7 @@ def _export(path):
     path.write_text("\n".join(lines) + "\n")
 
 
+@pytest.mark.slow
 def test_a_recorder_export_imports_diagnoses_and_reports(tmp_path):
     _export(tmp_path / "export.csv")
     assert main(["import", str(tmp_path / "export.csv"), "-o", str(tmp_path / "cap.csv"), "--delimiter", ";",

@@ -9,6 +9,7 @@ from bench_ctl.capture import read_capture
 from bench_ctl.cli import main
 
 
+@pytest.mark.slow
 def test_demo_writes_every_artifact_and_fits(tmp_path, capsys):
     out = tmp_path / "demo"
     rc = main(["demo", "--out", str(out), "--evals", "400"])

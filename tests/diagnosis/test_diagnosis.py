@@ -272,6 +272,7 @@ def test_diagnosis_finds_the_ceiling_and_reports_the_gap(diag, ceiling_case):
     assert diag.validation["kind"] == "holdout + windows"
 
 
+@pytest.mark.slow
 def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling_case):
     """No holdout: every model is fitted on the whole capture and judged by cross-validation over
     its windows; the ceiling acts at the edges, so that is where its check gain lies."""
@@ -306,6 +307,7 @@ def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling
     assert (np.sum(e2) - 0.5 * (e2[0] + e2[-1])) / (cap.n - 1) == pytest.approx(d.base.mse, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_effect_free_capture_gives_none(unit):
     case = make_case("none", 12, SMALL)
     d = diagnose(case.capture, unit, holdout=case.holdout, budget=FAST)
@@ -318,6 +320,7 @@ def test_effect_free_capture_gives_none(unit):
     assert all(e.gap_closed_fit is not None for e in d.effects)
 
 
+@pytest.mark.slow
 def test_cli_writes_the_diagnosis(tmp_path, ceiling_case):
     from bench_ctl.cli import main
     main_csv, _ = write_capture(tmp_path / "main.csv", ceiling_case.capture)

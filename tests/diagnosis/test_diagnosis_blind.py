@@ -14,6 +14,9 @@ from bench_ctl.model.effects import EFFECT_NAMES
 
 CFG = SuiteConfig(rate_hz=500.0, duration_s=8.0)
 
+# the slow tier; the suite's diagnoses run in the first test's setup, up to minutes on a loaded machine
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
+
 
 @pytest.fixture(scope="module")
 def scored():

@@ -76,6 +76,7 @@ def test_manifest_errors_name_line_and_column(tmp_path):
 
 
 @pytest.mark.timeout(900)   # a fresh checkout compiles the kernel once (~100-200 s here)
+@pytest.mark.slow
 def test_batch_on_a_cluster_by_address(cluster, fleet, capsys):
     out = fleet / "out"
     rc = main(["batch", str(fleet / "m.csv"), "--out", str(out), "--scheduler", cluster.scheduler_address,

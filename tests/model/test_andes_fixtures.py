@@ -48,6 +48,7 @@ def test_fixture_reads_and_matches_its_manifest(name):
 # ANDES generates its code afresh and runs the script in a new process (129 s with CI running
 # beside it; past the suite's 300 s in CI): the subprocess keeps its own 600 s bound
 @pytest.mark.timeout(900)
+@pytest.mark.slow
 def test_regenerated_capture_equals_its_fixture(tmp_path):
     pytest.importorskip("andes")
     root = Path(__file__).resolve().parents[2]

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from independent_plant import NO_EFFECT, Plant, Recorder, Test, draw_avr, draw_effect, random_edges
-from test_kernel_reference import AMP, CASES, DURATION, REF, reference_efd
+from test_kernel_reference import AMP, CASES, DURATION, REF, reference_efd, tiered
 
 ON, OFF = 0.99963, 1.99918  # between the 1 kHz samples
 
 
-@pytest.mark.parametrize("case", list(CASES) + ["saturation+ceiling_limit+dead_time"])
+@pytest.mark.parametrize("case", tiered(list(CASES) + ["saturation+ceiling_limit+dead_time"]))
 def test_plant_matches_solve_ivp_with_edges_between_samples(case):
     effects = {}
     for name in case.split("+"):
@@ -47,6 +47,7 @@ def test_recorder_samples_the_setpoint_and_adds_seeded_noise_and_quantisation():
     assert 0.009 < float(np.std(resid)) < 0.011
 
 
+@pytest.mark.slow
 def test_random_units_are_stable_and_effects_visible():
     rng = np.random.default_rng(11)
     avr = draw_avr(rng)

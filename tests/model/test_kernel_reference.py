@@ -183,7 +183,16 @@ CASES = {
 }
 
 
-@pytest.mark.parametrize("case", list(CASES))
+#: the cases `make test` runs; the others are in the slow tier (`make test-slow`, CI runs both)
+QUICK_CASES = ("none", "ceiling_limit", "saturation")
+
+
+def tiered(cases: list[str]) -> list:
+    """`cases` as parameters, those outside QUICK_CASES marked slow."""
+    return [c if c in QUICK_CASES else pytest.param(c, marks=pytest.mark.slow) for c in cases]
+
+
+@pytest.mark.parametrize("case", tiered(list(CASES)))
 def test_kernel_matches_solve_ivp(case):
     p = {**REF, **NEUTRAL, **CASES[case]}
     t, u = pulse_usetp(amplitude=AMP, width=WIDTH, start=START, duration=DURATION, rate=RATE_HZ)
@@ -204,7 +213,7 @@ def test_kernel_matches_solve_ivp(case):
 OFF_GRID = (-0.00037, -0.00081)
 
 
-@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("case", tiered(list(CASES)))
 def test_kernel_edges_between_samples_match_solve_ivp(case):
     """A setpoint edge inside a sample interval (docs/model.md, "Edge timing"): the kernel, told the
     edge's offset, integrates the change at that instant as exactly as at a sample."""
