@@ -20,18 +20,20 @@ demo: $(STAMP)
 # the kernel is compiled (or loaded from numba's cache) before the tests: a fresh compilation takes
 # minutes, and inside a test it would count against that test's time limit. `make test` leaves
 # out the slow tier (long end-to-end and statistical checks, marked `slow`); `make test-slow`
-# runs it, and CI runs both
+# runs it, and CI runs both. One pytest worker a core (pytest-xdist), a test file to one worker
+# (its module fixtures are built once)
+PYTEST = $(BIN)/python -m pytest -q -n auto --dist loadfile --durations=25
 WARM_UP = $(BIN)/python -c 'from bench_ctl.identification.identify import warm_up; \
 	  from bench_ctl.model.unit import reference_unit; \
 	  print(f"kernel compiled or loaded from its cache in {warm_up(reference_unit()):.0f} s")'
 
 test: $(STAMP)
 	$(WARM_UP)
-	$(BIN)/python -m pytest -q -m "not slow" --durations=25
+	$(PYTEST) -m "not slow"
 
 test-slow: $(STAMP)
 	$(WARM_UP)
-	$(BIN)/python -m pytest -q -m slow --durations=25
+	$(PYTEST) -m slow
 
 bench: $(STAMP)
 	mkdir -p bench-out
