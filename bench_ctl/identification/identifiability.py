@@ -42,7 +42,7 @@ from .problem import Problem
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["analyse", "SWAPS"]
+__all__ = ["analyse", "exchanges", "SWAPS"]
 
 #: (note, mapping new_name -> source_name) of the lead-lag symmetries of the reference AVR
 SWAPS: tuple[tuple[str, dict[str, str]], ...] = (
@@ -194,11 +194,12 @@ def _structure(problem: Problem) -> Structure:
     return unit.structure if hasattr(unit, "structure") else structure(None)
 
 
-def _exchanges(problem: Problem, st: Structure) -> list[tuple[str, dict[str, str]]]:
+def exchanges(problem: Problem, st: Structure | None = None) -> list[tuple[str, dict[str, str]]]:
     """Every exchange to examine, as (note in the structure's names, mapping new_name ->
     source_name, kernel names): the reference AVR's lead-lag symmetries (in a standard structure
     only where all four are fitted) and every pair the structure declares (`Structure.swaps`),
-    fitted or not, so that one left out is said."""
+    fitted or not, so that one left out is said. `st`: the problem's structure by default."""
+    st = _structure(problem) if st is None else st
     names = list(problem.names)
     swaps = list(SWAPS) if st.name == "REFERENCE" else \
         [(std_text(st, n), m) for n, m in SWAPS if set(m) <= set(names)]
@@ -216,7 +217,7 @@ def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float
     names = list(problem.names)
     values = problem.values(x)
     cands, meta = [], []
-    for note, mapping in _exchanges(problem, st):
+    for note, mapping in exchanges(problem, st):
         if not set(mapping) <= set(names):
             fixed = sorted(set(mapping) - set(names))
             notes.append(f"{note}: not examined, {', '.join(map(nm, fixed))} not fitted")

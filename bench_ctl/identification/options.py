@@ -9,7 +9,8 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
-__all__ = ["IDENTIFY", "WHOLE_BOX", "PROFILE", "BLACK_BOX", "EDGE_POLISH_SHARE", "EDGE_POLISH_MAX"]
+__all__ = ["IDENTIFY", "WHOLE_BOX", "PROFILE", "BLACK_BOX", "EDGE_POLISH_SHARE", "EDGE_POLISH_MAX",
+           "SWAP_RESERVE_SHARE", "SWAP_RESERVE_MAX"]
 
 #: identification of a whole record (`bench-ctl identify`, the diagnosis' base model): 32
 #: particles, since a generation is one kernel call whose cost per candidate falls with the batch;
@@ -36,3 +37,9 @@ BLACK_BOX: Mapping[str, Any] = MappingProxyType({"fd_scheme": "central", "fd_ste
 #: polish that follows an MVMO search with the setpoint edge instants held mid-interval
 EDGE_POLISH_SHARE = 0.15
 EDGE_POLISH_MAX = 200
+
+#: share of an identification's budget (at most SWAP_RESERVE_MAX evaluations) kept from MVMO for
+#: the restarts from the structure's exchanged pairs: without it MVMO and the polish leave them
+#: some 30 evaluations, too few to polish out of an exchanged basin
+SWAP_RESERVE_SHARE = 0.15
+SWAP_RESERVE_MAX = 150

@@ -42,7 +42,8 @@ from scipy import signal
 from bench_ctl.model.params import AVR_PARAMS, RECORD_PARAMS
 
 from . import mvmo
-from .options import EDGE_POLISH_MAX, EDGE_POLISH_SHARE, IDENTIFY
+from .identifiability import exchanges
+from .options import EDGE_POLISH_MAX, EDGE_POLISH_SHARE, IDENTIFY, SWAP_RESERVE_MAX, SWAP_RESERVE_SHARE
 from .polish import Tracker, least_squares, polish
 from .problem import Problem
 from .result import Result
@@ -104,8 +105,10 @@ def _run_mvmo(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray
     polish gets `EDGE_POLISH_SHARE` of the budget (at most `EDGE_POLISH_MAX`): the edge offsets
     barely shape the objective's landscape, searched by MVMO they only thin its budget. Option
     `polish_evals`: the polish's budget instead (the diagnosis' fits); a polish too small for
-    three Jacobians is not run and MVMO gets the whole budget. Figures for the held edges and the
-    swap restarts: docs/benchmarks.md, "Identification: edge instants held, swap restarts"."""
+    three Jacobians is not run and MVMO gets the whole budget. The swap restarts get
+    `SWAP_RESERVE_SHARE` of the budget (at most `SWAP_RESERVE_MAX`) when the structure declares
+    exchanges. Figures for the held edges and the swap restarts: docs/benchmarks.md,
+    "Identification: edge instants held, swap restarts"."""
     opts = {**IDENTIFY, **options}
     mode = str(opts.pop("edges", "polish"))
     if mode not in ("polish", "search"):
@@ -120,8 +123,12 @@ def _run_mvmo(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray
         n_pol, edge = 0, []
     space = SearchSpace(problem, kind)
     swaps = _swaps(problem)
+    # the swap restarts' evaluations, kept from MVMO (what they leave is not spent)
+    n_swap = min(SWAP_RESERVE_MAX, int(SWAP_RESERVE_SHARE * max_evals)) if swaps else 0
+    if max_evals - n_pol - n_swap < 3 * (problem.d + 1):
+        n_swap = 0
     if not edge:
-        res = _mvmo_search(problem, max_evals - n_pol, seed, x0, progress, opts, kind)
+        res = _mvmo_search(problem, max_evals - n_pol - n_swap, seed, x0, progress, opts, kind)
         if n_pol:
             res = _polished(problem, res, n_pol, space, progress, "polish", {})
         return _swap_restarts(problem, space, swaps, max_evals, res, progress)
@@ -129,7 +136,7 @@ def _run_mvmo(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray
     sub = problem.held(mid)
     model = [i for i in range(problem.d) if i not in edge]
     x0s = None if x0 is None else np.asarray(x0, float)[model]
-    rs = _mvmo_search(sub, max_evals - n_pol, seed, x0s, progress, opts, kind)
+    rs = _mvmo_search(sub, max_evals - n_pol - n_swap, seed, x0s, progress, opts, kind)
     x = np.empty(problem.d)
     x[model] = rs.x
     x[edge] = [mid[problem.names[i]] for i in edge]
@@ -164,14 +171,21 @@ def _swap_restarts(problem: Problem, space: SearchSpace, swaps: list[tuple[str, 
     collapses into one basin, and for such a pair the exchanged basin can hold a local optimum
     (docs/benchmarks.md, "Identification: edge instants held, swap restarts"). A pair whose two
     exchanged values both lie outside their bounds is skipped (clipped, nothing of the exchange is
-    left) and leaves its share to the others."""
+    left) and leaves its share to the others. An exchanged point that breaks a constraint (TA2 <=
+    TA1 once TA2 holds TE's value) starts from it with another exchange applied that meets the
+    constraint (`_repaired`), where one does."""
     tried = []
     x, f, nfev, history = res.x, res.fun, res.nfev, tuple(res.history)
     best = res
     for k, (note, i, j) in enumerate(swaps):
         xs, outside = _exchanged(problem, x, i, j)
-        entry: dict[str, Any] = {"swap": note, "start": problem.params(xs), "objective_before": float(f)}
         violated = problem.violated(xs)
+        fixed = _repaired(problem, xs, (i, j)) if violated and len(outside) < 2 else None
+        if fixed is not None:
+            xs, violated = fixed[0], []
+        entry: dict[str, Any] = {"swap": note, "start": problem.params(xs), "objective_before": float(f)}
+        if fixed is not None:
+            entry["with"] = fixed[1]
         if len(outside) == 2:
             entry["skipped"] = f"the exchanged values of {' and '.join(outside)} lie outside their bounds"
         elif violated:
@@ -192,6 +206,25 @@ def _swap_restarts(problem: Problem, space: SearchSpace, swaps: list[tuple[str, 
         tried.append(entry)
     settings = {**res.settings, "swap_restarts": tried} if tried else res.settings
     return replace(best, x=x, fun=f, nfev=nfev, history=history, settings=settings, message=res.message)
+
+
+def _repaired(problem: Problem, xs: np.ndarray, held: tuple[int, int]) -> tuple[np.ndarray, str] | None:
+    """xs, which breaks a constraint, with one more of the structure's exchanges applied
+    (`identifiability.exchanges`) that leaves the pair `held` alone and gives a point inside the
+    bounds and the constraints, and that exchange's note; None when none does. The reference's
+    TA2 <-> TE puts TE's value into TA2, which can break TA2 <= TA1; exchanging the leads TA1 <->
+    TA3 too (the same forward path) can meet it, and the exchanged basin is searched from there."""
+    names = list(problem.names)
+    for note, mapping in exchanges(problem):
+        moved = [names.index(a) for a in mapping if a in names]
+        if len(moved) != len(mapping) or set(moved) & set(held):
+            continue
+        x = xs.copy()
+        for a, b in mapping.items():
+            x[names.index(a)] = xs[names.index(b)]
+        if np.all((problem.lower <= x) & (x <= problem.upper)) and not problem.violated(x):
+            return x, note
+    return None
 
 
 def _exchanged(problem: Problem, x: np.ndarray, i: int, j: int) -> tuple[np.ndarray, list[str]]:

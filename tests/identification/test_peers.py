@@ -145,3 +145,25 @@ def test_the_reference_polishes_again_from_its_exchanged_lags(problem):
     assert res.nfev <= 150 and res.fun < 0.5 * f
     truth_fit = float(problem.objective(np.array([[TRUTH[n] for n in problem.names]]))[0])
     assert res.fun <= 1.001 * truth_fit
+
+
+def test_an_exchange_that_breaks_a_constraint_restarts_with_the_leads_exchanged_too(problem):
+    """Stalled with TA2 and TE exchanged and the leads too (TA1 below TE's bound, TA3 above it):
+    TA2 <-> TE alone gives TA2 = 0.2 s > TA1 and breaks TA2 <= TA1. The restart exchanges the
+    leads TA1 <-> TA3 as well (the same forward path), which meets it, and polishes from there
+    instead of skipping the exchange."""
+    from bench_ctl.identification import peers
+
+    swaps = peers._swaps(problem)
+    stalled = {**TRUTH, "TA1": 0.15, "TA3": 0.5, "TA2": TRUTH["TE"], "TE": 0.2}
+    x = np.array([stalled[n] for n in problem.names])
+    f = float(problem.objective(x[None])[0])
+    start = Result(x=x, fun=f, nfev=0, success=True, names=problem.names)
+    res = peers._swap_restarts(problem, SearchSpace(problem), swaps, 150, start, None)
+    ta2 = res.settings["swap_restarts"][0]
+    assert "skipped" not in ta2 and ta2["with"] == "leads TA1 <-> TA3 swapped"
+    begun = ta2["start"]
+    assert (begun["TA2"], begun["TE"], begun["TA1"], begun["TA3"]) == (0.2, TRUTH["TE"], 0.5, 0.15)
+    assert ta2["kept"] and res.fun < 0.5 * f and res.nfev <= 150
+    truth_fit = float(problem.objective(np.array([[TRUTH[n] for n in problem.names]]))[0])
+    assert res.fun <= 1.01 * truth_fit
