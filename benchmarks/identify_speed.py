@@ -5,6 +5,11 @@ warmed up first (compile or cache load, reported as compile_s); wall_s is the op
 for the whole budget (the paper: 136.6 s for 1000 evaluations at a 1 ms step; target here
 <= 1 s). With --repeat N the run is repeated on the same capture and wall_s is the median.
 
+Beside it, the naive way to the same budget: SciPy's differential evolution (its defaults, no
+polish) calling the kernel once per candidate (`de_unbatched_s_per_1000`), and the ratio of the
+two per 1000 evaluations (`ratio_de_unbatched`): what batching the population into one kernel
+call buys. The issue's target for MVMO is <= 0.25 s per 1000 evaluations on this 2-core machine.
+
 Usage: python benchmarks/identify_speed.py [--evals 1000] [--repeat 1] [--mvmo-options JSON] [--json OUT]
 Prints a table; `--json` writes a flat object. Exits 0 when it ran (it reports, it does not judge).
 """
@@ -30,6 +35,24 @@ from bench_ctl.identification.peers import run_optimizer  # noqa: E402
 from bench_ctl.identification.problem import make_problem  # noqa: E402
 from bench_ctl.identification.synthetic import synthetic_capture  # noqa: E402
 from bench_ctl.model.unit import reference_unit  # noqa: E402
+
+
+def _de_unbatched(prob, evals: int, seed: int) -> tuple[float, int]:
+    """SciPy's differential evolution on `prob` with one kernel call per candidate, stopped at
+    about `evals` evaluations: (wall seconds, evaluations)."""
+    from scipy.optimize import differential_evolution
+
+    count = [0]
+
+    def f(x):
+        count[0] += 1
+        return float(prob.objective(np.asarray(x)[None])[0])
+
+    per_generation = 15 * prob.d  # SciPy's default popsize
+    t0 = time.perf_counter()
+    differential_evolution(f, list(prob.bounds), maxiter=max(1, evals // per_generation - 1), polish=False,
+                           seed=seed, tol=0.0)
+    return time.perf_counter() - t0, count[0]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -64,6 +87,9 @@ def main(argv: list[str] | None = None) -> int:
     prob.objective(X)
     kernel_s = time.perf_counter() - tk
     wall = statistics.median(walls)
+    de_s, de_evals = _de_unbatched(prob, args.evals, args.seed)
+    per_1000 = wall / r.nfev * 1000.0
+    de_per_1000 = de_s / de_evals * 1000.0
     out = {
         "wall_s": wall, "wall_s_min": min(walls), "wall_s_runs": len(walls),
         "compile_s": compile_s, "setup_s": setup_s, "evaluations": r.nfev,
@@ -73,11 +99,16 @@ def main(argv: list[str] | None = None) -> int:
         "particles": r.settings.get("particles"), "numba_threads": numba.get_num_threads(),
         "cpu_count": os.cpu_count(), "load_avg_1min": os.getloadavg()[0],
         "python": platform.python_version(),
+        "s_per_1000": per_1000, "de_unbatched_s": de_s, "de_unbatched_evals": de_evals,
+        "de_unbatched_s_per_1000": de_per_1000, "ratio_de_unbatched": de_per_1000 / per_1000,
     }
     print(f"MVMO identification speed: {args.evals} evaluations, {args.duration:g} s at "
           f"{args.rate:g} Hz ({cap.n} samples), reference unit")
     rows = [("wall_s (median)", f"{wall:.3f}", "target <= 1 s; paper 136.6 s"),
             ("wall_s (min)", f"{min(walls):.3f}", f"{len(walls)} run(s)"),
+            ("s per 1000 evaluations", f"{per_1000:.3f}", "target <= 0.25 s"),
+            ("SciPy DE, unbatched", f"{de_per_1000:.3f}", f"s per 1000 evaluations ({de_evals} run); "
+             f"{de_per_1000 / per_1000:.1f}x MVMO's"),
             ("compile_s", f"{compile_s:.2f}", "kernel compile / cache load, excluded"),
             ("evaluations/s", f"{out['evals_per_s']:.0f}", f"generation = {out['particles']} candidates"),
             ("kernel alone, evals/s", f"{out['kernel_evals_per_s']:.0f}", f"one batch of {args.evals}"),
