@@ -42,14 +42,6 @@ def sim_and_proxy(**sim_kw):
     return sim, WireProxy(sim.endpoints.exciter_tcp)
 
 
-@pytest.fixture
-def bench():
-    sim, proxy = sim_and_proxy()
-    yield sim, proxy
-    proxy.close()
-    sim.stop()
-
-
 #: the host side of a 0.5 s device watchdog: beats every 0.1 s, and a request timeout short
 #: enough that a timed write (0.1 + 0.2 + 0.1 s guard) cannot hold the beats off for 0.5 s
 FAST_HOST = {"heartbeat_period_s": 0.1, "timeout_s": 0.2}

@@ -27,17 +27,6 @@ from simulators.bench import SimBench
 from wire_proxy import WireProxy
 
 
-@pytest.fixture
-def bench():
-    """(SimBench, WireProxy in front of its exciter)."""
-    with SimBench() as sim:
-        proxy = WireProxy(sim.endpoints.exciter_tcp)
-        try:
-            yield sim, proxy
-        finally:
-            proxy.close()
-
-
 def test_dry_run_pulse_end_to_end(tmp_path):
     out = run_procedure("no_load_pulse", ROOT / "benches" / "example.toml", tmp_path / "run",
                         dry_run=True, params=SHORT)

@@ -28,19 +28,8 @@ from bench_ctl.runner.runner import OutputUnusable, run_procedure
 from cli_runs import FAST_PARAMS, ROOT, bench_toml, run_argv, start_run
 from pulse_bench import bench_config
 from simulators.bench import SimBench
-from wire_proxy import WireProxy
 
 ENOSPC = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-
-
-@pytest.fixture
-def bench():
-    with SimBench() as sim:
-        proxy = WireProxy(sim.endpoints.exciter_tcp)
-        try:
-            yield sim, proxy
-        finally:
-            proxy.close()
 
 
 class FullDisk:
