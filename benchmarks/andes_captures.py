@@ -199,6 +199,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(ROOT / "tests" / "fixtures" / "andes"))
     ap.add_argument("--only", default=None, help="comma-separated exciter models")
+    ap.add_argument("--amplitudes", default=None,
+                    help="comma-separated step amplitudes (fractions of Vt0) among " + ",".join(map(str, AMPLITUDES))
+                    + " (default: all)")
     ap.add_argument("--json", dest="json_out", default=None)
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="andes-home-") as home:
@@ -208,6 +211,9 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         models = args.only.split(",") if args.only else list(EXCITERS)
+        chosen = None if args.amplitudes is None else {float(a) for a in args.amplitudes.split(",")}
+        if chosen is not None and not chosen <= set(AMPLITUDES):
+            ap.error(f"--amplitudes {args.amplitudes}: choose among {', '.join(map(str, AMPLITUDES))}")
         manifest = {"generator": "benchmarks/andes_captures.py", "andes_version": andes.__version__,
                     "command": " ".join(["python", "benchmarks/andes_captures.py", *(argv or sys.argv[1:])]),
                     "record": {"start_in_andes_s": RECORD_START, "duration_s": DURATION, "rate_hz": RATE,
@@ -222,6 +228,8 @@ def main(argv: list[str] | None = None) -> int:
         for model in models:
             i = list(EXCITERS).index(model)  # the same capture whether made alone or with the others
             for j, amp in enumerate(AMPLITUDES):
+                if chosen is not None and amp not in chosen:
+                    continue
                 scale = 1.0 + 0.08 * ((3 * i + j) % 5 - 2)  # 0.84 .. 1.16: no single memorisable set
                 params = {k: (v * scale if k in SCALED else v) for k, v in EXCITERS[model].items()}
                 t0 = time.perf_counter()
