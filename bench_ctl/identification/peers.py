@@ -107,14 +107,16 @@ def _run_mvmo(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray
     `polish_evals`: the polish's budget instead (the diagnosis' fits); a polish too small for
     three Jacobians is not run and MVMO gets the whole budget. The swap restarts get
     `SWAP_RESERVE_SHARE` of the budget (at most `SWAP_RESERVE_MAX`) when the structure declares
-    exchanges. Figures for the held edges and the swap restarts: docs/benchmarks.md,
-    "Identification: edge instants held, swap restarts"."""
+    exchanges and the caller left the split to MVMO (no `polish_evals`). Figures for the held
+    edges and the swap restarts: docs/benchmarks.md, "Identification: edge instants held, swap
+    restarts"."""
     opts = {**IDENTIFY, **options}
     mode = str(opts.pop("edges", "polish"))
     if mode not in ("polish", "search"):
         raise ValueError(f"MVMO option edges={mode!r}: choose 'polish' or 'search'")
     kind = str(opts.pop("space", "log"))
     n_pol = opts.pop("polish_evals", None)
+    caller_split = n_pol is not None  # the diagnosis' searches divide their budget themselves
     edge = [i for i, n in enumerate(problem.names) if n in RECORD_PARAMS] if mode == "polish" else []
     if n_pol is None:
         n_pol = min(EDGE_POLISH_MAX, int(EDGE_POLISH_SHARE * max_evals)) if edge else 0
@@ -123,8 +125,9 @@ def _run_mvmo(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray
         n_pol, edge = 0, []
     space = SearchSpace(problem, kind)
     swaps = _swaps(problem)
-    # the swap restarts' evaluations, kept from MVMO (what they leave is not spent)
-    n_swap = min(SWAP_RESERVE_MAX, int(SWAP_RESERVE_SHARE * max_evals)) if swaps else 0
+    # the swap restarts' evaluations, kept from MVMO (what they leave is not spent); not where the
+    # caller divides the budget (`polish_evals`: the diagnosis' effect searches)
+    n_swap = min(SWAP_RESERVE_MAX, int(SWAP_RESERVE_SHARE * max_evals)) if swaps and not caller_split else 0
     if max_evals - n_pol - n_swap < 3 * (problem.d + 1):
         n_swap = 0
     if not edge:
