@@ -3,10 +3,10 @@
 A fresh compilation takes minutes, and most of it goes to five functions LLVM optimises one
 after the other: the four vectorised RK4 loops and the split step (docs/decisions/0003). None
 calls another, so `compile_parts` compiles the ones numba's disk cache lacks side by side, each
-in a child process that writes the cache, and loads them all here; the chunk runners that call
-them then compile without waiting for them. With a warm cache it only loads them, in this
-process. (Child processes, not multiprocessing: a spawned worker re-imports the caller's main
-script, which need not guard itself.)
+in a child process that writes the cache; the chunk runners that call them then load them from
+the cache instead of compiling them one by one. With a warm cache it starts nothing. (Child
+processes, not multiprocessing: a spawned worker re-imports the caller's main script, which need
+not guard itself.)
 """
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def signature(name: str) -> tuple:
 
 
 def cached(name: str) -> bool:
-    """Whether numba's disk cache holds part `name` for this machine (loading it if so)."""
+    """Whether numba's disk cache holds part `name` for this machine (reads the entry)."""
     dispatcher = getattr(rk4, name)
     sig = signature(name)
     if sig in dispatcher.overloads:
@@ -71,9 +71,9 @@ def compile_part(name: str) -> float:
 
 def compile_parts(workers: int | None = None) -> dict[str, float]:
     """Compile the parts the disk cache lacks, up to `workers` at once (default: one a core), each
-    in a child process (`child_main`) that writes the cache, and load every part here. Returns the
-    seconds each compiled part took (empty when all came from the cache). With one worker, or
-    for a part whose child failed, this process compiles it itself."""
+    in a child process (`child_main`) that writes the cache. Returns the seconds each compiled
+    part took (empty when the cache held them all). With one worker, or for a part whose child
+    failed, this process compiles it itself."""
     missing = [name for name in PARTS if not cached(name)]
     workers = max(1, min(len(missing), workers or os.cpu_count() or 1))
     seconds: dict[str, float] = {}
@@ -89,10 +89,9 @@ def compile_parts(workers: int | None = None) -> dict[str, float]:
 
         with ThreadPoolExecutor(workers) as pool:  # threads that wait on the children
             list(pool.map(child, missing))
-    for name in PARTS:  # compiled here when no child did; else loaded from the cache
-        took = compile_part(name)
-        if name in missing and name not in seconds:
-            seconds[name] = took
+    for name in missing:  # what no child compiled
+        if name not in seconds:
+            seconds[name] = compile_part(name)
     return seconds
 
 
