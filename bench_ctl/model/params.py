@@ -75,6 +75,9 @@ _CATALOGUE = [
     ParamInfo("SE2", "pu", "DC exciter saturation SE(E2)", 0.0, 5.0, 0.0),
     ParamInfo("LIMOUT", "1", "ceilings clamp the output (1: the regulator lag itself is not limited, as "
                              "ESST1A/EXST1) instead of a non-windup limit on the lag (0)", 0.0, 1.0, 0.0),
+    ParamInfo("VRIN", "1", "the ST5B regulator (1): its output KAVR y limited to [VRMIN, VRMAX], less KC*Ifd, is "
+                           "the regulator lag's input (whose non-windup ceilings carry no KC), and the first "
+                           "lead-lag's output is limited to [VRMIN, VRMAX]/KAVR; 0: off", 0.0, 1.0, 0.0),
     # the potential-source static exciter (ESST4B): a PI regulator in place of the first lead-lag,
     # an inner field-voltage PI with feedback KG, and the output VB * VM, VB = KPV Vt FEX(KC Ifd /
     # (KPV Vt)) (IEEE 421.5 rectifier regulation); KPV = 0: no such stage (the blocks above)
@@ -109,7 +112,7 @@ GENERATOR_PARAMS = ("Td0p", "Td0pp", "Vt0")
 #: generator constants a unit file may give (neutral when absent)
 GENERATOR_OPTIONAL = ("KPP", "KDA")
 #: blocks of the standard structures beyond the reference one (neutral: the block is absent)
-STRUCTURE_PARAMS = ("KPP", "KDA", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "LIMOUT", "KPV", "VBMAX",
+STRUCTURE_PARAMS = ("KPP", "KDA", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "LIMOUT", "VRIN", "KPV", "VBMAX",
                     "KPI", "KII", "VPMAX", "VPMIN", "KPM", "KIM", "VMMAX", "VMMIN", "KG")
 #: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
 RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")
