@@ -145,7 +145,8 @@ def derive_generator(D: np.ndarray, g: Params, valid: np.ndarray) -> tuple[np.nd
     D[:, D_SATB] = b
     D[:, D_VT0] = vt0
     D[:, D_KPP] = np.where(valid, g["KPP"], 0.0)
-    D[:, D_SATVT] = (D[:, D_KPP] > 0.0).astype(np.float64)
+    # saturation on psi'' = Vt with a GENROU's flux share, on E'q for a GENSAL (SATEQ) or without one
+    D[:, D_SATVT] = ((D[:, D_KPP] > 0.0) & ~(np.where(valid, g["SATEQ"], 0.0) > 0.5)).astype(np.float64)
     D[:, D_KDA] = np.where(valid, g["KDA"], 0.0)
     return vt0, vt0 + sat0
 
