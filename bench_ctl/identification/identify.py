@@ -24,7 +24,7 @@ from bench_ctl.capture import Capture
 from bench_ctl.limits import sha256_file
 from bench_ctl.model.dialect import result_to_std
 from bench_ctl.model.kernel import compile_parts, optimisation_note, run_kernel
-from bench_ctl.model.params import RECORD_PARAMS
+from bench_ctl.model.params import GENERATOR_OPTIONAL, RECORD_PARAMS
 from bench_ctl.model.simulate import param_matrix
 from bench_ctl.model.unit import Unit
 from bench_ctl.model.unit import outside_bounds as values_outside_bounds
@@ -170,7 +170,7 @@ def model_entry(unit: Unit, kernel_values: Mapping[str, float], identified: Sequ
         "identified": ident_std,
         "determined": {unit.std_name(n): bool(v) for n, v in determined.items() if n not in RECORD_PARAMS},
         "simulated": [p.name for p in st.params if p.kernel is not None],
-        "generator": {k: _none_if_inf(float(kernel_values[k])) for k in ("Td0p", "Td0pp", "Vt0", "KPP", "KDA")
+        "generator": {k: _none_if_inf(float(kernel_values[k])) for k in ("Td0p", "Td0pp", "Vt0", *GENERATOR_OPTIONAL)
                       if k in kernel_values},
     }
 

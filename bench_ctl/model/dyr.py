@@ -12,6 +12,9 @@ cross-checked with ANDES' andes/io/psse-dyr.yaml, the InterPSS reader and publis
   (ANDES 2.0's psse-dyr.yaml lists TB before TC and KLR, ILR, KC elsewhere: it misreads ESST1A)
 - IEEEX1: TR KA TA TB TC VRMAX VRMIN KE TE KF TF1 SWITCH E1 SE(E1) E2 SE(E2)
 - ESST4B: TR KPR KIR VRMAX VRMIN TA KPM KIM VMMAX VMMIN KG KP KI VBMAX KC XL THETAP
+- ESST5B: TR KR T1 KC VRMAX VRMIN TC1 TB1 TC2 TB2 TOC1 TOB1 TOC2 TOB2 TUC1 TUB1 TUC2 TUB2
+  (IEEE 421.5 lists the under-excitation channel first; PSS/E's record and the InterPSS reader
+  put the over-excitation one first)
 
 Records of other models are kept with positional names (CON1..), never refused: real files hold
 hundreds of governors and stabilisers. Written by hand (no maintained PyPI reader of .dyr files
@@ -38,6 +41,8 @@ FIELDS: dict[str, tuple[str, ...]] = {
                "SE1", "E2", "SE2"),
     "ESST4B": ("TR", "KPR", "KIR", "VRMAX", "VRMIN", "TA", "KPM", "KIM", "VMMAX", "VMMIN", "KG", "KP", "KI",
                "VBMAX", "KC", "XL", "THETAP"),
+    "ESST5B": ("TR", "KR", "T1", "KC", "VRMAX", "VRMIN", "TC1", "TB1", "TC2", "TB2", "TOC1", "TOB1", "TOC2",
+               "TOB2", "TUC1", "TUB1", "TUC2", "TUB2"),
 }
 ICONS: dict[str, tuple[str, ...]] = {"ESST1A": ("UEL", "VOS")}
 DESCRIPTION = {
@@ -45,6 +50,7 @@ DESCRIPTION = {
     "SEXS": "simplified excitation system", "EXST1": "IEEE ST1 static exciter",
     "ESST1A": "IEEE 421.5 ST1A static exciter", "IEEEX1": "IEEE type 1 DC exciter",
     "ESST4B": "IEEE 421.5 ST4B potential-source static exciter",
+    "ESST5B": "IEEE 421.5 ST5B static exciter",
 }
 
 _TOKEN = re.compile(r"'[^']*'|\"[^\"]*\"|[^\s']+")

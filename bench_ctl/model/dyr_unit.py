@@ -35,7 +35,7 @@ from typing import Any
 
 from .dialect import describe, kernel_sections, std_name
 from .dyr import FIELDS, DyrError, DyrRecord, find, read_dyr
-from .params import PARAMS
+from .params import GENERATOR_OPTIONAL, PARAMS
 from .structures import STRUCTURES, Structure, structure
 from .unit import Bound, Unit, UnitError, with_model
 
@@ -66,7 +66,8 @@ def check_record(rec: DyrRecord, times: set[str]) -> None:
 def generator_from_record(rec: DyrRecord) -> dict[str, float]:
     """Kernel generator values from a GENROU / GENSAL record: Td0p, Td0pp; KPP = (X''d - Xl)/(X'd
     - Xl), the share of E'q in psi''d; KDA = (Xd - X'd)(X'd - X''d)/(X'd - Xl)^2, the damper's
-    part in the field current at no load; S10 = S(1.0), S12 = 1.2 S(1.2) (absolute)."""
+    part in the field current at no load; SATEQ = 1 for a GENSAL (its saturation acts on E'q, a
+    GENROU's on psi''); S10 = S(1.0), S12 = 1.2 S(1.2) (absolute)."""
     check_record(rec, set(_GEN_TIMES) & set(rec.values))
     v = _values(rec)
     xd, xdp, xdpp, xl = v["Xd"], v["X'd"], v["X''d"], v["Xl"]
@@ -77,7 +78,8 @@ def generator_from_record(rec: DyrRecord) -> dict[str, float]:
     if not (xd > xdp > xdpp > xl >= 0.0):
         raise UnitError(f"{where}: needs Xd > X'd > X''d > Xl >= 0, got {xd}, {xdp}, {xdpp}, {xl}")
     out = {"Td0p": v["T'do"], "Td0pp": v["T''do"],
-           "KPP": (xdpp - xl) / (xdp - xl), "KDA": (xd - xdp) * (xdp - xdpp) / (xdp - xl) ** 2}
+           "KPP": (xdpp - xl) / (xdp - xl), "KDA": (xd - xdp) * (xdp - xdpp) / (xdp - xl) ** 2,
+           "SATEQ": 1.0 if rec.model == "GENSAL" else 0.0}
     s10, s12 = v.get("S(1.0)", 0.0), v.get("S(1.2)", 0.0)
     if s10 > 0.0 and s12 > 0.0:
         out["S10"], out["S12"] = s10, 1.2 * s12
@@ -214,7 +216,7 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
 def _with_generator(unit: Unit, gen: DyrRecord) -> Unit:
     g = generator_from_record(gen)
     generator = dict(unit.generator)
-    generator.update({k: g[k] for k in ("Td0p", "Td0pp", "KPP", "KDA")})
+    generator.update({k: g[k] for k in ("Td0p", "Td0pp", *GENERATOR_OPTIONAL)})
     unit = replace(unit, generator=generator)
     if "S10" in g:
         unit = unit.with_effects({"saturation": {"S10": g["S10"], "S12": g["S12"]}})
@@ -266,7 +268,7 @@ def dyr_fields(st: Structure) -> tuple[str, ...]:
 
 #: kernel parameters that are not the exciter's (the generator, the record's timing, the
 #: recorder): a difference there is not the exciter record's to carry
-_NOT_EXCITER = ("Td0p", "Td0pp", "Vt0", "KPP", "KDA", "S10", "S12", "GAIN", "SKEW", "EDGE1", "EDGE2",
+_NOT_EXCITER = ("Td0p", "Td0pp", "Vt0", "KPP", "KDA", "SATEQ", "S10", "S12", "GAIN", "SKEW", "EDGE1", "EDGE2",
                 "EDGE3", "EDGE4")
 
 

@@ -47,6 +47,8 @@ _CATALOGUE = [
     ParamInfo("KDA", "1", "damper coupling in the no-load field current, Ifd = E'q + KDA (E'q - E''q) + Sat; "
                           "(Xd - X'd)(X'd - X''d)/(X'd - Xl)^2 of a GENROU; 0 in the reference model",
               0.0, 50.0, 0.0),
+    ParamInfo("SATEQ", "1", "1: saturation on E'q even with KPP > 0 (a GENSAL: its saturation is a function of "
+                            "E'q, a GENROU's of psi'' = Vt at no load); 0 otherwise", 0.0, 1.0, 0.0),
     # effects (neutral value = effect off)
     ParamInfo("VRMAX", "pu", "exciter ceiling, upper (ceiling_limit)", 1.05, 20.0, INF),
     ParamInfo("VRMIN", "pu", "exciter ceiling, lower (ceiling_limit)", -20.0, 0.95, -INF),
@@ -75,6 +77,9 @@ _CATALOGUE = [
     ParamInfo("SE2", "pu", "DC exciter saturation SE(E2)", 0.0, 5.0, 0.0),
     ParamInfo("LIMOUT", "1", "ceilings clamp the output (1: the regulator lag itself is not limited, as "
                              "ESST1A/EXST1) instead of a non-windup limit on the lag (0)", 0.0, 1.0, 0.0),
+    ParamInfo("VRIN", "1", "the ST5B regulator (1): its output KAVR y limited to [VRMIN, VRMAX], less KC*Ifd, is "
+                           "the regulator lag's input (whose non-windup ceilings carry no KC), and the first "
+                           "lead-lag's output is limited to [VRMIN, VRMAX]/KAVR; 0: off", 0.0, 1.0, 0.0),
     # the potential-source static exciter (ESST4B): a PI regulator in place of the first lead-lag,
     # an inner field-voltage PI with feedback KG, and the output VB * VM, VB = KPV Vt FEX(KC Ifd /
     # (KPV Vt)) (IEEE 421.5 rectifier regulation); KPV = 0: no such stage (the blocks above)
@@ -107,10 +112,10 @@ COL: dict[str, int] = {name: i for i, name in enumerate(KERNEL_PARAMS)}
 AVR_PARAMS = ("KAVR", "TA1", "TA2", "TA3", "TA4", "TE")
 GENERATOR_PARAMS = ("Td0p", "Td0pp", "Vt0")
 #: generator constants a unit file may give (neutral when absent)
-GENERATOR_OPTIONAL = ("KPP", "KDA")
+GENERATOR_OPTIONAL = ("KPP", "KDA", "SATEQ")
 #: blocks of the standard structures beyond the reference one (neutral: the block is absent)
-STRUCTURE_PARAMS = ("KPP", "KDA", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "LIMOUT", "KPV", "VBMAX",
-                    "KPI", "KII", "VPMAX", "VPMIN", "KPM", "KIM", "VMMAX", "VMMIN", "KG")
+STRUCTURE_PARAMS = ("KPP", "KDA", "SATEQ", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "LIMOUT", "VRIN",
+                    "KPV", "VBMAX", "KPI", "KII", "VPMAX", "VPMIN", "KPM", "KIM", "VMMAX", "VMMIN", "KG")
 #: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
 RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")
 

@@ -285,7 +285,8 @@ def _model_blocks(r: IdentificationResult) -> list[Block]:
                                  caption=f"{st.name} parameters under their standard names")]
     if gen:
         blocks.append(Para("No-load generator: " + ", ".join(f"{k} = {fmt(v, 4)}" for k, v in gen.items())
-                           + " (KPP, KDA: the GENROU flux shares, 0 in the reference model).", "note"))
+                           + " (KPP, KDA: the GENROU / GENSAL flux shares, 0 in the reference model; SATEQ = 1: "
+                           "saturation on E'q, a GENSAL's).", "note"))
     return blocks
 
 

@@ -36,6 +36,10 @@ MAPPING = {
                 "KPM": "KPM", "KIM": "KIM", "VMMAX": "VMMAX", "VMMIN": "VMMIN", "KG": "KG", "KP": "KPV",
                 "VBMAX": "VBMAX", "KC": "KC"},
                {"KAVR": 1.0, "TA1": 1.0, "TA2": 1.0, "TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "LIMOUT": 1.0}),
+    # added with its block (no hand-written mapping before it)
+    "ESST5B": ({"TR": "TR", "KR": "KAVR", "T1": "TE", "KC": "KC", "VRMAX": "VRMAX", "VRMIN": "VRMIN",
+                "TC1": "TA1", "TB1": "TA2", "TC2": "TA3", "TB2": "TA4"},
+               {"VRIN": 1.0, "VRVT": 1.0, "LIMOUT": 0.0}),
 }
 
 

@@ -28,6 +28,7 @@ from .layout import (
     D_ITF,
     D_KAVR,
     D_KC,
+    D_KCIN,
     D_KDA,
     D_KE,
     D_KFT,
@@ -51,6 +52,7 @@ from .layout import (
     D_VBMAX,
     D_VMMAX,
     D_VMMIN,
+    D_VRIN,
     D_VRMAX,
     D_VRMIN,
     D_VRVT,
@@ -143,7 +145,8 @@ def derive_generator(D: np.ndarray, g: Params, valid: np.ndarray) -> tuple[np.nd
     D[:, D_SATB] = b
     D[:, D_VT0] = vt0
     D[:, D_KPP] = np.where(valid, g["KPP"], 0.0)
-    D[:, D_SATVT] = (D[:, D_KPP] > 0.0).astype(np.float64)
+    # saturation on psi'' = Vt with a GENROU's flux share, on E'q for a GENSAL (SATEQ) or without one
+    D[:, D_SATVT] = ((D[:, D_KPP] > 0.0) & ~(np.where(valid, g["SATEQ"], 0.0) > 0.5)).astype(np.float64)
     D[:, D_KDA] = np.where(valid, g["KDA"], 0.0)
     return vt0, vt0 + sat0
 
@@ -165,14 +168,33 @@ def field_current(D, i, eqp, eqpp, vt):
 # ---- exciter ceilings (ceiling_limit) ----------------------------------------------------------
 
 
-def derive_ceilings(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray) -> None:
+def derive_ceilings(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, st4: np.ndarray) -> np.ndarray:
     """The ceilings, their variants (bus-fed, commutation) and whether they clamp the output rather
-    than the regulator lag (LIMOUT; not with a DC exciter)."""
+    than the regulator lag (LIMOUT; not with a DC exciter). The ST5B regulator (VRIN; a static
+    exciter without the potential-source stage) moves the commutation drop KC*Ifd from the upper
+    ceiling to the lag's input and limits the first lead-lag's output to [VRMIN, VRMAX]/KAVR.
+    Returns where the ST5B regulator is on."""
+    vrin = valid & ~dc & ~st4 & (g["VRIN"] > 0.5)
     D[:, D_VRMAX] = g["VRMAX"]
     D[:, D_VRMIN] = g["VRMIN"]
     D[:, D_VRVT] = np.where(valid, g["VRVT"], 0.0)
-    D[:, D_KC] = np.where(valid, g["KC"], 0.0)
+    D[:, D_KC] = np.where(valid & ~vrin, g["KC"], 0.0)
     D[:, D_LIMOUT] = np.where(valid & ~dc, g["LIMOUT"] > 0.5, False).astype(np.float64)
+    D[:, D_VRIN] = vrin.astype(np.float64)
+    D[:, D_KCIN] = np.where(vrin, g["KC"], 0.0)
+    kavr = np.where(vrin, g["KAVR"], 1.0)
+    D[:, D_Y1MAX] = np.where(vrin, g["VRMAX"] / kavr, D[:, D_Y1MAX])
+    D[:, D_Y1MIN] = np.where(vrin, g["VRMIN"] / kavr, D[:, D_Y1MIN])
+    return vrin
+
+
+@njit()
+def regulator_input(D, i, drive, ifd):
+    """The regulator lag's input: the (delayed) regulator output, or for the ST5B regulator that
+    output limited to [VRMIN, VRMAX] less KC*Ifd (selected, not branched, so loops vectorise)."""
+    dl = drive if drive < D[D_VRMAX, i] else D[D_VRMAX, i]
+    dl = dl if dl > D[D_VRMIN, i] else D[D_VRMIN, i]
+    return drive + D[D_VRIN, i] * (dl - drive) - D[D_KCIN, i] * ifd
 
 
 @njit()

@@ -16,7 +16,6 @@ from .layout import (
     CHUNK,
     D_DCON,
     D_EDGE0,
-    D_EFD0,
     D_GAIN,
     D_ITR,
     D_KDA,
@@ -30,6 +29,8 @@ from .layout import (
     D_TD,
     D_UREF0,
     D_VALID,
+    D_VR0,
+    D_VRIN,
     EDGE_EPS,
     N_STATES,
 )
@@ -140,8 +141,8 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
             failed[c] = True
             fail_step[i] = 0
         for q in range(L):
-            vr_r[c, q] = D[D_EFD0, c]
-            vr_l[c, q] = D[D_EFD0, c]
+            vr_r[c, q] = D[D_VR0, c]
+            vr_l[c, q] = D[D_VR0, c]
         for q in range(Ls):
             ef_h[c, q] = D[D_OUT0, c]
     # the full blocks when some candidate of the chunk uses a block of the standard structures
@@ -152,7 +153,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
     st4_all = True
     for c in range(m):
         if (D[D_KFT, c] != 0.0 or D[D_DCON, c] != 0.0 or D[D_LIMOUT, c] != 0.0 or D[D_KPP, c] != 0.0
-                or D[D_KDA, c] != 0.0 or D[D_ST4, c] != 0.0):
+                or D[D_KDA, c] != 0.0 or D[D_ST4, c] != 0.0 or D[D_VRIN, c] != 0.0):
             full = True
         if D[D_ST4, c] != 0.0:
             st4 = True
@@ -260,9 +261,9 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
                     vr_r[c, k % L] = avr(D, c, ua[c], vm0, S[1, c], S[2, c], vf)[0]
                     jf[c, k % L] = 0.0
                     base = k - td / dt
-                    V[0, c] = delayed_vr(vr_r, vr_l, jf, vjl, vjr, c, L, base, k, D[D_EFD0, c], False)
-                    V[1, c] = delayed_vr(vr_r, vr_l, jf, vjl, vjr, c, L, base + 0.5, k, D[D_EFD0, c], False)
-                    V[2, c] = delayed_vr(vr_r, vr_l, jf, vjl, vjr, c, L, base + 1.0, k, D[D_EFD0, c], True)
+                    V[0, c] = delayed_vr(vr_r, vr_l, jf, vjl, vjr, c, L, base, k, D[D_VR0, c], False)
+                    V[1, c] = delayed_vr(vr_r, vr_l, jf, vjl, vjr, c, L, base + 0.5, k, D[D_VR0, c], False)
+                    V[2, c] = delayed_vr(vr_r, vr_l, jf, vjl, vjr, c, L, base + 1.0, k, D[D_VR0, c], True)
         # ---- RK4 step, one fused straight-line body per candidate (vectorises across c) ----
         if any_skew:
             for c in range(m):

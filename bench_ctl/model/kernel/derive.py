@@ -29,6 +29,7 @@ from .layout import (
     D_ITR,
     D_KAVR,
     D_KC,
+    D_KCIN,
     D_KE,
     D_OUT0,
     D_RAMP,
@@ -41,6 +42,7 @@ from .layout import (
     D_TRON,
     D_UREF0,
     D_VALID,
+    D_VR0,
     D_VRVT,
     D_XF0,
     N_DERIVED,
@@ -62,9 +64,9 @@ def derive(P: np.ndarray) -> np.ndarray:
         st4 = derive_potential_source(D, g, valid, dc)
         derive_regulator(D, g, valid, st4)
         derive_rate_feedback(D, g, valid)
-        derive_ceilings(D, g, valid, dc)
+        vrin = derive_ceilings(D, g, valid, dc, st4)
         _effects(D, g, valid)
-        _steady_state(D, g, valid, dc, st4, vt0, fld0)
+        _steady_state(D, g, valid, dc, st4, vrin, vt0, fld0)
     return D
 
 
@@ -106,12 +108,13 @@ def _effects(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
 
 
 def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, st4: np.ndarray,
-                  vt0: np.ndarray, fld0: np.ndarray) -> None:
+                  vrin: np.ndarray, vt0: np.ndarray, fld0: np.ndarray) -> None:
     """The steady state at Vt0 the run starts from (`blocks.steady_state`): the regulator lag's
     output, the lead-lags' states, the reference, the output, the rate feedback's state. A DC
     exciter needs VR = (KE + SE(Efd)) Efd from the regulator, a static one Efd itself; the
     potential-source stage Efd = VB VM, its regulator's error 0 and its PI and lag at KG Efd, the
-    inner integrator at Efd / VB (as ANDES initialises it)."""
+    inner integrator at Efd / VB (as ANDES initialises it). The ST5B regulator's output is Efd + KC Ifd
+    (within [VRMIN, VRMAX])."""
     efd0 = np.where(dc, D[:, D_KE] * fld0 + D[:, D_SEB] * np.maximum(fld0 - D[:, D_SEA], 0.0) ** 2, fld0)
     vb0 = bridge_voltage_np(np.where(st4, g["KPV"], 1.0) * vt0, np.where(valid, g["KC"], 0.0) * fld0, g["VBMAX"])
     efd0 = np.where(st4, np.where(st4, g["KG"], 0.0) * fld0, efd0)
@@ -120,7 +123,9 @@ def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, s
     hi0 = g["VRMAX"] * scale0 - D[:, D_KC] * efd0
     lo0 = g["VRMIN"] * scale0
     D[:, D_EFD0] = np.clip(efd0, lo0, np.maximum(hi0, lo0))
-    D[:, D_E0] = D[:, D_EFD0] / D[:, D_KAVR]
+    vr0 = np.where(vrin, np.clip(D[:, D_EFD0] + D[:, D_KCIN] * fld0, g["VRMIN"], g["VRMAX"]), D[:, D_EFD0])
+    D[:, D_VR0] = vr0
+    D[:, D_E0] = vr0 / D[:, D_KAVR]
     D[:, D_UREF0] = vt0 + np.where(st4, 0.0, D[:, D_E0])
     # the output: the DC exciter's Efd, VB VM of the potential source, else the regulator output
     D[:, D_OUT0] = np.where(st4, fld0, np.where(dc, fld0, D[:, D_EFD0]))

@@ -3,7 +3,15 @@ diagram order; `rhs_ref` is the reference structure's alone (6 states), the fast
 """
 from __future__ import annotations
 
-from .blocks import ceilings, ceilings_ref, field_current, lead_lag_or_pi, potential_source, terminal_voltage
+from .blocks import (
+    ceilings,
+    ceilings_ref,
+    field_current,
+    lead_lag_or_pi,
+    potential_source,
+    regulator_input,
+    terminal_voltage,
+)
 from .jit import njit
 from .layout import (
     D_DCON,
@@ -68,6 +76,8 @@ def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
     dx2 = (y1 - x2) * D[D_IT4, i]
     tdon = D[D_TDON, i]
     drive = vr + tdon * (vrd - vr)
+    if st4 != ST4_ALL:   # the ST5B regulator's limit and commutation drop at the lag's input
+        drive = regulator_input(D, i, drive, field_current(D, i, eqp, eqpp, vt))
     # plain compare-and-select (numba's min/max carry NaN branches that stop the vectoriser)
     rate = D[D_RATE, i]
     de = (drive - ef) * D[D_ITE, i]

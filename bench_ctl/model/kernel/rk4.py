@@ -19,7 +19,7 @@ from .blocks import (
     terminal_voltage,
 )
 from .jit import njit
-from .layout import CHUNK, D_DCON, D_EFD0, D_ITR, D_LIMOUT, D_RAMP, N_DERIVED, ST4_ALL, ST4_NONE, ST4_SOME
+from .layout import CHUNK, D_DCON, D_ITR, D_LIMOUT, D_RAMP, D_VR0, N_DERIVED, ST4_ALL, ST4_NONE, ST4_SOME
 from .rhs import rhs, rhs_ref
 
 # ---- the RK4 step of one candidate -------------------------------------------------------------
@@ -219,7 +219,7 @@ def split_step(D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, v
     x0, x1, x2, x3, x4, x5, x6, x7 = S0[0, c], S0[1, c], S0[2, c], S0[3, c], S0[4, c], S0[5, c], S0[6, c], S0[7, c]
     ramp = D[D_RAMP, c]
     ramp_on = ramp < 1.0e300
-    e0 = D[D_EFD0, c]
+    e0 = D[D_VR0, c]
     tg = target
     ur = uref
     sa = 0.0

@@ -10,6 +10,7 @@ VRVT = 1; ...), the lead-lags a record may bypass (both time constants 0) and th
 
 The kernel's blocks (docs/model.md, "The standard structures"): a transducer, two lead-lags, a
 regulator lag whose ceilings clamp the lag (non-windup) or its output (scaled by Vt, less KC*Ifd),
+or (ESST5B) a regulator limited ahead of its lag with the commutation drop at the lag's input,
 rate feedback, a DC exciter with saturation, and ESST4B's potential-source stage with two PI
 regulators and the output VB VM.
 """
@@ -145,6 +146,31 @@ class RegulatorLag(Block):
             return (f"{head}; Efd = VR clamped to [{vt}{self.lower}, {vt}{self.upper}{drop}] "
                     "(the lag itself is not limited)")
         return f"{head}, non-windup {vt}{self.lower} <= VR <= {vt}{self.upper}{drop}"
+
+
+@dataclass(frozen=True, kw_only=True)
+class LimitedRegulator(Block):
+    """The ST5B regulator: the gain's output limited to [lower, upper], less kc*Ifd (the
+    commutation drop at the lag's input, not on the ceiling), drives the lag, whose non-windup
+    ceilings are Vt*lower, Vt*upper; the first lead-lag's output is limited to [lower, upper]/gain."""
+    gain: str
+    T: str
+    upper: str
+    lower: str
+    kc: str
+    kind = "regulator lag"
+
+    def wiring(self) -> dict[str, str]:
+        return {self.gain: "KAVR", self.T: "TE", self.upper: "VRMAX", self.lower: "VRMIN", self.kc: "KC"}
+
+    def settings(self) -> dict[str, float]:
+        return {"VRIN": 1.0, "VRVT": 1.0, "LIMOUT": 0.0}
+
+    def line(self) -> str:
+        return (f"VR = {self.gain} y limited to [{self.lower}, {self.upper}] (y: the second lead-lag's "
+                f"output; the first's limited to [{self.lower}, {self.upper}]/{self.gain}); "
+                f"Efd = (VR - {self.kc} Ifd)/(1 + s {self.T}), non-windup Vt {self.lower} <= Efd <= "
+                f"Vt {self.upper}")
 
 
 @dataclass(frozen=True, kw_only=True)

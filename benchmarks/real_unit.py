@@ -1,0 +1,148 @@
+"""A real unit's record against every structure of the library (issue 26 items 3-4, measured by
+hand before `--model auto` exists): imported with the tool's own `bench-ctl import` (edges and efd
+base found, as benchmarks/import_real.py does), then
+
+- the planning record's values run in the kernel on it, when `--dyr` gives one (e.g. the
+  repository's own GENSAL + ST5B fit of the unit);
+- each structure identified on it (MVMO, `--evals`, `--seed`) from the unit's typical values, on
+  the `.dyr`'s generator (T'd0, T''d0, KPP, KDA, saturation) when one is given;
+- `--diagnose`: the named structures diagnosed (`bench-ctl diagnose`), what the explanation
+  leaves.
+
+Every figure is over the record's own pre-step disturbance (the variance of the pre-step efd
+about a straight line: the diagnosis' noise floor). The identification figures are fits on the
+whole record, not a check on data the fit did not see: they rank how well each structure can
+follow the record, and a structure with more freedom follows better without earning it.
+
+The Mostar exports (ALSETLab/Mostar) have no licence: give their paths, never copy them here.
+Without a path it does nothing and exits 0 (`make bench`).
+
+Usage: python benchmarks/real_unit.py PATH [--dyr PLANT.dyr] [--models all|A,B] [--evals 1000]
+           [--seed 1] [--diagnose ESST5B,REFERENCE] [--set NAME=VALUE ...] [--test step:amplitude=0.1]
+           [--json OUT]
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_ctl.capture import read_capture  # noqa: E402
+from bench_ctl.cli import main  # noqa: E402
+from bench_ctl.identification.peers import run_optimizer  # noqa: E402
+from bench_ctl.identification.problem import make_problem  # noqa: E402
+from bench_ctl.model.dialect import std_keys  # noqa: E402
+from bench_ctl.model.dyr_unit import unit_from_dyr  # noqa: E402
+from bench_ctl.model.structures import STRUCTURES  # noqa: E402
+from bench_ctl.model.unit import apply_overrides, reference_unit, with_model  # noqa: E402
+from import_real import import_one, label, pre_step_disturbance  # noqa: E402
+
+
+def main_bench(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("path", nargs="?", type=Path)
+    ap.add_argument("--dyr", type=Path, default=None, help="planning record whose values are run as they are")
+    ap.add_argument("--models", default="all")
+    ap.add_argument("--evals", type=int, default=1000)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--diagnose", default="", help="comma-separated structures to diagnose as well")
+    ap.add_argument("--test", default="step:amplitude=0.1")
+    ap.add_argument("--resample", type=float, default=200.0)
+    ap.add_argument("--map", dest="maps", action="append", default=None, metavar="NAME=COLUMN")
+    ap.add_argument("--set", dest="sets", action="append", default=None, metavar="NAME=VALUE")
+    ap.add_argument("--json", dest="json_out", default=None)
+    args = ap.parse_args(argv)
+    if args.sets is None:
+        args.sets = ["S10=0.1", "S12=0.48"]
+    out: dict = {"evals": args.evals, "seed": args.seed, "set": ";".join(args.sets)}
+    if args.path is None:
+        print("no export given: nothing run (python benchmarks/real_unit.py PATH)")
+        _save(args, out)
+        return 0
+    models = list(STRUCTURES) if args.models == "all" else [m.strip().upper() for m in args.models.split(",")]
+    with tempfile.TemporaryDirectory() as tmp:
+        row = import_one(args.path, args, Path(tmp))
+        if not row["ok"]:
+            print(f"import refused: {row['error']}")
+            return 1
+        cap = read_capture(Path(tmp) / f"{label(args.path)}.csv")
+        var, n = pre_step_disturbance(cap.time, cap.usetp, cap.efd)
+        # the model starts where the record does: Vt0 from the record's pre-step vt
+        base = apply_overrides(reference_unit(), [*args.sets, f"Vt0={row['vt0_pu']:.6g}"])
+        print(f"{args.path.name}: {cap.n} samples at {cap.rate_hz:g} Hz; pre-step disturbance "
+              f"{var:.4g} pu^2 over {n} samples; Vt0 {row['vt0_pu']:.4f}, efd factor {row['efd_factor']:.4f}")
+        out.update({"file": args.path.name, "disturbance_pu2": var, "vt0_pu": row["vt0_pu"],
+                    "efd_factor": row["efd_factor"]})
+        generator: list[str] = []
+        if args.dyr:
+            unit = unit_from_dyr(base, args.dyr)
+            p = make_problem([cap], unit)
+            m = p.mse(p.x_start())[0]
+            print(f"{args.dyr.name} ({unit.model}) as it is: mse {m:.4g} pu^2 = {m / var:.1f} x the disturbance")
+            out.update({"dyr_model": unit.model, "dyr_mse": m, "dyr_ratio": m / var})
+            # every structure then runs on the record's generator (with_model keeps it)
+            v = unit.values()
+            generator = [f"{k}={v[k]:.8g}" for k in ("Td0p", "Td0pp", "KPP", "KDA", "SATEQ", "S10", "S12")]
+            base = apply_overrides(base, generator)
+            print("generator from the record: " + ", ".join(generator))
+        rows = []
+        for name in models:
+            unit = with_model(base, name)
+            p = make_problem([cap], unit)
+            t0 = time.perf_counter()
+            r = run_optimizer("mvmo", p, max_evals=args.evals, seed=args.seed)
+            wall = time.perf_counter() - t0
+            m = p.mse(r.x)[0]
+            std = std_keys(unit.structure, dict(zip(p.names, map(float, r.x))))
+            rows.append((m, name, len(p.names), wall, std))
+            out[f"{name}_mse"] = m
+            out[f"{name}_ratio"] = m / var
+            out[f"{name}_fitted"] = len(p.names)
+            out[f"{name}_wall_s"] = wall
+            out[f"{name}_params"] = std
+        print(f"\nidentified on the whole record ({args.evals} evaluations, seed {args.seed}; a fit, not a check):")
+        print(f"  {'structure':<10} {'mse':>10} {'x dist.':>8} {'fitted':>6} {'s':>6}  values")
+        for m, name, d, wall, std in sorted(rows):
+            vals = ", ".join(f"{k}={v:.4g}" for k, v in std.items() if not k.startswith("EDGE"))
+            print(f"  {name:<10} {m:>10.4g} {m / var:>8.2f} {d:>6d} {wall:>6.1f}  {vals}")
+        out["ranking"] = [name for _, name, *_ in sorted(rows)]
+        for name in [m.strip().upper() for m in args.diagnose.split(",") if m.strip()]:
+            res = Path(tmp) / f"diag_{name}.json"
+            argv_d = ["diagnose", str(Path(tmp) / f"{label(args.path)}.csv"), "--model", name,
+                      "--json", str(res), "--seed", str(args.seed)]
+            for s in [*args.sets, f"Vt0={row['vt0_pu']:.6g}", *generator]:
+                argv_d += ["--set", s]
+            t0 = time.perf_counter()
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                rc = main(argv_d)
+            wall = time.perf_counter() - t0
+            d = json.loads(res.read_text())
+            named = [s["name"] for s in d.get("explained_by") or []]
+            left = d["left"]["mse_over_floor"]
+            print(f"diagnose --model {name}: verdict {d['verdict']}, explained by {named or 'nothing'}, "
+                  f"left {left:.2f} x the noise floor ({wall:.1f} s, exit {rc})")
+            out[f"diagnose_{name}_verdict"] = d["verdict"]
+            out[f"diagnose_{name}_explained_by"] = named
+            out[f"diagnose_{name}_left"] = left
+            out[f"diagnose_{name}_wall_s"] = wall
+    _save(args, out)
+    return 0
+
+
+def _save(args: argparse.Namespace, out: dict) -> None:
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps(out, indent=1, default=str))
+        print(f"saved {args.json_out}")
+
+
+if __name__ == "__main__":
+    sys.exit(main_bench())
