@@ -457,7 +457,7 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
         if not b.min < b.max:
             raise UnitError(f"--set {item!r}: min {b.min} must be below max {b.max}")
         return replace(unit, identify={**unit.identify, name: b})
-    if key in unit.generator:
+    if key in unit.generator or key in GENERATOR_OPTIONAL:   # a generator constant stays with the generator
         PARAMS[key].check(value, where="--set ")
         return replace(unit, generator={**unit.generator, key: value})
     if key in unit.identify:

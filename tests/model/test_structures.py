@@ -83,6 +83,14 @@ def test_with_model_keeps_generator_and_effects_and_back():
     assert back.identify == reference_unit().identify and back.constraints == reference_unit().constraints
 
 
+def test_generator_constants_set_by_hand_stay_with_the_generator_across_models():
+    """`--set KPP=...` (and KDA, SATEQ) is the generator's: another structure keeps it."""
+    u = apply_overrides(reference_unit(), ["KPP=0.4", "KDA=1.5", "SATEQ=1", "Td0p=3.77"])
+    for name in ("ESST5B", "SEXS", "REFERENCE"):
+        v = with_model(with_model(u, "ESST1A"), name).values()
+        assert (v["KPP"], v["KDA"], v["SATEQ"], v["Td0p"]) == (0.4, 1.5, 1.0, 3.77), name
+
+
 def test_reference_structure_is_unchanged_by_the_new_blocks():
     """The blocks the standard structures added are neutral by default: the reference unit's
     pulse is exactly what the kernel gave before (the docs/model.md figures: about 3.1 and -1.0 pu)."""
