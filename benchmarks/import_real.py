@@ -96,17 +96,28 @@ def import_one(path: Path, args: argparse.Namespace, folder: Path) -> dict:
     return row
 
 
-def main_bench(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("paths", nargs="*", type=Path)
+def add_import_options(ap: argparse.ArgumentParser) -> None:
+    """The import's options (`import_one` reads them), shared with benchmarks/real_unit.py."""
     ap.add_argument("--test", default="step:amplitude=0.1")
     ap.add_argument("--resample", type=float, default=200.0, help="Hz (the exports are jittered)")
     ap.add_argument("--map", dest="maps", action="append", default=None, metavar="NAME=COLUMN")
-    ap.add_argument("--set", dest="sets", action="append", default=None, metavar="NAME=VALUE")
+    ap.add_argument("--set", dest="sets", action="append", default=None, metavar="NAME=VALUE",
+                    help="unit values (default: the Mostar unit's S10=0.1, S12=0.48)")
     ap.add_argument("--json", dest="json_out", default=None)
+
+
+def parse_import_args(ap: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
     args = ap.parse_args(argv)
     if args.sets is None:
         args.sets = ["S10=0.1", "S12=0.48"]
+    return args
+
+
+def main_bench(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("paths", nargs="*", type=Path)
+    add_import_options(ap)
+    args = parse_import_args(ap, argv)
     out: dict = {"test": args.test, "resample_hz": args.resample, "set": ";".join(args.sets)}
     if not args.paths:   # `make bench` runs every benchmark without arguments: nothing to import
         print("no export given: nothing imported (python benchmarks/import_real.py PATH...)")

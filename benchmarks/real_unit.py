@@ -44,7 +44,7 @@ from bench_ctl.model.dialect import std_keys  # noqa: E402
 from bench_ctl.model.dyr_unit import unit_from_dyr  # noqa: E402
 from bench_ctl.model.structures import STRUCTURES  # noqa: E402
 from bench_ctl.model.unit import apply_overrides, reference_unit, with_model  # noqa: E402
-from import_real import import_one, label, pre_step_disturbance  # noqa: E402
+from import_real import add_import_options, import_one, label, parse_import_args, pre_step_disturbance  # noqa: E402
 
 
 def main_bench(argv: list[str] | None = None) -> int:
@@ -55,14 +55,8 @@ def main_bench(argv: list[str] | None = None) -> int:
     ap.add_argument("--evals", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--diagnose", default="", help="comma-separated structures to diagnose as well")
-    ap.add_argument("--test", default="step:amplitude=0.1")
-    ap.add_argument("--resample", type=float, default=200.0)
-    ap.add_argument("--map", dest="maps", action="append", default=None, metavar="NAME=COLUMN")
-    ap.add_argument("--set", dest="sets", action="append", default=None, metavar="NAME=VALUE")
-    ap.add_argument("--json", dest="json_out", default=None)
-    args = ap.parse_args(argv)
-    if args.sets is None:
-        args.sets = ["S10=0.1", "S12=0.48"]
+    add_import_options(ap)
+    args = parse_import_args(ap, argv)
     out: dict = {"evals": args.evals, "seed": args.seed, "set": ";".join(args.sets)}
     if args.path is None:
         print("no export given: nothing run (python benchmarks/real_unit.py PATH)")
