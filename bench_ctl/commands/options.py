@@ -25,7 +25,8 @@ def model_options(f):
                           "GENROU/GENSAL record's T'd0, T''d0, S(1.0), S(1.2).")(f)
     f = click.option("--model", "model", default=None, metavar="NAME",
                      help=f"AVR / exciter structure ({', '.join(STRUCTURES)}; default: the unit "
-                          "file's, else REFERENCE). See `bench-ctl models`.")(f)
+                          "file's, else REFERENCE; `identify` also takes auto: every structure fitted, "
+                          "checked and ranked). See `bench-ctl models`.")(f)
     return f
 
 

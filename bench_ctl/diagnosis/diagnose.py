@@ -66,7 +66,7 @@ from .verdict import (
     rank_entries,
 )
 
-__all__ = ["SCHEMA", "Budget", "diagnose", "choose_verdict"]
+__all__ = ["SCHEMA", "Budget", "diagnose", "prepare", "choose_verdict"]
 
 log = logging.getLogger(__name__)
 
@@ -141,6 +141,18 @@ def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: Edges, 
                   "fit": {"t0": 0.0, "t1": (capture.n - 1) * capture.dt},
                   "check": {**describe_check(views), "holdout": hold}}
     return Setup(views, capture.n, floor, check_floor, check_se, floor_tol, validation)
+
+
+def prepare(capture: Capture, unit: Unit, *, holdout: Capture | None = None, budget: Budget | None = None
+            ) -> tuple[Edges, NoiseFloor, Setup]:
+    """What every model of `capture` is fitted and checked on: the setpoint edges, efd's noise
+    floor (pre-trigger) and the `Setup` (views, the fit's floor, the check's windows)."""
+    budget = budget if budget is not None else Budget()
+    src = capture.source or "capture"
+    edges = find_edges(capture.usetp, src)
+    efd_floor = noise_floor(capture.efd, capture.dt, edges, src)
+    floor = _fit_floor(capture, unit, edges, efd_floor, src)
+    return edges, efd_floor, _setup(capture, holdout, unit, edges, floor, budget)
 
 
 def _fit_base(st: Setup, budget: Budget, seed: int, base_params: Mapping[str, float] | None) -> ModelFit:
@@ -276,11 +288,8 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     are None, as the JSON writes them."""
     t_start = time.perf_counter()
     budget = budget if budget is not None else Budget()
-    src = capture.source or "capture"
-    edges = find_edges(capture.usetp, src)
-    efd_floor = noise_floor(capture.efd, capture.dt, edges, src)
-    floor = _fit_floor(capture, unit, edges, efd_floor, src)
-    st = _setup(capture, holdout, unit, edges, floor, budget)
+    edges, efd_floor, st = prepare(capture, unit, holdout=holdout, budget=budget)
+    floor = st.floor
     views = st.views
 
     t0 = time.perf_counter()

@@ -74,8 +74,11 @@ class IdentificationResult(Record):
     #: a standard structure's result: params, bounds, fixed and constraints in the kernel's names
     #: (the other keys speak the structure's own; docs/formats.md)
     kernel: dict[str, Any] | None = None
+    #: `identify --model auto`: every structure's fit and check, ranked (docs/formats.md)
+    selection: dict[str, Any] | None = None
 
-    OMITTED_WHEN_NONE = ("edges", "identifiability", "failed", "message", "model", "comparison", "kernel")
+    OMITTED_WHEN_NONE = ("edges", "identifiability", "failed", "message", "model", "comparison", "kernel",
+                         "selection")
 
     @classmethod
     def from_json(cls, data: Any, where: str = "") -> IdentificationResult:

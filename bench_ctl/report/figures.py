@@ -89,6 +89,23 @@ def draw_residual(fig: Canvas, time: np.ndarray, residual: np.ndarray,
     fig.legend(loc="outside lower center", ncols=3, fontsize=8)
 
 
+def draw_residuals(fig: Canvas, time: np.ndarray, residuals: Sequence[tuple[str, np.ndarray]]) -> None:
+    """Several models' residuals on one axis (structure selection: the best two)."""
+    ax = fig.subplots()
+    dt = float(time[-1] - time[0]) / max(time.size - 1, 1)
+    w = max(1, int(round(SMOOTH_S / dt)))
+    for (label, r), color in zip(residuals, (COLORS["residual"], COLORS["history"], COLORS["bar"])):
+        shown = np.convolve(r, np.ones(w) / w, mode="same") if 1 < w < r.size else r
+        ax.plot(time, shown, color=color, lw=1.0, label=f"{label}: rms {float(np.sqrt(np.mean(r * r))):.3g} pu")
+    ax.axhline(0.0, color="0.3", lw=0.6)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("residual efd (pu)")
+    ax.set_title("Residual of the best two structures" + (f", {1000 * SMOOTH_S:g} ms moving average" if w > 1 else ""),
+                 fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+
+
 def _zoom(ax: Any, time: np.ndarray, usetp: np.ndarray, meas: np.ndarray, sim: np.ndarray,
           t_edge: float, title: str) -> None:
     lo, hi = max(time[0], t_edge - ZOOM_BEFORE_S), min(time[-1], t_edge + ZOOM_AFTER_S)

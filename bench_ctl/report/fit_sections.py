@@ -11,11 +11,14 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.identification.result_file import IdentificationResult
+from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.acceptance import SOURCE
 from bench_ctl.model.dialect import describe
+from bench_ctl.model.simulate import simulate
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
+from bench_ctl.report.inputs import ReportError, model_values
 from bench_ctl.report.blocks import (
     NOT_AVAILABLE,
     Block,
@@ -437,3 +440,62 @@ def comparison(d: ReportData) -> Section:
         table(("optimizer", "MSE (pu²)", "objective (pu² s)", "evaluations", "wall time (s)",
                "constraints violated", "note"), rows, id="comparison",
               caption="Optimizers run on the same capture(s)"),))
+
+
+def selection(d: ReportData) -> Section | None:
+    """`identify --model auto`: the ranking of the structures and the residual of the best two
+    (each re-simulated here from the values it stored), None for a result of one structure."""
+    sel = d.result.selection
+    if not sel:
+        return None
+    rows = []
+    for c in sel.get("candidates", []):
+        note = "fits as well, more parameters" if c.get("equivalent") else str(c.get("error") or "")
+        if c.get("constraints_violated"):
+            note = "constraint violated: " + ", ".join(map(str, c["constraints_violated"]))
+        rows.append((Num(num(c.get("rank"))), str(c.get("model")) + (" (this result)" if c.get("rank") == 1 else ""),
+                     Num(num(c.get("k"))), Num(num(c.get("x_floor")), digits=4),
+                     Num(num(c.get("check_x_floor")), digits=4), Num(num(c.get("score_difference")), digits=5),
+                     note))
+    verdict = str(sel.get("verdict"))
+    best = (sel.get("candidates") or [{}])[0]
+    text = (f"{sel.get('chosen')} explains the record: its fit is at the noise floor." if verdict == "explains"
+            else f"{sel.get('chosen')} fits best, but leaves {fmt(num(best.get('x_floor')), 3)}x the noise floor: "
+                 "no structure of the library explains the record.")
+    if sel.get("equivalent"):
+        text += (f" As good on this record: {', '.join(map(str, sel['equivalent']))}; a test that separates "
+                 "them is needed to tell them apart.")
+    blocks: list[Block] = [
+        Para(text),
+        table(("rank", "structure", "parameters identified", "fit × noise floor", "check × noise floor",
+               "score − best", "note"), rows, id="selection",
+              caption="Every structure identified on the record and ranked: " + str(sel.get("rule", ""))),
+    ]
+    for note in sel.get("notes", []) or []:
+        blocks.append(Para(str(note), "note"))
+    two = [c for c in sel.get("candidates", []) if isinstance(c.get("kernel"), Mapping)][:2]
+    for a in d.captures:
+        residuals = []
+        for c in two:
+            r = _residual_of(a, c)
+            if r is not None:
+                residuals.append((str(c.get("model")), r))
+        if len(residuals) == 2:
+            cap = a.loaded.capture
+            blocks.append(Fig(f"selection-residual{a.suffix}",
+                              f"Residual r = measured − simulated efd of the best two structures, {a.label}.",
+                              partial(F.draw_residuals, time=cap.time, residuals=residuals)))
+    return Section("selection", "Structure selection", tuple(blocks))
+
+
+def _residual_of(a: CaptureAnalysis, c: Mapping[str, Any]) -> np.ndarray | None:
+    """The residual of a selection candidate on capture a, re-simulated from its stored values."""
+    cap = a.loaded.capture
+    edges = c.get("edges") or []
+    try:
+        values = model_values({}, c["kernel"], f"selection candidate {c.get('model')}")
+        spec, offsets = edge_spec_of(edges[a.loaded.index] if a.loaded.index < len(edges) else None, cap.n)
+        efd, _, fail = simulate({**values, **offsets}, cap.usetp, cap.dt, edges=spec)
+    except (KeyError, TypeError, ValueError, ReportError):
+        return None
+    return None if fail >= 0 else cap.efd - efd

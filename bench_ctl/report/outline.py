@@ -9,8 +9,11 @@ from bench_ctl.report.record_sections import diagnosis, metadata, provenance
 
 
 def sections(d: ReportData, *, pdf: bool = False) -> list[Section]:
-    out = [fit.summary(d), fit.response(d), fit.errors(d), fit.acceptance(d), fit.parameters(d),
-           fit.constraints(d), fit.convergence(d), fit.comparison(d)]
+    out = [fit.summary(d), fit.response(d), fit.errors(d), fit.acceptance(d), fit.parameters(d)]
+    chosen = fit.selection(d)
+    if chosen is not None:
+        out.append(chosen)
+    out += [fit.constraints(d), fit.convergence(d), fit.comparison(d)]
     diag = diagnosis(d)
     if diag is not None:
         out.append(diag)

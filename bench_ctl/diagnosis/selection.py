@@ -1,0 +1,255 @@
+"""Which structure explains the record (`identify --model auto`): every candidate structure
+identified on the captures as `bench-ctl identify` fits it, then judged by the diagnosis' check
+and ranked by the diagnosis' score.
+
+Each candidate is identified on the whole of every capture (`run_identification`: MVMO, its
+polish and the exchange restarts); each fitted model is then checked on every capture as the
+diagnosis checks a model (`check.check_parts`: the leading edge, the plateau and the trailing
+edge each left out of a re-fit and scored, a recorded Vt the fit did not use). The score is the
+diagnosis' (`check.score`): BIC on the captures, n ln(mse) + k ln(n) with k the structure's
+identified parameters, plus the check's sum of n_i ln(mse_i). So a structure with more freedom
+earns it only by fitting better where it was fitted and predicting better where it was not.
+
+Two candidates whose fits differ by less than the noise (`EQUAL_FIT`, in n ln(mse) units) are
+equivalent on this record: the simpler one ranks first and the other is named as fitting as well
+(e.g. the reference structure, whose two lead-lags contain SEXS's one). The verdict: `explains`
+when the best candidate's fit is at the noise floor (within its standard error), otherwise
+`closest` with the factor left over the floor (docs/decisions/0016-structure-selection.md).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from bench_ctl.capture import Capture
+from bench_ctl.identification.identify import Identification, run_identification
+from bench_ctl.identification.problem import make_problem
+from bench_ctl.identification.space import SearchSpace
+from bench_ctl.model.edges import EDGE_PARAMS
+from bench_ctl.model.params import PARAMS
+from bench_ctl.model.unit import Bound, Unit
+
+from .check import check_parts
+from .diagnose import prepare
+from .localize import DiagnosisError
+from .models import Part, Setup
+
+__all__ = ["Candidate", "Selection", "select_structure", "free_limits", "EQUAL_FIT", "LIMITS"]
+
+log = logging.getLogger(__name__)
+
+#: two fits whose n ln(mse) differ by less than this are equally good on the record (the same
+#: scale as the diagnosis' AMBIGUOUS: -2 log-likelihood units)
+EQUAL_FIT = 6.0
+#: standard errors of the noise floor within which a fit counts as at the floor
+FLOOR_SIGMAS = 3.0
+#: the limits of a structure (standard names) `free_limits` identifies, and how far from the
+#: typical value their bounds reach (a factor each way)
+LIMITS = ("VRMAX", "VRMIN", "VMMAX", "VMMIN")
+LIMIT_RANGE = 4.0
+
+
+def free_limits(unit: Unit, keep: Sequence[str] = ()) -> Unit:
+    """`unit` with its structure's limits (`LIMITS`, those it simulates and holds fixed, except
+    `keep`) identified too, from their value within LIMIT_RANGE of it each way (and the kernel's
+    range): an engineer who does not know the exciter does not know its ceilings either, and a
+    structure with a wrong ceiling can lose to a wrong structure whose ceiling is never reached."""
+    st = unit.structure
+    identify, fixed = dict(unit.identify), dict(unit.fixed)
+    for name in LIMITS:
+        if name not in st.names or name in keep:
+            continue
+        k = st.param(name).kernel
+        if k is None or k in identify or k not in fixed or not math.isfinite(fixed[k]) or fixed[k] == 0.0:
+            continue
+        v, info = fixed.pop(k), PARAMS[k]
+        lo, hi = sorted((v / LIMIT_RANGE, v * LIMIT_RANGE))
+        identify[k] = Bound(v, max(lo, info.lo), min(hi, info.hi))
+    return replace(unit, identify=identify, fixed=fixed)
+
+
+@dataclass(frozen=True, eq=False)
+class Candidate:
+    """One structure identified on the captures and checked."""
+    model: str
+    ident: Identification | None     # None: it could not be set up or fitted (`error` says why)
+    k: int                           # identified model parameters (not the edge instants)
+    n: int                           # samples scored
+    mse: float                       # mean objective over the captures (inf: failed)
+    checks: tuple[Part, ...]         # the check's parts over every capture
+    score: float                     # BIC + the check's deviance; lower is better (inf: failed)
+    check_nll: float                 # the check's deviance: sum of n_i ln(mse_i) over its parts
+    wall_s: float
+    error: str | None = None
+
+    @property
+    def check_mse(self) -> float | None:
+        """The check's pooled mean objective over the left-out windows (not the Vt part)."""
+        parts = [p for p in self.checks if p.label != "vt"]
+        n = sum(p.n for p in parts)
+        return sum(p.n * p.mse for p in parts) / n if n > 0 else None
+
+
+@dataclass(frozen=True, eq=False)
+class Selection:
+    candidates: tuple[Candidate, ...]     # best first; failed ones last
+    floor: float                          # noise floor of the mean objective (pooled over captures)
+    floor_rel_se: float
+    equivalent: tuple[str, ...]           # candidates that fit as well as the best one (more parameters)
+
+    @property
+    def best(self) -> Candidate:
+        return self.candidates[0]
+
+    @property
+    def verdict(self) -> str:
+        b = self.best
+        if not math.isfinite(b.mse):
+            return "none_fitted"
+        return "explains" if b.mse <= self.floor * (1.0 + FLOOR_SIGMAS * self.floor_rel_se) else "closest"
+
+    def to_json(self) -> dict[str, Any]:
+        """The result's `selection` (docs/formats.md)."""
+        best = self.best
+        out = []
+        for rank, c in enumerate(self.candidates, 1):
+            entry: dict[str, Any] = {
+                "rank": rank, "model": c.model, "k": c.k, "n": c.n,
+                "mse": _finite(c.mse), "x_floor": _finite(c.mse / self.floor) if self.floor > 0 else None,
+                "check": {p.label: _finite(p.mse) for p in c.checks},
+                "check_mse": _finite(c.check_mse) if c.check_mse is not None else None,
+                "check_x_floor": _finite(c.check_mse / self.floor)
+                if c.check_mse is not None and self.floor > 0 else None,
+                "score": _finite(c.score),
+                "score_difference": _finite(c.score - best.score) if c is not best else 0.0,
+                "equivalent": c.model in self.equivalent,
+                "wall_s": c.wall_s,
+            }
+            if c.ident is not None:
+                r = c.ident.result
+                entry["params"] = dict(r.params)
+                # what re-simulates it (the report's residual of the best two): every kernel value
+                # and the edge instants it fitted on each capture
+                values = c.ident.problem.values(c.ident.best.x)
+                entry["kernel"] = {n: v for n, v in values.items() if n not in EDGE_PARAMS}
+                entry["edges"] = [list(cap.edges or []) for cap in r.captures]
+                entry["constraints_violated"] = r.constraints_violated
+                entry["failed"] = bool(r.failed)
+            if c.error:
+                entry["error"] = c.error
+            out.append(entry)
+        return {
+            "verdict": self.verdict,
+            "chosen": best.model,
+            "equivalent": list(self.equivalent),
+            "noise_floor": self.floor,
+            "candidates": out,
+            "rule": "each structure identified on the whole record, then scored as the diagnosis scores a "
+                    "model: BIC on the record (n ln mse + k ln n, k its identified parameters) plus the "
+                    "check's sum of n_i ln(mse_i) over the leading edge, plateau and trailing edge, each "
+                    f"left out of a re-fit; lower is better. Fits within {EQUAL_FIT:g} (n ln mse) of the best "
+                    "one are equivalent: the one with fewer parameters ranks first",
+        }
+
+
+def _finite(v: float | None) -> float | None:
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
+def _capture_x(ident: Identification, i: int, setup: Setup) -> tuple[Any, np.ndarray]:
+    """The problem of capture i alone (the candidate's identified names and its own edge
+    instants) and the joint fit's values on it (edge slots mapped from the joint problem)."""
+    joint = ident.problem
+    params = joint.params(ident.best.x)
+    p = setup.views.problem(())
+    values = {n: params[n] for n in p.names if n not in EDGE_PARAMS}
+    for s_joint, s_own in zip(joint.records[i].edge_slots, p.records[0].edge_slots):
+        if s_own is not None:
+            values[EDGE_PARAMS[s_own]] = params.get(EDGE_PARAMS[s_joint], 0.0) if s_joint is not None else 0.0
+    return p, SearchSpace(p).clip(np.array([values[n] for n in p.names], float))
+
+
+def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals: int, seed: int,
+               command_line: str) -> Candidate:
+    t0 = time.perf_counter()
+    try:
+        problem = make_problem(captures, unit)
+        # the unit's values (typical, or a planning record's) join the initial swarm
+        ident = run_identification(captures, unit, max_evals=max_evals, seed=seed, command_line=command_line,
+                                   problem=problem, x0=problem.x_start())
+    except ValueError as exc:   # a structure the captures cannot constrain (ProblemError, ...)
+        return Candidate(model, None, 0, 0, math.inf, (), math.inf, math.inf, time.perf_counter() - t0,
+                         error=str(exc))
+    k = sum(1 for n in ident.problem.names if n not in EDGE_PARAMS)
+    n_total, sum_nll, parts = 0, 0.0, []
+    for i, cap in enumerate(captures):
+        _, _, setup = prepare(cap, unit)
+        p, x = _capture_x(ident, i, setup)
+        mse = float(p.mean_objective(x[None, :])[0])
+        n_i = cap.n
+        n_total += n_i
+        sum_nll += n_i * math.log(mse) if 0 < mse < math.inf else math.inf
+        own = check_parts(setup.views, p, x)
+        parts += [Part(f"{part.label}" if len(captures) == 1 else f"{i}:{part.label}", part.n, part.mse)
+                  for part in own]
+    mse_all = math.exp(sum_nll / n_total) if math.isfinite(sum_nll) else math.inf
+    check_nll = sum(part.n * math.log(part.mse) if 0 < part.mse < math.inf else math.inf for part in parts)
+    score = sum_nll + k * math.log(n_total) + check_nll
+    if ident.best.violated or math.isnan(score):   # an infeasible fit does not stand for the structure
+        score = math.inf
+    return Candidate(model, ident, k, n_total, mse_all, tuple(parts), score, check_nll, time.perf_counter() - t0)
+
+
+def select_structure(captures: Sequence[Capture], units: Mapping[str, Unit], *, max_evals: int = 1000,
+                     seed: int = 0, command_line: str = "",
+                     progress: Callable[[str, Candidate], None] | None = None) -> Selection:
+    """Identify every unit of `units` (structure name -> unit in that structure) on `captures`,
+    check and rank them (module docstring). progress(name, candidate) after each."""
+    if not units:
+        raise ValueError("no candidate structure")
+    floors = []
+    for cap in captures:
+        unit = next(iter(units.values()))
+        try:
+            _, _, setup = prepare(cap, unit)
+        except DiagnosisError as exc:
+            raise ValueError(f"--model auto: {exc}") from None
+        floors.append((setup.floor, cap.n))
+    n_all = sum(n for _, n in floors)
+    floor = sum(f.variance * n for f, n in floors) / n_all
+    rel_se = max(f.rel_se for f, _ in floors)
+    cands = []
+    for name, unit in units.items():
+        c = _candidate(name, unit, captures, max_evals=max_evals, seed=seed, command_line=command_line)
+        log.info("%s: mse %.4g (%.2f x floor), score %.1f, %.1f s", name, c.mse, c.mse / floor, c.score, c.wall_s)
+        cands.append(c)
+        if progress is not None:
+            progress(name, c)
+    return rank(cands, floor, rel_se)
+
+
+def rank(cands: Sequence[Candidate], floor: float, rel_se: float) -> Selection:
+    """The candidates ranked by score; of those that fit and predict within EQUAL_FIT of the best
+    one (`equal`), the one with the fewest parameters first, the others named `equivalent`."""
+    ordered = sorted(cands, key=lambda c: (c.score, c.k))
+    if not ordered or not math.isfinite(ordered[0].score):
+        return Selection(tuple(ordered), floor, rel_se, ())
+    top = ordered[0]
+
+    def equal(c: Candidate) -> bool:   # fits and predicts as well as the best one
+        return (math.isfinite(c.score) and abs(c.n * math.log(c.mse / top.mse)) < EQUAL_FIT
+                and abs(c.check_nll - top.check_nll) < EQUAL_FIT)
+
+    group = [c for c in ordered if equal(c)]
+    simplest = min(group, key=lambda c: (c.k, c.score))
+    ordered.remove(simplest)
+    ordered.insert(0, simplest)
+    equivalent = tuple(c.model for c in group if c is not simplest)
+    return Selection(tuple(ordered), floor, rel_se, equivalent)
+
