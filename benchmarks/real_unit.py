@@ -1,18 +1,17 @@
-"""A real unit's record against every structure of the library (issue 26 items 3-4, measured by
-hand before `--model auto` exists): imported with the tool's own `bench-ctl import` (edges and efd
-base found, as benchmarks/import_real.py does), then
+"""A real unit's record against every structure of the library (issue 26 items 3-4): imported with
+the tool's own `bench-ctl import` (edges and efd base found, as benchmarks/import_real.py does), then
 
 - the planning record's values run in the kernel on it, when `--dyr` gives one (e.g. the
   repository's own GENSAL + ST5B fit of the unit);
-- each structure identified on it (MVMO, `--evals`, `--seed`) from the unit's typical values, on
-  the `.dyr`'s generator (T'd0, T''d0, KPP, KDA, saturation) when one is given;
+- `bench-ctl identify --model auto` on it (`--evals`, `--seed`): every structure identified from
+  its typical values (limits fitted too), on the `.dyr`'s generator (T'd0, T''d0, KPP, KDA,
+  saturation) when one is given, checked on the windows it was not fitted on and ranked;
 - `--diagnose`: the named structures diagnosed (`bench-ctl diagnose`), what the explanation
   leaves.
 
 Every figure is over the record's own pre-step disturbance (the variance of the pre-step efd
-about a straight line: the diagnosis' noise floor). The identification figures are fits on the
-whole record, not a check on data the fit did not see: they rank how well each structure can
-follow the record, and a structure with more freedom follows better without earning it.
+about a straight line: the diagnosis' noise floor). The ranking is the selection's: BIC on the
+record plus the check's deviance (a structure with more freedom must earn it on the check).
 
 The Mostar exports (ALSETLab/Mostar) have no licence: give their paths, never copy them here.
 Without a path it does nothing and exits 0 (`make bench`).
@@ -38,12 +37,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_ctl.capture import read_capture  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
-from bench_ctl.identification.peers import run_optimizer  # noqa: E402
 from bench_ctl.identification.problem import make_problem  # noqa: E402
-from bench_ctl.model.dialect import std_keys  # noqa: E402
 from bench_ctl.model.dyr_unit import unit_from_dyr  # noqa: E402
 from bench_ctl.model.structures import STRUCTURES  # noqa: E402
-from bench_ctl.model.unit import apply_overrides, reference_unit, with_model  # noqa: E402
+from bench_ctl.model.unit import apply_overrides, reference_unit  # noqa: E402
 from import_real import add_import_options, import_one, label, parse_import_args, pre_step_disturbance  # noqa: E402
 
 
@@ -88,27 +85,34 @@ def main_bench(argv: list[str] | None = None) -> int:
             generator = [f"{k}={v[k]:.8g}" for k in ("Td0p", "Td0pp", "KPP", "KDA", "SATEQ", "S10", "S12")]
             base = apply_overrides(base, generator)
             print("generator from the record: " + ", ".join(generator))
-        rows = []
-        for name in models:
-            unit = with_model(base, name)
-            p = make_problem([cap], unit)
-            t0 = time.perf_counter()
-            r = run_optimizer("mvmo", p, max_evals=args.evals, seed=args.seed)
-            wall = time.perf_counter() - t0
-            m = p.mse(r.x)[0]
-            std = std_keys(unit.structure, dict(zip(p.names, map(float, r.x))))
-            rows.append((m, name, len(p.names), wall, std))
-            out[f"{name}_mse"] = m
-            out[f"{name}_ratio"] = m / var
-            out[f"{name}_fitted"] = len(p.names)
-            out[f"{name}_wall_s"] = wall
-            out[f"{name}_params"] = std
-        print(f"\nidentified on the whole record ({args.evals} evaluations, seed {args.seed}; a fit, not a check):")
-        print(f"  {'structure':<10} {'mse':>10} {'x dist.':>8} {'fitted':>6} {'s':>6}  values")
-        for m, name, d, wall, std in sorted(rows):
-            vals = ", ".join(f"{k}={v:.4g}" for k, v in std.items() if not k.startswith("EDGE"))
-            print(f"  {name:<10} {m:>10.4g} {m / var:>8.2f} {d:>6d} {wall:>6.1f}  {vals}")
-        out["ranking"] = [name for _, name, *_ in sorted(rows)]
+        # `bench-ctl identify --model auto`, as a user runs it: every structure identified, checked
+        # and ranked (bench_ctl.diagnosis.selection)
+        res = Path(tmp) / "auto.json"
+        argv_i = ["identify", str(Path(tmp) / f"{label(args.path)}.csv"), "--model", "auto", "--json", str(res),
+                  "--seed", str(args.seed), "--evals", str(args.evals), "--no-progress"]
+        for s_ in [*args.sets, f"Vt0={row['vt0_pu']:.6g}", *generator]:
+            argv_i += ["--set", s_]
+        t0 = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()) as said, contextlib.redirect_stderr(io.StringIO()):
+            rc = main(argv_i)
+        wall = time.perf_counter() - t0
+        text = said.getvalue()
+        print(text[text.find("structure selection"):].rstrip() if "structure selection" in text else text)
+        sel = json.loads(res.read_text())["selection"] if res.exists() else {}
+        cands = [c for c in sel.get("candidates", []) if models == list(STRUCTURES) or c["model"] in models]
+        for c in cands:
+            out[f"{c['model']}_mse"] = c["mse"]
+            out[f"{c['model']}_ratio"] = c["mse"] / var if c["mse"] is not None else None
+            out[f"{c['model']}_check_ratio"] = c["check_mse"] / var if c["check_mse"] is not None else None
+            out[f"{c['model']}_fitted"] = c["k"]
+            out[f"{c['model']}_score_difference"] = c["score_difference"]
+            out[f"{c['model']}_params"] = c.get("params")
+        out["ranking"] = [c["model"] for c in cands]
+        out["auto_verdict"] = sel.get("verdict")
+        out["auto_wall_s"] = wall
+        out["auto_exit"] = rc
+        print(f"identify --model auto: {wall:.1f} s, exit {rc}; over the pre-step disturbance: " + ", ".join(
+            f"{c['model']} fit {c['mse'] / var:.1f}x" for c in cands if c["mse"] is not None))
         for name in [m.strip().upper() for m in args.diagnose.split(",") if m.strip()]:
             res = Path(tmp) / f"diag_{name}.json"
             argv_d = ["diagnose", str(Path(tmp) / f"{label(args.path)}.csv"), "--model", name,

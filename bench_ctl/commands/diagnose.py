@@ -30,6 +30,7 @@ from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis
+from bench_ctl.diagnosis.selection import select_structure
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.result_file import RESULT_SCHEMA, IdentificationResult, read_result
@@ -41,6 +42,7 @@ from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import Unit, UnitError
 from bench_ctl.records import FormatError, plain
 
+from .auto import auto_units, is_auto, selection_summary
 from .options import fmt_value as _fmt
 from .options import model_args, model_options, resolve_unit
 
@@ -126,7 +128,7 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
     cons = []
     for c in parse_constraints(unit.constraints, names):
         cons.append({"expr": c.expr, "satisfied": c.satisfied(x), "margin": float(c.rhs - c.coef @ x)})
-    return IdentificationResult.from_json(plain(result_to_std(st, {
+    return IdentificationResult.from_json(plain({**result_to_std(st, {
         "schema": RESULT_SCHEMA, "software_version": d.software_version,
         "command_line": d.command_line, "created_utc": d.created_utc, "unit": unit.to_dict(),
         "captures": [{"path": os.path.abspath(capture.source) if capture.source else d.capture["path"],
@@ -142,7 +144,7 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
         "optimizer": {"name": "mvmo + least squares (diagnosis base fit)", "settings": {}, "seed": None},
         "history": [], "fit_window": None if k1 >= capture.n else [0.0, t1],
         "model": model_entry(unit, values, names, {}),
-    })), "the diagnosis' base fit")
+    }), **({"selection": d.selection} if d.selection else {})}), "the diagnosis' base fit")
 
 
 def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str], model_kw: dict,
@@ -192,9 +194,18 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     from bench_ctl.diagnosis import diagnose as run
 
     model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id)
+    auto = is_auto(model)
+    if auto and result_path:
+        click.echo("error: --model auto starts each structure from its own fit; --result is for one structure",
+                   err=True)
+        return ExitCode.ABORTED
 
     try:
-        unit = resolve_unit(unit_path, overrides, **model_kw)
+        if auto:
+            units, notes = auto_units(unit_path, overrides, model_kw)
+            unit = next(iter(units.values()))
+        else:
+            unit = resolve_unit(unit_path, overrides, **model_kw)
         capture = read_capture(capture_path)
         holdout = read_capture(holdout_path) if holdout_path else None
         for c in (capture, holdout):
@@ -230,11 +241,30 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
         return ExitCode.ABORTED
     command_line = _command_line(capture_path, holdout_path, unit_path, overrides, model_kw, result_path, seed,
                                  json_out, report_out)
+    selection = None
+    if auto:   # the structures ranked first; the first one is diagnosed from its fit
+        try:
+            sel = select_structure([capture], units, seed=seed, command_line=command_line)
+        except ValueError as exc:
+            click.echo(f"error: {exc}", err=True)
+            return ExitCode.ABORTED
+        if sel.best.ident is None:
+            click.echo("error: no structure could be fitted: " + "; ".join(
+                f"{c.model}: {c.error}" for c in sel.candidates), err=True)
+            return ExitCode.ABORTED
+        selection = {**sel.to_json(), "notes": notes}
+        click.echo(selection_summary(selection))
+        click.echo(f"\ndiagnosing {sel.best.model}, the first of the ranking\n")
+        unit = units[sel.best.model]
+        fitted = sel.best.ident.problem.params(sel.best.ident.best.x)
+        base_params = {k: v for k, v in fitted.items() if k in unit.identify}
     try:
         d = run(capture, unit, holdout=holdout, seed=seed, base_params=base_params, command_line=command_line)
     except DiagnosisError as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
+    if selection is not None:
+        d = replace(d, selection=selection)
     click.echo(summary(d))
     try:
         if json_out:

@@ -111,8 +111,11 @@ class Diagnosis(Record):
     wall_s: float
     #: a standard structure's diagnosis: the model parameters in the kernel's names
     kernel: dict[str, Any] | None = None
+    #: `diagnose --model auto`: the structures ranked before the first one was diagnosed (the
+    #: result's `selection`, docs/formats.md)
+    selection: dict[str, Any] | None = None
 
-    OMITTED_WHEN_NONE = ("kernel",)
+    OMITTED_WHEN_NONE = ("kernel", "selection")
 
     @classmethod
     def from_json(cls, data: Any, where: str = "") -> Diagnosis:

@@ -18,7 +18,6 @@ from bench_ctl.model.simulate import simulate
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
-from bench_ctl.report.inputs import ReportError, model_values
 from bench_ctl.report.blocks import (
     NOT_AVAILABLE,
     Block,
@@ -34,6 +33,7 @@ from bench_ctl.report.blocks import (
     num,
     table,
 )
+from bench_ctl.report.inputs import ReportError, model_values
 
 STRONG_CORRELATION = 0.9
 

@@ -1,0 +1,92 @@
+"""`--model auto` of `identify` and `diagnose`: the unit in every structure of the library, and the
+ranking as the console prints it (bench_ctl.diagnosis.selection ranks; docs/decisions/0016)."""
+from __future__ import annotations
+
+from typing import Any
+
+from bench_ctl.diagnosis.selection import free_limits
+from bench_ctl.model.dialect import shared_names
+from bench_ctl.model.params import PARAMS
+from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
+from bench_ctl.model.structures import STRUCTURES
+from bench_ctl.model.unit import Unit, apply_overrides, with_model
+
+from .options import fmt_value as _fmt
+from .options import resolve_unit
+
+#: --model auto: every structure of the library identified, checked and ranked
+AUTO = "auto"
+
+
+def is_auto(model: str | None) -> bool:
+    return model is not None and model.strip().lower() == AUTO
+
+
+def auto_units(unit_path: str | None, overrides: tuple[str, ...], model_kw: dict
+               ) -> tuple[dict[str, Unit], list[str]]:
+    """--model auto: the unit in every structure of the library (a --from-dyr record's or unit
+    file's own structure at its values, the others at their typical values with their limits
+    fitted too: `selection.free_limits`; all on its generator), each with the --set overrides it
+    has. Returns the units and a note per override a structure lacks; an
+    override no structure takes is an error (UnitError)."""
+    base = resolve_unit(unit_path, (), **{**model_kw, "model": None})
+    given = {item.split("=", 1)[0].split(".", 1)[0].strip() for item in overrides}
+    units: dict[str, Unit] = {}
+    skipped: dict[str, list[str]] = {}
+    for name in STRUCTURES:
+        u = with_model(base, name)
+        taken = [item for item in overrides if _takes(u, item)]
+        for item in overrides:
+            if item not in taken:
+                skipped.setdefault(item, []).append(name)
+        u = apply_overrides(u, taken)
+        # the limits of the structure a unit file or planning record gives stay as given, as do
+        # those --set names; the typical values of the others are only a start: fitted
+        given_model = u.model == base.model and (model_kw.get("from_dyr") or unit_path) is not None
+        units[name] = u if given_model else free_limits(u, keep=sorted(given))
+    for item, names in skipped.items():
+        if len(names) == len(units):   # no structure has it: the reference structure says why
+            apply_overrides(with_model(base, DEFAULT_MODEL), [item])
+    notes = [f"--set {item} not applied to {', '.join(names)} (not a parameter of theirs)"
+             for item, names in skipped.items()]
+    return units, notes
+
+
+def _takes(unit: Unit, item: str) -> bool:
+    """Whether `--set item` names something the unit's structure has (its own standard names,
+    the generator's, the effects', a weight; the reference structure: every kernel name)."""
+    key = item.split("=", 1)[0].strip()
+    if key.startswith("weights."):
+        return True
+    key = key.split(".", 1)[0]
+    if unit.model == DEFAULT_MODEL:
+        return key in PARAMS
+    return key in unit.structure.names or key in shared_names()
+
+
+def selection_summary(sel: dict[str, Any]) -> str:
+    """The ranking table of --model auto."""
+    head = f"{'rank':<5}{'model':<11}{'k':>3}{'fit x floor':>13}{'check x floor':>15}{'score':>11}  note"
+    lines = ["", f"structure selection ({len(sel['candidates'])} candidates; score: BIC + the check's "
+             "deviance, relative to the first)", head, "-" * len(head)]
+    for c in sel["candidates"]:
+        note = "fits as well (more parameters)" if c["equivalent"] else (c.get("error") or "")
+        if c.get("constraints_violated"):
+            note = "constraint violated: " + ", ".join(c["constraints_violated"])
+        lines.append(f"{c['rank']:<5}{c['model']:<11}{c['k']:>3}{_fmt(c['x_floor'], '.3g'):>13}"
+                     f"{_fmt(c['check_x_floor'], '.3g'):>15}{_fmt(c['score_difference'], '+.1f'):>11}  {note}")
+    best = sel["candidates"][0]
+    if sel["verdict"] == "explains":
+        lines.append(f"{sel['chosen']} explains the record: its fit is at the noise floor "
+                     f"({_fmt(best['x_floor'], '.3g')}x)")
+    elif sel["verdict"] == "closest":
+        lines.append(f"{sel['chosen']} fits best but leaves {_fmt(best['x_floor'], '.3g')}x the noise floor: "
+                     "no structure of the library explains the record (try `bench-ctl diagnose`)")
+    else:
+        lines.append("no structure could be fitted")
+    if sel["equivalent"]:
+        lines.append(f"as good on this record: {', '.join(sel['equivalent'])} (more or as many parameters; "
+                     "a test that separates them is needed to tell them apart)")
+    for note in sel.get("notes", []):
+        lines.append(f"note: {note}")
+    return "\n".join(lines)
