@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench_ctl.diagnosis.selection import free_limits
+from bench_ctl.diagnosis.selection import free_limits, separation_text, where_left
 from bench_ctl.model.dialect import shared_names
 from bench_ctl.model.params import PARAMS
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
@@ -82,11 +82,15 @@ def selection_summary(sel: dict[str, Any]) -> str:
     elif sel["verdict"] == "closest":
         lines.append(f"{sel['chosen']} fits best but leaves {_fmt(best['x_floor'], '.3g')}x the noise floor: "
                      "no structure of the library explains the record (try `bench-ctl diagnose`)")
+        lines += where_left(sel)
     else:
         lines.append("no structure could be fitted")
     if sel["equivalent"]:
-        lines.append(f"as good on this record: {', '.join(sel['equivalent'])} (more or as many parameters; "
-                     "a test that separates them is needed to tell them apart)")
+        lines.append(f"as good on this record: {', '.join(sel['equivalent'])} (more or as many parameters)")
+    sep = separation_text(sel)
+    if sep:
+        lines.append(sep)
     for note in sel.get("notes", []):
         lines.append(f"note: {note}")
     return "\n".join(lines)
+

@@ -38,10 +38,11 @@ from bench_ctl.model.unit import Bound, Unit
 
 from .check import check_parts
 from .diagnose import prepare
-from .localize import DiagnosisError
+from .localize import DiagnosisError, localization
 from .models import Part, Setup
 
-__all__ = ["Candidate", "Selection", "select_structure", "free_limits", "EQUAL_FIT", "LIMITS"]
+__all__ = ["Candidate", "Selection", "select_structure", "free_limits", "where_left", "separation_text", "EQUAL_FIT",
+           "LIMITS"]
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +89,26 @@ class Candidate:
     check_nll: float                 # the check's deviance: sum of n_i ln(mse_i) over its windows
     wall_s: float
     error: str | None = None
+    #: per capture, where its residual lies (`localize.localization`: share and mse per segment
+    #: of the response, share per frequency band)
+    where: tuple[dict[str, Any], ...] = ()
+
+    @property
+    def at_bounds(self) -> list[str]:
+        """Its identified parameters (standard names) that ended on a bound: the structure pressed
+        to follow something it does not have."""
+        if self.ident is None:
+            return []
+        r = self.ident.result
+        out = []
+        for name, v in r.params.items():
+            lo, hi = r.bounds.get(name, (None, None))
+            if lo is None or hi is None or not math.isfinite(v):
+                continue
+            tol = 1e-3 * (hi - lo)
+            if v <= lo + tol or v >= hi - tol:
+                out.append(name)
+        return out
 
     @property
     def check_mse(self) -> float | None:
@@ -103,6 +124,7 @@ class Selection:
     floor: float                          # noise floor of the mean objective (pooled over captures)
     floor_rel_se: float
     equivalent: tuple[str, ...]           # candidates that fit as well as the best one (more parameters)
+    dt: float = 1.0                       # the first capture's sample step (s)
 
     @property
     def best(self) -> Candidate:
@@ -114,6 +136,29 @@ class Selection:
         if not math.isfinite(b.mse):
             return "none_fitted"
         return "explains" if b.mse <= self.floor * (1.0 + FLOOR_SIGMAS * self.floor_rel_se) else "closest"
+
+    def separation(self) -> dict[str, Any] | None:
+        """Where the best two differ most on the record: the segment of the first capture whose
+        mse ratio, weighted by its samples, is largest, and whether that is beyond the noise
+        (EQUAL_FIT in n ln mse); None with fewer than two fitted candidates."""
+        fitted = [c for c in self.candidates if c.where and math.isfinite(c.mse)]
+        if len(fitted) < 2:
+            return None
+        a, b = fitted[0], fitted[1]
+        best_seg, best_w = None, -1.0
+        for sa, sb in zip(a.where[0]["segments"], b.where[0]["segments"]):
+            n = max(1.0, (sa["t1"] - sa["t0"]) / max(self.dt, 1e-12))
+            if sa["mse"] <= 0 or sb["mse"] <= 0:
+                continue
+            w = n * abs(math.log(sb["mse"] / sa["mse"]))
+            if w > best_w:
+                best_seg, best_w = (sa, sb), w
+        if best_seg is None:
+            return None
+        sa, sb = best_seg
+        return {"models": [a.model, b.model], "segment": sa["name"], "t0": sa["t0"], "t1": sa["t1"],
+                "x_floor": [sa["mse"] / self.floor, sb["mse"] / self.floor], "weight": best_w,
+                "separated": bool(best_w > EQUAL_FIT)}
 
     def to_json(self) -> dict[str, Any]:
         """The result's `selection` (docs/formats.md)."""
@@ -144,11 +189,15 @@ class Selection:
                 entry["failed"] = bool(r.failed)
             if c.error:
                 entry["error"] = c.error
+            if c.where:
+                entry["where"] = [dict(w) for w in c.where]
+                entry["at_bounds"] = c.at_bounds
             out.append(entry)
         return {
             "verdict": self.verdict,
             "chosen": best.model,
             "equivalent": list(self.equivalent),
+            "separation": self.separation(),
             "noise_floor": self.floor,
             "candidates": out,
             "rule": "each structure identified on the whole record, then scored as the diagnosis scores a "
@@ -188,11 +237,13 @@ def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals
         return Candidate(model, None, 0, 0, math.inf, (), math.inf, math.inf, time.perf_counter() - t0,
                          error=str(exc))
     k = sum(1 for n in ident.problem.names if n not in EDGE_PARAMS)
-    n_total, sum_nll, parts = 0, 0.0, []
+    n_total, sum_nll, parts, where = 0, 0.0, [], []
     for i, cap in enumerate(captures):
-        _, _, setup = prepare(cap, unit)
+        edges, _, setup = prepare(cap, unit)
         p, x = _capture_x(ident, i, setup)
         mse = float(p.mean_objective(x[None, :])[0])
+        sim = p.simulate(x)[0]["efd"]
+        where.append(localization(np.asarray(cap.efd, float) - sim, cap.dt, edges))
         n_i = cap.n
         n_total += n_i
         sum_nll += n_i * math.log(mse) if 0 < mse < math.inf else math.inf
@@ -208,7 +259,8 @@ def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals
     score = sum_nll + k * math.log(n_total) + check_nll
     if ident.best.violated or math.isnan(score):   # an infeasible fit does not stand for the structure
         score = math.inf
-    return Candidate(model, ident, k, n_total, mse_all, tuple(parts), score, check_nll, time.perf_counter() - t0)
+    return Candidate(model, ident, k, n_total, mse_all, tuple(parts), score, check_nll, time.perf_counter() - t0,
+                     where=tuple(where))
 
 
 def select_structure(captures: Sequence[Capture], units: Mapping[str, Unit], *, max_evals: int = 1000,
@@ -236,7 +288,7 @@ def select_structure(captures: Sequence[Capture], units: Mapping[str, Unit], *, 
         cands.append(c)
         if progress is not None:
             progress(name, c)
-    return rank(cands, floor, rel_se)
+    return replace(rank(cands, floor, rel_se), dt=float(captures[0].dt))
 
 
 def rank(cands: Sequence[Candidate], floor: float, rel_se: float) -> Selection:
@@ -258,3 +310,40 @@ def rank(cands: Sequence[Candidate], floor: float, rel_se: float) -> Selection:
     equivalent = tuple(c.model for c in group if c is not simplest)
     return Selection(tuple(ordered), floor, rel_se, equivalent)
 
+
+def where_left(sel: dict[str, Any]) -> list[str]:
+    """Where the first candidate leaves its residual (segments and bands of the first capture, in
+    x the noise floor and share of the residual energy) and the values it pressed on a bound."""
+    best = sel["candidates"][0]
+    where = (best.get("where") or [None])[0]
+    if not where:
+        return []
+    floor = sel.get("noise_floor") or 0.0
+    segs = sorted(where["segments"], key=lambda g: -g["share"])
+    lines = ["  what is left, where: " + ", ".join(
+        f"{g['name'].replace('_', ' ')} {g['t0']:.2f}-{g['t1']:.2f} s {100 * g['share']:.0f} % "
+        f"({_g(g['mse'] / floor if floor else None)}x floor)" for g in segs if g["share"] >= 0.05)]
+    lines.append("  by band: " + ", ".join(f"{b['name']} ({b['f0_hz']:g}-{b['f1_hz']:g} Hz) {100 * b['share']:.0f} %"
+                                          for b in where["bands"]))
+    if best.get("at_bounds"):
+        lines.append(f"  {best['model']} pressed on a bound: {', '.join(best['at_bounds'])} (it follows "
+                     "something it does not have, or the bounds are too narrow for this unit)")
+    return lines
+
+
+def separation_text(sel: dict[str, Any]) -> str:
+    """Whether this record separates the best two, and where."""
+    sep = sel.get("separation")
+    if not sep:
+        return ""
+    a, b = sep["models"]
+    at = f"the {sep['segment'].replace('_', ' ')} ({sep['t0']:.2f}-{sep['t1']:.2f} s: " \
+         f"{_g(sep['x_floor'][0])}x against {_g(sep['x_floor'][1])}x the floor)"
+    if sep["separated"]:
+        return f"{a} and {b} differ most at {at}: this record separates them"
+    return (f"{a} and {b} differ by less than the noise everywhere (most at {at}): this record does not "
+            "separate them; a test at another level (where a limit acts) or a holdout record would")
+
+
+def _g(v: float | None) -> str:
+    return "-" if v is None else f"{v:.3g}"

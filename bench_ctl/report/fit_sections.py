@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from bench_ctl.diagnosis.selection import separation_text, where_left
 from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.acceptance import SOURCE
@@ -463,10 +464,12 @@ def selection(d: ReportData) -> Section | None:
             else f"{sel.get('chosen')} fits best, but leaves {fmt(num(best.get('x_floor')), 3)}x the noise floor: "
                  "no structure of the library explains the record.")
     if sel.get("equivalent"):
-        text += (f" As good on this record: {', '.join(map(str, sel['equivalent']))}; a test that separates "
-                 "them is needed to tell them apart.")
-    blocks: list[Block] = [
-        Para(text),
+        text += f" As good on this record: {', '.join(map(str, sel['equivalent']))}."
+    blocks: list[Block] = [Para(text)]
+    for line in [*(where_left(sel) if verdict == "closest" else []), separation_text(sel)]:
+        if line:
+            blocks.append(Para(line.strip(), "note"))
+    blocks += [
         table(("rank", "structure", "parameters identified", "fit × noise floor", "check × noise floor",
                "score − best", "note"), rows, id="selection",
               caption="Every structure identified on the record and ranked: " + str(sel.get("rule", ""))),

@@ -15,7 +15,14 @@ from andes_units import fixture_column, generator_values, manifest, read_fixture
 from bench_ctl.capture import Capture, write_capture
 from bench_ctl.cli import main
 from bench_ctl.diagnosis.models import Part
-from bench_ctl.diagnosis.selection import Candidate, free_limits, rank, select_structure
+from bench_ctl.diagnosis.selection import (
+    Candidate,
+    free_limits,
+    rank,
+    select_structure,
+    separation_text,
+    where_left,
+)
 from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
 
 
@@ -95,6 +102,27 @@ def test_the_true_structure_of_an_andes_record_ranks_first(fixture, truth, other
     assert sel.best.model == truth and sel.verdict == "explains"
     loser = sel.candidates[1]
     assert loser.model == other and loser.mse > 2.0 * sel.best.mse and loser.score > sel.best.score + 100
+    # where the two differ: a segment of the response, beyond the noise
+    sep = sel.separation()
+    assert sep["models"] == [truth, other] and sep["separated"] and sep["x_floor"][1] > sep["x_floor"][0]
+    assert "this record separates them" in separation_text(sel.to_json())
+    shares = [g["share"] for g in sel.best.where[0]["segments"]]
+    assert abs(sum(shares) - 1.0) < 1e-9
+
+
+def test_what_is_left_is_said_where_and_in_the_structures_names():
+    where = {"segments": [{"name": "pre_trigger", "t0": 0.0, "t1": 0.5, "share": 0.02, "mse": 1e-4},
+                          {"name": "leading_edge", "t0": 0.5, "t1": 0.7, "share": 0.7, "mse": 3e-3},
+                          {"name": "plateau", "t0": 0.7, "t1": 1.5, "share": 0.28, "mse": 4e-4}],
+             "bands": [{"name": "slow", "f0_hz": 0.0, "f1_hz": 1.0, "share": 0.1},
+                       {"name": "loop", "f0_hz": 1.0, "f1_hz": 10.0, "share": 0.9}]}
+    sel = {"noise_floor": 1e-4, "candidates": [{"model": "ESST5B", "where": [where], "at_bounds": ["KR"]}],
+           "separation": {"models": ["ESST5B", "ESST1A"], "segment": "plateau", "t0": 0.7, "t1": 1.5,
+                          "x_floor": [4.0, 4.1], "weight": 2.0, "separated": False}}
+    text = "\n".join(where_left(sel))
+    assert "leading edge 0.50-0.70 s 70 % (30x floor)" in text and "pre trigger" not in text
+    assert "loop (1-10 Hz) 90 %" in text and "pressed on a bound: KR" in text
+    assert "does not separate them" in separation_text(sel)
 
 
 def test_cli_model_auto_writes_the_ranking_and_the_report_shows_it(tmp_path, capsys):
