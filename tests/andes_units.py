@@ -39,6 +39,8 @@ def standard_params(entry: dict) -> dict[str, float]:
         p["TA"] = p.pop("TATB") * p["TB"]
     if entry["exciter"] == "IEEEX1":
         p["KF"] = p.pop("KF1")
+    if entry["exciter"] == "EXAC1":   # ANDES 2.0's EXAC1 feeds its regulator the bus voltage, not
+        p["TR"] = 0.0                 # its transducer's output (vi = vref - v - VF)
     return p
 
 
