@@ -60,8 +60,9 @@ LIMIT_RANGE = 4.0
 def free_limits(unit: Unit, keep: Sequence[str] = ()) -> Unit:
     """`unit` with its structure's limits (`LIMITS`, those it simulates and holds fixed, except
     `keep`) identified too, from their value: an upper one within LIMIT_RANGE of it each way, a
-    lower one from LIMIT_RANGE times it to 0 (and the kernel's range): an engineer who does not know the exciter does not know its ceilings either, and a
-    structure with a wrong ceiling can lose to a wrong structure whose ceiling is never reached."""
+    lower one from LIMIT_RANGE times it to 0 (and the kernel's range). An engineer who does not
+    know the exciter does not know its ceilings either, and a structure with a wrong ceiling can
+    lose to a wrong structure whose ceiling is never reached."""
     st = unit.structure
     identify, fixed = dict(unit.identify), dict(unit.fixed)
     for name in LIMITS:

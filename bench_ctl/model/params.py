@@ -51,7 +51,8 @@ _CATALOGUE = [
                             "E'q, a GENROU's of psi'' = Vt at no load); 0 otherwise", 0.0, 1.0, 0.0),
     # effects (neutral value = effect off)
     ParamInfo("VRMAX", "pu", "exciter ceiling, upper (ceiling_limit)", 1.05, 20.0, INF),
-    ParamInfo("VRMIN", "pu", "exciter ceiling, lower (ceiling_limit)", -20.0, 0.95, -INF),
+    ParamInfo("VRMIN", "pu", "exciter ceiling, lower (ceiling_limit; a rotating exciter's regulator may stop above 0)",
+              -20.0, 10.0, -INF),
     ParamInfo("VRVT", "1", "ceilings scale with terminal voltage, VRMAX*Vt and VRMIN*Vt (bus-fed static "
                            "exciter; ceiling_limit variant): 1 on, 0 off", 0.0, 1.0, 0.0),
     ParamInfo("KC", "pu", "rectifier loading factor: the upper ceiling drops by KC*Ifd (commutation; "
