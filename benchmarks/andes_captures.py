@@ -2,7 +2,7 @@
 
 A GENROU (T'd0 7.5 s, T''d0 0.05 s, saturation S(1.0) 0.05, S(1.2) 0.2) on its own bus, tied to an
 infinite bus by a line that a Toggle opens at t = 0.05 s: from then on the unit runs at no load.
-Its excitation system is, in turn, ESST1A, SEXS, EXST1, IEEEX1, ESST4B and EXAC1 with published-typical values
+Its excitation system is, in turn, ESST1A, SEXS, EXST1, IEEEX1 and ESST4B with published-typical values
 (varied a little between captures so that nothing can memorise one set). The record starts at
 0.5 s (steady state after the trip); the AVR reference `vref0` is raised by 5, 10 or 20 % of the
 initial terminal voltage for 1 s, at instants off the 1 kHz grid (`EDGE_ON`, `EDGE_OFF` after the
@@ -64,16 +64,6 @@ EXCITERS = {
     # the ceiling VB VMMAX, which moves with Vt and Ifd
     "ESST4B": dict(TR=0.01, KPR=3.15, KIR=3.15, VRMAX=1.0, VRMIN=-0.87, TA=0.02, KPM=1.0, KIM=0.0, VMMAX=0.5,
                    VMMIN=-0.87, KG=0.1, KP=6.5, KI=0.0, VBMAX=8.41, KC=0.08, XL=0.0, THETAP=0.0, VGMAX=20.0),
-    # IEEE 421.5 sample data of AC1A (without its VA limits, which EXAC1 lacks) but KA = 100 and TA =
-    # 0.05 s (at the sample's 400 and 0.02 s ANDES' trapezoid step, 0.2 ms, leaks half a step of the
-    # lag's unlimited slope past a held limit into the exciter's integrator: VR acts 0.1 pu below
-    # VRMIN, measured, and efd drifts 0.04 pu off the equations in 0.5 s) and VRMIN = 1.0: with
-    # the sample's -5.43, or 0, the trailing edge drives VE to 0 (KD Ifd pulls it below), where
-    # FEX(KC Ifd / VE) has no value and ANDES stops (at t = 3.3 s of the 20 % pulse with VRMIN = 0);
-    # ANDES 2.0's EXAC1 computes its transducer but feeds the regulator the bus voltage itself
-    # (vi = vref - v - VF)
-    "EXAC1": dict(TR=0.01, TB=0.0, TC=0.0, KA=100.0, TA=0.05, VRMAX=6.03, VRMIN=1.0, TE=0.8, KF=0.03, TF=1.0,
-                  KC=0.2, KD=0.38, KE=1.0, E1=3.14, SE1=0.03, E2=4.18, SE2=0.1),
 }
 AMPLITUDES = (0.05, 0.10, 0.20)
 SCALED = ("KA", "K", "TA", "TE", "TB", "TC", "TB1", "TC1", "KPR", "KIR")

@@ -39,10 +39,6 @@ def standard_params(entry: dict) -> dict[str, float]:
         p["TA"] = p.pop("TATB") * p["TB"]
     if entry["exciter"] == "IEEEX1":
         p["KF"] = p.pop("KF1")
-    if entry["exciter"] == "EXAC1":   # ANDES 2.0's EXAC1 feeds its regulator the bus voltage, not
-        p["TR"] = 0.0                 # its transducer's output (vi = vref - v - VF)
-        if p["TB"] == p["TC"] == 0.0:   # no lead-lag: the structure's own (typical) bypass
-            del p["TB"], p["TC"]
     return p
 
 
