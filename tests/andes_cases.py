@@ -41,10 +41,15 @@ EFFECTS = ("saturation", "ceiling_limit", "recorder_gain", "time_skew")
 WIDE = 20.0   # the physical range of the limit parameters (bench_ctl.model.params)
 
 
+#: the exciters of the fixtures the suite was measured on (EXAC1's joined the fixtures later: with
+#: them the j-th case of an effect would draw another fixture, and the figures would not compare)
+SUITE_EXCITERS = ("ESST1A", "ESST4B", "EXST1", "IEEEX1", "SEXS")
+
+
 def eligible(effect: str) -> list[str]:
     """The fixtures a case of `effect` can be drawn from."""
     caps = manifest()["captures"]
-    names = sorted(caps)
+    names = sorted(n for n in caps if caps[n]["exciter"] in SUITE_EXCITERS)
     if effect == "ceiling_limit":
         return [n for n in names if caps[n]["exciter"] != "EXST1"
                 and caps[n]["ceiling_ms"] + caps[n]["floor_ms"] > 0]

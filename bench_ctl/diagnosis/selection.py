@@ -59,9 +59,10 @@ LIMIT_RANGE = 4.0
 
 def free_limits(unit: Unit, keep: Sequence[str] = ()) -> Unit:
     """`unit` with its structure's limits (`LIMITS`, those it simulates and holds fixed, except
-    `keep`) identified too, from their value within LIMIT_RANGE of it each way (and the kernel's
-    range): an engineer who does not know the exciter does not know its ceilings either, and a
-    structure with a wrong ceiling can lose to a wrong structure whose ceiling is never reached."""
+    `keep`) identified too, from their value: an upper one within LIMIT_RANGE of it each way, a
+    lower one from LIMIT_RANGE times it to 0 (and the kernel's range). An engineer who does not
+    know the exciter does not know its ceilings either, and a structure with a wrong ceiling can
+    lose to a wrong structure whose ceiling is never reached."""
     st = unit.structure
     identify, fixed = dict(unit.identify), dict(unit.fixed)
     for name in LIMITS:
@@ -71,7 +72,8 @@ def free_limits(unit: Unit, keep: Sequence[str] = ()) -> Unit:
         if k is None or k in identify or k not in fixed or not math.isfinite(fixed[k]) or fixed[k] == 0.0:
             continue
         v, info = fixed.pop(k), PARAMS[k]
-        lo, hi = sorted((v / LIMIT_RANGE, v * LIMIT_RANGE))
+        # a lower limit may be 0 (a one-quadrant bridge, a diode rectifier's exciter)
+        lo, hi = (v / LIMIT_RANGE, v * LIMIT_RANGE) if v > 0 else (v * LIMIT_RANGE, 0.0)
         identify[k] = Bound(v, max(lo, info.lo), min(hi, info.hi))
     return replace(unit, identify=identify, fixed=fixed)
 

@@ -43,6 +43,8 @@ FIELDS: dict[str, tuple[str, ...]] = {
                "VBMAX", "KC", "XL", "THETAP"),
     "ESST5B": ("TR", "KR", "T1", "KC", "VRMAX", "VRMIN", "TC1", "TB1", "TC2", "TB2", "TOC1", "TOB1", "TOC2",
                "TOB2", "TUC1", "TUB1", "TUC2", "TUB2"),
+    "EXAC1": ("TR", "TB", "TC", "KA", "TA", "VRMAX", "VRMIN", "TE", "KF", "TF", "KC", "KD", "KE", "E1", "SE1", "E2",
+              "SE2"),
 }
 ICONS: dict[str, tuple[str, ...]] = {"ESST1A": ("UEL", "VOS")}
 DESCRIPTION = {
@@ -51,6 +53,7 @@ DESCRIPTION = {
     "ESST1A": "IEEE 421.5 ST1A static exciter", "IEEEX1": "IEEE type 1 DC exciter",
     "ESST4B": "IEEE 421.5 ST4B potential-source static exciter",
     "ESST5B": "IEEE 421.5 ST5B static exciter",
+    "EXAC1": "IEEE type AC1 rotating exciter",
 }
 
 _TOKEN = re.compile(r"'[^']*'|\"[^\"]*\"|[^\s']+")

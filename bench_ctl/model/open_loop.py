@@ -48,7 +48,7 @@ def _open_loop(D, t0, dt, T, uref0, etimes, ejumps, vt, ifd, out):
     x2 = D[K.D_E0, 0]
     ef = D[K.D_EFD0, 0]
     xf = D[K.D_XF0, 0]
-    xe = D[K.D_OUT0, 0]
+    xe = D[K.D_XE0, 0]
     ne = etimes.shape[0]
     cuts = np.empty(ne + 2)
     for k in range(T):

@@ -51,7 +51,8 @@ _CATALOGUE = [
                             "E'q, a GENROU's of psi'' = Vt at no load); 0 otherwise", 0.0, 1.0, 0.0),
     # effects (neutral value = effect off)
     ParamInfo("VRMAX", "pu", "exciter ceiling, upper (ceiling_limit)", 1.05, 20.0, INF),
-    ParamInfo("VRMIN", "pu", "exciter ceiling, lower (ceiling_limit)", -20.0, 0.95, -INF),
+    ParamInfo("VRMIN", "pu", "exciter ceiling, lower (ceiling_limit; a rotating exciter's regulator may stop above 0)",
+              -20.0, 10.0, -INF),
     ParamInfo("VRVT", "1", "ceilings scale with terminal voltage, VRMAX*Vt and VRMIN*Vt (bus-fed static "
                            "exciter; ceiling_limit variant): 1 on, 0 off", 0.0, 1.0, 0.0),
     ParamInfo("KC", "pu", "rectifier loading factor: the upper ceiling drops by KC*Ifd (commutation; "
@@ -75,6 +76,11 @@ _CATALOGUE = [
     ParamInfo("SE1", "pu", "DC exciter saturation SE(E1)", 0.0, 5.0, 0.0),
     ParamInfo("E2", "pu", "DC exciter saturation: second Efd point", 0.0, 20.0, 0.0),
     ParamInfo("SE2", "pu", "DC exciter saturation SE(E2)", 0.0, 5.0, 0.0),
+    ParamInfo("ACEX", "1", "AC exciter (1, with TEX > 0): that exciter's state is VE, the field voltage "
+                           "VE FEX(KC Ifd / VE) (IEEE 421.5 rectifier regulation, KC then not on the ceiling), "
+                           "its feedback VFE = KE VE + SE(VE) VE + KD Ifd, which the rate feedback takes; "
+                           "0: a DC exciter", 0.0, 1.0, 0.0),
+    ParamInfo("KD", "pu", "AC exciter demagnetising factor: KD Ifd in VFE", 0.0, 5.0, 0.0),
     ParamInfo("LIMOUT", "1", "ceilings clamp the output (1: the regulator lag itself is not limited, as "
                              "ESST1A/EXST1) instead of a non-windup limit on the lag (0)", 0.0, 1.0, 0.0),
     ParamInfo("VRIN", "1", "the ST5B regulator (1): its output KAVR y limited to [VRMIN, VRMAX], less KC*Ifd, is "
@@ -114,7 +120,8 @@ GENERATOR_PARAMS = ("Td0p", "Td0pp", "Vt0")
 #: generator constants a unit file may give (neutral when absent)
 GENERATOR_OPTIONAL = ("KPP", "KDA", "SATEQ")
 #: blocks of the standard structures beyond the reference one (neutral: the block is absent)
-STRUCTURE_PARAMS = ("KPP", "KDA", "SATEQ", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "LIMOUT", "VRIN",
+STRUCTURE_PARAMS = ("KPP", "KDA", "SATEQ", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "ACEX", "KD",
+                    "LIMOUT", "VRIN",
                     "KPV", "VBMAX", "KPI", "KII", "VPMAX", "VPMIN", "KPM", "KIM", "VMMAX", "VMMIN", "KG")
 #: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
 RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")

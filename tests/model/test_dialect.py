@@ -40,6 +40,10 @@ MAPPING = {
     "ESST5B": ({"TR": "TR", "KR": "KAVR", "T1": "TE", "KC": "KC", "VRMAX": "VRMAX", "VRMIN": "VRMIN",
                 "TC1": "TA1", "TB1": "TA2", "TC2": "TA3", "TB2": "TA4"},
                {"VRIN": 1.0, "VRVT": 1.0, "LIMOUT": 0.0}),
+    "EXAC1": ({"TR": "TR", "TB": "TA2", "TC": "TA1", "KA": "KAVR", "TA": "TE", "VRMAX": "VRMAX", "VRMIN": "VRMIN",
+               "TE": "TEX", "KF": "KF", "TF": "TF", "KC": "KC", "KD": "KD", "KE": "KE", "E1": "E1", "SE1": "SE1",
+               "E2": "E2", "SE2": "SE2"},
+              {"TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "LIMOUT": 0.0, "ACEX": 1.0}),
 }
 
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from .jit import njit
 from .layout import (
+    D_ACON,
     D_DCON,
     D_E0,
     D_EFD0,
@@ -28,7 +29,9 @@ from .layout import (
     D_ITF,
     D_KAVR,
     D_KC,
+    D_KCAC,
     D_KCIN,
+    D_KD,
     D_KDA,
     D_KE,
     D_KFT,
@@ -39,7 +42,6 @@ from .layout import (
     D_KPP,
     D_KPV,
     D_LIMOUT,
-    D_OUT0,
     D_P1,
     D_R1,
     D_R2,
@@ -57,6 +59,7 @@ from .layout import (
     D_VRMIN,
     D_VRVT,
     D_VT0,
+    D_XE0,
     D_XF0,
     D_Y1MAX,
     D_Y1MIN,
@@ -114,10 +117,28 @@ def lead_lag_or_pi(D, i, e, x1):
 
 
 @njit()
-def rate_feedback(D, i, ef, xf, xe):
-    """Rate feedback KF s/(1 + s TF) of the exciter output (DC) or the regulator output (static)."""
+def rate_feedback(D, i, ef, xf, xe, eqp, eqpp):
+    """Rate feedback KF s/(1 + s TF) of the exciter output (DC), the AC exciter's VFE or the
+    regulator output (static)."""
+    ifd = field_current(D, i, eqp, eqpp, terminal_voltage(D, i, eqp, eqpp))
+    return D[D_KFT, i] * (feedback_source(D, i, ef, xe, ifd) - xf)
+
+
+@njit()
+def feedback_source(D, i, ef, xe, ifd):
+    """What the rate feedback differentiates: the regulator output, the DC exciter's Efd or the AC
+    exciter's VFE = KE VE + SE(VE) + KD Ifd (selected, not branched)."""
     src = ef + D[D_DCON, i] * (xe - ef)
-    return D[D_KFT, i] * (src - xf)
+    return src + D[D_ACON, i] * (exciter_feedback(D, i, xe, ifd) - src)
+
+
+@njit()
+def exciter_feedback(D, i, xe, ifd):
+    """The rotating exciter's feedback into its integrator: KE x + SE(x) x, + KD Ifd (KD = 0 but
+    for an AC exciter)."""
+    dx = xe - D[D_SEA, i]
+    dx = dx if dx > 0.0 else 0.0
+    return D[D_KE, i] * xe + D[D_SEB, i] * dx * dx + D[D_KD, i] * ifd
 
 # ---- generator at no load: terminal voltage, field current -------------------------------------
 
@@ -168,17 +189,19 @@ def field_current(D, i, eqp, eqpp, vt):
 # ---- exciter ceilings (ceiling_limit) ----------------------------------------------------------
 
 
-def derive_ceilings(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, st4: np.ndarray) -> np.ndarray:
+def derive_ceilings(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, st4: np.ndarray,
+                    ac: np.ndarray) -> np.ndarray:
     """The ceilings, their variants (bus-fed, commutation) and whether they clamp the output rather
     than the regulator lag (LIMOUT; not with a DC exciter). The ST5B regulator (VRIN; a static
     exciter without the potential-source stage) moves the commutation drop KC*Ifd from the upper
     ceiling to the lag's input and limits the first lead-lag's output to [VRMIN, VRMAX]/KAVR.
+    An AC exciter's KC is its rectifier's (`rectifier`), not on the ceiling.
     Returns where the ST5B regulator is on."""
     vrin = valid & ~dc & ~st4 & (g["VRIN"] > 0.5)
     D[:, D_VRMAX] = g["VRMAX"]
     D[:, D_VRMIN] = g["VRMIN"]
     D[:, D_VRVT] = np.where(valid, g["VRVT"], 0.0)
-    D[:, D_KC] = np.where(valid & ~vrin, g["KC"], 0.0)
+    D[:, D_KC] = np.where(valid & ~vrin & ~ac, g["KC"], 0.0)   # (an AC exciter's KC is its FEX's)
     D[:, D_LIMOUT] = np.where(valid & ~dc, g["LIMOUT"] > 0.5, False).astype(np.float64)
     D[:, D_VRIN] = vrin.astype(np.float64)
     D[:, D_KCIN] = np.where(vrin, g["KC"], 0.0)
@@ -254,6 +277,22 @@ def derive_potential_source(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.
 
 
 @njit()
+def rectifier(ve, kc_ifd):
+    """VE FEX(KC Ifd / VE): the rectifier regulation characteristic of IEEE 421.5 (VE at least
+    1e-6). Branch-free selects."""
+    ve = ve if ve > 1.0e-6 else 1.0e-6
+    x = kc_ifd / ve
+    q = 0.75 - x * x
+    q = q if q > 0.0 else 0.0
+    f = 1.732 * (1.0 - x)
+    f = f if x <= 1.0 else 0.0
+    f = math.sqrt(q) if x <= 0.75 else f
+    f = 1.0 - 0.577 * x if x <= 0.433 else f
+    f = 1.0 if x <= 0.0 else f
+    return ve * f
+
+
+@njit()
 def bridge_voltage(D, i, vt, ifd):
     """VB = VE FEX(IN), VE = KP Vt (no load: no current term), IN = KC Ifd / VE, at most VBMAX:
     the rectifier regulation characteristic of IEEE 421.5 (ESST4B). Branch-free selects."""
@@ -322,16 +361,21 @@ def exciter_saturation_ab(e1, se1, e2, se2) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
-def derive_dc_exciter(D: np.ndarray, g: Params, valid: np.ndarray) -> np.ndarray:
-    """The DC exciter (TEX > 0): 1 / TEX, KE, its saturation; returns where it is on."""
+def derive_dc_exciter(D: np.ndarray, g: Params, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotating exciter (TEX > 0): 1 / TEX, KE, its saturation, and for an AC exciter (ACEX)
+    KD and the rectifier's KC. Returns where one is on and where it is an AC exciter."""
     dc = valid & (g["TEX"] > 0.0)
+    ac = dc & (g["ACEX"] > 0.5)
     sea, seb = exciter_saturation_ab(g["E1"], g["SE1"], g["E2"], g["SE2"])
     D[:, D_ITEX] = np.where(dc, 1.0 / np.where(dc, g["TEX"], 1.0), 0.0)
     D[:, D_DCON] = dc.astype(np.float64)
     D[:, D_KE] = np.where(dc, g["KE"], 0.0)
     D[:, D_SEA] = np.where(dc, sea, 0.0)
     D[:, D_SEB] = np.where(dc, seb, 0.0)
-    return dc
+    D[:, D_ACON] = ac.astype(np.float64)
+    D[:, D_KD] = np.where(ac, g["KD"], 0.0)
+    D[:, D_KCAC] = np.where(ac, g["KC"], 0.0)
+    return dc, ac
 
 
 @njit()
@@ -346,6 +390,9 @@ def field_voltage(D, i, ef, eqp, eqpp, xf, xe):
     if D[D_ST4, i] != 0.0:   # a branch: the loops that record the output do not vectorise
         vt = terminal_voltage(D, i, eqp, eqpp)
         return potential_source(D, i, ef, xf, vt, field_current(D, i, eqp, eqpp, vt), hi, lo)[0]
+    if D[D_ACON, i] != 0.0:
+        vt = terminal_voltage(D, i, eqp, eqpp)
+        return rectifier(xe, D[D_KCAC, i] * field_current(D, i, eqp, eqpp, vt))
     return efc + D[D_DCON, i] * (xe - efc)
 
 # ---- history reads: the dead time's delayed VR, the recorder skew's Hermite interpolation ------
@@ -393,4 +440,4 @@ def steady_state(D, i):
     """The 8 states at the steady state at Vt0 (`derive`): where a run starts and where a failed
     candidate is parked so that its arithmetic stays finite."""
     vt0 = D[D_VT0, i]
-    return vt0, D[D_E0, i], D[D_E0, i], D[D_EFD0, i], vt0, vt0, D[D_XF0, i], D[D_OUT0, i]
+    return vt0, D[D_E0, i], D[D_E0, i], D[D_EFD0, i], vt0, vt0, D[D_XF0, i], D[D_XE0, i]

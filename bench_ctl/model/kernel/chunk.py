@@ -14,6 +14,7 @@ from .jit import njit
 from .layout import (
     BLOWUP,
     CHUNK,
+    D_ACON,
     D_DCON,
     D_EDGE0,
     D_GAIN,
@@ -153,7 +154,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
     st4_all = True
     for c in range(m):
         if (D[D_KFT, c] != 0.0 or D[D_DCON, c] != 0.0 or D[D_LIMOUT, c] != 0.0 or D[D_KPP, c] != 0.0
-                or D[D_KDA, c] != 0.0 or D[D_ST4, c] != 0.0 or D[D_VRIN, c] != 0.0):
+                or D[D_KDA, c] != 0.0 or D[D_ST4, c] != 0.0 or D[D_VRIN, c] != 0.0 or D[D_ACON, c] != 0.0):
             full = True
         if D[D_ST4, c] != 0.0:
             st4 = True
@@ -257,7 +258,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
                 td = D[D_TD, c]
                 if td > 0.0:
                     vm0 = S[0, c] if D[D_ITR, c] > 0.0 else terminal_voltage(D, c, S[4, c], S[5, c])
-                    vf = rate_feedback(D, c, S[3, c], S[6, c], S[7, c])
+                    vf = rate_feedback(D, c, S[3, c], S[6, c], S[7, c], S[4, c], S[5, c])
                     vr_r[c, k % L] = avr(D, c, ua[c], vm0, S[1, c], S[2, c], vf)[0]
                     jf[c, k % L] = 0.0
                     base = k - td / dt
@@ -364,7 +365,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
                 i = lo + c
                 if D[D_TD, c] > 0.0:  # left limit of VR at t_k+1 (state k+1, input of step k)
                     vm = S[0, c] if D[D_ITR, c] > 0.0 else terminal_voltage(D, c, S[4, c], S[5, c])
-                    vf = rate_feedback(D, c, S[3, c], S[6, c], S[7, c])
+                    vf = rate_feedback(D, c, S[3, c], S[6, c], S[7, c], S[4, c], S[5, c])
                     vr_l[c, (k + 1) % L] = avr(D, c, ub[c], vm, S[1, c], S[2, c], vf)[0]
     for c in range(m):
         i = lo + c

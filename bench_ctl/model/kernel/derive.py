@@ -29,9 +29,12 @@ from .layout import (
     D_ITR,
     D_KAVR,
     D_KC,
+    D_KCAC,
     D_KCIN,
+    D_KD,
     D_KE,
     D_OUT0,
+    D_OUTK,
     D_RAMP,
     D_RATE,
     D_SEA,
@@ -44,6 +47,7 @@ from .layout import (
     D_VALID,
     D_VR0,
     D_VRVT,
+    D_XE0,
     D_XF0,
     N_DERIVED,
 )
@@ -60,13 +64,13 @@ def derive(P: np.ndarray) -> np.ndarray:
         valid = _valid(g)
         D[:, D_VALID] = valid.astype(np.float64)
         vt0, fld0 = derive_generator(D, g, valid)
-        dc = derive_dc_exciter(D, g, valid)
+        dc, ac = derive_dc_exciter(D, g, valid)
         st4 = derive_potential_source(D, g, valid, dc)
         derive_regulator(D, g, valid, st4)
         derive_rate_feedback(D, g, valid)
-        vrin = derive_ceilings(D, g, valid, dc, st4)
+        vrin = derive_ceilings(D, g, valid, dc, st4, ac)
         _effects(D, g, valid)
-        _steady_state(D, g, valid, dc, st4, vrin, vt0, fld0)
+        _steady_state(D, g, valid, dc, ac, st4, vrin, vt0, fld0)
     return D
 
 
@@ -82,6 +86,7 @@ def _valid(g: Params) -> np.ndarray:
     valid &= (g["VRVT"] >= 0.0) & (g["VRVT"] <= 1.0) & (g["KC"] >= 0.0) & np.isfinite(g["KC"])
     valid &= np.isfinite(g["KF"]) & (g["KF"] >= 0.0) & ((g["KF"] == 0.0) | (g["TF"] > 0.0))
     valid &= np.isfinite(g["TEX"]) & (g["TEX"] >= 0.0) & np.isfinite(g["KE"])
+    valid &= np.isfinite(g["KD"]) & (g["KD"] >= 0.0) & np.isfinite(g["ACEX"])
     valid &= (g["KPP"] >= 0.0) & (g["KPP"] <= 1.0) & (g["KDA"] >= 0.0) & np.isfinite(g["KDA"])
     valid &= np.isfinite(g["KPV"]) & (g["KPV"] >= 0.0) & (g["VBMAX"] > 0.0)
     for name in ("KPI", "KII", "KPM", "KIM", "KG"):
@@ -107,15 +112,32 @@ def _effects(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
         D[:, D_EDGE0 + slot] = np.where(valid, g[name], 0.0)
 
 
-def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, st4: np.ndarray,
+def _ac_exciter_ve(fld0: np.ndarray, kc_ifd: np.ndarray) -> np.ndarray:
+    """The AC exciter's VE at which VE FEX(KC Ifd / VE) gives the field voltage fld0 (Ifd = fld0
+    at no load): VE FEX is increasing in VE, so bisection between fld0 and fld0 + 2 KC Ifd + 1."""
+    lo = np.maximum(fld0, 1.0e-6)
+    hi = lo + 2.0 * np.abs(kc_ifd) + 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        low = bridge_voltage_np(mid, kc_ifd, np.inf) < fld0
+        lo = np.where(low, mid, lo)
+        hi = np.where(low, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, ac: np.ndarray, st4: np.ndarray,
                   vrin: np.ndarray, vt0: np.ndarray, fld0: np.ndarray) -> None:
     """The steady state at Vt0 the run starts from (`blocks.steady_state`): the regulator lag's
     output, the lead-lags' states, the reference, the output, the rate feedback's state. A DC
-    exciter needs VR = (KE + SE(Efd)) Efd from the regulator, a static one Efd itself; the
+    exciter needs VR = (KE + SE(Efd)) Efd from the regulator, an AC one VR = VFE = KE VE +
+    SE(VE) + KD Ifd with VE FEX(KC Ifd / VE) = Efd, a static one Efd itself; the
     potential-source stage Efd = VB VM, its regulator's error 0 and its PI and lag at KG Efd, the
     inner integrator at Efd / VB (as ANDES initialises it). The ST5B regulator's output is Efd + KC Ifd
     (within [VRMIN, VRMAX])."""
-    efd0 = np.where(dc, D[:, D_KE] * fld0 + D[:, D_SEB] * np.maximum(fld0 - D[:, D_SEA], 0.0) ** 2, fld0)
+    # the rotating exciter's state: its Efd (DC) or VE (AC: Efd = VE FEX(KC Ifd / VE))
+    xe0 = np.where(ac, _ac_exciter_ve(fld0, D[:, D_KCAC] * fld0), fld0)
+    efd0 = np.where(dc, D[:, D_KE] * xe0 + D[:, D_SEB] * np.maximum(xe0 - D[:, D_SEA], 0.0) ** 2
+                    + D[:, D_KD] * fld0, fld0)
     vb0 = bridge_voltage_np(np.where(st4, g["KPV"], 1.0) * vt0, np.where(valid, g["KC"], 0.0) * fld0, g["VBMAX"])
     efd0 = np.where(st4, np.where(st4, g["KG"], 0.0) * fld0, efd0)
     # Ifd = E'q + Sat(E'q) = efd0, the limits at Vt0
@@ -129,5 +151,9 @@ def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, s
     D[:, D_UREF0] = vt0 + np.where(st4, 0.0, D[:, D_E0])
     # the output: the DC exciter's Efd, VB VM of the potential source, else the regulator output
     D[:, D_OUT0] = np.where(st4, fld0, np.where(dc, fld0, D[:, D_EFD0]))
-    D[:, D_XF0] = np.where(st4, fld0 / np.where(st4, vb0, 1.0),
-                           D[:, D_EFD0] + D[:, D_DCON] * (D[:, D_OUT0] - D[:, D_EFD0]))
+    D[:, D_XE0] = np.where(dc, xe0, D[:, D_OUT0])
+    D[:, D_OUTK] = np.where(ac, fld0 / np.where(ac, xe0, 1.0), 1.0)
+    # the rate feedback's source: the regulator output, the DC exciter's Efd, the AC exciter's VFE
+    # (= the regulator output at the steady state)
+    src0 = np.where(ac, D[:, D_EFD0], D[:, D_EFD0] + D[:, D_DCON] * (D[:, D_OUT0] - D[:, D_EFD0]))
+    D[:, D_XF0] = np.where(st4, fld0 / np.where(st4, vb0, 1.0), src0)

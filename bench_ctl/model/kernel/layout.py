@@ -70,6 +70,12 @@ COLUMNS: tuple[tuple[str, int, str], ...] = (
     ("VMMIN", 1, "inner PI: lower limit"),
     ("KG", 1, "inner loop feedback gain KG"),
     ("XF0", 1, "state 6 at the steady state (rate feedback, or the inner integrator)"),
+    # the AC exciter (EXAC1): the DC exciter's state is VE
+    ("ACON", 1, "1 with an AC exciter: Efd = VE FEX(KCAC Ifd / VE), VFE = KE VE + SE(VE) + KD Ifd"),
+    ("KD", 1, "AC exciter: KD, the demagnetising Ifd in VFE"),
+    ("KCAC", 1, "AC exciter: KC of the rectifier's FEX (D_KC is then 0)"),
+    ("XE0", 1, "state 7 at the steady state: the DC exciter's Efd or the AC exciter's VE"),
+    ("OUTK", 1, "the output's slope per the exciter state's: 1 (DC), FEX at the steady state (AC)"),
 )
 
 

@@ -6,14 +6,18 @@ from __future__ import annotations
 from .blocks import (
     ceilings,
     ceilings_ref,
+    exciter_feedback,
+    feedback_source,
     field_current,
     lead_lag_or_pi,
     potential_source,
+    rectifier,
     regulator_input,
     terminal_voltage,
 )
 from .jit import njit
 from .layout import (
+    D_ACON,
     D_DCON,
     D_IT2,
     D_IT4,
@@ -25,8 +29,8 @@ from .layout import (
     D_ITR,
     D_KAVR,
     D_KC,
+    D_KCAC,
     D_KDA,
-    D_KE,
     D_KFT,
     D_KG,
     D_KI1,
@@ -39,8 +43,6 @@ from .layout import (
     D_SATA,
     D_SATB,
     D_SATVT,
-    D_SEA,
-    D_SEB,
     D_ST4,
     D_TDON,
     D_TRON,
@@ -65,7 +67,8 @@ def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
     tron = D[D_TRON, i]
     vt = terminal_voltage(D, i, eqp, eqpp)
     vm = tron * xm + (1.0 - tron) * vt
-    src = ef if st4 == ST4_ALL else ef + D[D_DCON, i] * (xe - ef)
+    ifd = field_current(D, i, eqp, eqpp, vt)
+    src = ef if st4 == ST4_ALL else feedback_source(D, i, ef, xe, ifd)
     e = uref - vm - D[D_KFT, i] * (src - xf)
     y1, ys1 = lead_lag_or_pi(D, i, e, x1)
     y2 = x2 + D[D_R2, i] * (y1 - x2)
@@ -77,7 +80,7 @@ def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
     tdon = D[D_TDON, i]
     drive = vr + tdon * (vrd - vr)
     if st4 != ST4_ALL:   # the ST5B regulator's limit and commutation drop at the lag's input
-        drive = regulator_input(D, i, drive, field_current(D, i, eqp, eqpp, vt))
+        drive = regulator_input(D, i, drive, ifd)
     # plain compare-and-select (numba's min/max carry NaN branches that stop the vectoriser)
     rate = D[D_RATE, i]
     de = (drive - ef) * D[D_ITE, i]
@@ -94,7 +97,7 @@ def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
     if st4 == ST4_ALL:
         # the potential-source stage alone (ESST4B): Efd = VB VM, state 6 the inner PI's
         # integrator (tracking anti-windup as ANDES' PITrackAW); no DC exciter
-        f4, vm4, ys4, _vb4 = potential_source(D, i, ef, xf, vt, field_current(D, i, eqp, eqpp, vt), hi, lo)
+        f4, vm4, ys4, _vb4 = potential_source(D, i, ef, xf, vt, ifd, hi, lo)
         fld = f4
         dxf = D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4))
         dxe = 0.0
@@ -104,15 +107,15 @@ def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
         efc = ef + limout * (efc - ef)
         dcon = D[D_DCON, i]
         fld = efc + dcon * (xe - efc)
-        dx = xe - D[D_SEA, i]
-        dx = dx if dx > 0.0 else 0.0
-        dxe = (efc - D[D_KE, i] * xe - D[D_SEB, i] * dx * dx) * D[D_ITEX, i]
+        # the AC exciter's output VE FEX(KC Ifd / VE) (selected: the loop vectorises)
+        fld = fld + D[D_ACON, i] * (rectifier(xe, D[D_KCAC, i] * ifd) - fld)
+        dxe = (efc - exciter_feedback(D, i, xe, ifd)) * D[D_ITEX, i]
         dxf = (src - xf) * D[D_ITF, i]
         # the potential-source stage where a candidate has it, selected, not branched, so the
         # loop vectorises
         if st4 == ST4_SOME:
             s4 = D[D_ST4, i]
-            f4, vm4, ys4, _vb4 = potential_source(D, i, ef, xf, vt, field_current(D, i, eqp, eqpp, vt), hi, lo)
+            f4, vm4, ys4, _vb4 = potential_source(D, i, ef, xf, vt, ifd, hi, lo)
             fld = fld + s4 * (f4 - fld)
             dxf = dxf + s4 * (D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4)) - dxf)
     deqp = (fld - eqp - D[D_KDA, i] * (eqp - eqpp) - D[D_SATB, i] * d * d) * D[D_ITD0P, i]

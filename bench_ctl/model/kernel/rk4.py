@@ -19,7 +19,7 @@ from .blocks import (
     terminal_voltage,
 )
 from .jit import njit
-from .layout import CHUNK, D_DCON, D_ITR, D_LIMOUT, D_RAMP, D_VR0, N_DERIVED, ST4_ALL, ST4_NONE, ST4_SOME
+from .layout import CHUNK, D_DCON, D_ITR, D_LIMOUT, D_OUTK, D_RAMP, D_VR0, N_DERIVED, ST4_ALL, ST4_NONE, ST4_SOME
 from .rhs import rhs, rhs_ref
 
 # ---- the RK4 step of one candidate -------------------------------------------------------------
@@ -51,8 +51,9 @@ def rk4_step(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, x6, x7, h, st4=ST
     # the output's slope at both ends (for the recorder-skew readout): the DC exciter's or the
     # regulator lag's, or VB dVM/dt of the potential-source stage (at the end: at the state of
     # RK4's last stage, as for the others)
-    m0 = a[3] + dcon * (a[7] - a[3])
-    m1 = d[3] + dcon * (d[7] - d[3])
+    outk = D[D_OUTK, i]   # (the AC exciter's Efd = VE FEX: FEX's own change left out)
+    m0 = a[3] + dcon * (outk * a[7] - a[3])
+    m1 = d[3] + dcon * (outk * d[7] - d[3])
     if st4 != ST4_NONE:
         m0 = output_slope(D, i, x3, x6, x4, x5, a[3], a[6], m0, st4)
         m1 = output_slope(D, i, x3 + h * c[3], x6 + h * c[6], x4 + h * c[4], x5 + h * c[5], d[3], d[6], m1, st4)
@@ -261,7 +262,7 @@ def split_step(D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, v
         if q < nbrk and bj[q] != 0.0:
             if td_on and not ramp_on:  # VR jumps here: keep both limits for the delayed reads
                 vmeas = x0 if D[D_ITR, c] > 0.0 else terminal_voltage(D, c, x4, x5)
-                vf = rate_feedback(D, c, x3, x6, x7)
+                vf = rate_feedback(D, c, x3, x6, x7, x4, x5)
                 vjl[c, k % L] = avr(D, c, tg, vmeas, x1, x2, vf)[0]
                 vjr[c, k % L] = avr(D, c, tg + bj[q], vmeas, x1, x2, vf)[0]
                 jf[c, k % L] = sb

@@ -231,7 +231,7 @@ def declare(*, name: str, title: str, params: tuple[Param, ...], blocks: tuple[B
                      lead_lags=lead_lags, swaps=swaps, source=source, blocks=placed)
 
 
-_MODULES = ("reference", "sexs", "exst1", "esst1a", "ieeex1", "esst4b", "esst5b")
+_MODULES = ("reference", "sexs", "exst1", "esst1a", "ieeex1", "esst4b", "esst5b", "exac1")
 DEFAULT = "REFERENCE"
 
 

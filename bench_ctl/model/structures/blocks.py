@@ -109,6 +109,9 @@ class RegulatorLag(Block):
     vt_scaled: bool | None = None
     output_clamp: bool | None = None
     kc: str | None = None
+    #: the kernel's KC belongs to another block (an AC exciter's rectifier): no commutation drop
+    #: here, and KC not set to 0 either
+    kc_elsewhere: bool = False
     kind = "regulator lag"
 
     def wiring(self) -> dict[str, str]:
@@ -131,7 +134,7 @@ class RegulatorLag(Block):
             out["VRVT"] = float(self.vt_scaled)
         if self.output_clamp is not None:
             out["LIMOUT"] = float(self.output_clamp)
-        if self.upper is not None and self.kc is None:
+        if self.upper is not None and self.kc is None and not self.kc_elsewhere:
             out["KC"] = 0.0
         return out
 
@@ -203,6 +206,35 @@ class DCExciter(Block):
     def line(self) -> str:
         return (f"{self.T} dEfd/dt = VR - ({self.KE} + SE(Efd)) Efd,  SE(Efd) Efd = B (Efd - A)^2 through "
                 f"({self.E1}, {self.SE1}), ({self.E2}, {self.SE2})")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ACExciter(Block):
+    """A rotating AC exciter with a diode rectifier (IEEE 421.5 AC1A family): the DC exciter's
+    integrator on VE with the demagnetising KD Ifd in its feedback, and the rectifier's
+    regulation FEX(KC Ifd / VE) on its output."""
+    T: str
+    KE: str
+    KD: str
+    KC: str
+    E1: str
+    SE1: str
+    E2: str
+    SE2: str
+    kind = "AC exciter"
+
+    def wiring(self) -> dict[str, str]:
+        return {self.T: "TEX", self.KE: "KE", self.KD: "KD", self.KC: "KC", self.E1: "E1", self.SE1: "SE1",
+                self.E2: "E2", self.SE2: "SE2"}
+
+    def settings(self) -> dict[str, float]:
+        return {"ACEX": 1.0}
+
+    def line(self) -> str:
+        return (f"{self.T} dVE/dt = VR - VFE,  VFE = {self.KE} VE + SE(VE) VE + {self.KD} Ifd,  SE(VE) VE = "
+                f"B (VE - A)^2 through ({self.E1}, {self.SE1}), ({self.E2}, {self.SE2});  Efd = VE FEX(IN), "
+                f"IN = {self.KC} Ifd / VE (FEX: 1 - 0.577 IN to 0.433, sqrt(0.75 - IN^2) to 0.75, "
+                "1.732 (1 - IN) to 1)")
 
 
 @dataclass(frozen=True, kw_only=True)
