@@ -48,7 +48,8 @@ def main_bench(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("path", nargs="?", type=Path)
     ap.add_argument("--dyr", type=Path, default=None, help="planning record whose values are run as they are")
-    ap.add_argument("--models", default="all")
+    ap.add_argument("--models", default="all",
+                    help="structures whose rows are reported (identify --model auto fits every one)")
     ap.add_argument("--evals", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--diagnose", default="", help="comma-separated structures to diagnose as well")

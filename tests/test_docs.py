@@ -185,7 +185,7 @@ def test_the_checker_catches_each_kind_of_pointer(tmp_path):
         "a.py": f'"""Exit codes ({note})."""\n',
         "b.py": "# see " + "/" + "work" + "/notes/x.txt\n",
         "c.toml": "# notes in " + ".." + "/shared/design\n",
-        "d.py": '"""As in ~/notes/design.md and /srv/docs/profiles.rst."""\n',
+        "d.py": '"""As in ~/notes/design' + '.md and /srv/docs/profiles' + '.rst."""\n',
         "e.py": '"""Formats: docs/formats.md; timing: docs/real.md#no-such-heading."""\n',
         "f.md": 'See docs/real.md, "No such section" and docs/decisions/0002 and [x](docs/gone.md).\n',
         "ok.py": '"""docs/real.md, "Edge timing"; docs/real.md#edge-timing; docs/decisions/0001;'

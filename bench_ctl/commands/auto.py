@@ -2,9 +2,11 @@
 ranking as the console prints it (bench_ctl.diagnosis.selection ranks; docs/decisions/0016)."""
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from bench_ctl.diagnosis.selection import free_limits, separation_text, where_left
+from bench_ctl.capture import Capture
+from bench_ctl.diagnosis.selection import Selection, free_limits, select_structure, separation_text, where_left
 from bench_ctl.model.dialect import shared_names
 from bench_ctl.model.params import PARAMS
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
@@ -94,3 +96,21 @@ def selection_summary(sel: dict[str, Any]) -> str:
         lines.append(f"note: {note}")
     return "\n".join(lines)
 
+
+
+class NoStructureFitted(ValueError):
+    """Every candidate failed; the message names each one's error."""
+
+
+def rank_structures(captures: Sequence[Capture], units: Mapping[str, Unit], notes: Sequence[str], *,
+                    seed: int, command_line: str, max_evals: int = 1000,
+                    progress: Callable[[str, Any], None] | None = None) -> tuple[Selection, dict[str, Any]]:
+    """The selection of `identify` / `diagnose --model auto` and its JSON with the `--set` notes.
+    Raises NoStructureFitted when no candidate could be fitted, ValueError for a capture the
+    check cannot use."""
+    sel = select_structure(captures, units, max_evals=max_evals, seed=seed, command_line=command_line,
+                           progress=progress)
+    if sel.best.ident is None:
+        raise NoStructureFitted("no structure could be fitted: " + "; ".join(
+            f"{c.model}: {c.error}" for c in sel.candidates))
+    return sel, {**sel.to_json(), "notes": list(notes)}

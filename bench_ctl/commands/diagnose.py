@@ -30,7 +30,6 @@ from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis
-from bench_ctl.diagnosis.selection import select_structure
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.result_file import RESULT_SCHEMA, IdentificationResult, read_result
@@ -42,7 +41,7 @@ from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import Unit, UnitError
 from bench_ctl.records import FormatError, plain
 
-from .auto import auto_units, is_auto, selection_summary
+from .auto import auto_units, is_auto, rank_structures, selection_summary
 from .options import fmt_value as _fmt
 from .options import model_args, model_options, resolve_unit
 
@@ -244,15 +243,10 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     selection = None
     if auto:   # the structures ranked first; the first one is diagnosed from its fit
         try:
-            sel = select_structure([capture], units, seed=seed, command_line=command_line)
-        except ValueError as exc:
+            sel, selection = rank_structures([capture], units, notes, seed=seed, command_line=command_line)
+        except ValueError as exc:   # (no structure fitted included)
             click.echo(f"error: {exc}", err=True)
             return ExitCode.ABORTED
-        if sel.best.ident is None:
-            click.echo("error: no structure could be fitted: " + "; ".join(
-                f"{c.model}: {c.error}" for c in sel.candidates), err=True)
-            return ExitCode.ABORTED
-        selection = {**sel.to_json(), "notes": notes}
         click.echo(selection_summary(selection))
         click.echo(f"\ndiagnosing {sel.best.model}, the first of the ranking\n")
         unit = units[sel.best.model]

@@ -25,7 +25,6 @@ import click
 from bench_ctl import outputs
 from bench_ctl.capture import CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
-from bench_ctl.diagnosis.selection import select_structure
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError
 from bench_ctl.identification.identify import Identification, result_for_file, run_identification
@@ -36,7 +35,7 @@ from bench_ctl.identification.result_file import IdentificationResult  # noqa: F
 from bench_ctl.model.dialect import std_text
 from bench_ctl.model.unit import UnitError
 
-from .auto import auto_units, is_auto, selection_summary
+from .auto import NoStructureFitted, auto_units, is_auto, rank_structures, selection_summary
 from .options import fmt_value as _fmt
 from .options import model_args, model_options, resolve_unit
 
@@ -229,6 +228,13 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
     for b in bars:
         b.close()
     click.echo(summary(ident))
+    return _write_and_judge(ident, out, json_out, plot_out)
+
+
+def _write_and_judge(ident: Identification, out: outputs.Outputs, json_out: str | None,
+                     plot_out: str | None) -> int:
+    """Write --json / --plot, then the exit code: 0 fitted within its constraints and bounds, 1
+    not (said on stderr), 2 an output that could not be written."""
     try:
         if json_out:
             out.write_json(json_out, result_for_file(ident.result, json_out).to_json())
@@ -308,31 +314,16 @@ def _identify_auto(captures: tuple[str, ...], unit_path: str | None, overrides: 
         click.echo(f"{name}: {'failed: ' + c.error if c.error else f'mse {c.mse:.4g}'} ({c.wall_s:.1f} s)",
                    err=True)
     try:
-        sel = select_structure(caps, units, max_evals=evals, seed=seed, command_line=command_line,
-                               progress=said)
+        sel, chosen = rank_structures(caps, units, notes, seed=seed, command_line=command_line, max_evals=evals,
+                                      progress=said)
+    except NoStructureFitted as exc:
+        click.echo(f"error: {exc}", err=True)
+        return ExitCode.FAILED
     except ValueError as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
-    if sel.best.ident is None:
-        click.echo("error: no structure could be fitted: " + "; ".join(
-            f"{c.model}: {c.error}" for c in sel.candidates), err=True)
-        return ExitCode.FAILED
     ident = sel.best.ident
-    chosen = {**sel.to_json(), "notes": notes}
     ident = replace(ident, result=replace(ident.result, selection=chosen))
     click.echo(summary(ident))
     click.echo(selection_summary(chosen))
-    try:
-        if json_out:
-            out.write_json(json_out, result_for_file(ident.result, json_out).to_json())
-            click.echo(f"result written to {json_out}")
-        if plot_out:
-            plot_fit(ident, plot_out, out)
-            click.echo(f"plot written to {plot_out}")
-    except outputs.OutputRefused as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: {outputs.why_not_written(exc, json_out or plot_out or '')}", err=True)
-        return ExitCode.ABORTED
-    return ExitCode.OK if ident.ok else ExitCode.FAILED
+    return _write_and_judge(ident, out, json_out, plot_out)

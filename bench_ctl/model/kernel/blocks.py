@@ -295,18 +295,8 @@ def rectifier(ve, kc_ifd):
 @njit()
 def bridge_voltage(D, i, vt, ifd):
     """VB = VE FEX(IN), VE = KP Vt (no load: no current term), IN = KC Ifd / VE, at most VBMAX:
-    the rectifier regulation characteristic of IEEE 421.5 (ESST4B). Branch-free selects."""
-    ve = D[D_KPV, i] * vt
-    ve = ve if ve > 1.0e-6 else 1.0e-6
-    x = D[D_KC, i] * ifd / ve
-    q = 0.75 - x * x
-    q = q if q > 0.0 else 0.0
-    f = 1.732 * (1.0 - x)
-    f = f if x <= 1.0 else 0.0
-    f = math.sqrt(q) if x <= 0.75 else f
-    f = 1.0 - 0.577 * x if x <= 0.433 else f
-    f = 1.0 if x <= 0.0 else f
-    vb = ve * f
+    the rectifier regulation characteristic of IEEE 421.5 (ESST4B; `rectifier`)."""
+    vb = rectifier(D[D_KPV, i] * vt, D[D_KC, i] * ifd)
     return vb if vb < D[D_VBMAX, i] else D[D_VBMAX, i]
 
 
