@@ -126,6 +126,34 @@ STRUCTURE_PARAMS = ("KPP", "KDA", "SATEQ", "KF", "TF", "TEX", "KE", "E1", "SE1",
 #: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
 RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")
 
+#: the machine on the grid (bench_ctl.model.online; a unit's [grid]): its data beside the kernel's
+#: T'd0, T''d0, S(1.0), S(1.2), Vt0, the grid to the infinite bus and the operating point
+MACHINE_CATALOGUE: tuple[ParamInfo, ...] = (
+    ParamInfo("XD", "pu", "d-axis synchronous reactance Xd", 0.2, 4.0),
+    ParamInfo("XQ", "pu", "q-axis synchronous reactance Xq", 0.2, 4.0),
+    ParamInfo("XDP", "pu", "d-axis transient reactance X'd", 0.05, 1.5),
+    ParamInfo("XQP", "pu", "q-axis transient reactance X'q", 0.05, 4.0),
+    ParamInfo("XDPP", "pu", "subtransient reactance X''d = X''q", 0.02, 1.0),
+    ParamInfo("XLS", "pu", "stator leakage reactance Xl (PSS/E's Xl; XL is ESST4B's)", 0.0, 0.5),
+    ParamInfo("Tq0p", "s", "open-circuit q-axis transient time constant T'q0", 0.01, 10.0),
+    ParamInfo("Tq0pp", "s", "open-circuit q-axis subtransient time constant T''q0", 0.001, 1.0),
+    ParamInfo("H", "s", "inertia constant (machine base)", 0.1, 20.0),
+    ParamInfo("DAMP", "pu", "speed damping D of the swing equation", 0.0, 50.0),
+    ParamInfo("RA", "pu", "stator resistance", 0.0, 0.05),
+    ParamInfo("XE", "pu", "grid reactance to the infinite bus (step-up transformer + line, machine base)", 0.0, 2.0),
+    ParamInfo("RE", "pu", "grid resistance to the infinite bus (machine base)", 0.0, 0.5),
+    ParamInfo("P0", "pu", "active power before the test (machine base)", -0.2, 1.2),
+    ParamInfo("Q0", "pu", "reactive power before the test (machine base)", -1.0, 1.0),
+    ParamInfo("FN", "Hz", "nominal frequency", 45.0, 65.0),
+)
+MACHINE_PARAMS: tuple[str, ...] = tuple(p.name for p in MACHINE_CATALOGUE)
+MCOL: dict[str, int] = {name: i for i, name in enumerate(MACHINE_PARAMS)}
+
+#: what a machine on the grid takes when not given
+MACHINE_DEFAULTS: dict[str, float] = {"RA": 0.0, "RE": 0.0, "DAMP": 0.0, "FN": 50.0}
+#: what a unit needs in [grid] (or a .dyr generator record, --set) to run on line, beside P0, Q0 of the record
+MACHINE_DATA = ("XD", "XQ", "XDP", "XQP", "XDPP", "XLS", "Tq0p", "Tq0pp", "H")
+
 #: Reference values of the simulated unit (docs/model.md).
 REFERENCE_VALUES: dict[str, float] = {
     "KAVR": 200.0, "TA1": 1.0, "TA2": 0.2, "TA3": 0.5, "TA4": 10.0, "TE": 0.02,

@@ -225,9 +225,13 @@ def ceilings(D, i, eqp, eqpp):
     """Exciter ceilings (hi, lo): VRMAX, VRMIN, scaled by Vt when VRVT = 1 (bus-fed), the upper
     one less KC*Ifd, Ifd = E'q + Sat (the no-load field current on the air-gap base)."""
     vt = terminal_voltage(D, i, eqp, eqpp)
-    d = eqp + D[D_SATVT, i] * (vt - eqp) - D[D_SATA, i]
-    d = d if d > 0.0 else 0.0
-    ifd = eqp + D[D_KDA, i] * (eqp - eqpp) + D[D_SATB, i] * d * d
+    return ceilings_at(D, i, vt, field_current(D, i, eqp, eqpp, vt))
+
+
+@njit()
+def ceilings_at(D, i, vt, ifd):
+    """Exciter ceilings (hi, lo) at terminal voltage `vt` and field current `ifd` (`ceilings` at no
+    load; the on-line machine gives its own)."""
     sc = 1.0 + D[D_VRVT, i] * (vt - 1.0)
     sc = sc if sc > 1.0e-3 else 1.0e-3
     return D[D_VRMAX, i] * sc - D[D_KC, i] * ifd, D[D_VRMIN, i] * sc

@@ -53,8 +53,10 @@ from .layout import (
 )
 
 
-def derive(P: np.ndarray) -> np.ndarray:
-    """Per-candidate factors for the kernel from the parameter matrix (n, len(KERNEL_PARAMS))."""
+def derive(P: np.ndarray, field0: np.ndarray | None = None) -> np.ndarray:
+    """Per-candidate factors for the kernel from the parameter matrix (n, len(KERNEL_PARAMS)).
+    `field0`: the field voltage (and field current, XadIfd) of the steady state where the generator
+    is not at no load (the on-line machine, `bench_ctl.model.online`); else the no-load one."""
     P = np.atleast_2d(np.asarray(P, dtype=np.float64))
     if P.shape[1] != len(KERNEL_PARAMS):
         raise ValueError(f"parameter matrix has {P.shape[1]} columns, expected {len(KERNEL_PARAMS)}")
@@ -64,6 +66,8 @@ def derive(P: np.ndarray) -> np.ndarray:
         valid = _valid(g)
         D[:, D_VALID] = valid.astype(np.float64)
         vt0, fld0 = derive_generator(D, g, valid)
+        if field0 is not None:
+            fld0 = np.broadcast_to(np.asarray(field0, np.float64), fld0.shape)
         dc, ac = derive_dc_exciter(D, g, valid)
         st4 = derive_potential_source(D, g, valid, dc)
         derive_regulator(D, g, valid, st4)

@@ -1,5 +1,6 @@
 """The kernel's right-hand side: the derivatives of the 8 states, the blocks (`blocks`) wired in
-diagram order; `rhs_ref` is the reference structure's alone (6 states), the fast path.
+diagram order: the excitation system (`exciter`, `non_windup`) on the generator at no load
+(`rhs`); `rhs_ref` is the reference structure's alone (6 states), the fast path.
 """
 from __future__ import annotations
 
@@ -56,18 +57,15 @@ from .layout import (
 
 
 @njit()
-def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
-    """Derivatives of (xm, x1, x2, VR lag (efd of a static exciter), E'q, E''q, rate feedback,
-    DC exciter Efd); branch-free so candidate loops vectorise. `st4` (ST4_*, a constant where the
-    caller passes one: the branches then fold away) includes the potential-source stage (ESST4B):
-    a chunk without it does not pay for its square root and divisions (measured: 1.35x of a
-    chunk's time), a chunk of ESST4B alone not for the DC exciter and the non-windup ceiling.
-
-    `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1)."""
+def exciter(D, i, uref, vrd, xm, x1, x2, ef, xf, xe, vt, ifd, hi, lo, st4=ST4_SOME):
+    """The excitation system's derivatives at terminal voltage `vt` and field current `ifd` (on the
+    air-gap-line base), whatever generator gives them (`rhs`: at no load; the on-line machine,
+    `bench_ctl.model.online`): (dxm, dx1, dx2, dVR-lag, field voltage, dxf, dxe). The regulator
+    lag's derivative is slew-limited but not yet held at the ceilings `hi`, `lo` (`non_windup`:
+    how a limit moves is the generator's to say). Branch-free so candidate loops vectorise; `st4`
+    as in `rhs`."""
     tron = D[D_TRON, i]
-    vt = terminal_voltage(D, i, eqp, eqpp)
     vm = tron * xm + (1.0 - tron) * vt
-    ifd = field_current(D, i, eqp, eqpp, vt)
     src = ef if st4 == ST4_ALL else feedback_source(D, i, ef, xe, ifd)
     e = uref - vm - D[D_KFT, i] * (src - xf)
     y1, ys1 = lead_lag_or_pi(D, i, e, x1)
@@ -86,11 +84,6 @@ def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
     de = (drive - ef) * D[D_ITE, i]
     de = de if de < rate else rate
     de = de if de > -rate else -rate
-    hi, lo = ceilings(D, i, eqp, eqpp)
-    # saturation of E'q (the reference model) or, with a GENROU-like flux share, of Vt = psi''
-    satvt = D[D_SATVT, i]
-    d = eqp + satvt * (vt - eqp) - D[D_SATA, i]
-    d = d if d > 0.0 else 0.0
     # the field voltage: VB VM of the potential-source stage, the DC exciter's state, else the
     # regulator output (clamped when the ceilings clamp the output rather than the lag)
     limout = D[D_LIMOUT, i]
@@ -118,23 +111,51 @@ def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
             f4, vm4, ys4, _vb4 = potential_source(D, i, ef, xf, vt, ifd, hi, lo)
             fld = fld + s4 * (f4 - fld)
             dxf = dxf + s4 * (D[D_KIM, i] * (ef - D[D_KG, i] * f4 - PI_TRACK * (ys4 - vm4)) - dxf)
+    return dxm, dx1, dx2, de, fld, dxf, dxe
+
+
+@njit()
+def non_windup(D, i, de, ef, hi, lo, dhi, dlo):
+    """The non-windup ceiling on the regulator lag: at a limit efd may not pass it, and follows it
+    where it moves at `dhi` / `dlo` (NaN: no movement). Not when the ceilings clamp the output
+    (D_LIMOUT: the lag winds up beyond them, ESST1A/EXST1)."""
+    dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
+    dlo = dlo if dlo == dlo else 0.0
+    nw = D[D_LIMOUT, i] == 0.0
+    de = (de if de < dhi else dhi) if (ef >= hi and nw) else de
+    de = (de if de > dlo else dlo) if (ef <= lo and nw) else de
+    return de
+
+
+@njit()
+def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
+    """Derivatives of (xm, x1, x2, VR lag (efd of a static exciter), E'q, E''q, rate feedback,
+    DC exciter Efd): the excitation system (`exciter`) on the generator at no load; branch-free so
+    candidate loops vectorise. `st4` (ST4_*, a constant where the caller passes one: the branches
+    then fold away) includes the potential-source stage (ESST4B): a chunk without it does not pay
+    for its square root and divisions (measured: 1.35x of a chunk's time), a chunk of ESST4B alone
+    not for the DC exciter and the non-windup ceiling.
+
+    `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1)."""
+    vt = terminal_voltage(D, i, eqp, eqpp)
+    ifd = field_current(D, i, eqp, eqpp, vt)
+    hi, lo = ceilings(D, i, eqp, eqpp)
+    dxm, dx1, dx2, de, fld, dxf, dxe = exciter(D, i, uref, vrd, xm, x1, x2, ef, xf, xe, vt, ifd, hi, lo, st4)
+    # saturation of E'q (the reference model) or, with a GENROU-like flux share, of Vt = psi''
+    satvt = D[D_SATVT, i]
+    d = eqp + satvt * (vt - eqp) - D[D_SATA, i]
+    d = d if d > 0.0 else 0.0
     deqp = (fld - eqp - D[D_KDA, i] * (eqp - eqpp) - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
     deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
     dvt = deqpp + D[D_KPP, i] * (deqp - deqpp)
-    # non-windup ceiling: at a limit efd may not pass it, and follows it where it moves (with Vt
-    # for a bus-fed exciter, with Ifd through the commutation drop); fixed limits do not move.
-    # Not when the ceilings clamp the output (the lag winds up beyond them, ESST1A/EXST1), nor on
-    # ESST4B's regulator lag (its ceilings act on VM)
+    # non-windup ceiling: where the limits move, with Vt for a bus-fed exciter, with Ifd through
+    # the commutation drop; fixed limits do not move. Not on ESST4B's regulator lag (its ceilings
+    # act on VM)
     if st4 != ST4_ALL:
         dsc = D[D_VRVT, i] * dvt
         dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (deqp + D[D_KDA, i] * (deqp - deqpp)
                                                   + 2.0 * D[D_SATB, i] * d * (deqp + satvt * (dvt - deqp)))
-        dlo = D[D_VRMIN, i] * dsc
-        dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
-        dlo = dlo if dlo == dlo else 0.0
-        nw = limout == 0.0
-        de = (de if de < dhi else dhi) if (ef >= hi and nw) else de
-        de = (de if de > dlo else dlo) if (ef <= lo and nw) else de
+        de = non_windup(D, i, de, ef, hi, lo, dhi, D[D_VRMIN, i] * dsc)
     return dxm, dx1, dx2, de, deqp, deqpp, dxf, dxe
 
 

@@ -1,0 +1,402 @@
+"""The unit on the grid: a GENROU synchronised through a reactance XE (and a resistance RE) to an
+infinite bus, with both axes and the swing equation, under the kernel's excitation system
+(`kernel.rhs.exciter`, every structure of the library) -- issue 27, item 1.
+
+The machine is PSS/E's GENROU as ANDES writes it (stator transients and speed voltages neglected,
+X''d = X''q, the quadratic saturation of |psi''| shared by both axes, on the d-axis with Se psi''d
+and on the q-axis with Se psi''q (Xq - Xl) / (Xd - Xl)):
+
+    psi''d = gd1 E'q + (1 - gd1) psikd            psi''q = gq1 E'd + (1 - gq1) psikq
+    T'd0 dE'q/dt = Efd - XadIfd                   XadIfd = E'q + (Xd - X'd) (gd1 Id + gd2 (E'q - psikd)) + Se psi''d
+    T''d0 dpsikd/dt = E'q - psikd - (X'd - Xl) Id
+    T'q0 dE'd/dt = -(E'd + (Xq - X'q) (gq2 (E'd - psikq) - gq1 Iq) + Se psi''q gqd)
+    T''q0 dpsikq/dt = E'd - psikq + (X'q - Xl) Iq
+    d delta/dt = 2 pi fn (omega - 1)              2 H d omega/dt = Tm - Te - D (omega - 1)
+
+with gd1 = (X''d - Xl)/(X'd - Xl), gd2 = (X'd - X''d)/(X'd - Xl)^2 (the same for q) and
+gqd = (Xq - Xl)/(Xd - Xl). At no load (Id = Iq = 0) the d-axis is the kernel's generator (E'q,
+E''q = psikd, KPP = gd1, KDA = (Xd - X'd) gd2).
+
+The network is solved in closed form each stage: in the machine's frame (a phasor X of the grid
+seen as X_dq = Xd + j Xq = j X e^{-j delta}), E'' = psi''q + j psi''d and the infinite bus
+Vinf_dq = Vinf (sin delta + j cos delta):
+
+    I = (E'' - Vinf_dq) / (RA + RE + j (X''d + XE)),   V = E'' - (RA + j X''d) I
+    Vt = |V|, P = Re(V conj I), Q = Im(V conj I), Te = P + RA |I|^2
+
+The initial operating point comes from the record's pre-step P, Q and Vt (machine base): the
+steady state as ANDES initialises a GENROU, the infinite bus from V - (RE + j XE) I, its angle
+the reference. The excitation system starts in its steady state at that field voltage and field
+current (both XadIfd0).
+
+Numerics as the kernel's: classical RK4 at the record's step, the setpoint zero-order hold with
+each edge at its fitted instant (the step split there), the regulator lag held at its ceilings
+inside each stage and clamped after the step (the ceilings move with Vt and Ifd; at a limit the
+lag is held there, not moved with it). Not yet on line: the dead time, the setpoint ramp and the
+recorder skew (refused), a GENSAL (refused). Candidates run in parallel, each its own loop.
+"""
+from __future__ import annotations
+
+import cmath
+import math
+from collections.abc import Mapping, Sequence
+
+import numba as nb
+import numpy as np
+
+from . import kernel as K
+from .edges import EdgeSpec
+from .kernel.blocks import ceilings_at, steady_state
+from .kernel.jit import FASTMATH
+from .kernel.layout import (
+    BLOWUP,
+    D_EDGE0,
+    D_GAIN,
+    D_ITD0P,
+    D_ITD0PP,
+    D_LIMOUT,
+    D_SATA,
+    D_SATB,
+    D_UREF0,
+    D_VALID,
+    EDGE_EPS,
+)
+from .kernel.rhs import exciter, non_windup
+from .params import COL, MACHINE_CATALOGUE, MACHINE_DATA, MACHINE_DEFAULTS, MACHINE_PARAMS, MCOL
+
+# ---- the machine's and the grid's parameters ---------------------------------------------------
+
+#: the columns of the machine's derived matrix G (transposed as the kernel's: G[G_NAME, i])
+(G_GD1, G_GQ1, G_GD2, G_GQ2, G_GQD, G_XD, G_XQ, G_XDP, G_XQP, G_XDPP, G_XL, G_ITQ0P, G_ITQ0PP, G_IM,
+ G_DAMP, G_W0, G_RA, G_RT, G_XT, G_VINF, G_TM, G_E1Q0, G_E2D0, G_E1D0, G_E2Q0, G_DELTA0, G_VALID) = range(27)
+N_G = 27
+#: the states of an on-line candidate: the kernel's eight (xm, x1, x2, VR lag, E'q, psikd, rate
+#: feedback, DC/AC exciter), then E'd, psikq, delta, omega
+N_ONLINE = 12
+
+
+def machine_matrix(values: Mapping[str, float] | Sequence[Mapping[str, float]]) -> np.ndarray:
+    """The machine matrix (n, len(MACHINE_PARAMS)) of one or more parameter mappings; every name is
+    needed but RA, RE, DAMP (0) and FN (50). A name outside its range is an error that names it."""
+    rows = [values] if isinstance(values, Mapping) else list(values)
+    M = np.empty((len(rows), len(MACHINE_PARAMS)))
+    defaults = MACHINE_DEFAULTS
+    for r, row in enumerate(rows):
+        unknown = set(row) - set(MACHINE_PARAMS)
+        if unknown:
+            raise ValueError(f"unknown machine parameter(s) {', '.join(sorted(unknown))}; "
+                             f"known: {', '.join(MACHINE_PARAMS)}")
+        for info in MACHINE_CATALOGUE:
+            if info.name in row:
+                value = float(row[info.name])
+            elif info.name in defaults:
+                value = defaults[info.name]
+            else:
+                raise ValueError(f"machine parameter {info.name} ({info.info}) is missing")
+            info.check(value, "on-line machine: ")
+            M[r, MCOL[info.name]] = value
+    return M
+
+
+def unit_machine(unit) -> dict[str, float]:
+    """The machine-on-the-grid values of a unit (its [grid]); an error that names what is missing
+    and where it can come from."""
+    missing = [name for name in (*MACHINE_DATA, "XE", "P0", "Q0") if name not in unit.grid]
+    if missing:
+        raise ValueError(f"the unit {unit.name!r} on line needs {', '.join(missing)}: give them under [grid] "
+                         "in the unit file or with --set NAME=VALUE (the machine's data also come from a "
+                         "GENROU record with --from-dyr)")
+    return dict(unit.grid)
+
+
+def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The machine's derived matrix G (n, N_G) and the field voltage XadIfd0 of the steady state at
+    the operating point (P0, Q0, Vt0), as ANDES initialises a GENROU; a candidate whose
+    reactances are out of order (Xd > X'd > X''d > Xl, Xq >= X'q >= X''d) is marked invalid."""
+    P = np.atleast_2d(np.asarray(P, float))
+    M = np.atleast_2d(np.asarray(M, float))
+    if M.shape != (P.shape[0], len(MACHINE_PARAMS)):
+        raise ValueError(f"machine matrix of shape {M.shape}, expected ({P.shape[0]}, {len(MACHINE_PARAMS)})")
+    n = P.shape[0]
+    G = np.zeros((n, N_G))
+    fld0 = np.ones(n)
+    sat_a, sat_b = K.saturation_ab(P[:, COL["S10"]], P[:, COL["S12"]])
+    for i in range(n):
+        m = {name: M[i, j] for name, j in MCOL.items()}
+        xd, xq, x1d, x1q, x2, xl = m["XD"], m["XQ"], m["XDP"], m["XQP"], m["XDPP"], m["XLS"]
+        ok = (xd > x1d > x2 > xl >= 0.0 and xq >= x1q >= x2 and m["Tq0p"] > 0 and m["Tq0pp"] > 0
+              and m["H"] > 0 and P[i, COL["Vt0"]] > 0 and P[i, COL["SATEQ"]] < 0.5)
+        if not ok:
+            continue
+        gd1 = (x2 - xl) / (x1d - xl)
+        gq1 = (x2 - xl) / (x1q - xl)
+        gd2 = (x1d - x2) / (x1d - xl) ** 2
+        gq2 = (x1q - x2) / (x1q - xl) ** 2
+        gqd = (xq - xl) / (xd - xl)
+        ra, re, xe = m["RA"], m["RE"], m["XE"]
+        vt0, p0, q0 = P[i, COL["Vt0"]], m["P0"], m["Q0"]
+        # the operating point, the terminal voltage at angle 0 (ANDES' GENROU initialisation)
+        v = complex(vt0, 0.0)
+        it = complex(p0, -q0) / v.conjugate()
+        zs = complex(ra, x2)
+        psi20 = (it + v / zs) * zs
+        psi_abs = abs(psi20)
+        se0 = sat_b[i] * (psi_abs - sat_a[i]) ** 2 / psi_abs if psi_abs >= sat_a[i] else 0.0
+        a = psi_abs * (1.0 + se0 * gqd)
+        b = abs(it) * (x2 - xq)
+        th = cmath.phase(psi20) - cmath.phase(it) if abs(it) > 0 else 0.0
+        delta0 = math.atan(b * math.cos(th) / (b * math.sin(th) - a)) + cmath.phase(psi20)
+        rot = 1j * cmath.exp(-1j * delta0)        # X_dq = j X e^{-j delta}
+        psi_dq, i_dq = psi20 * rot, it * rot
+        psi2q0, psi2d0 = psi_dq.real, psi_dq.imag
+        id0, iq0 = i_dq.real, i_dq.imag
+        vf0 = (se0 + 1.0) * psi2d0 + (xd - x2) * id0
+        vinf = v - complex(re, xe) * it
+        G[i] = 0.0
+        G[i, G_GD1], G[i, G_GQ1], G[i, G_GD2], G[i, G_GQ2], G[i, G_GQD] = gd1, gq1, gd2, gq2, gqd
+        G[i, G_XD], G[i, G_XQ], G[i, G_XDP], G[i, G_XQP], G[i, G_XDPP], G[i, G_XL] = xd, xq, x1d, x1q, x2, xl
+        G[i, G_ITQ0P], G[i, G_ITQ0PP] = 1.0 / m["Tq0p"], 1.0 / m["Tq0pp"]
+        G[i, G_IM], G[i, G_DAMP], G[i, G_W0] = 1.0 / (2.0 * m["H"]), m["DAMP"], 2.0 * math.pi * m["FN"]
+        G[i, G_RA], G[i, G_RT], G[i, G_XT] = ra, ra + re, x2 + xe
+        G[i, G_VINF] = abs(vinf)
+        G[i, G_TM] = p0 + ra * abs(it) ** 2
+        G[i, G_E1Q0] = id0 * (x1d - xd) - se0 * psi2d0 + vf0
+        G[i, G_E2D0] = id0 * (xl - xd) - se0 * psi2d0 + vf0
+        G[i, G_E1D0] = iq0 * (xq - x1q) - se0 * gqd * psi2q0
+        G[i, G_E2Q0] = -iq0 * (xl - xq) - se0 * gqd * psi2q0
+        G[i, G_DELTA0] = delta0 - cmath.phase(vinf)   # the infinite bus at angle 0
+        G[i, G_VALID] = 1.0
+        fld0[i] = vf0
+    return G, fld0
+
+# ---- the compiled machine, its right-hand side and RK4 step ------------------------------------
+
+
+_FM = FASTMATH
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def machine(D, G, i, e1q, e2d, e1d, e2q, delta):
+    """The machine's algebra at its states: (Vt, XadIfd, Id, Iq, P, Q, Te, XaqI1q)."""
+    gd1 = G[G_GD1, i]
+    gq1 = G[G_GQ1, i]
+    psd = gd1 * e1q + (1.0 - gd1) * e2d
+    psq = gq1 * e1d + (1.0 - gq1) * e2q
+    psi = math.sqrt(psd * psd + psq * psq)
+    x = psi - D[D_SATA, i]
+    x = x if x > 0.0 else 0.0
+    se = D[D_SATB, i] * x * x / (psi if psi > 1.0e-6 else 1.0e-6)
+    vinf = G[G_VINF, i]
+    ar = psq - vinf * math.sin(delta)
+    ai = psd - vinf * math.cos(delta)
+    rt = G[G_RT, i]
+    xt = G[G_XT, i]
+    den = rt * rt + xt * xt
+    cid = (ar * rt + ai * xt) / den
+    ciq = (ai * rt - ar * xt) / den
+    ra = G[G_RA, i]
+    x2 = G[G_XDPP, i]
+    vd = psq - ra * cid + x2 * ciq
+    vq = psd - ra * ciq - x2 * cid
+    vt = math.sqrt(vd * vd + vq * vq)
+    p = vd * cid + vq * ciq
+    q = vq * cid - vd * ciq
+    te = p + ra * (cid * cid + ciq * ciq)
+    gd2 = G[G_GD2, i]
+    gq2 = G[G_GQ2, i]
+    ifd = e1q + (G[G_XD, i] - G[G_XDP, i]) * (gd1 * cid + gd2 * (e1q - e2d)) + se * psd
+    xaq = e1d + (G[G_XQ, i] - G[G_XQP, i]) * (gq2 * (e1d - e2q) - gq1 * ciq) + se * psq * G[G_GQD, i]
+    return vt, ifd, cid, ciq, p, q, te, xaq
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11):
+    """Derivatives of the 12 on-line states (see N_ONLINE)."""
+    vt, ifd, cid, ciq, _p, _q, te, xaq = machine(D, G, i, x4, x5, x8, x9, x10)
+    hi, lo = ceilings_at(D, i, vt, ifd)
+    dxm, dx1, dx2, de, fld, dxf, dxe = exciter(D, i, uref, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo)
+    de = non_windup(D, i, de, x3, hi, lo, 0.0, 0.0)   # held at a limit (the limit's motion not followed)
+    d4 = (fld - ifd) * D[D_ITD0P, i]
+    d5 = (x4 - x5 - (G[G_XDP, i] - G[G_XL, i]) * cid) * D[D_ITD0PP, i]
+    d8 = -xaq * G[G_ITQ0P, i]
+    d9 = (x8 - x9 + (G[G_XQP, i] - G[G_XL, i]) * ciq) * G[G_ITQ0PP, i]
+    d10 = G[G_W0, i] * (x11 - 1.0)
+    d11 = (G[G_TM, i] - te - G[G_DAMP, i] * (x11 - 1.0)) * G[G_IM, i]
+    return dxm, dx1, dx2, de, d4, d5, dxf, dxe, d8, d9, d10, d11
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def step_online(D, G, i, u, X, h):
+    """One RK4 step of length h of candidate i's states X (in place) at the setpoint reference u;
+    the regulator lag clamped to the ceilings at the step's end unless they clamp the output."""
+    a = rhs_online(D, G, i, u, X[0], X[1], X[2], X[3], X[4], X[5], X[6], X[7], X[8], X[9], X[10], X[11])
+    h2 = 0.5 * h
+    b = rhs_online(D, G, i, u, X[0] + h2 * a[0], X[1] + h2 * a[1], X[2] + h2 * a[2], X[3] + h2 * a[3],
+                   X[4] + h2 * a[4], X[5] + h2 * a[5], X[6] + h2 * a[6], X[7] + h2 * a[7], X[8] + h2 * a[8],
+                   X[9] + h2 * a[9], X[10] + h2 * a[10], X[11] + h2 * a[11])
+    c = rhs_online(D, G, i, u, X[0] + h2 * b[0], X[1] + h2 * b[1], X[2] + h2 * b[2], X[3] + h2 * b[3],
+                   X[4] + h2 * b[4], X[5] + h2 * b[5], X[6] + h2 * b[6], X[7] + h2 * b[7], X[8] + h2 * b[8],
+                   X[9] + h2 * b[9], X[10] + h2 * b[10], X[11] + h2 * b[11])
+    d = rhs_online(D, G, i, u, X[0] + h * c[0], X[1] + h * c[1], X[2] + h * c[2], X[3] + h * c[3],
+                   X[4] + h * c[4], X[5] + h * c[5], X[6] + h * c[6], X[7] + h * c[7], X[8] + h * c[8],
+                   X[9] + h * c[9], X[10] + h * c[10], X[11] + h * c[11])
+    h6 = h / 6.0
+    for q in range(N_ONLINE):
+        X[q] += h6 * (a[q] + 2.0 * b[q] + 2.0 * c[q] + d[q])
+    r = machine(D, G, i, X[4], X[5], X[8], X[9], X[10])
+    hi, lo = ceilings_at(D, i, r[0], r[1])
+    z = X[3] if X[3] > lo else lo
+    z = z if z < hi else hi
+    X[3] = z + D[D_LIMOUT, i] * (X[3] - z)   # (ESST4B's lag: LIMOUT = 1, not limited)
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def _readout(D, G, i, u, X):
+    """The recorded signals at the state X: (efd, Vt, P, Q, Ifd)."""
+    vt, ifd, _cid, _ciq, p, q, _te, _xaq = machine(D, G, i, X[4], X[5], X[8], X[9], X[10])
+    hi, lo = ceilings_at(D, i, vt, ifd)
+    fld = exciter(D, i, u, 0.0, X[0], X[1], X[2], X[3], X[6], X[7], vt, ifd, hi, lo)[4]
+    return fld, vt, p, q, ifd
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM, parallel=True)
+def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, traces, sse, fail_step):
+    n = D.shape[1]
+    T = usetp.shape[0]
+    ne = eidx.shape[0]
+    for i in nb.prange(n):
+        X = np.empty(N_ONLINE)
+        x = steady_state(D, i)
+        for q in range(8):
+            X[q] = x[q]
+        X[4] = G[G_E1Q0, i]
+        X[5] = G[G_E2D0, i]
+        X[8] = G[G_E1D0, i]
+        X[9] = G[G_E2Q0, i]
+        X[10] = G[G_DELTA0, i]
+        X[11] = 1.0
+        bs = np.empty(ne + 1)
+        bj = np.empty(ne + 1)
+        failed = D[D_VALID, i] == 0.0 or G[G_VALID, i] == 0.0
+        if failed:
+            fail_step[i] = 0
+        held = np.zeros(5)
+        for k in range(T):
+            # the reference over [t_k, t_k+1): the zero-order hold of the record, each edge at
+            # its fitted instant (the candidate's offset), a jump inside the step split there
+            u = D[D_UREF0, i] + usetp[k] - usetp_pre
+            nb_ = 0
+            for j in range(ne):
+                ke = (etn[j] + D[D_EDGE0 + eslot[j], i]) / dt
+                fit_on = 1.0 if ke <= k + EDGE_EPS else 0.0
+                nom_on = 1.0 if k >= eidx[j] else 0.0
+                u += ejump[j] * (fit_on - nom_on)
+                if k + EDGE_EPS < ke < k + 1.0 - EDGE_EPS:
+                    bs[nb_] = ke - k
+                    bj[nb_] = ejump[j]
+                    nb_ += 1
+            if not failed:
+                r = _readout(D, G, i, u, X)
+                held[0] = D[D_GAIN, i] * r[0]
+                for q in range(1, 5):
+                    held[q] = r[q]
+            if store:
+                for q in range(5):
+                    traces[q, i, k] = held[q]
+            for q in range(4):
+                if w[q] > 0.0:
+                    e = held[q] - meas[q, k]
+                    sse[q, i] += e * e
+            if k == T - 1 or failed:
+                continue
+            for a in range(1, nb_):  # insertion sort of the few jumps inside the step
+                sv = bs[a]
+                jv = bj[a]
+                b = a - 1
+                while b >= 0 and bs[b] > sv:
+                    bs[b + 1] = bs[b]
+                    bj[b + 1] = bj[b]
+                    b -= 1
+                bs[b + 1] = sv
+                bj[b + 1] = jv
+            sa = 0.0
+            for q in range(nb_ + 1):
+                sb = bs[q] if q < nb_ else 1.0
+                if sb - sa > 1.0e-12:
+                    step_online(D, G, i, u, X, (sb - sa) * dt)
+                if q < nb_:
+                    u += bj[q]
+                sa = sb
+            mag = 0.0
+            for q in range(N_ONLINE):
+                mag += abs(X[q])
+            if not (mag < BLOWUP):
+                failed = True
+                fail_step[i] = k + 1
+
+
+K.drop_stale_cache((machine, rhs_online, step_online, _readout, _run), K.SOURCES + (__file__,), "online")
+
+#: the recorded signals of an on-line run, in the order of its traces and weights
+SIGNALS = ("efd", "vt", "p", "q", "ifd")
+#: effects the on-line machine does not run yet (their kernel parameters must be neutral)
+NOT_ON_LINE = ("TD", "RAMP", "SKEW")
+
+
+def run_online(P: np.ndarray, M: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
+               measured: Mapping[str, np.ndarray] | None = None, weights: Mapping[str, float] | None = None,
+               store: bool = True, edges: EdgeSpec | None = None) -> dict[str, np.ndarray]:
+    """Simulate the candidates P (n, len(KERNEL_PARAMS)) on the grid M (n, len(MACHINE_PARAMS))
+    over the setpoint series `usetp` (step dt; `usetp_pre` before it), the edges as `run_kernel`'s.
+
+    Returns `efd`, `vt`, `p`, `q`, `ifd` (n, T) when `store`; `sse_<signal>` for every measured
+    signal among efd, vt, p, q; `obj` = dt * sum of weight x SSE (weights default 1 for efd, 0 for
+    the others); `fail_step` (-1: ran to the end; 0: invalid parameters)."""
+    P = np.atleast_2d(np.asarray(P, float))
+    n = P.shape[0]
+    usetp = np.require(usetp, np.float64, ("C", "W"))
+    T = usetp.shape[0]
+    if T < 2:
+        raise ValueError("a simulation needs at least two samples")
+    if not (dt > 0 and math.isfinite(dt)):
+        raise ValueError(f"time step {dt!r} must be positive")
+    for name in NOT_ON_LINE:
+        info_neutral = {"TD": 0.0, "RAMP": math.inf, "SKEW": 0.0}[name]
+        if np.any(P[:, COL[name]] != info_neutral):
+            raise ValueError(f"{name} is not simulated on line yet: set it to its neutral value ({info_neutral})")
+    G, fld0 = derive_machine(P, M)
+    D = K.derive(P, field0=fld0)
+    measured = dict(measured or {})
+    unknown = set(measured) - set(SIGNALS[:4])
+    if unknown:
+        raise ValueError(f"measured signal(s) {', '.join(sorted(unknown))}: the fit reads efd, vt, p, q")
+    meas = np.zeros((4, T))
+    w = np.zeros(4)
+    weights = {"efd": 1.0, **dict(weights or {})}
+    for q, name in enumerate(SIGNALS[:4]):
+        if name in measured:
+            series = np.asarray(measured[name], float)
+            if series.shape != (T,):
+                raise ValueError(f"measured {name} has {series.shape} samples, the setpoint {T}")
+            meas[q] = series
+            w[q] = float(weights.get(name, 0.0))
+    edges = EdgeSpec.none() if edges is None else edges
+    if edges.n and int(edges.index.max()) >= T:
+        raise ValueError(f"edge at sample {int(edges.index.max())} lies beyond the record ({T} samples)")
+    traces = np.zeros((5, n, T) if store else (5, 1, 1))
+    sse = np.zeros((4, n))
+    fail_step = np.full(n, -1, dtype=np.int64)
+    if n:
+        _run(np.ascontiguousarray(D.T), np.ascontiguousarray(G.T), usetp, float(usetp_pre), float(dt),
+             np.require(edges.index, np.int64, ("C", "W")), np.require(edges.jump, np.float64, ("C", "W")),
+             np.require(edges.nominal_s, np.float64, ("C", "W")), np.require(edges.slot, np.int64, ("C", "W")),
+             meas, w, bool(store), traces, sse, fail_step)
+    out: dict[str, np.ndarray] = {"fail_step": fail_step}
+    if store:
+        out.update({name: traces[q] for q, name in enumerate(SIGNALS)})
+    for q, name in enumerate(SIGNALS[:4]):
+        if name in measured:
+            out[f"sse_{name}"] = sse[q]
+    if measured:
+        out["obj"] = dt * (w @ sse)
+    return out

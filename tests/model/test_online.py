@@ -1,0 +1,235 @@
+"""The unit on the grid (issue 27, item 1): a GENROU synchronised through XE to an infinite bus
+under SEXS and ESST1A, the kernel's on-line machine (`bench_ctl.model.online`) against solve_ivp
+on the equations written here apart from it: the network solved as a linear system rather than
+in closed form, the steady state found by a root finder from the operating point rather than by
+ANDES' closed-form initialisation the machine uses."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench_ctl.model.online import MACHINE_PARAMS, machine_matrix, run_online
+from bench_ctl.model.simulate import param_matrix
+from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
+
+#: the GENROU of the ANDES fixtures (tests/fixtures/andes), H = M / 2
+GEN = dict(xd=1.8, xq=1.7, xd1=0.3, xq1=0.55, xd2=0.25, xl=0.15, Td10=7.5, Tq10=0.4, Td20=0.05, Tq20=0.05,
+           H=3.0, D=0.0, fn=60.0, S10=0.05, S12=0.2)
+SEXS = dict(TA=1.0, TB=10.0, K=200.0, TE=0.05, EMIN=-3.0, EMAX=4.5)
+ESST1A = dict(TR=0.01, KA=200.0, TA=0.02, TB=10.0, TC=1.0, TB1=0.2, TC1=0.5, VRMAX=4.0, VRMIN=-3.0, KC=0.1)
+
+
+def _machine(xe: float, p0: float, q0: float) -> dict[str, float]:
+    g = GEN
+    return {"XD": g["xd"], "XQ": g["xq"], "XDP": g["xd1"], "XQP": g["xq1"], "XDPP": g["xd2"], "XLS": g["xl"],
+            "Tq0p": g["Tq10"], "Tq0pp": g["Tq20"], "H": g["H"], "DAMP": g["D"], "XE": xe, "P0": p0, "Q0": q0,
+            "FN": g["fn"]}
+
+
+def _unit(model: str, values: dict[str, float], vt0: float):
+    g = GEN
+    kpp = (g["xd2"] - g["xl"]) / (g["xd1"] - g["xl"])
+    kda = (g["xd"] - g["xd1"]) * (g["xd1"] - g["xd2"]) / (g["xd1"] - g["xl"]) ** 2
+    unit = with_model(reference_unit(), model)
+    unit = apply_overrides(unit, [f"Td0p={g['Td10']}", f"Td0pp={g['Td20']}", f"KPP={kpp}", f"KDA={kda}",
+                                  f"Vt0={vt0}"] + [f"{k}={v}" for k, v in values.items()])
+    return unit.with_effects({"saturation": {"S10": g["S10"], "S12": 1.2 * g["S12"]}})
+
+
+def _sat():
+    """B (x - A)^2 through S(1.0) 1.0 = S10 and S(1.2) 1.2 = 1.2 S12 (absolute), 0 below A."""
+    y1, y2 = GEN["S10"], 1.2 * GEN["S12"]
+    r = np.sqrt(y2 / y1)
+    a = (r * 1.0 - 1.2) / (r - 1.0)
+    b = y1 / (1.0 - a) ** 2
+    return lambda x: b * max(x - a, 0.0) ** 2
+
+
+class Machine:
+    """GENROU (X''d = X''q, RA = 0) through RE + j XE to an infinite bus, written out."""
+
+    def __init__(self, xe: float, re: float = 0.0):
+        g = GEN
+        self.xe, self.re = xe, re
+        self.sat = _sat()
+        self.gd1 = (g["xd2"] - g["xl"]) / (g["xd1"] - g["xl"])
+        self.gq1 = (g["xd2"] - g["xl"]) / (g["xq1"] - g["xl"])
+        self.gqd = (g["xq"] - g["xl"]) / (g["xd"] - g["xl"])
+
+    def algebra(self, e1q, e2d, e1d, e2q, delta, vinf):
+        g = GEN
+        psd = self.gd1 * e1q + (1 - self.gd1) * e2d
+        psq = self.gq1 * e1d + (1 - self.gq1) * e2q
+        psi = np.hypot(psd, psq)
+        se = self.sat(psi) / psi
+        x2, xe, re = g["xd2"], self.xe, self.re
+        # vd = psq + x2 iq = vinf sin(delta) + re id - xe iq; vq = psd - x2 id = vinf cos(delta) + re iq + xe id
+        A = np.array([[-re, x2 + xe], [-(x2 + xe), -re]])
+        cid, ciq = np.linalg.solve(A, [vinf * np.sin(delta) - psq, vinf * np.cos(delta) - psd])
+        vd, vq = psq + x2 * ciq, psd - x2 * cid
+        p, q = vd * cid + vq * ciq, vq * cid - vd * ciq
+        gd2 = (g["xd1"] - g["xd2"]) / (g["xd1"] - g["xl"]) ** 2
+        ifd = e1q + (g["xd"] - g["xd1"]) * (self.gd1 * cid + gd2 * (e1q - e2d)) + se * psd
+        xaq = (e1d + (g["xq"] - g["xq1"]) * ((g["xq1"] - g["xd2"]) / (g["xq1"] - g["xl"]) ** 2 * (e1d - e2q)
+                                             - self.gq1 * ciq) + se * psq * self.gqd)
+        return np.hypot(vd, vq), ifd, cid, ciq, p, q, xaq
+
+    def derivatives(self, m, efd, vinf):
+        g = GEN
+        e1q, e2d, e1d, e2q, delta, omega = m
+        vt, ifd, cid, ciq, p, q, xaq = self.algebra(e1q, e2d, e1d, e2q, delta, vinf)
+        return [(efd - ifd) / g["Td10"], (e1q - e2d - (g["xd1"] - g["xl"]) * cid) / g["Td20"], -xaq / g["Tq10"],
+                (e1d - e2q + (g["xq1"] - g["xl"]) * ciq) / g["Tq20"], 2 * np.pi * g["fn"] * (omega - 1.0),
+                (self.tm - p - g["D"] * (omega - 1.0)) / (2 * g["H"])]
+
+    def steady_state(self, p0: float, q0: float, vt0: float):
+        """(E'q, psikd, E'd, psikq, delta), Efd and Vinf with every derivative 0 at P0, Q0, Vt0."""
+        from scipy.optimize import fsolve
+
+        self.tm = p0
+
+        def eqs(z):
+            e1q, e2d, e1d, e2q, delta, efd, vinf = z
+            vt, _ifd, _cid, _ciq, p, q, _xaq = self.algebra(e1q, e2d, e1d, e2q, delta, vinf)
+            d = self.derivatives([e1q, e2d, e1d, e2q, delta, 1.0], efd, vinf)
+            return [d[0], d[1], d[2], d[3], p - p0, q - q0, vt - vt0]
+
+        z, _info, ok, msg = fsolve(eqs, [1.2, 1.0, 0.3, 0.3, 0.6, 2.0, 1.0], full_output=True, xtol=1e-13)
+        assert ok == 1, msg
+        return z
+
+
+def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float, steps, t_end: float, dt: float):
+    """efd, Vt, P, Q of the exciter `model` on the machine by solve_ivp; `steps`: (instant, change
+    of the reference)."""
+    from scipy.integrate import solve_ivp
+
+    mach = Machine(xe)
+    e1q, e2d, e1d, e2q, delta, efd0, vinf = mach.steady_state(p0, q0, vt0)
+    m0 = [e1q, e2d, e1d, e2q, delta, 1.0]
+    if model == "SEXS":
+        ka = s["K"]
+        x0 = [efd0 / ka, efd0]   # lead-lag state, efd
+
+        def exc(x, vt, ifd, vref):
+            xl, efd = x
+            e = vref - vt
+            y = xl + s["TA"] / s["TB"] * (e - xl)
+            de = (ka * y - efd) / s["TE"]
+            if (efd >= s["EMAX"] and de > 0) or (efd <= s["EMIN"] and de < 0):
+                de = 0.0
+            return [(e - xl) / s["TB"], de], efd
+    else:
+        ka = s["KA"]
+        x0 = [vt0, efd0 / ka, efd0 / ka, efd0]   # transducer, lead-lag 1, lead-lag 2, VA
+
+        def exc(x, vt, ifd, vref):
+            xm, x1, x2, va = x
+            e = vref - xm
+            y1 = x1 + s["TC"] / s["TB"] * (e - x1)
+            y2 = x2 + s["TC1"] / s["TB1"] * (y1 - x2)
+            efd = min(max(va, s["VRMIN"] * vt), s["VRMAX"] * vt - s["KC"] * ifd)
+            return [(vt - xm) / s["TR"], (e - x1) / s["TB"], (y1 - x2) / s["TB1"], (ka * y2 - va) / s["TA"]], efd
+    vref0 = vt0 + efd0 / ka
+    ne = len(x0)
+
+    def f(t, z, vref):
+        m, x = z[:6], z[6:]
+        vt, ifd, *_ = mach.algebra(*m[:5], vinf)
+        dx, efd = exc(x, vt, ifd, vref)
+        return mach.derivatives(m, efd, vinf) + dx
+
+    t = np.arange(int(round(t_end / dt)) + 1) * dt
+    z = np.array(m0 + x0)
+    cuts = [0.0] + [a for a, _ in steps] + [t[-1] + dt]
+    vref = vref0
+    ys = []
+    for j in range(len(cuts) - 1):   # one integration between reference changes
+        sol = solve_ivp(f, (cuts[j], cuts[j + 1]), z, args=(vref,), method="RK45", rtol=1e-9, atol=1e-11,
+                        max_step=5e-4, dense_output=True)
+        assert sol.success
+        seg = t[(t >= cuts[j] - 1e-9) & (t < cuts[j + 1] - 1e-9)]
+        ys.append(sol.sol(seg))
+        z = sol.y[:, -1]
+        if j < len(steps):
+            vref += steps[j][1]
+    Y = np.concatenate(ys, axis=1)
+    out = np.empty((4, Y.shape[1]))
+    for k in range(Y.shape[1]):
+        m, x = Y[:6, k], Y[6:, k]
+        vt, ifd, _cid, _ciq, p, q, _xaq = mach.algebra(*m[:5], vinf)
+        out[:, k] = [exc(x, vt, ifd, vref0)[1], vt, p, q]
+    assert ne == Y.shape[0] - 6
+    return out
+
+
+def _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt):
+    unit = _unit(model, s, vt0)
+    P = param_matrix(unit.values())
+    M = machine_matrix(_machine(xe, p0, q0))
+    n = int(round(t_end / dt)) + 1
+    usetp = np.ones(n)
+    for at, change in steps:
+        usetp[int(round(at / dt)):] += change
+    return run_online(P, M, usetp, dt, 1.0), unit
+
+
+CASES = [
+    # SEXS, +2 % step held, XE 0.4, lagging Q
+    ("SEXS", SEXS, 0.4, 0.8, 0.2, 1.0, [(0.5, 0.02)], 4.0),
+    # ESST1A, a 10 % pulse: efd rides the bus-fed ceiling VRMAX Vt - KC Ifd (moving with Vt and Ifd)
+    ("ESST1A", ESST1A, 0.2, 0.8, 0.1, 1.02, [(0.5, 0.10), (1.5, -0.10)], 4.0),
+]
+
+
+@pytest.mark.parametrize("model,s,xe,p0,q0,vt0,steps,t_end", CASES)
+def test_online_machine_matches_its_equations_solved_by_solve_ivp(model, s, xe, p0, q0, vt0, steps, t_end):
+    dt = 1e-3
+    out, unit = _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt)
+    assert out["fail_step"][0] < 0
+    ref = _reference(model, s, xe, p0, q0, vt0, steps, t_end, dt)
+    k = ref.shape[1]
+    errs = {name: np.abs(out[name][0, :k] - ref[q]) for q, name in enumerate(("efd", "vt", "p", "q"))}
+    worst = {name: f"{e.max():.2e} at {np.argmax(e) * dt:.3f} s" for name, e in errs.items()}
+    assert errs["efd"].max() < 1e-3, worst
+    assert errs["vt"].max() < 1e-4, worst
+    assert errs["q"].max() < 1e-4, worst
+    assert errs["p"].max() < 1e-4, worst
+    # the operating point is the one asked for, and the step moved the unit
+    assert abs(out["p"][0, 0] - p0) < 1e-9 and abs(out["q"][0, 0] - q0) < 1e-9 and abs(out["vt"][0, 0] - vt0) < 1e-9
+    assert np.ptp(out["q"][0]) > 0.05 and np.ptp(out["p"][0]) > 0.005   # Q follows, P swings
+    if model == "ESST1A":   # the ceiling was reached: VRMAX Vt - KC Ifd
+        hi = s["VRMAX"] * out["vt"][0] - s["KC"] * out["ifd"][0]
+        assert np.any(out["efd"][0] >= hi - 1e-6)
+
+
+def test_online_steady_state_is_steady():
+    """Without a step every signal stays where the operating point put it (ANDES' closed-form
+    initialisation of a GENROU, the exciters' steady state at that field voltage)."""
+    for model, s in (("SEXS", SEXS), ("ESST1A", ESST1A)):
+        unit = _unit(model, s, 1.03)
+        P = param_matrix(unit.values())
+        M = machine_matrix([_machine(0.3, 0.9, -0.1), _machine(0.1, 0.2, 0.4)])
+        out = run_online(np.vstack([P, P]), M, np.ones(3001), 1e-3, 1.0)
+        for name in ("efd", "vt", "p", "q", "ifd"):
+            drift = np.abs(out[name] - out[name][:, :1]).max()
+            assert drift < 1e-9, f"{model} {name} drifts {drift:.1e}"
+        assert np.all(out["fail_step"] < 0)
+
+
+def test_online_refuses_what_it_does_not_simulate():
+    unit = _unit("SEXS", SEXS, 1.0)
+    P = param_matrix(unit.values())
+    M = machine_matrix(_machine(0.3, 0.8, 0.2))
+    bad = apply_overrides(unit, []).with_effects({"dead_time": {"TD": 0.02}})
+    with pytest.raises(ValueError, match="TD is not simulated on line"):
+        run_online(param_matrix(bad.values()), M, np.ones(10), 1e-3, 1.0)
+    with pytest.raises(ValueError, match="XE"):
+        machine_matrix({**_machine(0.3, 0.8, 0.2), "XE": 5.0})
+    with pytest.raises(ValueError, match="H .*missing"):
+        machine_matrix({k: v for k, v in _machine(0.3, 0.8, 0.2).items() if k != "H"})
+    # reactances out of order: the candidate fails at step 0, its neighbour runs
+    M2 = machine_matrix([_machine(0.3, 0.8, 0.2), {**_machine(0.3, 0.8, 0.2), "XDP": 0.2, "XDPP": 0.25}])
+    out = run_online(np.vstack([P, P]), M2, np.ones(10), 1e-3, 1.0)
+    assert list(out["fail_step"]) == [-1, 0]
+    assert len(MACHINE_PARAMS) == M.shape[1]
