@@ -1,4 +1,5 @@
-"""`bench-ctl simulate`: a synthetic pulse capture of a unit, with effects, noise and quantisation."""
+"""`bench-ctl simulate`: a synthetic pulse capture of a unit, with effects, noise and quantisation; at
+no load, or on the grid (`--online`: the unit synchronised through XE, P, Q and Ifd recorded too)."""
 from __future__ import annotations
 
 import math
@@ -31,9 +32,12 @@ MAX_SAMPLES = 1.0e7
 @click.option("--lsb", type=float, default=20.0 / 4096, show_default=True,
               help="Recorder quantisation step (pu); default 12 bit over +-10 pu.")
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--online", is_flag=True,
+              help="The unit on the grid: a GENROU through XE to an infinite bus at the operating point P0, Q0, "
+                   "Vt0 (the unit's [grid], --set, or a GENROU record via --from-dyr); P, Q and Ifd recorded too.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Capture CSV to write.")
 def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, amplitude, width, start, duration,
-             rate, noise, lsb, seed, output):
+             rate, noise, lsb, seed, online, output):
     """Write a synthetic pulse capture (CSV + JSON sidecar) of the unit."""
     try:
         unit = build_unit(unit_path, overrides, effects, model=model, from_dyr=from_dyr,
@@ -60,17 +64,18 @@ def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, am
                               replace_hint="captures are never overwritten: choose another name")
         t, usetp = pulse_usetp(amplitude=amplitude, width=width, start=start, duration=duration, rate=rate,
                                usetp0=unit.generator["Vt0"])
-        rec = synthetic_record(unit, t, usetp, RecorderModel(noise, lsb), seed)
+        rec = synthetic_record(unit, t, usetp, RecorderModel(noise, lsb), seed, online=online)
     except (UnitError, ValueError) as exc:   # OutputRefused is a ValueError
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
     meta = {
-        "test": {"kind": "pulse", "amplitude_pu": amplitude, "start_s": start, "width_s": width},
+        "test": {"kind": "pulse", "amplitude_pu": amplitude, "start_s": start, "width_s": width,
+                 **({"online": True} if online else {})},
         "source": "simulation",
         "unit": unit_to_std(unit.structure, unit.to_dict()),   # the structure's names
         "recorder": {"noise_pu": noise, "lsb_pu": lsb, "seed": seed,
                      "usetp": "the AVR's digital setpoint, recorded exactly",
-                     "efd": "measured: noise + quantisation", "vt": "measured: noise + quantisation"},
+                     **{name: "measured: noise + quantisation" for name in rec if name not in ("time", "usetp")}},
         "effects": unit.to_dict()["effects"],  # JSON has no infinity: neutral limits as null
         "software_version": __version__,
         "command_line": " ".join(["bench-ctl"] + sys.argv[1:]),

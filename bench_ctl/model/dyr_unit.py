@@ -213,11 +213,23 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
     return _with_generator(new, gen) if gen is not None else new
 
 
+def machine_from_record(rec: DyrRecord) -> dict[str, float]:
+    """The machine's on-line data (a unit's [grid], `params.MACHINE_PARAMS`) from a GENROU record:
+    reactances, q-axis time constants, H and D. A GENSAL's q-axis has no transient circuit (the
+    on-line machine does not run it yet): its record gives none."""
+    if rec.model != "GENROU":
+        return {}
+    v = _values(rec)
+    names = {"XD": "Xd", "XQ": "Xq", "XDP": "X'd", "XQP": "X'q", "XDPP": "X''d", "XLS": "Xl",
+             "Tq0p": "T'qo", "Tq0pp": "T''qo", "H": "H", "DAMP": "D"}
+    return {k: v[src] for k, src in names.items() if src in v}
+
+
 def _with_generator(unit: Unit, gen: DyrRecord) -> Unit:
     g = generator_from_record(gen)
     generator = dict(unit.generator)
     generator.update({k: g[k] for k in ("Td0p", "Td0pp", *GENERATOR_OPTIONAL)})
-    unit = replace(unit, generator=generator)
+    unit = replace(unit, generator=generator, grid={**unit.grid, **machine_from_record(gen)})
     if "S10" in g:
         unit = unit.with_effects({"saturation": {"S10": g["S10"], "S12": g["S12"]}})
     return unit

@@ -13,6 +13,7 @@ import numpy as np
 
 from .edges import EdgeSpec
 from .kernel import run_kernel, saturation_ab
+from .online import machine_matrix, run_online, unit_machine
 from .params import COL, KERNEL_PARAMS, PARAMS, RECORD_PARAMS, STRUCTURE_PARAMS
 from .unit import Unit
 
@@ -105,12 +106,20 @@ class RecorderModel:
 
 
 def synthetic_record(unit: Unit, t: np.ndarray, usetp: np.ndarray, recorder: RecorderModel,
-                     seed: int | None) -> dict[str, np.ndarray]:
+                     seed: int | None, *, online: bool = False) -> dict[str, np.ndarray]:
     """What the recorder stores: usetp is the AVR's digital setpoint (recorded exactly); efd and vt
-    are measured channels with the recorder's noise and quantisation."""
+    are measured channels with the recorder's noise and quantisation. `online`: the unit on the
+    grid (its [grid] data, `online.run_online`), with P, Q and Ifd measured too."""
     dt = float(t[1] - t[0])
-    efd, vt, fail = simulate(unit.values(), usetp, dt)
+    if online:
+        out = run_online(param_matrix(unit.values()), machine_matrix(unit_machine(unit)), usetp, dt,
+                         pre_trigger_mean(usetp, dt))
+        series = {name: out[name][0] for name in ("efd", "vt", "p", "q", "ifd")}
+        fail = int(out["fail_step"][0])
+    else:
+        efd, vt, fail = simulate(unit.values(), usetp, dt)
+        series = {"efd": efd, "vt": vt}
     if fail >= 0:
         raise ValueError(f"the unit {unit.name!r} is unstable with these parameters (failed at t = {fail * dt:.3f} s)")
     rng = np.random.default_rng(seed)
-    return {"time": t, "usetp": usetp, "efd": recorder.apply(efd, rng), "vt": recorder.apply(vt, rng)}
+    return {"time": t, "usetp": usetp, **{name: recorder.apply(x, rng) for name, x in series.items()}}

@@ -27,7 +27,15 @@ from bench_ctl.limits import InputError, read_text
 from .acceptance import AcceptanceError, acceptance_limits
 from .dialect import kernel_text, refusal, shared_names, std_name
 from .effects import EFFECTS, effect
-from .params import AVR_PARAMS, GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, neutral_values
+from .params import (
+    AVR_PARAMS,
+    GENERATOR_OPTIONAL,
+    GENERATOR_PARAMS,
+    MACHINE_CATALOGUE,
+    MACHINE_PARAMS,
+    PARAMS,
+    neutral_values,
+)
 from .structures import DEFAULT as DEFAULT_MODEL
 from .structures import Structure, StructureError, structure
 
@@ -58,6 +66,8 @@ class Unit:
     model_values: dict[str, float] = field(default_factory=dict)
     #: the numeric acceptance limits ([acceptance], checked; None = the defaults)
     acceptance: dict | None = None
+    #: the machine on the grid and the grid ([grid], `online.MACHINE_PARAMS`; empty: no-load data only)
+    grid: dict[str, float] = field(default_factory=dict)
 
     @property
     def structure(self) -> Structure:
@@ -118,6 +128,7 @@ class Unit:
             "model": self.model,
             "model_values": {k: _finite_or_none(v) for k, v in self.standard_values().items()},
             "acceptance": acceptance_limits(self.acceptance, self.source),
+            "grid": dict(self.grid),
         }
 
 
@@ -144,8 +155,9 @@ def _finite_or_none(v: float) -> float | None:
 
 
 _TOP_KEYS = {"name", "constraints", "generator", "identify", "fixed", "weights", "effects", "avr",
-             "acceptance"}
-_TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects", "avr", "acceptance")
+             "acceptance", "grid"}
+_TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects", "avr", "acceptance", "grid")
+_MACHINE_INFO = {p.name: p for p in MACHINE_CATALOGUE}
 
 
 def check_unit(unit: Unit, source: str) -> Unit:
@@ -341,6 +353,7 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
         generator=generator, identify=identify, fixed=fixed,
         constraints=tuple(constraints), weights=weights, source=source,
         model=st.name, model_values=std_vals, acceptance=_acceptance(data.get("acceptance"), source),
+        grid=_grid(data.get("grid", {}), source),
     )
     effects_raw = data.get("effects", {})
     for name in effects_raw:
@@ -354,6 +367,20 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     except ValueError as exc:
         raise UnitError(f"{source}: {exc}") from None
     return check_unit(unit, source)
+
+
+def _grid(raw: Mapping, source: str) -> dict[str, float]:
+    """[grid]: the machine's on-line data, the grid to the infinite bus, the operating point."""
+    bad = set(raw) - set(MACHINE_PARAMS)
+    if bad:
+        raise UnitError(f"{source}: [grid] unknown key(s) {sorted(bad)}; allowed: {list(MACHINE_PARAMS)}")
+    grid = {k: _num(v, f"{source}: grid.{k}") for k, v in raw.items()}
+    for k, v in grid.items():
+        try:
+            _MACHINE_INFO[k].check(v, where=f"{source}: grid.")
+        except ValueError as exc:
+            raise UnitError(str(exc)) from None
+    return grid
 
 
 def load_unit(path: str | Path | None = None) -> Unit:
@@ -409,7 +436,7 @@ def with_model(unit: Unit, name: str) -> Unit:
     if st.name == unit.model:
         return unit
     data = {"name": unit.name, "generator": dict(unit.generator), "weights": dict(unit.weights),
-            "avr": {"model": st.name}}
+            "avr": {"model": st.name}, "grid": dict(unit.grid)}
     if st.name == DEFAULT_MODEL:
         ref = reference_unit()
         data.update(identify={k: {"value": b.value, "min": b.min, "max": b.max} for k, b in ref.identify.items()},
@@ -442,6 +469,9 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     key = _std_to_kernel(unit, key, item)
     if unit.model != DEFAULT_MODEL and key != std_key and "." not in std_key:
         unit = replace(unit, model_values={**unit.model_values, std_key: value})
+    if key in MACHINE_PARAMS:   # the machine on the grid, the grid, the operating point
+        _MACHINE_INFO[key].check(value, where="--set ")
+        return replace(unit, grid={**unit.grid, key: value})
     if key.startswith("weights."):
         sig = key.split(".", 1)[1]
         if sig not in _WEIGHT_KEYS:
@@ -476,4 +506,5 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
         return replace(unit, fixed={**unit.fixed, key: value})
     known = list(PARAMS) if unit.model == DEFAULT_MODEL else \
         [*unit.structure.names, *(n for n in shared_names() if n not in unit.structure.names)]
+    known += list(MACHINE_PARAMS)
     raise UnitError(f"--set {item!r}: unknown name {key!r}; known: {', '.join(known)}")

@@ -68,3 +68,34 @@ def test_simulate_refuses_non_finite_options_and_a_saturation_that_would_be_off(
         assert main(["simulate", *args, "--duration", "3", "-o", str(out)]) == 2, args
         assert msg in capsys.readouterr().err
         assert not out.exists()
+
+
+ONLINE_SETS = ["XD=1.8", "XQ=1.7", "XDP=0.3", "XQP=0.55", "XDPP=0.25", "XLS=0.15", "Tq0p=0.4", "Tq0pp=0.05", "H=3",
+               "XE=0.4", "P0=0.8", "Q0=0.2", "FN=60"]
+
+
+def test_simulate_online_records_p_q_and_ifd(tmp_path):
+    """The unit on the grid (issue 27): the capture holds P, Q and Ifd at the operating point asked
+    for, and a raised reference raises Q."""
+    out = tmp_path / "online.csv"
+    sets = [a for s in ONLINE_SETS for a in ("--set", s)]
+    rc = main(["simulate", "--online", "--model", "SEXS", *sets, "--amplitude", "0.02", "--start", "1", "--width", "3",
+               "--duration", "5", "--noise", "0", "--lsb", "0", "-o", str(out)])
+    assert rc == 0
+    cap = read_capture(out)
+    p, q, ifd = (cap.channel(name) for name in ("p", "q", "ifd"))
+    assert np.allclose(p[:900], 0.8, atol=1e-9) and np.allclose(q[:900], 0.2, atol=1e-9)
+    assert np.allclose(cap.vt[:900], 1.0, atol=1e-9)
+    assert q[3900] - q[900] > 0.03                      # the 2 % step raised Q
+    assert ifd[3900] > ifd[900]
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["test"]["online"] is True
+    assert meta["unit"]["grid"]["XE"] == 0.4
+
+
+def test_simulate_online_names_what_the_unit_lacks(tmp_path, capsys):
+    rc = main(["simulate", "--online", "--set", "XE=0.2", "-o", str(tmp_path / "x.csv")])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "on line needs XD, XQ, XDP, XQP, XDPP, XLS, Tq0p, Tq0pp, H, P0, Q0" in err
+    assert not (tmp_path / "x.csv").exists()

@@ -119,3 +119,41 @@ def test_set_overrides():
 def test_bad_overrides(bad, msg):
     with pytest.raises(UnitError, match=msg):
         apply_overrides(reference_unit(), [bad])
+
+
+def test_grid_table_set_and_dyr_give_the_machine_on_the_grid(tmp_path):
+    """[grid] (issue 27): the machine's on-line data and the grid, from the unit file, --set (kept
+    across --model) and a GENROU record; a key outside the machine's names, or out of range, is named."""
+    from bench_ctl.model.unit import with_model
+
+    ref = tmp_path / "ref.toml"
+    text = resources_reference_text()
+    ref.write_text(text + "\n[grid]\nXE = 0.25\nH = 4.0\n")
+    unit = load_unit(ref)
+    assert unit.grid == {"XE": 0.25, "H": 4.0}
+    unit = apply_overrides(unit, ["XE=0.3", "P0=0.8"])
+    assert with_model(unit, "SEXS").grid == {"XE": 0.3, "H": 4.0, "P0": 0.8}
+    assert unit.to_dict()["grid"]["XE"] == 0.3
+    for bad, msg in (("XE = 9.0", "grid.XE = 9.0 pu is outside"), ("XX = 1.0", "[grid] unknown key(s) ['XX']")):
+        ref.write_text(text + f"\n[grid]\n{bad}\n")
+        with pytest.raises(UnitError) as e:
+            load_unit(ref)
+        assert msg in str(e.value)
+    with pytest.raises(UnitError, match="XE = -1.0 pu is outside"):
+        apply_overrides(reference_unit(), ["XE=-1"])
+
+
+def test_genrou_record_gives_the_machine_data(tmp_path):
+    from bench_ctl.model.dyr import read_dyr
+    from bench_ctl.model.dyr_unit import machine_from_record
+
+    dyr = tmp_path / "u.dyr"
+    dyr.write_text("1 'GENROU' 1 7.5 0.05 0.4 0.05 3.0 0.0 1.8 1.7 0.3 0.55 0.25 0.15 0.05 0.2 /\n")
+    rec = read_dyr(dyr)[0]
+    assert machine_from_record(rec) == {"XD": 1.8, "XQ": 1.7, "XDP": 0.3, "XQP": 0.55, "XDPP": 0.25, "XLS": 0.15,
+                                        "Tq0p": 0.4, "Tq0pp": 0.05, "H": 3.0, "DAMP": 0.0}
+
+
+def resources_reference_text() -> str:
+    from importlib import resources
+    return resources.files("bench_ctl.data").joinpath("reference_unit.toml").read_text("utf-8")
