@@ -24,8 +24,9 @@ demo: $(STAMP)
 # (its module fixtures are built once)
 PYTEST = $(BIN)/python -m pytest -q -n auto --dist loadfile --durations=25
 WARM_UP = $(BIN)/python -c 'from bench_ctl.identification.identify import warm_up; \
-	  from bench_ctl.model.unit import reference_unit; \
-	  print(f"kernel compiled or loaded from its cache in {warm_up(reference_unit()):.0f} s")'
+	  from bench_ctl.model import online, simulate; from bench_ctl.model.unit import reference_unit; \
+	  print(f"kernel compiled or loaded from its cache in {warm_up(reference_unit()):.0f} s"); \
+	  print(f"on-line machine in {online.warm_up(simulate.param_matrix(reference_unit().values())):.0f} s")'
 
 test: $(STAMP)
 	$(WARM_UP)
