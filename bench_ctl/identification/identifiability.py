@@ -60,8 +60,8 @@ def _weights(problem: Problem) -> np.ndarray:
         c[0] = c[-1] = 0.5
         w = np.sqrt(r.alpha * problem.w_efd * c * r.dt)
         parts.append(w)
-        if r.vt is not None and problem.w_vt > 0:
-            parts.append(np.full(r.i1 - r.i0, np.nan))  # vt block: not part of the efd sensitivity
+        for _ in problem.signals(r)[1:]:   # vt, Q blocks: not part of the efd sensitivity
+            parts.append(np.full(r.i1 - r.i0, np.nan))
     return np.concatenate(parts)
 
 
@@ -69,8 +69,7 @@ def _active(problem: Problem) -> np.ndarray:
     """Residual rows that count (a capture of weight alpha = 0 contributes rows of zeros)."""
     parts = []
     for r in problem.records:
-        parts.append(np.full(r.i1 - r.i0, r.alpha > 0))
-        if r.vt is not None and problem.w_vt > 0:
+        for _ in problem.signals(r):
             parts.append(np.full(r.i1 - r.i0, r.alpha > 0))
     return np.concatenate(parts)
 

@@ -8,9 +8,14 @@ population with ONE kernel call per capture:
     OF(x) = sum_k alpha_k * integral sum_n w_n (y_n(x) - y_n,meas)^2 dt   (trapezoidal rule)
 
 over captures k and signals n (efd with the unit's efd weight; vt when the capture has it and
-its weight is > 0), docs/identification.md. Candidates the kernel marks failed (unstable or invalid
-parameters) get a penalty larger than any objective a finite simulation can produce, and larger
-the earlier they fail, so every candidate stays rankable.
+its weight is > 0; Q of an on-line record, weight `q`, default 1), docs/identification.md.
+
+A capture with P and Q channels is an on-line record: it runs on the machine on the grid
+(`bench_ctl.model.online`, the unit's [grid] data) from the record's own pre-step P, Q and Vt.
+
+Candidates the kernel marks failed (unstable or invalid parameters) get a penalty larger than
+any objective a finite simulation can produce, and larger the earlier they fail, so every
+candidate stays rankable.
 
 A fit window (`fit_window=(t0, t1)` in s, or `segment=slice(i0, i1)` in samples) restricts the
 objective and the MSE to part of each record; the simulation always starts at the record's
@@ -39,8 +44,9 @@ import numpy as np
 from bench_ctl.capture import Capture
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.kernel import BLOWUP, run_kernel, saturation_ab
-from bench_ctl.model.params import KERNEL_PARAMS, PARAMS
-from bench_ctl.model.simulate import param_matrix, pre_trigger_mean
+from bench_ctl.model.online import machine_matrix, run_online, unit_machine
+from bench_ctl.model.params import COL, KERNEL_PARAMS, MACHINE_DATA, PARAMS
+from bench_ctl.model.simulate import operating_point, param_matrix, pre_trigger_mean
 from bench_ctl.model.unit import Unit
 
 from .constraints import LinearConstraint, parse_constraints
@@ -93,6 +99,7 @@ class Problem:
     records: tuple[Record, ...] = field(repr=False)
     window: tuple[float, float] | None = None
     penalty_base: float = 1.0e20
+    w_q: float = 0.0
 
     # ------------------------------------------------------------------ basics
     @property
@@ -246,9 +253,7 @@ class Problem:
         fail_frac = np.zeros(n)  # sum over captures of the share of the record lost to a failure
         for k, r in enumerate(self.records):
             if r.full:
-                out = _kernel(P, r.usetp, r.dt, r.usetp_pre, efd_meas=r.efd, vt_meas=r.vt,
-                              w_efd=self.w_efd, w_vt=self.w_vt if r.vt is not None else 0.0,
-                              store=False, edges=r.edges)
+                out = _simulate(P, r, measured=True, w_efd=self.w_efd, w_vt=self.w_vt, w_q=self.w_q)
                 obj = out["obj"]
             else:
                 out, res = self._window_residuals(P, r)
@@ -264,12 +269,14 @@ class Problem:
         return self.objective(X)
 
     def simulate(self, x: Sequence[float]) -> list[dict[str, Any]]:
-        """Full-record traces per capture: [{efd, vt, fail_step}] (efd as recorded)."""
+        """Full-record traces per capture: [{efd, vt, fail_step}] (efd as recorded; an on-line
+        record's p, q, ifd too)."""
         P = self.matrix(np.asarray(x, dtype=float).reshape(1, -1))
         outs = []
         for r in self.records:
-            o = _kernel(P, r.usetp, r.dt, r.usetp_pre, edges=r.edges)
-            outs.append({"efd": o["efd"][0], "vt": o["vt"][0], "fail_step": int(o["fail_step"][0])})
+            o = _simulate(P, r)
+            outs.append({name: o[name][0] for name in ("efd", "vt", "p", "q", "ifd") if name in o}
+                        | {"fail_step": int(o["fail_step"][0])})
         return outs
 
     def steady_efd(self, x: Sequence[float]) -> float:
@@ -286,21 +293,20 @@ class Problem:
 
     def mse_many(self, X: np.ndarray, signal: str = "efd") -> np.ndarray:
         """Per-capture MSE of `signal` for a population: shape (n_captures, n)."""
-        if signal not in ("efd", "vt"):
-            raise ValueError(f"signal {signal!r}: choose 'efd' or 'vt'")
+        if signal not in ("efd", "vt", "q"):
+            raise ValueError(f"signal {signal!r}: choose 'efd', 'vt' or 'q'")
         P = self.matrix(X)
         rows = []
         for r in self.records:
-            meas = r.efd if signal == "efd" else r.vt
+            meas = {"efd": r.efd, "vt": r.vt, "q": r.q}[signal]
             if meas is None:
                 rows.append(np.full(P.shape[0], np.nan))
                 continue
             if r.full:
-                kw = {"efd_meas": r.efd, "w_efd": 1.0} if signal == "efd" else {"vt_meas": r.vt, "w_vt": 1.0}
-                out = _kernel(P, r.usetp, r.dt, r.usetp_pre, store=False, edges=r.edges, **kw)
+                out = _simulate(P, r, measured=True, **{f"w_{s}": float(s == signal) for s in ("efd", "vt", "q")})
                 m = out["sse_" + signal] / meas.size
             else:
-                out = _kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
+                out = _simulate(P, r, r.i1)
                 e = out[signal][:, r.i0: r.i1] - meas[r.i0: r.i1]
                 m = np.mean(e * e, axis=1)
             rows.append(np.where(out["fail_step"] >= 0, np.inf, m))
@@ -329,6 +335,12 @@ class Problem:
         f = np.einsum("ij,ij->i", R, R)
         return R, np.where(fail_frac > 0, self.penalty(fail_frac), f)
 
+    def signals(self, r: Record) -> list[str]:
+        """The signals of record r in the residual vector, in order: efd, then vt and Q when
+        recorded and weighted."""
+        return ["efd"] + (["vt"] if r.vt is not None and self.w_vt > 0 else []) \
+            + (["q"] if r.q is not None and self.w_q > 0 else [])
+
     def residual_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For each entry of the `residuals` vector: its capture, its instant (s from the record's
         first sample) and the seconds of record it stands for (alpha c_j dt on a sample's efd
@@ -341,20 +353,20 @@ class Problem:
             c[0] = c[-1] = 0.5
             t = (r.i0 + np.arange(n)) * r.dt
             sec = r.alpha * c * r.dt
-            signals = 2 if (r.vt is not None and self.w_vt > 0) else 1
+            signals = len(self.signals(r))
             caps.append(np.full(n * signals, k))
             times.append(np.tile(t, signals))
             secs.append(np.concatenate([sec] + [np.zeros(n)] * (signals - 1)))
         return np.concatenate(caps), np.concatenate(times), np.concatenate(secs)
 
     def _window_residuals(self, P: np.ndarray, r: Record) -> tuple[dict, np.ndarray]:
-        out = _kernel(P, r.usetp[: r.i1], r.dt, r.usetp_pre, edges=r.edges_upto(r.i1))
+        out = _simulate(P, r, r.i1)
         c = np.ones(r.i1 - r.i0)
         c[0] = c[-1] = 0.5
         scale = np.sqrt(c * r.dt)
-        res = [math.sqrt(self.w_efd) * scale * (out["efd"][:, r.i0: r.i1] - r.efd[r.i0: r.i1])]
-        if r.vt is not None and self.w_vt > 0:
-            res.append(math.sqrt(self.w_vt) * scale * (out["vt"][:, r.i0: r.i1] - r.vt[r.i0: r.i1]))
+        weight = {"efd": self.w_efd, "vt": self.w_vt, "q": self.w_q}
+        meas = {"efd": r.efd, "vt": r.vt, "q": r.q}
+        res = [math.sqrt(weight[s]) * scale * (out[s][:, r.i0: r.i1] - meas[s][r.i0: r.i1]) for s in self.signals(r)]
         return out, np.hstack(res)
 
 
@@ -367,6 +379,43 @@ def _lost(fail_step: np.ndarray, r: Record) -> np.ndarray:
 #: costs more than it saves for the small batches of a polish, several times more when the
 #: machine is busy (docs/benchmarks.md, "Diagnosis constants")
 SMALL_CALL = 300_000
+
+
+def _simulate(P: np.ndarray, r: Record, n: int | None = None, *, measured: bool = False, w_efd: float = 1.0,
+              w_vt: float = 0.0, w_q: float = 0.0) -> dict:
+    """The candidates P over record r (its first n samples; all: without traces when `measured`,
+    with the weighted errors of the signals it has): the no-load kernel, or for an on-line record
+    the machine on the grid from the record's operating point."""
+    n = r.usetp.size if n is None else int(n)
+    store = not measured
+    if r.machine is None:
+        kw = {"efd_meas": r.efd, "vt_meas": r.vt, "w_efd": w_efd, "w_vt": w_vt if r.vt is not None else 0.0} \
+            if measured else {}
+        return _kernel(P, r.usetp[:n], r.dt, r.usetp_pre, store=store, edges=r.edges_upto(n), **kw)
+    P = P.copy()
+    P[:, COL["Vt0"]] = r.vt0
+    M = np.repeat(r.machine[None, :], P.shape[0], axis=0)
+    meas = {"efd": r.efd, "vt": r.vt, "q": r.q} if measured else None
+    weights = {"efd": w_efd, "vt": w_vt, "q": w_q}
+    with _threads(P.shape[0] * n):
+        return run_online(P, M, r.usetp[:n], r.dt, r.usetp_pre, measured=meas, weights=weights, store=store,
+                          edges=r.edges_upto(n))
+
+
+class _threads:
+    """One thread for a small call (`SMALL_CALL`), else numba's."""
+
+    def __init__(self, size: int):
+        self.one = size < SMALL_CALL and numba.get_num_threads() > 1
+        self.old = numba.get_num_threads()
+
+    def __enter__(self) -> None:
+        if self.one:
+            numba.set_num_threads(1)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.one:
+            numba.set_num_threads(self.old)
 
 
 def _kernel(P: np.ndarray, usetp: np.ndarray, *args: Any, **kwargs: Any) -> dict:
@@ -521,6 +570,7 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         raise ProblemError(f"signal weights {unit.weights}: need >= 0 and at least one > 0")
     if w_efd == 0 and not any(c.vt is not None for c in caps):
         raise ProblemError("efd weight is 0 and no capture has a vt channel: nothing to fit")
+    w_q = float(unit.weights.get("q", 1.0))
 
     if segment is not None and fit_window is not None:
         raise ProblemError("give either segment or fit_window, not both")
@@ -537,17 +587,42 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         spec = edge_spec([e for e, _ in moved], [s for _, s in moved])
         r = Record(usetp=usetp, efd=np.ascontiguousarray(c.efd, dtype=float), vt=vt, dt=dt,
                     usetp_pre=pre_trigger_mean(usetp, dt), alpha=a, i0=0, i1=c.n, source=owner,
-                    edges=spec, edge_list=tuple(edges), edge_slots=tuple(slots))
+                    edges=spec, edge_list=tuple(edges), edge_slots=tuple(slots), **_on_line(c, unit, owner))
         window = segment_window(segment, c) if segment is not None else fit_window
         recs.append(apply_window(r, window, c))
         # a finite (non-failed) simulation keeps |states| < BLOWUP: bound its objective
         dur = dt * (c.n - 1)
         e_max = (_MAX_GAIN * BLOWUP + float(np.max(np.abs(c.efd)))) ** 2 * w_efd
         v_max = (BLOWUP + float(np.max(np.abs(vt)))) ** 2 * w_vt if vt is not None else 0.0
-        bound_total += a * (e_max + v_max) * dur
+        q_max = (BLOWUP + float(np.max(np.abs(r.q)))) ** 2 * w_q if r.q is not None else 0.0
+        bound_total += a * (e_max + v_max + q_max) * dur
     window_used = fit_window if segment is None else segment_window(segment, caps[0])
     return Problem(captures=caps, unit=unit, names=names_t, bounds=tuple(bnds),
                    constraints=tuple(fitted), constraint_texts=tuple(texts),
                    fixed_constraints=tuple(fixed), weights=tuple(alphas), w_efd=w_efd, w_vt=w_vt,
                    base=base, records=tuple(recs), window=window_used,
-                   penalty_base=max(1.0e20, 10.0 * bound_total))
+                   penalty_base=max(1.0e20, 10.0 * bound_total), w_q=w_q)
+
+
+def _on_line(c: Capture, unit: Unit, owner: str) -> dict[str, Any]:
+    """A capture with P and Q channels is an on-line record: the unit's machine on the grid at the
+    record's pre-step P, Q and Vt (Record.machine, vt0, q); a no-load record: nothing."""
+    p, q = c.channel("p"), c.channel("q")
+    if p is None and q is None:
+        return {}
+    if p is None or q is None or c.vt is None:
+        have = [name for name, x in (("p", p), ("q", q), ("vt", c.vt)) if x is not None]
+        raise ProblemError(f"{owner}: an on-line record needs p, q and vt; it has {', '.join(have)}")
+    point = operating_point(c.usetp, p, q, c.vt)
+    missing = [name for name in MACHINE_DATA + ("XE",) if name not in unit.grid]
+    if missing:
+        raise ProblemError(f"{owner} is an on-line record (it has p and q): the unit {unit.name!r} needs "
+                           f"{', '.join(missing)} under [grid] or with --set (the machine's data also come "
+                           "from a GENROU record with --from-dyr)")
+    try:
+        machine = machine_matrix(unit_machine(replace(unit, grid={**unit.grid, "P0": point["P0"],
+                                                                  "Q0": point["Q0"]})))[0]
+    except ValueError as exc:
+        raise ProblemError(f"{owner}: {exc}") from None
+    return {"machine": machine, "vt0": point["Vt0"], "q": np.ascontiguousarray(q, dtype=float)}
+

@@ -34,6 +34,11 @@ class Record:
     edges: EdgeSpec = field(default_factory=EdgeSpec.none)
     edge_list: tuple[Edge, ...] = ()
     edge_slots: tuple[int | None, ...] = ()
+    #: an on-line record: the machine on the grid (a row of `params.MACHINE_PARAMS`, the record's
+    #: pre-step P0, Q0 in it), the record's pre-step Vt (the kernel's Vt0) and its Q; else None
+    machine: np.ndarray | None = None
+    vt0: float | None = None
+    q: np.ndarray | None = None
 
     @property
     def full(self) -> bool:
@@ -88,7 +93,8 @@ def decimated(r: Record, q: int, n_max: int | None, offset: int) -> Record:
     i1 = int(np.searchsorted(idx, r.i1))
     return replace(r, usetp=np.ascontiguousarray(r.usetp[idx]), efd=np.ascontiguousarray(r.efd[idx]),
                    vt=None if r.vt is None else np.ascontiguousarray(r.vt[idx]), dt=r.dt * q, i0=i0,
-                   i1=max(i1, i0 + 2), edges=edges)
+                   i1=max(i1, i0 + 2), edges=edges,
+                   q=None if r.q is None else np.ascontiguousarray(r.q[idx]))
 
 
 def segment_window(seg: slice, cap: Capture) -> tuple[float, float]:

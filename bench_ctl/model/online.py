@@ -266,7 +266,7 @@ def _readout(D, G, i, u, X):
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM, parallel=True)
-def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, traces, sse, fail_step):
+def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, traces, sse, ends, fail_step):
     n = D.shape[1]
     T = usetp.shape[0]
     ne = eidx.shape[0]
@@ -313,6 +313,8 @@ def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, tr
                 if w[q] > 0.0:
                     e = held[q] - meas[q, k]
                     sse[q, i] += e * e
+                    if k == 0 or k == T - 1:   # the trapezoid's half weight at both ends
+                        ends[q, i] += 0.5 * e * e
             if k == T - 1 or failed:
                 continue
             for a in range(1, nb_):  # insertion sort of the few jumps inside the step
@@ -356,8 +358,9 @@ def run_online(P: np.ndarray, M: np.ndarray, usetp: np.ndarray, dt: float, usetp
     over the setpoint series `usetp` (step dt; `usetp_pre` before it), the edges as `run_kernel`'s.
 
     Returns `efd`, `vt`, `p`, `q`, `ifd` (n, T) when `store`; `sse_<signal>` for every measured
-    signal among efd, vt, p, q; `obj` = dt * sum of weight x SSE (weights default 1 for efd, 0 for
-    the others); `fail_step` (-1: ran to the end; 0: invalid parameters)."""
+    signal among efd, vt, p, q; `obj`: the trapezoidal integral of the weighted squared errors, as
+    `run_kernel`'s (weights default 1 for efd, 0 for the others); `fail_step` (-1: ran to the end;
+    0: invalid parameters)."""
     P = np.atleast_2d(np.asarray(P, float))
     n = P.shape[0]
     usetp = np.require(usetp, np.float64, ("C", "W"))
@@ -391,12 +394,13 @@ def run_online(P: np.ndarray, M: np.ndarray, usetp: np.ndarray, dt: float, usetp
         raise ValueError(f"edge at sample {int(edges.index.max())} lies beyond the record ({T} samples)")
     traces = np.zeros((5, n, T) if store else (5, 1, 1))
     sse = np.zeros((4, n))
+    ends = np.zeros((4, n))
     fail_step = np.full(n, -1, dtype=np.int64)
     if n:
         _run(np.ascontiguousarray(D.T), np.ascontiguousarray(G.T), usetp, float(usetp_pre), float(dt),
              np.require(edges.index, np.int64, ("C", "W")), np.require(edges.jump, np.float64, ("C", "W")),
              np.require(edges.nominal_s, np.float64, ("C", "W")), np.require(edges.slot, np.int64, ("C", "W")),
-             meas, w, bool(store), traces, sse, fail_step)
+             meas, w, bool(store), traces, sse, ends, fail_step)
     out: dict[str, np.ndarray] = {"fail_step": fail_step}
     if store:
         out.update({name: traces[q] for q, name in enumerate(SIGNALS)})
@@ -404,7 +408,7 @@ def run_online(P: np.ndarray, M: np.ndarray, usetp: np.ndarray, dt: float, usetp
         if name in measured:
             out[f"sse_{name}"] = sse[q]
     if measured:
-        out["obj"] = dt * (w @ sse)
+        out["obj"] = dt * (w @ (sse - ends))
     return out
 
 

@@ -63,6 +63,25 @@ def simulate(values: Mapping[str, float], usetp: np.ndarray, dt: float,
     return out["efd"][0], out["vt"][0], int(out["fail_step"][0])
 
 
+def operating_point(usetp: np.ndarray, p: np.ndarray, q: np.ndarray, vt: np.ndarray) -> dict[str, float]:
+    """An on-line record's operating point before the test: P0, Q0 and Vt0, the means of its P, Q
+    and Vt before the setpoint first changes."""
+    usetp = np.asarray(usetp, float)
+    changed = np.flatnonzero(np.abs(usetp - usetp[0]) > 1e-9)
+    pre = slice(0, max(1, int(changed[0]) if changed.size else usetp.size))
+    return {name: float(np.mean(np.asarray(x, float)[pre])) for name, x in (("P0", p), ("Q0", q), ("Vt0", vt))}
+
+
+def simulate_on_line(values: Mapping[str, float], grid: Mapping[str, float], point: Mapping[str, float],
+                     usetp: np.ndarray, dt: float, edges: EdgeSpec | None = None) -> dict[str, np.ndarray]:
+    """One parameter set on the grid (`online.run_online`) from an operating point (P0, Q0, Vt0,
+    `operating_point`): efd (as recorded), vt, p, q, ifd and fail_step."""
+    machine = machine_matrix({**grid, "P0": point["P0"], "Q0": point["Q0"]})
+    out = run_online(param_matrix({**values, "Vt0": point["Vt0"]}), machine, usetp, dt, pre_trigger_mean(usetp, dt),
+                     edges=edges)
+    return {**{name: out[name][0] for name in ("efd", "vt", "p", "q", "ifd")}, "fail_step": int(out["fail_step"][0])}
+
+
 def generator_saturation(s10: float, s12: float) -> Callable[[float], float]:
     """The no-load generator's saturation Sat(x) through S(1.0) = `s10` and S(1.2) = `s12`, the
     curve the kernel integrates (docs/model.md): for code outside the model that needs the

@@ -204,7 +204,7 @@ def _check_value(st: Structure, kernel_name: str, value: float, where: str) -> N
         p = st.param(name)
         info = replace(info, name=name, unit=p.unit, info=p.info)
     info.check(value, where=where)
-_WEIGHT_KEYS = {"efd", "vt"}
+_WEIGHT_KEYS = {"efd", "vt", "q"}
 
 
 def _num(value: object, where: str) -> float:

@@ -20,7 +20,7 @@ from bench_ctl.diagnosis.diagnosis_file import Diagnosis
 from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.acceptance import Acceptance, AcceptanceError, acceptance_limits, evaluate
-from bench_ctl.model.simulate import simulate
+from bench_ctl.model.simulate import operating_point, simulate, simulate_on_line
 from bench_ctl.model.unit import outside_bounds
 from bench_ctl.report import checks as chk
 from bench_ctl.report.inputs import (
@@ -113,8 +113,9 @@ def analyse(result: IdentificationResult, *, diagnosis: Diagnosis | None = None,
         limits = acceptance_limits(unit.get("acceptance"), f"{where}: unit")
     except AcceptanceError as exc:
         raise ReportError(str(exc)) from None
+    grid = unit.get("grid") if isinstance(unit.get("grid"), Mapping) else {}
     analyses = [_analyse_capture(lc, values, window, where, window_s=window_s, w_efd=w_efd,
-                                 w_vt=w_vt, single=len(loaded) == 1, limits=limits) for lc in loaded]
+                                 w_vt=w_vt, single=len(loaded) == 1, limits=limits, grid=grid) for lc in loaded]
     failures = [f"{a.loaded.path.name}: the model blew up at t = "
                 f"{a.loaded.capture.time[a.fail_step]:.3f} s" for a in analyses if a.fail_step >= 0]
     mse = float(np.mean([a.fit_mse for a in analyses]))
@@ -150,14 +151,15 @@ def analyse(result: IdentificationResult, *, diagnosis: Diagnosis | None = None,
 def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
                      window: tuple[float, float] | None, where: str, *, window_s: float,
                      w_efd: float, w_vt: float, single: bool,
-                     limits: Mapping[str, Any] | None = None) -> CaptureAnalysis:
+                     limits: Mapping[str, Any] | None = None, grid: Mapping[str, float] | None = None
+                     ) -> CaptureAnalysis:
     cap = lc.capture
     # the setpoint edges at the instants the fit found (none recorded: the zero-order hold)
     try:
         spec, offsets = edge_spec_of(lc.entry.edges, cap.n)
     except (KeyError, TypeError, ValueError) as exc:
         raise ReportError(f"{where}: captures[{lc.index}].edges: unreadable edge entry ({exc})") from None
-    efd, vt, fail = simulate({**values, **offsets}, cap.usetp, cap.dt, edges=spec)
+    efd, vt, fail = simulate_record({**values, **offsets}, cap, grid or {}, spec, where)
     edges = find_edges(cap.time, cap.usetp)
     figs = error_figures(cap.time, cap.efd, efd, edges, window_s=window_s, w_efd=w_efd,
                          vt_meas=cap.vt, vt_sim=vt, w_vt=w_vt)
@@ -234,3 +236,17 @@ def _kernel_view(result: Any) -> tuple[dict[str, Any], dict[str, Any]]:
 
     sections = kernel_sections(result.to_json())
     return sections["params"], sections["fixed"]
+
+
+def simulate_record(values: Mapping[str, float], cap: Any, grid: Mapping[str, float], spec: Any,
+                    where: str) -> tuple[np.ndarray, np.ndarray, int]:
+    """(efd, vt, fail_step) of the fitted values on a capture: at no load, or on the grid when the
+    capture has P and Q (from its own operating point and the result's [grid])."""
+    p, q = cap.channel("p"), cap.channel("q")
+    if p is None or q is None or cap.vt is None:
+        return simulate(values, cap.usetp, cap.dt, edges=spec)
+    try:
+        out = simulate_on_line(values, grid, operating_point(cap.usetp, p, q, cap.vt), cap.usetp, cap.dt, edges=spec)
+    except (KeyError, ValueError) as exc:
+        raise ReportError(f"{where}: an on-line capture (p and q) re-simulated on the grid: {exc}") from None
+    return out["efd"], out["vt"], out["fail_step"]

@@ -1,0 +1,67 @@
+"""Identification on line (issue 27, item 3 in part): a capture with P and Q channels runs on the
+machine on the grid from its own pre-step operating point, the objective weighs Q beside efd, and
+the report re-simulates it the same way."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench_ctl.capture import Capture
+from bench_ctl.identification.identify import run_identification
+from bench_ctl.identification.problem import ProblemError, make_problem
+from bench_ctl.model.online import TYPICAL_MACHINE
+from bench_ctl.model.simulate import RecorderModel, pulse_usetp, synthetic_record
+from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.report.analysis import simulate_record
+
+TRUE = {"K": 200.0, "TA": 1.0, "TB": 10.0, "TE": 0.05}
+
+
+def _unit(values=TRUE, grid=TYPICAL_MACHINE):
+    unit = with_model(reference_unit(), "SEXS")
+    return apply_overrides(unit, [f"{k}={v}" for k, v in {**values, **grid}.items()] + ["Vt0=1.02"])
+
+
+def _capture(noise: float, seed: int = 4) -> Capture:
+    t, usetp = pulse_usetp(amplitude=0.02, width=2.0, start=0.5, duration=4.0, rate=1000.0, usetp0=1.02)
+    rec = synthetic_record(_unit(), t, usetp, RecorderModel(noise, 0.0), seed, online=True)
+    return Capture(time=rec["time"], usetp=rec["usetp"], efd=rec["efd"], vt=rec["vt"],
+                   extra={k: rec[k] for k in ("p", "q", "ifd")}, source="online.csv")
+
+
+def test_online_record_runs_from_its_own_operating_point():
+    cap = _capture(0.0)
+    # the unit's own operating point is not the record's: the record's pre-step P, Q, Vt count
+    unit = apply_overrides(_unit(), ["P0=0.1", "Q0=-0.3", "Vt0=1.0"])
+    prob = make_problem([cap], unit)
+    r = prob.records[0]
+    assert r.machine is not None and r.vt0 == pytest.approx(1.02, abs=1e-12)
+    x = prob.x_start()
+    assert prob.mse(x, "efd")[0] < 1e-20 and prob.mse(x, "q")[0] < 1e-20
+    assert prob.signals(r) == ["efd", "q"]   # Q weighted by default on line, Vt as the unit says
+    # the report re-simulates it on the grid (and at no load it would not reproduce it)
+    efd, vt, fail = simulate_record(prob.values(x), cap, unit.grid, None, "test")
+    assert fail < 0 and np.abs(efd - cap.efd).max() < 1e-12 and np.abs(vt - cap.vt).max() < 1e-12
+
+
+def test_online_identification_reaches_the_noise():
+    cap = _capture(0.01)
+    start = _unit({"K": 120.0, "TA": 2.0, "TB": 5.0, "TE": 0.1})
+    ident = run_identification([cap], start, max_evals=600, seed=1)
+    best = ident.best
+    values = ident.problem.params(best.x)
+    mse = ident.problem.mse(best.x)[0]
+    assert mse < 1.05 * 0.01 ** 2, mse
+    assert values["TE"] == pytest.approx(0.05, rel=0.1)
+    assert values["KAVR"] * values["TA1"] / values["TA2"] == pytest.approx(20.0, rel=0.05)   # the high-frequency gain
+
+
+def test_online_record_needs_the_machine_and_all_three_channels():
+    cap = _capture(0.0)
+    bare = with_model(reference_unit(), "SEXS")
+    with pytest.raises(ProblemError, match="on-line record .*needs XD, XQ, XDP, XQP, XDPP, XLS, Tq0p, Tq0pp, H, XE"):
+        make_problem([cap], bare)
+    half = Capture(time=cap.time, usetp=cap.usetp, efd=cap.efd, vt=cap.vt, extra={"p": cap.channel("p")},
+                   source="half.csv")
+    with pytest.raises(ProblemError, match="half.csv: an on-line record needs p, q and vt; it has p, vt"):
+        make_problem([half], _unit())
