@@ -149,6 +149,10 @@ def prepare(capture: Capture, unit: Unit, *, holdout: Capture | None = None, bud
     floor (pre-trigger) and the `Setup` (views, the fit's floor, the check's windows)."""
     budget = budget if budget is not None else Budget()
     src = capture.source or "capture"
+    for c in (capture, holdout):
+        if c is not None and c.channel("p") is not None and c.channel("q") is not None:
+            raise DiagnosisError(f"{c.source or 'capture'} is an on-line record (it has p and q): the diagnosis "
+                                 "and --model auto do not run on line yet; identify it with a named --model")
     edges = find_edges(capture.usetp, src)
     efd_floor = noise_floor(capture.efd, capture.dt, edges, src)
     floor = _fit_floor(capture, unit, edges, efd_floor, src)

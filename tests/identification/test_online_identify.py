@@ -65,3 +65,11 @@ def test_online_record_needs_the_machine_and_all_three_channels():
                    source="half.csv")
     with pytest.raises(ProblemError, match="half.csv: an on-line record needs p, q and vt; it has p, vt"):
         make_problem([half], _unit())
+
+
+def test_diagnosis_says_it_does_not_run_on_line_yet():
+    from bench_ctl.diagnosis.diagnose import prepare
+    from bench_ctl.diagnosis.localize import DiagnosisError
+
+    with pytest.raises(DiagnosisError, match="online.csv is an on-line record .*do not run on line yet"):
+        prepare(_capture(0.0), _unit())
