@@ -57,6 +57,7 @@ class CaptureAnalysis:
     fit_mse: float        # MSE over the fit window (= figures.mse without a window)
     fit_objective: float  # objective over the fit window (unweighted by the capture weight)
     acceptance: Acceptance  # IEC 61400-27-2 windows (bench_ctl.model.acceptance)
+    online: dict[str, np.ndarray] | None = None   # an on-line record's simulated p, q, ifd
 
     @property
     def residual(self) -> np.ndarray:
@@ -159,7 +160,8 @@ def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
         spec, offsets = edge_spec_of(lc.entry.edges, cap.n)
     except (KeyError, TypeError, ValueError) as exc:
         raise ReportError(f"{where}: captures[{lc.index}].edges: unreadable edge entry ({exc})") from None
-    efd, vt, fail = simulate_record({**values, **offsets}, cap, grid or {}, spec, where)
+    sim = simulate_record({**values, **offsets}, cap, grid or {}, spec, where)
+    efd, vt, fail = sim["efd"], sim["vt"], sim["fail_step"]
     edges = find_edges(cap.time, cap.usetp)
     figs = error_figures(cap.time, cap.efd, efd, edges, window_s=window_s, w_efd=w_efd,
                          vt_meas=cap.vt, vt_sim=vt, w_vt=w_vt)
@@ -177,7 +179,8 @@ def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
             fit_obj += w_vt * trapezoid_sq(cap.vt[sl] - vt[sl], cap.dt)
     suffix = "" if single else f"_{lc.index + 1}"
     acc = evaluate(cap.time, cap.efd, efd, edges.leading_s, edges.trailing_s, limits)
-    return CaptureAnalysis(lc, efd, vt, fail, edges, figs, suffix, fit_mse, fit_obj, acc)
+    online = {k: sim[k] for k in ("p", "q", "ifd")} if "p" in sim else None
+    return CaptureAnalysis(lc, efd, vt, fail, edges, figs, suffix, fit_mse, fit_obj, acc, online)
 
 
 def _acceptance_check(analyses: list[CaptureAnalysis]) -> chk.Check:
@@ -239,14 +242,15 @@ def _kernel_view(result: Any) -> tuple[dict[str, Any], dict[str, Any]]:
 
 
 def simulate_record(values: Mapping[str, float], cap: Any, grid: Mapping[str, float], spec: Any,
-                    where: str) -> tuple[np.ndarray, np.ndarray, int]:
-    """(efd, vt, fail_step) of the fitted values on a capture: at no load, or on the grid when the
-    capture has P and Q (from its own operating point and the result's [grid])."""
+                    where: str) -> dict[str, Any]:
+    """efd, vt and fail_step of the fitted values on a capture: at no load, or on the grid when
+    the capture has P and Q (from its own operating point and the result's [grid]; then p, q and
+    ifd too)."""
     p, q = cap.channel("p"), cap.channel("q")
     if p is None or q is None or cap.vt is None:
-        return simulate(values, cap.usetp, cap.dt, edges=spec)
+        efd, vt, fail = simulate(values, cap.usetp, cap.dt, edges=spec)
+        return {"efd": efd, "vt": vt, "fail_step": fail}
     try:
-        out = simulate_on_line(values, grid, operating_point(cap.usetp, p, q, cap.vt), cap.usetp, cap.dt, edges=spec)
+        return simulate_on_line(values, grid, operating_point(cap.usetp, p, q, cap.vt), cap.usetp, cap.dt, edges=spec)
     except (KeyError, ValueError) as exc:
         raise ReportError(f"{where}: an on-line capture (p and q) re-simulated on the grid: {exc}") from None
-    return out["efd"], out["vt"], out["fail_step"]

@@ -15,6 +15,7 @@ from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.acceptance import SOURCE
 from bench_ctl.model.dialect import describe
+from bench_ctl.model.mode import electromechanical_mode
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F
@@ -142,6 +143,35 @@ def response(d: ReportData) -> Section:
         if timing is not None:
             blocks.append(timing)
     return Section("response", "Measured vs simulated response", tuple(blocks))
+
+
+def online(d: ReportData) -> Section | None:
+    """An on-line record's P, Q, Vt and efd, measured vs simulated, and the electromechanical mode
+    in P after the first edge, measured vs simulated (`model.mode`). None without one."""
+    blocks: list[Block] = []
+    for a in d.captures:
+        if a.online is None:
+            continue
+        cap = a.loaded.capture
+        if len(d.captures) > 1:
+            blocks.append(Heading(a.label))
+        meas = {"efd": cap.efd, "vt": cap.vt, "p": cap.channel("p"), "q": cap.channel("q")}
+        sim = {"efd": a.efd_sim, "vt": a.vt_sim, "p": a.online["p"], "q": a.online["q"]}
+        blocks.append(Fig(f"online{a.suffix}", "On line: efd, terminal voltage, active and reactive power, "
+                          "measured and simulated; dotted lines mark the setpoint edges.",
+                          partial(F.draw_online, time=cap.time, meas=meas, sim=sim, edges=a.edges), size=(7.5, 8.0)))
+        rows = []
+        for name, p in (("measured", meas["p"]), ("simulated", sim["p"])):
+            m = None if a.edges.leading_s is None else electromechanical_mode(cap.time, p, a.edges.leading_s)
+            key = f"mode-{name}{a.suffix}"
+            rows.append((name, "n/a" if m is None else Num(m.frequency_hz, f"{key}-hz", 3),
+                         "n/a" if m is None else Num(m.damping, f"{key}-zeta", 3),
+                         "n/a" if m is None else Num(m.amplitude, None, 3)))
+        blocks.append(Table(("P", "frequency (Hz)", "damping ratio", "swing amplitude (pu)"), tuple(rows),
+                            caption="The electromechanical mode in P after the leading edge (a damped sinusoid "
+                                    "beside a slow exponential, fitted over 4 s; n/a: no swing above three "
+                                    "times the fit's residual)."))
+    return Section("online", "On line: P, Q, Vt and efd", tuple(blocks)) if blocks else None
 
 
 def errors(d: ReportData) -> Section:

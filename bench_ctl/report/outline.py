@@ -9,7 +9,11 @@ from bench_ctl.report.record_sections import diagnosis, metadata, provenance
 
 
 def sections(d: ReportData, *, pdf: bool = False) -> list[Section]:
-    out = [fit.summary(d), fit.response(d), fit.errors(d), fit.acceptance(d), fit.parameters(d)]
+    out = [fit.summary(d), fit.response(d)]
+    on_line = fit.online(d)
+    if on_line is not None:
+        out.append(on_line)
+    out += [fit.errors(d), fit.acceptance(d), fit.parameters(d)]
     chosen = fit.selection(d)
     if chosen is not None:
         out.append(chosen)

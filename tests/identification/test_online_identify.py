@@ -40,8 +40,10 @@ def test_online_record_runs_from_its_own_operating_point():
     assert prob.mse(x, "efd")[0] < 1e-20 and prob.mse(x, "q")[0] < 1e-20
     assert prob.signals(r) == ["efd", "q"]   # Q weighted by default on line, Vt as the unit says
     # the report re-simulates it on the grid (and at no load it would not reproduce it)
-    efd, vt, fail = simulate_record(prob.values(x), cap, unit.grid, None, "test")
-    assert fail < 0 and np.abs(efd - cap.efd).max() < 1e-12 and np.abs(vt - cap.vt).max() < 1e-12
+    sim = simulate_record(prob.values(x), cap, unit.grid, None, "test")
+    assert sim["fail_step"] < 0
+    for name in ("efd", "vt", "p", "q"):
+        assert np.abs(sim[name] - cap.columns()[name]).max() < 1e-12, name
 
 
 def test_online_identification_reaches_the_noise():
@@ -73,3 +75,24 @@ def test_diagnosis_says_it_does_not_run_on_line_yet():
 
     with pytest.raises(DiagnosisError, match="online.csv is an on-line record .*do not run on line yet"):
         prepare(_capture(0.0), _unit())
+
+
+def test_report_of_an_online_result_shows_p_q_and_the_mode(tmp_path):
+    """simulate --online, identify, report: the report re-simulates on the grid (its MSE check
+    passes) and has an on-line section with the mode in P measured and simulated."""
+    import re
+
+    from bench_ctl.cli import main
+
+    sets = [a for k, v in {**TYPICAL_MACHINE, "FN": 60.0}.items() for a in ("--set", f"{k}={v}")]
+    cap, res, html = tmp_path / "on.csv", tmp_path / "result.json", tmp_path / "report.html"
+    assert main(["simulate", "--online", "--model", "SEXS", *sets, "--amplitude", "0.05", "--start", "1",
+                 "--width", "5", "--duration", "8", "--noise", "0.002", "--seed", "3", "-o", str(cap)]) == 0
+    assert main(["identify", str(cap), "--model", "SEXS", *sets, "--evals", "300", "--json", str(res)]) in (0, 1)
+    assert main(["report", str(res), "-o", str(html)]) == 0
+    text = html.read_text()
+    assert 'id="sec-online"' in text and (tmp_path / "report_online.png").is_file()
+    hz = {k: float(v) for k, v in re.findall(r'id="mode-(measured|simulated)-hz" data-value="([^"]+)"', text)}
+    assert set(hz) == {"measured", "simulated"} and abs(hz["measured"] - hz["simulated"]) < 0.02
+    assert 0.5 < hz["measured"] < 3.0
+    assert "reported MSE reproduced" in text and "FAIL: reported MSE" not in text
