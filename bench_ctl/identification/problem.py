@@ -44,8 +44,8 @@ import numpy as np
 from bench_ctl.capture import Capture
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.kernel import BLOWUP, run_kernel, saturation_ab
-from bench_ctl.model.online import machine_matrix, run_online, unit_machine
-from bench_ctl.model.params import COL, KERNEL_PARAMS, MACHINE_DATA, PARAMS
+from bench_ctl.model.online import machine_data, machine_matrix, run_online, unit_machine
+from bench_ctl.model.params import COL, KERNEL_PARAMS, PARAMS
 from bench_ctl.model.simulate import operating_point, param_matrix, pre_trigger_mean
 from bench_ctl.model.unit import Unit
 
@@ -614,14 +614,13 @@ def _on_line(c: Capture, unit: Unit, owner: str) -> dict[str, Any]:
         have = [name for name, x in (("p", p), ("q", q), ("vt", c.vt)) if x is not None]
         raise ProblemError(f"{owner}: an on-line record needs p, q and vt; it has {', '.join(have)}")
     point = operating_point(c.usetp, p, q, c.vt)
-    missing = [name for name in MACHINE_DATA + ("XE",) if name not in unit.grid]
+    missing = [name for name in machine_data(unit) if name not in unit.grid]
     if missing:
         raise ProblemError(f"{owner} is an on-line record (it has p and q): the unit {unit.name!r} needs "
                            f"{', '.join(missing)} under [grid] or with --set (the machine's data also come "
-                           "from a GENROU record with --from-dyr)")
+                           "from a GENROU or GENSAL record with --from-dyr)")
     try:
-        machine = machine_matrix(unit_machine(replace(unit, grid={**unit.grid, "P0": point["P0"],
-                                                                  "Q0": point["Q0"]})))[0]
+        machine = machine_matrix(unit_machine(unit, {"P0": point["P0"], "Q0": point["Q0"]}))[0]
     except ValueError as exc:
         raise ProblemError(f"{owner}: {exc}") from None
     return {"machine": machine, "vt0": point["Vt0"], "q": np.ascontiguousarray(q, dtype=float)}

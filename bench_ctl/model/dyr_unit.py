@@ -214,11 +214,8 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
 
 
 def machine_from_record(rec: DyrRecord) -> dict[str, float]:
-    """The machine's on-line data (a unit's [grid], `params.MACHINE_PARAMS`) from a GENROU record:
-    reactances, q-axis time constants, H and D. A GENSAL's q-axis has no transient circuit (the
-    on-line machine does not run it yet): its record gives none."""
-    if rec.model != "GENROU":
-        return {}
+    """The machine's on-line data (a unit's [grid], `params.MACHINE_PARAMS`) from a GENROU or
+    GENSAL record: reactances, q-axis time constants, H and D (a GENSAL has no X'q, T'q0)."""
     v = _values(rec)
     names = {"XD": "Xd", "XQ": "Xq", "XDP": "X'd", "XQP": "X'q", "XDPP": "X''d", "XLS": "Xl",
              "Tq0p": "T'qo", "Tq0pp": "T''qo", "H": "H", "DAMP": "D"}

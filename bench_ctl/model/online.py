@@ -17,6 +17,10 @@ with gd1 = (X''d - Xl)/(X'd - Xl), gd2 = (X'd - X''d)/(X'd - Xl)^2 (the same for
 gqd = (Xq - Xl)/(Xd - Xl). At no load (Id = Iq = 0) the d-axis is the kernel's generator (E'q,
 E''q = psikd, KPP = gd1, KDA = (Xd - X'd) gd2).
 
+A GENSAL (the kernel's SATEQ = 1: a salient-pole unit) has the same d-axis with its saturation
+Sat(E'q) on E'q alone, and one q-axis circuit: psi''q = psikq, T''q0 dpsikq/dt = -psikq +
+(Xq - X''d) Iq (E'd stays 0; X'q and T'q0 are not used).
+
 The network is solved in closed form each stage: in the machine's frame (a phasor X of the grid
 seen as X_dq = Xd + j Xq = j X e^{-j delta}), E'' = psi''q + j psi''d and the infinite bus
 Vinf_dq = Vinf (sin delta + j cos delta):
@@ -33,7 +37,7 @@ Numerics as the kernel's: classical RK4 at the record's step, the setpoint zero-
 each edge at its fitted instant (the step split there), the regulator lag held at its ceilings
 inside each stage and clamped after the step (the ceilings move with Vt and Ifd; at a limit the
 lag is held there, not moved with it). Not yet on line: the dead time, the setpoint ramp and the
-recorder skew (refused), a GENSAL (refused). Candidates run in parallel, each its own loop.
+recorder skew (refused). Candidates run in parallel, each its own loop.
 """
 from __future__ import annotations
 
@@ -69,8 +73,9 @@ from .params import COL, MACHINE_CATALOGUE, MACHINE_DATA, MACHINE_DEFAULTS, MACH
 
 #: the columns of the machine's derived matrix G (transposed as the kernel's: G[G_NAME, i])
 (G_GD1, G_GQ1, G_GD2, G_GQ2, G_GQD, G_XD, G_XQ, G_XDP, G_XQP, G_XDPP, G_XL, G_ITQ0P, G_ITQ0PP, G_IM,
- G_DAMP, G_W0, G_RA, G_RT, G_XT, G_VINF, G_TM, G_E1Q0, G_E2D0, G_E1D0, G_E2Q0, G_DELTA0, G_VALID) = range(27)
-N_G = 27
+ G_DAMP, G_W0, G_RA, G_RT, G_XT, G_VINF, G_TM, G_E1Q0, G_E2D0, G_E1D0, G_E2Q0, G_DELTA0, G_VALID,
+ G_SAL, G_KQ) = range(29)
+N_G = 29
 #: the states of an on-line candidate: the kernel's eight (xm, x1, x2, VR lag, E'q, psikd, rate
 #: feedback, DC/AC exciter), then E'd, psikq, delta, omega
 N_ONLINE = 12
@@ -99,20 +104,36 @@ def machine_matrix(values: Mapping[str, float] | Sequence[Mapping[str, float]]) 
     return M
 
 
+#: a GENSAL's q-axis has one circuit: these are not its data
+SALIENT_UNUSED = ("XQP", "Tq0p")
 #: a machine to compile the loop with (a GENROU of typical data at a typical operating point)
 TYPICAL_MACHINE: dict[str, float] = {"XD": 1.8, "XQ": 1.7, "XDP": 0.3, "XQP": 0.55, "XDPP": 0.25, "XLS": 0.15,
                                      "Tq0p": 0.4, "Tq0pp": 0.05, "H": 3.0, "XE": 0.2, "P0": 0.8, "Q0": 0.2}
 
 
-def unit_machine(unit) -> dict[str, float]:
-    """The machine-on-the-grid values of a unit (its [grid]); an error that names what is missing
-    and where it can come from."""
-    missing = [name for name in (*MACHINE_DATA, "XE", "P0", "Q0") if name not in unit.grid]
+def machine_data(unit) -> tuple[str, ...]:
+    """The [grid] names the unit on line needs besides the operating point: the machine's data
+    (a GENSAL, the kernel's SATEQ = 1, has no X'q, T'q0) and XE."""
+    sal = float(unit.values().get("SATEQ", 0.0)) > 0.5
+    return tuple(n for n in MACHINE_DATA if not (sal and n in SALIENT_UNUSED)) + ("XE",)
+
+
+def unit_machine(unit, point: Mapping[str, float] | None = None) -> dict[str, float]:
+    """The machine-on-the-grid values of a unit (its [grid], at `point`'s P0, Q0 when given); an
+    error that names what is missing and where it can come from."""
+    grid = {**unit.grid, **(point or {})}
+    missing = [name for name in (*machine_data(unit), "P0", "Q0") if name not in grid]
     if missing:
         raise ValueError(f"the unit {unit.name!r} on line needs {', '.join(missing)}: give them under [grid] "
                          "in the unit file or with --set NAME=VALUE (the machine's data also come from a "
-                         "GENROU record with --from-dyr)")
-    return dict(unit.grid)
+                         "GENROU or GENSAL record with --from-dyr)")
+    return with_placeholders({k: v for k, v in grid.items() if k in MACHINE_PARAMS})
+
+
+def with_placeholders(grid: Mapping[str, float]) -> dict[str, float]:
+    """`grid` with a GENSAL's unused q-axis transient data (X'q = Xq, T'q0 = 1 s) where absent:
+    placeholders the machine does not read for a GENSAL."""
+    return {"XQP": grid.get("XQ", 1.0), "Tq0p": 1.0, **grid}
 
 
 def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -129,16 +150,18 @@ def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray
     sat_a, sat_b = K.saturation_ab(P[:, COL["S10"]], P[:, COL["S12"]])
     for i in range(n):
         m = {name: M[i, j] for name, j in MCOL.items()}
-        xd, xq, x1d, x1q, x2, xl = m["XD"], m["XQ"], m["XDP"], m["XQP"], m["XDPP"], m["XLS"]
-        ok = (xd > x1d > x2 > xl >= 0.0 and xq >= x1q >= x2 and m["Tq0p"] > 0 and m["Tq0pp"] > 0
-              and m["H"] > 0 and P[i, COL["Vt0"]] > 0 and P[i, COL["SATEQ"]] < 0.5)
+        sal = P[i, COL["SATEQ"]] > 0.5   # a GENSAL: saturation on E'q, one q-axis circuit
+        xd, xq, x1d, x2, xl = m["XD"], m["XQ"], m["XDP"], m["XDPP"], m["XLS"]
+        x1q = xq if sal else m["XQP"]
+        ok = (xd > x1d > x2 > xl >= 0.0 and xq >= x1q >= x2 and xq > x2 and (sal or m["Tq0p"] > 0)
+              and m["Tq0pp"] > 0 and m["H"] > 0 and P[i, COL["Vt0"]] > 0)
         if not ok:
             continue
         gd1 = (x2 - xl) / (x1d - xl)
-        gq1 = (x2 - xl) / (x1q - xl)
+        gq1 = 0.0 if sal else (x2 - xl) / (x1q - xl)
         gd2 = (x1d - x2) / (x1d - xl) ** 2
-        gq2 = (x1q - x2) / (x1q - xl) ** 2
-        gqd = (xq - xl) / (xd - xl)
+        gq2 = 0.0 if sal else (x1q - x2) / (x1q - xl) ** 2
+        gqd = 0.0 if sal else (xq - xl) / (xd - xl)
         ra, re, xe = m["RA"], m["RE"], m["XE"]
         vt0, p0, q0 = P[i, COL["Vt0"]], m["P0"], m["Q0"]
         # the operating point, the terminal voltage at angle 0 (ANDES' GENROU initialisation)
@@ -147,7 +170,7 @@ def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray
         zs = complex(ra, x2)
         psi20 = (it + v / zs) * zs
         psi_abs = abs(psi20)
-        se0 = sat_b[i] * (psi_abs - sat_a[i]) ** 2 / psi_abs if psi_abs >= sat_a[i] else 0.0
+        se0 = sat_b[i] * (psi_abs - sat_a[i]) ** 2 / psi_abs if psi_abs >= sat_a[i] and not sal else 0.0
         a = psi_abs * (1.0 + se0 * gqd)
         b = abs(it) * (x2 - xq)
         th = cmath.phase(psi20) - cmath.phase(it) if abs(it) > 0 else 0.0
@@ -156,20 +179,23 @@ def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray
         psi_dq, i_dq = psi20 * rot, it * rot
         psi2q0, psi2d0 = psi_dq.real, psi_dq.imag
         id0, iq0 = i_dq.real, i_dq.imag
-        vf0 = (se0 + 1.0) * psi2d0 + (xd - x2) * id0
+        e1q0 = psi2d0 + (x1d - x2) * id0
+        sat_eq = sat_b[i] * max(e1q0 - sat_a[i], 0.0) ** 2 if sal else 0.0   # a GENSAL's Sat(E'q)
+        vf0 = (se0 + 1.0) * psi2d0 + (xd - x2) * id0 + sat_eq
         vinf = v - complex(re, xe) * it
         G[i] = 0.0
         G[i, G_GD1], G[i, G_GQ1], G[i, G_GD2], G[i, G_GQ2], G[i, G_GQD] = gd1, gq1, gd2, gq2, gqd
         G[i, G_XD], G[i, G_XQ], G[i, G_XDP], G[i, G_XQP], G[i, G_XDPP], G[i, G_XL] = xd, xq, x1d, x1q, x2, xl
-        G[i, G_ITQ0P], G[i, G_ITQ0PP] = 1.0 / m["Tq0p"], 1.0 / m["Tq0pp"]
+        G[i, G_ITQ0P], G[i, G_ITQ0PP] = (0.0 if sal else 1.0 / m["Tq0p"]), 1.0 / m["Tq0pp"]
+        G[i, G_SAL], G[i, G_KQ] = float(sal), (xq - x2) if sal else (x1q - xl)
         G[i, G_IM], G[i, G_DAMP], G[i, G_W0] = 1.0 / (2.0 * m["H"]), m["DAMP"], 2.0 * math.pi * m["FN"]
         G[i, G_RA], G[i, G_RT], G[i, G_XT] = ra, ra + re, x2 + xe
         G[i, G_VINF] = abs(vinf)
         G[i, G_TM] = p0 + ra * abs(it) ** 2
-        G[i, G_E1Q0] = id0 * (x1d - xd) - se0 * psi2d0 + vf0
-        G[i, G_E2D0] = id0 * (xl - xd) - se0 * psi2d0 + vf0
-        G[i, G_E1D0] = iq0 * (xq - x1q) - se0 * gqd * psi2q0
-        G[i, G_E2Q0] = -iq0 * (xl - xq) - se0 * gqd * psi2q0
+        G[i, G_E1Q0] = e1q0
+        G[i, G_E2D0] = e1q0 - (x1d - xl) * id0
+        G[i, G_E1D0] = 0.0 if sal else iq0 * (xq - x1q) - se0 * gqd * psi2q0
+        G[i, G_E2Q0] = psi2q0 if sal else -iq0 * (xl - xq) - se0 * gqd * psi2q0
         G[i, G_DELTA0] = delta0 - cmath.phase(vinf)   # the infinite bus at angle 0
         G[i, G_VALID] = 1.0
         fld0[i] = vf0
@@ -189,9 +215,13 @@ def machine(D, G, i, e1q, e2d, e1d, e2q, delta):
     psd = gd1 * e1q + (1.0 - gd1) * e2d
     psq = gq1 * e1d + (1.0 - gq1) * e2q
     psi = math.sqrt(psd * psd + psq * psq)
+    sal = G[G_SAL, i]
     x = psi - D[D_SATA, i]
     x = x if x > 0.0 else 0.0
-    se = D[D_SATB, i] * x * x / (psi if psi > 1.0e-6 else 1.0e-6)
+    se = (1.0 - sal) * D[D_SATB, i] * x * x / (psi if psi > 1.0e-6 else 1.0e-6)
+    xs = e1q - D[D_SATA, i]
+    xs = xs if xs > 0.0 else 0.0
+    sat_eq = sal * D[D_SATB, i] * xs * xs   # a GENSAL's Sat(E'q)
     vinf = G[G_VINF, i]
     ar = psq - vinf * math.sin(delta)
     ai = psd - vinf * math.cos(delta)
@@ -210,7 +240,7 @@ def machine(D, G, i, e1q, e2d, e1d, e2q, delta):
     te = p + ra * (cid * cid + ciq * ciq)
     gd2 = G[G_GD2, i]
     gq2 = G[G_GQ2, i]
-    ifd = e1q + (G[G_XD, i] - G[G_XDP, i]) * (gd1 * cid + gd2 * (e1q - e2d)) + se * psd
+    ifd = e1q + (G[G_XD, i] - G[G_XDP, i]) * (gd1 * cid + gd2 * (e1q - e2d)) + se * psd + sat_eq
     xaq = e1d + (G[G_XQ, i] - G[G_XQP, i]) * (gq2 * (e1d - e2q) - gq1 * ciq) + se * psq * G[G_GQD, i]
     return vt, ifd, cid, ciq, p, q, te, xaq
 
@@ -225,7 +255,7 @@ def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11):
     d4 = (fld - ifd) * D[D_ITD0P, i]
     d5 = (x4 - x5 - (G[G_XDP, i] - G[G_XL, i]) * cid) * D[D_ITD0PP, i]
     d8 = -xaq * G[G_ITQ0P, i]
-    d9 = (x8 - x9 + (G[G_XQP, i] - G[G_XL, i]) * ciq) * G[G_ITQ0PP, i]
+    d9 = (x8 - x9 + G[G_KQ, i] * ciq) * G[G_ITQ0PP, i]
     d10 = G[G_W0, i] * (x11 - 1.0)
     d11 = (G[G_TM, i] - te - G[G_DAMP, i] * (x11 - 1.0)) * G[G_IM, i]
     return dxm, dx1, dx2, de, d4, d5, dxf, dxe, d8, d9, d10, d11

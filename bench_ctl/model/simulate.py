@@ -13,7 +13,7 @@ import numpy as np
 
 from .edges import EdgeSpec
 from .kernel import run_kernel, saturation_ab
-from .online import machine_matrix, run_online, unit_machine
+from .online import machine_matrix, run_online, unit_machine, with_placeholders
 from .params import COL, KERNEL_PARAMS, PARAMS, RECORD_PARAMS, STRUCTURE_PARAMS
 from .unit import Unit
 
@@ -76,7 +76,7 @@ def simulate_on_line(values: Mapping[str, float], grid: Mapping[str, float], poi
                      usetp: np.ndarray, dt: float, edges: EdgeSpec | None = None) -> dict[str, np.ndarray]:
     """One parameter set on the grid (`online.run_online`) from an operating point (P0, Q0, Vt0,
     `operating_point`): efd (as recorded), vt, p, q, ifd and fail_step."""
-    machine = machine_matrix({**grid, "P0": point["P0"], "Q0": point["Q0"]})
+    machine = machine_matrix(with_placeholders({**grid, "P0": point["P0"], "Q0": point["Q0"]}))
     out = run_online(param_matrix({**values, "Vt0": point["Vt0"]}), machine, usetp, dt, pre_trigger_mean(usetp, dt),
                      edges=edges)
     return {**{name: out[name][0] for name in ("efd", "vt", "p", "q", "ifd")}, "fail_step": int(out["fail_step"][0])}

@@ -15,30 +15,32 @@ from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
 #: the GENROU of the ANDES fixtures (tests/fixtures/andes), H = M / 2
 GEN = dict(xd=1.8, xq=1.7, xd1=0.3, xq1=0.55, xd2=0.25, xl=0.15, Td10=7.5, Tq10=0.4, Td20=0.05, Tq20=0.05,
            H=3.0, D=0.0, fn=60.0, S10=0.05, S12=0.2)
+#: a salient-pole unit: the Mostar unit's GENSAL as its OpenIPSL study fitted it (X'q, T'q0 unused)
+SALIENT = dict(xd=1.183, xq=0.62, xd1=0.371, xq1=0.62, xd2=0.215, xl=0.1, Td10=3.77, Tq10=1.0, Td20=0.0552,
+               Tq20=0.0823, H=2.137, D=0.0, fn=50.0, S10=0.1, S12=0.4, salient=True)
 SEXS = dict(TA=1.0, TB=10.0, K=200.0, TE=0.05, EMIN=-3.0, EMAX=4.5)
 ESST1A = dict(TR=0.01, KA=200.0, TA=0.02, TB=10.0, TC=1.0, TB1=0.2, TC1=0.5, VRMAX=4.0, VRMIN=-3.0, KC=0.1)
 
 
-def _machine(xe: float, p0: float, q0: float) -> dict[str, float]:
-    g = GEN
+def _machine(xe: float, p0: float, q0: float, g: dict = GEN) -> dict[str, float]:
     return {"XD": g["xd"], "XQ": g["xq"], "XDP": g["xd1"], "XQP": g["xq1"], "XDPP": g["xd2"], "XLS": g["xl"],
             "Tq0p": g["Tq10"], "Tq0pp": g["Tq20"], "H": g["H"], "DAMP": g["D"], "XE": xe, "P0": p0, "Q0": q0,
             "FN": g["fn"]}
 
 
-def _unit(model: str, values: dict[str, float], vt0: float):
-    g = GEN
+def _unit(model: str, values: dict[str, float], vt0: float, g: dict = GEN):
     kpp = (g["xd2"] - g["xl"]) / (g["xd1"] - g["xl"])
     kda = (g["xd"] - g["xd1"]) * (g["xd1"] - g["xd2"]) / (g["xd1"] - g["xl"]) ** 2
     unit = with_model(reference_unit(), model)
     unit = apply_overrides(unit, [f"Td0p={g['Td10']}", f"Td0pp={g['Td20']}", f"KPP={kpp}", f"KDA={kda}",
-                                  f"Vt0={vt0}"] + [f"{k}={v}" for k, v in values.items()])
+                                  f"Vt0={vt0}", f"SATEQ={1 if g.get('salient') else 0}"]
+                          + [f"{k}={v}" for k, v in values.items()])
     return unit.with_effects({"saturation": {"S10": g["S10"], "S12": 1.2 * g["S12"]}})
 
 
-def _sat():
+def _sat(g: dict):
     """B (x - A)^2 through S(1.0) 1.0 = S10 and S(1.2) 1.2 = 1.2 S12 (absolute), 0 below A."""
-    y1, y2 = GEN["S10"], 1.2 * GEN["S12"]
+    y1, y2 = g["S10"], 1.2 * g["S12"]
     r = np.sqrt(y2 / y1)
     a = (r * 1.0 - 1.2) / (r - 1.0)
     b = y1 / (1.0 - a) ** 2
@@ -46,22 +48,25 @@ def _sat():
 
 
 class Machine:
-    """GENROU (X''d = X''q, RA = 0) through RE + j XE to an infinite bus, written out."""
+    """GENROU (X''d = X''q, RA = 0) through RE + j XE to an infinite bus, written out; a GENSAL
+    (`salient`): saturation Sat(E'q) on the d-axis alone, one q-axis circuit psi''q =
+    psikq with T''q0 dpsikq/dt = -psikq + (Xq - X''d) Iq."""
 
-    def __init__(self, xe: float, re: float = 0.0):
-        g = GEN
+    def __init__(self, xe: float, re: float = 0.0, g: dict = GEN):
+        self.g = g
+        self.salient = bool(g.get("salient"))
         self.xe, self.re = xe, re
-        self.sat = _sat()
+        self.sat = _sat(g)
         self.gd1 = (g["xd2"] - g["xl"]) / (g["xd1"] - g["xl"])
         self.gq1 = (g["xd2"] - g["xl"]) / (g["xq1"] - g["xl"])
         self.gqd = (g["xq"] - g["xl"]) / (g["xd"] - g["xl"])
 
     def algebra(self, e1q, e2d, e1d, e2q, delta, vinf):
-        g = GEN
+        g = self.g
         psd = self.gd1 * e1q + (1 - self.gd1) * e2d
-        psq = self.gq1 * e1d + (1 - self.gq1) * e2q
+        psq = e2q if self.salient else self.gq1 * e1d + (1 - self.gq1) * e2q
         psi = np.hypot(psd, psq)
-        se = self.sat(psi) / psi
+        se = 0.0 if self.salient else self.sat(psi) / psi
         x2, xe, re = g["xd2"], self.xe, self.re
         # vd = psq + x2 iq = vinf sin(delta) + re id - xe iq; vq = psd - x2 id = vinf cos(delta) + re iq + xe id
         A = np.array([[-re, x2 + xe], [-(x2 + xe), -re]])
@@ -70,17 +75,22 @@ class Machine:
         p, q = vd * cid + vq * ciq, vq * cid - vd * ciq
         gd2 = (g["xd1"] - g["xd2"]) / (g["xd1"] - g["xl"]) ** 2
         ifd = e1q + (g["xd"] - g["xd1"]) * (self.gd1 * cid + gd2 * (e1q - e2d)) + se * psd
+        if self.salient:
+            ifd += self.sat(e1q)
         xaq = (e1d + (g["xq"] - g["xq1"]) * ((g["xq1"] - g["xd2"]) / (g["xq1"] - g["xl"]) ** 2 * (e1d - e2q)
                                              - self.gq1 * ciq) + se * psq * self.gqd)
         return np.hypot(vd, vq), ifd, cid, ciq, p, q, xaq
 
     def derivatives(self, m, efd, vinf):
-        g = GEN
+        g = self.g
         e1q, e2d, e1d, e2q, delta, omega = m
         vt, ifd, cid, ciq, p, q, xaq = self.algebra(e1q, e2d, e1d, e2q, delta, vinf)
-        return [(efd - ifd) / g["Td10"], (e1q - e2d - (g["xd1"] - g["xl"]) * cid) / g["Td20"], -xaq / g["Tq10"],
-                (e1d - e2q + (g["xq1"] - g["xl"]) * ciq) / g["Tq20"], 2 * np.pi * g["fn"] * (omega - 1.0),
-                (self.tm - p - g["D"] * (omega - 1.0)) / (2 * g["H"])]
+        if self.salient:
+            dq = [0.0, (-e2q + (g["xq"] - g["xd2"]) * ciq) / g["Tq20"]]
+        else:
+            dq = [-xaq / g["Tq10"], (e1d - e2q + (g["xq1"] - g["xl"]) * ciq) / g["Tq20"]]
+        return [(efd - ifd) / g["Td10"], (e1q - e2d - (g["xd1"] - g["xl"]) * cid) / g["Td20"], *dq,
+                2 * np.pi * g["fn"] * (omega - 1.0), (self.tm - p - g["D"] * (omega - 1.0)) / (2 * g["H"])]
 
     def steady_state(self, p0: float, q0: float, vt0: float):
         """(E'q, psikd, E'd, psikq, delta), Efd and Vinf with every derivative 0 at P0, Q0, Vt0."""
@@ -92,19 +102,20 @@ class Machine:
             e1q, e2d, e1d, e2q, delta, efd, vinf = z
             vt, _ifd, _cid, _ciq, p, q, _xaq = self.algebra(e1q, e2d, e1d, e2q, delta, vinf)
             d = self.derivatives([e1q, e2d, e1d, e2q, delta, 1.0], efd, vinf)
-            return [d[0], d[1], d[2], d[3], p - p0, q - q0, vt - vt0]
+            return [d[0], d[1], e1d if self.salient else d[2], d[3], p - p0, q - q0, vt - vt0]
 
         z, _info, ok, msg = fsolve(eqs, [1.2, 1.0, 0.3, 0.3, 0.6, 2.0, 1.0], full_output=True, xtol=1e-13)
         assert ok == 1, msg
         return z
 
 
-def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float, steps, t_end: float, dt: float):
+def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float, steps, t_end: float, dt: float,
+               g: dict = GEN):
     """efd, Vt, P, Q of the exciter `model` on the machine by solve_ivp; `steps`: (instant, change
     of the reference)."""
     from scipy.integrate import solve_ivp
 
-    mach = Machine(xe)
+    mach = Machine(xe, g=g)
     e1q, e2d, e1d, e2q, delta, efd0, vinf = mach.steady_state(p0, q0, vt0)
     m0 = [e1q, e2d, e1d, e2q, delta, 1.0]
     if model == "SEXS":
@@ -163,10 +174,10 @@ def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float,
     return out
 
 
-def _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt):
-    unit = _unit(model, s, vt0)
+def _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt, g=GEN):
+    unit = _unit(model, s, vt0, g)
     P = param_matrix(unit.values())
-    M = machine_matrix(_machine(xe, p0, q0))
+    M = machine_matrix(_machine(xe, p0, q0, g))
     n = int(round(t_end / dt)) + 1
     usetp = np.ones(n)
     for at, change in steps:
@@ -176,18 +187,20 @@ def _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt):
 
 CASES = [
     # SEXS, +2 % step held, XE 0.4, lagging Q
-    ("SEXS", SEXS, 0.4, 0.8, 0.2, 1.0, [(0.5, 0.02)], 4.0),
+    ("SEXS", SEXS, 0.4, 0.8, 0.2, 1.0, [(0.5, 0.02)], 4.0, GEN),
     # ESST1A, a 10 % pulse: efd rides the bus-fed ceiling VRMAX Vt - KC Ifd (moving with Vt and Ifd)
-    ("ESST1A", ESST1A, 0.2, 0.8, 0.1, 1.02, [(0.5, 0.10), (1.5, -0.10)], 4.0),
+    ("ESST1A", ESST1A, 0.2, 0.8, 0.1, 1.02, [(0.5, 0.10), (1.5, -0.10)], 4.0, GEN),
+    # a salient-pole unit (the Mostar unit's GENSAL, saturation on E'q), ESST1A, a 5 % step at P 0.2
+    ("ESST1A", ESST1A, 0.15, 0.2, -0.02, 0.98, [(0.5, 0.05)], 4.0, SALIENT),
 ]
 
 
-@pytest.mark.parametrize("model,s,xe,p0,q0,vt0,steps,t_end", CASES)
-def test_online_machine_matches_its_equations_solved_by_solve_ivp(model, s, xe, p0, q0, vt0, steps, t_end):
+@pytest.mark.parametrize("model,s,xe,p0,q0,vt0,steps,t_end,g", CASES)
+def test_online_machine_matches_its_equations_solved_by_solve_ivp(model, s, xe, p0, q0, vt0, steps, t_end, g):
     dt = 1e-3
-    out, unit = _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt)
+    out, unit = _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt, g)
     assert out["fail_step"][0] < 0
-    ref = _reference(model, s, xe, p0, q0, vt0, steps, t_end, dt)
+    ref = _reference(model, s, xe, p0, q0, vt0, steps, t_end, dt, g)
     k = ref.shape[1]
     errs = {name: np.abs(out[name][0, :k] - ref[q]) for q, name in enumerate(("efd", "vt", "p", "q"))}
     worst = {name: f"{e.max():.2e} at {np.argmax(e) * dt:.3f} s" for name, e in errs.items()}
@@ -198,7 +211,7 @@ def test_online_machine_matches_its_equations_solved_by_solve_ivp(model, s, xe, 
     # the operating point is the one asked for, and the step moved the unit
     assert abs(out["p"][0, 0] - p0) < 1e-9 and abs(out["q"][0, 0] - q0) < 1e-9 and abs(out["vt"][0, 0] - vt0) < 1e-9
     assert np.ptp(out["q"][0]) > 0.05 and np.ptp(out["p"][0]) > 0.005   # Q follows, P swings
-    if model == "ESST1A":   # the ceiling was reached: VRMAX Vt - KC Ifd
+    if model == "ESST1A" and g is GEN:   # the 10 % pulse reached the ceiling: VRMAX Vt - KC Ifd
         hi = s["VRMAX"] * out["vt"][0] - s["KC"] * out["ifd"][0]
         assert np.any(out["efd"][0] >= hi - 1e-6)
 
@@ -206,10 +219,10 @@ def test_online_machine_matches_its_equations_solved_by_solve_ivp(model, s, xe, 
 def test_online_steady_state_is_steady():
     """Without a step every signal stays where the operating point put it (ANDES' closed-form
     initialisation of a GENROU, the exciters' steady state at that field voltage)."""
-    for model, s in (("SEXS", SEXS), ("ESST1A", ESST1A)):
-        unit = _unit(model, s, 1.03)
+    for model, s, g in (("SEXS", SEXS, GEN), ("ESST1A", ESST1A, GEN), ("ESST1A", ESST1A, SALIENT)):
+        unit = _unit(model, s, 1.03, g)
         P = param_matrix(unit.values())
-        M = machine_matrix([_machine(0.3, 0.9, -0.1), _machine(0.1, 0.2, 0.4)])
+        M = machine_matrix([_machine(0.3, 0.9, -0.1, g), _machine(0.1, 0.2, 0.4, g)])
         out = run_online(np.vstack([P, P]), M, np.ones(3001), 1e-3, 1.0)
         for name in ("efd", "vt", "p", "q", "ifd"):
             drift = np.abs(out[name] - out[name][:, :1]).max()
