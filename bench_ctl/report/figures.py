@@ -32,6 +32,9 @@ SEGMENT_SHADES = {"pre_trigger": "#f0f0f0", "leading_edge": "#fde0c5", "plateau"
                   "trailing_edge": "#f9d0d9", "recovery": "#e3f2d9", "whole record": "#f0f0f0"}
 ZOOM_BEFORE_S = 0.1
 ZOOM_AFTER_S = 0.5
+#: the on-line figure: seconds shown before the leading edge and after the trailing one
+ONLINE_BEFORE_S = 2.0
+ONLINE_AFTER_S = 6.0
 SMOOTH_S = 0.025
 
 Canvas = Figure | SubFigure
@@ -82,6 +85,10 @@ def draw_online(fig: Canvas, time: np.ndarray, meas: Mapping[str, np.ndarray], s
         ax.legend(loc="upper right", fontsize=7)
     axes[0].set_title("On line: measured vs simulated", fontsize=10)
     axes[-1].set_xlabel("time (s)")
+    if edges.leading_s is not None:   # zoomed on the test: from before the step to after its return
+        end = edges.trailing_s if edges.trailing_s is not None else edges.leading_s
+        axes[-1].set_xlim(max(float(time[0]), edges.leading_s - ONLINE_BEFORE_S),
+                          min(float(time[-1]), end + ONLINE_AFTER_S))
 
 
 def draw_residual(fig: Canvas, time: np.ndarray, residual: np.ndarray,
