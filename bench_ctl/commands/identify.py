@@ -59,8 +59,10 @@ def summary(ident: Identification) -> str:
     model = r.model or {}
     if model.get("name", "REFERENCE") != "REFERENCE":
         lines.insert(1, f"model: {model['name']} ({model.get('title', '')})")
-    for n, v in r.params.items():
-        lo, hi = r.bounds[n]
+    # [grid] values fitted on line (the unit's grid, its bounds in grid_identify) after the model's
+    fitted_grid = {n: (r.unit["grid"][n], b["min"], b["max"]) for n, b in (r.unit.get("grid_identify") or {}).items()}
+    rows = [(n, v, *r.bounds[n]) for n, v in r.params.items()] + [(n, *vb) for n, vb in fitted_grid.items()]
+    for n, v, lo, hi in rows:
         rel = idn.get("rel_std", {}).get(n)
         det = idn.get("determined", {}).get(n)
         why = "; ".join(idn.get("reasons", {}).get(n, []))

@@ -214,7 +214,11 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
                  "correlation": [], "determined": {n: False for n in prob.names},
                  "equivalent_sets": [], "notes": ["not analysed: the fit failed"]}
     fixed = {k: _none_if_inf(v) for k, v in prob.base.items()
-             if k not in prob.names and k not in RECORD_PARAMS}
+             if k not in prob.names and k not in RECORD_PARAMS and k not in prob.grid_names}
+    # [grid] values fitted on line go to the unit's [grid], not among the model's parameters
+    params = prob.model_params(x)
+    unit_entry = prob.unit.to_dict()
+    unit_entry["grid"].update({k: params.pop(k) for k in prob.grid_names})
     edges = prob.edges(x, ident.get("std"))
     ident = _model_only(ident)
     result: dict[str, Any] = {
@@ -222,12 +226,13 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
         "software_version": bench_ctl.__version__,
         "command_line": command_line,
         "created_utc": utc_now_text(),
-        "unit": prob.unit.to_dict(),
+        "unit": unit_entry,
         "captures": [_capture_entry(c, m, o, w, e) for c, m, o, w, e
                      in zip(prob.captures, mses, objs, prob.weights, edges)],
-        "params": prob.model_params(x),
+        "params": params,
         "fixed": fixed,
-        "bounds": {n: [lo, hi] for n, (lo, hi) in zip(prob.names, prob.bounds) if n not in RECORD_PARAMS},
+        "bounds": {n: [lo, hi] for n, (lo, hi) in zip(prob.names, prob.bounds)
+                   if n not in RECORD_PARAMS and n not in prob.grid_names},
         "edges": [{"capture": i, **e} for i, es in enumerate(edges) for e in es],
         "constraints": prob.constraint_report(x),
         "objective": _none_if_inf(best.fun),

@@ -45,7 +45,7 @@ from bench_ctl.capture import Capture
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.kernel import BLOWUP, run_kernel, saturation_ab
 from bench_ctl.model.online import machine_data, machine_matrix, run_online, unit_machine
-from bench_ctl.model.params import COL, KERNEL_PARAMS, PARAMS
+from bench_ctl.model.params import COL, KERNEL_PARAMS, MCOL, PARAMS
 from bench_ctl.model.simulate import operating_point, param_matrix, pre_trigger_mean
 from bench_ctl.model.unit import Unit
 
@@ -100,6 +100,8 @@ class Problem:
     window: tuple[float, float] | None = None
     penalty_base: float = 1.0e20
     w_q: float = 0.0
+    #: the trailing names that are [grid] values fitted on the on-line records (`Unit.grid_identify`)
+    grid_names: tuple[str, ...] = ()
 
     # ------------------------------------------------------------------ basics
     @property
@@ -151,8 +153,13 @@ class Problem:
         return [edges_entry(r.edge_list, r.edge_slots, values, std) for r in self.records]
 
     def matrix(self, X: np.ndarray) -> np.ndarray:
-        """Kernel parameter matrix of a population X (n, d)."""
-        return param_matrix(self.base, self.names, np.atleast_2d(np.asarray(X, dtype=float)))
+        """Kernel parameter matrix of a population X (n, d); with fitted [grid] values, their
+        columns follow the kernel's (`_simulate` puts them into the machine)."""
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        if not self.grid_names:
+            return param_matrix(self.base, self.names, X)
+        k = len(self.names) - len(self.grid_names)
+        return np.hstack([param_matrix(self.base, self.names[:k], X[:, :k]), X[:, k:]])
 
     def held(self, values: dict[str, float]) -> Problem:
         """The same problem with the parameters in `values` no longer fitted but held there (they
@@ -388,6 +395,8 @@ def _simulate(P: np.ndarray, r: Record, n: int | None = None, *, measured: bool 
     the machine on the grid from the record's operating point."""
     n = r.usetp.size if n is None else int(n)
     store = not measured
+    grid = P[:, len(KERNEL_PARAMS):]   # fitted [grid] values (`Problem.matrix`)
+    P = P[:, :len(KERNEL_PARAMS)]
     if r.machine is None:
         kw = {"efd_meas": r.efd, "vt_meas": r.vt, "w_efd": w_efd, "w_vt": w_vt if r.vt is not None else 0.0} \
             if measured else {}
@@ -395,6 +404,8 @@ def _simulate(P: np.ndarray, r: Record, n: int | None = None, *, measured: bool 
     P = P.copy()
     P[:, COL["Vt0"]] = r.vt0
     M = np.repeat(r.machine[None, :], P.shape[0], axis=0)
+    if grid.shape[1]:
+        M[:, list(r.grid_cols)] = grid
     meas = {"efd": r.efd, "vt": r.vt, "q": r.q} if measured else None
     weights = {"efd": w_efd, "vt": w_vt, "q": w_q}
     with _threads(P.shape[0] * n):
@@ -541,6 +552,8 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
             raise ProblemError(f"bounds of {n}: need finite lo < hi, got ({lo}, {hi})")
         bnds.append((lo, hi))
     base = unit.values()
+    grid_names = tuple(unit.grid_identify)
+    base.update({k: b.value for k, b in unit.grid_identify.items()})
     if values:
         bad = set(values) - set(KERNEL_PARAMS)
         if bad:
@@ -555,6 +568,11 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
     else:
         texts = list(constraints)
     fitted, fixed = _reduce_constraints(texts, names_t, base)
+    if grid_names:   # the [grid] values fitted on line: after the kernel's, in no constraint
+        fitted = [LinearConstraint(expr=c.expr, coef=np.concatenate([c.coef, np.zeros(len(grid_names))]), rhs=c.rhs,
+                                   names=names_t + grid_names) for c in fitted]
+        bnds += [(unit.grid_identify[k].min, unit.grid_identify[k].max) for k in grid_names]
+        names_t = names_t + grid_names
     _check_feasible(fitted, fixed, names_t, bnds)
 
     if weights is None:
@@ -596,12 +614,15 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         v_max = (BLOWUP + float(np.max(np.abs(vt)))) ** 2 * w_vt if vt is not None else 0.0
         q_max = (BLOWUP + float(np.max(np.abs(r.q)))) ** 2 * w_q if r.q is not None else 0.0
         bound_total += a * (e_max + v_max + q_max) * dur
+    if grid_names and not any(r.machine is not None for r in recs):
+        raise ProblemError(f"{', '.join(grid_names)} fitted (--set {grid_names[0]}.min/max): only an on-line record "
+                           "(a capture with p and q) determines the grid; these captures are at no load")
     window_used = fit_window if segment is None else segment_window(segment, caps[0])
     return Problem(captures=caps, unit=unit, names=names_t, bounds=tuple(bnds),
                    constraints=tuple(fitted), constraint_texts=tuple(texts),
                    fixed_constraints=tuple(fixed), weights=tuple(alphas), w_efd=w_efd, w_vt=w_vt,
                    base=base, records=tuple(recs), window=window_used,
-                   penalty_base=max(1.0e20, 10.0 * bound_total), w_q=w_q)
+                   penalty_base=max(1.0e20, 10.0 * bound_total), w_q=w_q, grid_names=grid_names)
 
 
 def _on_line(c: Capture, unit: Unit, owner: str) -> dict[str, Any]:
@@ -613,15 +634,17 @@ def _on_line(c: Capture, unit: Unit, owner: str) -> dict[str, Any]:
     if p is None or q is None or c.vt is None:
         have = [name for name, x in (("p", p), ("q", q), ("vt", c.vt)) if x is not None]
         raise ProblemError(f"{owner}: an on-line record needs p, q and vt; it has {', '.join(have)}")
-    point = operating_point(c.usetp, p, q, c.vt)
-    missing = [name for name in machine_data(unit) if name not in unit.grid]
+    point = operating_point(c.usetp, p, q, c.vt, float(c.dt))
+    missing = [name for name in machine_data(unit) if name not in unit.grid and name not in unit.grid_identify]
     if missing:
         raise ProblemError(f"{owner} is an on-line record (it has p and q): the unit {unit.name!r} needs "
                            f"{', '.join(missing)} under [grid] or with --set (the machine's data also come "
                            "from a GENROU or GENSAL record with --from-dyr)")
     try:
-        machine = machine_matrix(unit_machine(unit, {"P0": point["P0"], "Q0": point["Q0"]}))[0]
+        start = {k: b.value for k, b in unit.grid_identify.items()}
+        machine = machine_matrix(unit_machine(unit, {**start, "P0": point["P0"], "Q0": point["Q0"]}))[0]
     except ValueError as exc:
         raise ProblemError(f"{owner}: {exc}") from None
-    return {"machine": machine, "vt0": point["Vt0"], "q": np.ascontiguousarray(q, dtype=float)}
+    return {"machine": machine, "vt0": point["Vt0"], "q": np.ascontiguousarray(q, dtype=float),
+            "grid_cols": tuple(MCOL[k] for k in unit.grid_identify)}
 

@@ -39,6 +39,8 @@ class Record:
     machine: np.ndarray | None = None
     vt0: float | None = None
     q: np.ndarray | None = None
+    #: the machine columns of the [grid] values the problem fits (`Problem.grid_names`)
+    grid_cols: tuple[int, ...] = ()
 
     @property
     def full(self) -> bool:

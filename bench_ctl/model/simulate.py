@@ -63,12 +63,18 @@ def simulate(values: Mapping[str, float], usetp: np.ndarray, dt: float,
     return out["efd"][0], out["vt"][0], int(out["fail_step"][0])
 
 
-def operating_point(usetp: np.ndarray, p: np.ndarray, q: np.ndarray, vt: np.ndarray) -> dict[str, float]:
+#: an on-line record's operating point: the means over this long before the setpoint first changes
+OPERATING_POINT_S = 1.0
+
+
+def operating_point(usetp: np.ndarray, p: np.ndarray, q: np.ndarray, vt: np.ndarray, dt: float) -> dict[str, float]:
     """An on-line record's operating point before the test: P0, Q0 and Vt0, the means of its P, Q
-    and Vt before the setpoint first changes."""
+    and Vt over the OPERATING_POINT_S before the setpoint first changes (a unit's P drifts over a
+    long record: the test starts from where it was just before)."""
     usetp = np.asarray(usetp, float)
     changed = np.flatnonzero(np.abs(usetp - usetp[0]) > 1e-9)
-    pre = slice(0, max(1, int(changed[0]) if changed.size else usetp.size))
+    end = max(1, int(changed[0]) if changed.size else usetp.size)
+    pre = slice(max(0, end - max(1, int(round(OPERATING_POINT_S / dt)))), end)
     return {name: float(np.mean(np.asarray(x, float)[pre])) for name, x in (("P0", p), ("Q0", q), ("Vt0", vt))}
 
 

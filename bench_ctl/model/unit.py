@@ -68,6 +68,8 @@ class Unit:
     acceptance: dict | None = None
     #: the machine on the grid and the grid ([grid], `online.MACHINE_PARAMS`; empty: no-load data only)
     grid: dict[str, float] = field(default_factory=dict)
+    #: [grid] values fitted on an on-line record (`--set XE.min=0.05 --set XE.max=0.6`), with bounds
+    grid_identify: dict[str, Bound] = field(default_factory=dict)
 
     @property
     def structure(self) -> Structure:
@@ -129,6 +131,7 @@ class Unit:
             "model_values": {k: _finite_or_none(v) for k, v in self.standard_values().items()},
             "acceptance": acceptance_limits(self.acceptance, self.source),
             "grid": dict(self.grid),
+            "grid_identify": {k: {"value": b.value, "min": b.min, "max": b.max} for k, b in self.grid_identify.items()},
         }
 
 
@@ -429,6 +432,31 @@ def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
     return check_unit(unit, f"{unit.source} with --set {' '.join(overrides)}") if overrides else unit
 
 
+#: [grid] values an on-line record can determine (not the operating point, the frequency)
+GRID_FITTABLE = tuple(n for n in MACHINE_PARAMS if n not in ("P0", "Q0", "FN"))
+
+
+def _grid_bound(unit: Unit, name: str, attr: str, value: float, item: str) -> Unit:
+    """`--set XE.min=0.05` (or .max, .value): the [grid] value fitted on an on-line record within
+    bounds (default: its physical range; start: its [grid] value, else the middle)."""
+    if name not in GRID_FITTABLE or attr not in ("min", "max", "value"):
+        raise UnitError(f"--set {item!r}: a [grid] value fitted on line takes .min, .max or .value; "
+                        f"fittable: {', '.join(GRID_FITTABLE)}")
+    info = _MACHINE_INFO[name]
+    info.check(value, where="--set ")
+    given = name in unit.grid   # a start value given, else the middle of the bounds
+    old = unit.grid_identify.get(name) or Bound(unit.grid.get(name, 0.0), info.lo, info.hi)
+    b = replace(old, **{attr: value})
+    if not b.min < b.max:
+        raise UnitError(f"--set {item!r}: min {b.min} must be below max {b.max}")
+    if attr != "value":
+        b = replace(b, value=min(max(b.value, b.min), b.max) if given else 0.5 * (b.min + b.max))
+    if not b.min <= b.value <= b.max:
+        raise UnitError(f"--set {item!r}: {name} = {b.value} is outside its bounds [{b.min}, {b.max}]")
+    grid = {**unit.grid, name: b.value} if given or attr == "value" else unit.grid
+    return replace(unit, grid_identify={**unit.grid_identify, name: b}, grid=grid)
+
+
 def with_model(unit: Unit, name: str) -> Unit:
     """The unit with another structure (`--model NAME`): the generator, weights and effects kept,
     the structure's default identified parameters, bounds and typical values."""
@@ -442,7 +470,8 @@ def with_model(unit: Unit, name: str) -> Unit:
         data.update(identify={k: {"value": b.value, "min": b.min, "max": b.max} for k, b in ref.identify.items()},
                     fixed=dict(ref.fixed), constraints=list(ref.constraints))
     new = unit_from_dict(data, f"{unit.source} with --model {st.name}")
-    return replace(new, effects={k: dict(v) for k, v in unit.effects.items()}, source=unit.source)
+    return replace(new, effects={k: dict(v) for k, v in unit.effects.items()}, source=unit.source,
+                   grid_identify=dict(unit.grid_identify))
 
 
 def _std_to_kernel(unit: Unit, key: str, item: str) -> str:
@@ -471,7 +500,12 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
         unit = replace(unit, model_values={**unit.model_values, std_key: value})
     if key in MACHINE_PARAMS:   # the machine on the grid, the grid, the operating point
         _MACHINE_INFO[key].check(value, where="--set ")
+        if key in unit.grid_identify:   # a fitted one: its start value
+            return _grid_bound(unit, key, "value", value, item)
         return replace(unit, grid={**unit.grid, key: value})
+    if "." in key and key.split(".", 1)[0] in MACHINE_PARAMS:   # XE.min=0.05: XE fitted on line
+        name, attr = key.split(".", 1)
+        return _grid_bound(unit, name, attr, value, item)
     if key.startswith("weights."):
         sig = key.split(".", 1)[1]
         if sig not in _WEIGHT_KEYS:

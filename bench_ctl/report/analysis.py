@@ -251,6 +251,7 @@ def simulate_record(values: Mapping[str, float], cap: Any, grid: Mapping[str, fl
         efd, vt, fail = simulate(values, cap.usetp, cap.dt, edges=spec)
         return {"efd": efd, "vt": vt, "fail_step": fail}
     try:
-        return simulate_on_line(values, grid, operating_point(cap.usetp, p, q, cap.vt), cap.usetp, cap.dt, edges=spec)
+        point = operating_point(cap.usetp, p, q, cap.vt, float(cap.dt))
+        return simulate_on_line(values, grid, point, cap.usetp, cap.dt, edges=spec)
     except (KeyError, ValueError) as exc:
         raise ReportError(f"{where}: an on-line capture (p and q) re-simulated on the grid: {exc}") from None

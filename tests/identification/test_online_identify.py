@@ -96,3 +96,18 @@ def test_report_of_an_online_result_shows_p_q_and_the_mode(tmp_path):
     assert set(hz) == {"measured", "simulated"} and abs(hz["measured"] - hz["simulated"]) < 0.02
     assert 0.5 < hz["measured"] < 3.0
     assert "reported MSE reproduced" in text and "FAIL: reported MSE" not in text
+
+
+def test_the_grid_reactance_is_fitted_on_line_when_unknown():
+    """XE unknown (`--set XE.min=... XE.max=...`): fitted with the exciter on an on-line record
+    (the truth 0.2, the start 0.6); refused on a no-load record."""
+    cap = _capture(0.005)
+    unit = apply_overrides(_unit(), ["XE=0.6", "XE.min=0.05", "XE.max=0.8", "TE=0.08"])
+    ident = run_identification([cap], unit, max_evals=600, seed=2)
+    xe = ident.result.unit["grid"]["XE"]
+    assert xe == pytest.approx(TYPICAL_MACHINE["XE"], rel=0.05), xe
+    assert "XE" not in ident.result.params and ident.result.unit["grid_identify"]["XE"]["max"] == 0.8
+    assert ident.problem.mse(ident.best.x)[0] < 1.1 * 0.005 ** 2
+    no_load = Capture(time=cap.time, usetp=cap.usetp, efd=cap.efd, vt=cap.vt, source="no_load.csv")
+    with pytest.raises(ProblemError, match="XE fitted .*only an on-line record"):
+        make_problem([no_load], unit)
