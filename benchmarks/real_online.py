@@ -1,0 +1,122 @@
+"""A real unit on line, end to end as a user does it (issue 27): a recorder export of a
+voltage-reference step with the unit synchronised, imported with the tool's own `import` (edges
+found, P and Q mapped), identified on the grid with the planning record's generator and exciter
+(`--from-dyr`) and the grid reactance XE fitted within bounds, then reported.
+
+Made for the public Mostar records (repository ALSETLab/Mostar, no licence: fetch it yourself,
+never commit it): the on-line 5 % step `AVR_MR_Step5_CH 1 _ TrendingRecorder @ 9-20-2015
+12-55-05 PM.csv` (channels Ug, Uf, If, Ig, P, Q; ~208 Hz, resampled to 200 Hz). The efd channel
+records rated-field units; its base is the one `import --efd-base auto` found on the same unit's
+no-load step (AVR_PH_Step10: factor 2.9526, i.e. 0.33869 rf = 1 pu), given with --efd-base.
+
+Printed and saved (--json): the efd MSE against the record's own pre-step disturbance (variance
+of the pre-step efd about a straight line, as benchmarks/import_real.py), the fitted XE and
+exciter values, the RMS error of Vt and Q over the test, and the electromechanical mode in P after
+the step, measured and simulated (the report's estimate, `bench_ctl.model.mode`).
+
+Usage: python benchmarks/real_online.py RECORD.csv --dyr unit.dyr [--efd-base 0.33869rf]
+           [--xe-bounds 0.02,0.8] [--weights vt=100,q=10] [--evals 1000] [--seed 1] [--json OUT]
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import numpy as np  # noqa: E402
+
+from bench_ctl.capture import read_capture  # noqa: E402
+from bench_ctl.cli import main  # noqa: E402
+from bench_ctl.identification.timing import edge_spec_of  # noqa: E402
+from bench_ctl.model.dialect import kernel_sections  # noqa: E402
+from bench_ctl.model.mode import electromechanical_mode  # noqa: E402
+from bench_ctl.report.analysis import simulate_record  # noqa: E402
+from bench_ctl.report.inputs import model_values  # noqa: E402
+from import_real import MOSTAR_CLOCK, pre_step_disturbance  # noqa: E402
+
+MAPS = ["efd=SFS_Meas_UfRel", "vt=SFS_Meas_UgRel", "p=SFS_Meas_PRel", "q=SFS_Meas_QRel", "ifd=SFS_Meas_IfRel",
+        "vr=SFS_Reg_Uc"]
+
+
+def _run(argv: list[str]) -> tuple[int, str, str, float]:
+    out, err = io.StringIO(), io.StringIO()
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(argv)
+    return rc, out.getvalue(), err.getvalue(), time.perf_counter() - t0
+
+
+def main_(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("record")
+    ap.add_argument("--dyr", required=True, help="the unit's planning record (GENSAL/GENROU and its exciter)")
+    ap.add_argument("--efd-base", default="0.33869rf")
+    ap.add_argument("--test", default="step:amplitude=0.05")
+    ap.add_argument("--resample", type=float, default=200.0)
+    ap.add_argument("--xe-bounds", default="0.02,0.8")
+    ap.add_argument("--weights", default="vt=100,q=10", help="signal weights beside efd's 1 (the unit's [weights])")
+    ap.add_argument("--evals", type=int, default=1000)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--json", dest="json_out", default=None)
+    args = ap.parse_args(argv)
+    lo, hi = (float(v) for v in args.xe_bounds.split(","))
+    sets = [f"XE.min={lo}", f"XE.max={hi}"] + [f"weights.{w}" for w in args.weights.split(",") if w]
+    with tempfile.TemporaryDirectory(prefix="real-online-") as tmp:
+        cap_path, res_path = Path(tmp) / "cap.csv", Path(tmp) / "result.json"
+        imp = ["import", args.record, "-o", str(cap_path), *MOSTAR_CLOCK, "--resample", str(args.resample),
+               "--test", args.test, "--efd-base", args.efd_base] + [a for m in MAPS for a in ("--map", m)]
+        rc, out, err, imp_s = _run(imp)
+        if rc != 0:
+            print(f"import refused: {err.strip()}")
+            return 1
+        print(out.strip())
+        ident = ["identify", str(cap_path), "--from-dyr", args.dyr, "--evals", str(args.evals), "--seed",
+                 str(args.seed), "--json", str(res_path)] + [a for s in sets for a in ("--set", s)]
+        rc, out, err, id_s = _run(ident)
+        print(out.strip())
+        if not res_path.is_file():
+            print(f"identify wrote no result (exit {rc}): {err.strip()}")
+            return 1
+        cap = read_capture(cap_path)
+        result = json.loads(res_path.read_text())
+    var, n_pre = pre_step_disturbance(cap.time, cap.usetp, cap.efd)
+    sections = kernel_sections(result)
+    values = model_values(sections["params"], sections["fixed"], "result")
+    spec, offsets = edge_spec_of(result["captures"][0]["edges"], cap.n)   # the fitted edge instants
+    sim = simulate_record({**values, **offsets}, cap, result["unit"]["grid"], spec, "result")
+    lead = float(cap.time[np.flatnonzero(np.abs(cap.usetp - cap.usetp[0]) > 1e-9)[0]])
+    test = cap.time >= lead - 1.0
+    rms = {s: float(np.sqrt(np.mean((sim[s][test] - cap.columns()[s][test]) ** 2))) for s in ("vt", "q")}
+    modes = {name: electromechanical_mode(cap.time, x, lead) for name, x in
+             (("measured", cap.channel("p")), ("simulated", sim["p"]))}
+    row = {"record": Path(args.record).name, "samples": cap.n, "rate_hz": cap.rate_hz, "import_s": imp_s,
+           "identify_s": id_s, "evaluations": result["evaluations"], "mse": result["mse"],
+           "pre_step_var_pu2": var, "pre_step_samples": n_pre, "mse_over_disturbance": result["mse"] / var,
+           "XE": result["unit"]["grid"].get("XE"), "params": result["params"],
+           "rms_vt_pu": rms["vt"], "rms_q_pu": rms["q"], "weights": args.weights, "seed": args.seed}
+    for name, m in modes.items():
+        row[f"mode_{name}_hz"] = None if m is None else m.frequency_hz
+        row[f"mode_{name}_zeta"] = None if m is None else m.damping
+    print(f"\nefd MSE {row['mse']:.4g} = {row['mse_over_disturbance']:.2f} x the pre-step disturbance "
+          f"({var:.3g} pu^2); XE {row['XE']:.4g} pu; RMS over the test: Vt {rms['vt']:.4g} pu, Q {rms['q']:.4g} pu")
+    for name, m in modes.items():
+        print(f"mode in P, {name}: " + ("none found" if m is None else
+                                       f"{m.frequency_hz:.3f} Hz, damping ratio {m.damping:.3f}"))
+    print(f"import {imp_s:.1f} s, identify {id_s:.1f} s ({row['evaluations']} evaluations)")
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps(row, indent=1) + "\n")
+        print(f"wrote {args.json_out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main_())
