@@ -86,8 +86,59 @@ def open_loop_efd(name: str, unit, cap: Capture) -> np.ndarray:
 
 def true_edges(name: str, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:
     """The capture's setpoint edges and the EDGE offsets of their true instants (the manifest)."""
-    entry = manifest()["captures"][name]
+    return _true_edges(manifest()["captures"][name], cap)
+
+
+def _true_edges(entry: dict, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:
     k = find_setpoint_edges(cap.usetp)
     spec = EdgeSpec(k, cap.usetp[k] - cap.usetp[k - 1], cap.time[k], np.arange(len(k)))
     offsets = {f"EDGE{i + 1}": t - n for i, (n, t) in enumerate(zip(entry["edges_nominal_s"], entry["edges_true_s"]))}
     return spec, offsets
+
+
+# ---- the on-line captures (tests/fixtures/andes_online, benchmarks/andes_online.py) -----------
+
+ONLINE = Path(__file__).resolve().parent / "fixtures" / "andes_online"
+
+
+def online_manifest() -> dict:
+    return json.loads((ONLINE / "manifest.json").read_text("utf-8"))
+
+
+def machine_values(gen: dict, xe: float) -> dict[str, float]:
+    """The GENROU of the manifest as the on-line machine's [grid] values (H = M / 2)."""
+    return {"XD": gen["xd"], "XQ": gen["xq"], "XDP": gen["xd1"], "XQP": gen["xq1"], "XDPP": gen["xd2"],
+            "XLS": gen["xl"], "Tq0p": gen["Tq10"], "Tq0pp": gen["Tq20"], "H": gen["M"] / 2.0, "DAMP": gen["D"],
+            "RA": gen["ra"], "FN": gen["fn"], "XE": xe}
+
+
+def online_unit(name: str, *, true_values: bool = True) -> Unit:
+    """The structure of on-line capture `name` on the manifest's GENROU and XE, its exciter values
+    when `true_values`, else the structure's typical values for the identified ones."""
+    m = online_manifest()
+    entry = m["captures"][name]
+    gen = m["generator_params"]
+    g = generator_values(gen)
+    unit = with_model(reference_unit(), entry["exciter"])
+    st = unit.structure
+    p = standard_params(entry)
+    ident = set(st.default_identified())
+    sets = [f"{k}={g[k]}" for k in ("Td0p", "Td0pp", "KPP", "KDA")]
+    sets += [f"{k}={v}" for k, v in p.items() if k in st.names and (true_values or k not in ident)]
+    sets += [f"{k}={v}" for k, v in machine_values(gen, entry["xe_pu"]).items()]
+    unit = apply_overrides(unit, sets)
+    return unit.with_effects({"saturation": {"S10": g["S10"], "S12": g["S12"]}})
+
+
+def online_capture(name: str, noise: float = 0.0, seed: int = 0) -> Capture:
+    """On-line capture `name` (efd, vt, p, q, ifd), with seeded Gaussian noise of `noise` pu on efd."""
+    path = ONLINE / online_manifest()["captures"][name]["file"]
+    d = np.genfromtxt(path, delimiter=",", names=True)
+    efd = d["efd"] + np.random.default_rng(seed).normal(0.0, noise, d.size) if noise > 0 else d["efd"]
+    return Capture(time=d["time"], usetp=d["usetp"], efd=efd, vt=d["vt"],
+                   extra={k: d[k] for k in ("p", "q", "ifd")}, source=str(path))
+
+
+def online_true_edges(name: str, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:
+    """The on-line capture's setpoint edges and the EDGE offsets of their true instants."""
+    return _true_edges(online_manifest()["captures"][name], cap)
