@@ -14,6 +14,8 @@ of the pre-step efd about a straight line, as benchmarks/import_real.py), the fi
 exciter values, the RMS error of Vt and Q over the test, and the electromechanical mode in P after
 the step, measured and simulated (the report's estimate, `bench_ctl.model.mode`).
 
+Without a record it runs nothing and exits 0 (`make bench`).
+
 Usage: python benchmarks/real_online.py RECORD.csv --dyr unit.dyr [--efd-base 0.33869rf]
            [--xe-bounds 0.02,0.8] [--weights vt=100,q=10] [--evals 1000] [--seed 1] [--json OUT]
 """
@@ -57,8 +59,8 @@ def _run(argv: list[str]) -> tuple[int, str, str, float]:
 
 def main_(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("record")
-    ap.add_argument("--dyr", required=True, help="the unit's planning record (GENSAL/GENROU and its exciter)")
+    ap.add_argument("record", nargs="?", help="the export (none: nothing runs; the data is not in the repository)")
+    ap.add_argument("--dyr", help="the unit's planning record (GENSAL/GENROU and its exciter)")
     ap.add_argument("--efd-base", default="0.33869rf")
     ap.add_argument("--test", default="step:amplitude=0.05")
     ap.add_argument("--resample", type=float, default=200.0)
@@ -68,6 +70,11 @@ def main_(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", dest="json_out", default=None)
     args = ap.parse_args(argv)
+    if args.record is None:
+        print("no record given: nothing to run (python benchmarks/real_online.py RECORD.csv --dyr unit.dyr)")
+        return 0
+    if args.dyr is None:
+        ap.error("--dyr: the unit's planning record is needed with a record")
     lo, hi = (float(v) for v in args.xe_bounds.split(","))
     sets = [f"XE.min={lo}", f"XE.max={hi}"] + [f"weights.{w}" for w in args.weights.split(",") if w]
     with tempfile.TemporaryDirectory(prefix="real-online-") as tmp:
