@@ -106,14 +106,14 @@ def generator_record() -> str:
     return "1 'GENROU' 1 " + " ".join(f"{v:g}" for v in vals) + " /\n"
 
 
-def _ready(ss, what: str):
+def _ready(ss, what: str, step: float = STEP):
     ss.setup()
     ss.PFlow.run()
     if not ss.PFlow.converged:
         raise RuntimeError(f"{what}: the power flow did not converge")
     ss.TDS.config.fixt = 1
     ss.TDS.config.shrinkt = 0
-    ss.TDS.config.tstep = STEP
+    ss.TDS.config.tstep = step
     ss.TDS.config.no_tqdm = 1
     return ss
 
@@ -123,13 +123,15 @@ def _run_until(ss, t: float) -> None:
     ss.TDS.run()
 
 
-def _edge(ss, exc, delta: float) -> None:
-    """Change the reference by `delta` now and integrate the next FINE_SPAN with FINE_STEP (ANDES
-    reads `tstep` again when a run resumes)."""
+def _edge(ss, exc, delta: float, step: float = STEP, fine_step: float = FINE_STEP,
+          fine_span: float = FINE_SPAN) -> None:
+    """Change the reference by `delta` now and integrate the next `fine_span` with `fine_step`, then
+    go back to `step` (ANDES reads `tstep` again when a run resumes). The step arguments let
+    benchmarks/andes_online.py halve both for its time-step check; the defaults are this script's."""
     exc.vref0.v[0] += delta
-    ss.TDS.config.tstep = FINE_STEP
-    _run_until(ss, float(ss.dae.t) + FINE_SPAN)
-    ss.TDS.config.tstep = STEP
+    ss.TDS.config.tstep = fine_step
+    _run_until(ss, float(ss.dae.t) + fine_span)
+    ss.TDS.config.tstep = step
 
 
 def make_capture(andes, model: str, params: dict, amplitude: float, ss=None) -> dict:
