@@ -34,7 +34,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -413,32 +414,24 @@ def _simulate(P: np.ndarray, r: Record, n: int | None = None, *, measured: bool 
                           edges=r.edges_upto(n))
 
 
-class _threads:
-    """One thread for a small call (`SMALL_CALL`), else numba's."""
-
-    def __init__(self, size: int):
-        self.one = size < SMALL_CALL and numba.get_num_threads() > 1
-        self.old = numba.get_num_threads()
-
-    def __enter__(self) -> None:
-        if self.one:
-            numba.set_num_threads(1)
-
-    def __exit__(self, *exc: object) -> None:
-        if self.one:
-            numba.set_num_threads(self.old)
+@contextmanager
+def _threads(size: int) -> Iterator[None]:
+    """One thread for a call of `size` candidate-steps below SMALL_CALL, else numba's."""
+    old = numba.get_num_threads()
+    if size >= SMALL_CALL or old == 1:
+        yield
+        return
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)
 
 
 def _kernel(P: np.ndarray, usetp: np.ndarray, *args: Any, **kwargs: Any) -> dict:
     """`run_kernel`, on one thread when the call is small (`SMALL_CALL`)."""
-    if P.shape[0] * usetp.shape[0] >= SMALL_CALL or numba.get_num_threads() == 1:
+    with _threads(P.shape[0] * usetp.shape[0]):
         return run_kernel(P, usetp, *args, **kwargs)
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        return run_kernel(P, usetp, *args, **kwargs)
-    finally:
-        numba.set_num_threads(old)
 
 
 # ---------------------------------------------------------------------- construction

@@ -67,7 +67,7 @@ from .kernel.layout import (
     EDGE_EPS,
 )
 from .kernel.rhs import exciter, non_windup
-from .params import COL, MACHINE_CATALOGUE, MACHINE_DATA, MACHINE_DEFAULTS, MACHINE_PARAMS, MCOL
+from .params import COL, MACHINE_CATALOGUE, MACHINE_DATA, MACHINE_DEFAULTS, MACHINE_PARAMS, MCOL, PARAMS
 
 # ---- the machine's and the grid's parameters ---------------------------------------------------
 
@@ -204,7 +204,7 @@ def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray
 # ---- the compiled machine, its right-hand side and RK4 step ------------------------------------
 
 
-_FM = FASTMATH
+_FM = FASTMATH   # the kernel's fast-math flags
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
@@ -400,9 +400,9 @@ def run_online(P: np.ndarray, M: np.ndarray, usetp: np.ndarray, dt: float, usetp
     if not (dt > 0 and math.isfinite(dt)):
         raise ValueError(f"time step {dt!r} must be positive")
     for name in NOT_ON_LINE:
-        info_neutral = {"TD": 0.0, "RAMP": math.inf, "SKEW": 0.0}[name]
-        if np.any(P[:, COL[name]] != info_neutral):
-            raise ValueError(f"{name} is not simulated on line yet: set it to its neutral value ({info_neutral})")
+        neutral = PARAMS[name].neutral
+        if np.any(P[:, COL[name]] != neutral):
+            raise ValueError(f"{name} is not simulated on line yet: set it to its neutral value ({neutral})")
     G, fld0 = derive_machine(P, M)
     D = K.derive(P, field0=fld0)
     measured = dict(measured or {})
