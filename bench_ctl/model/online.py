@@ -295,6 +295,64 @@ def _readout(D, G, i, u, X):
     return fld, vt, p, q, ifd
 
 
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def initial_state(D, G, i, X):
+    """Candidate i's 12 states at its operating point (X, in place): where a run starts."""
+    x = steady_state(D, i)
+    for q in range(8):
+        X[q] = x[q]
+    X[4] = G[G_E1Q0, i]
+    X[5] = G[G_E2D0, i]
+    X[8] = G[G_E1D0, i]
+    X[9] = G[G_E2Q0, i]
+    X[10] = G[G_DELTA0, i]
+    X[11] = 1.0
+
+
+#: the per-sample columns of `advance`: the no-load plant's seven (`plant_step.O_*`), then P, Q, Ifd
+(A_USETP, A_EFD_REC, A_VT, A_EFD, A_EQP, A_UREF, A_FLAGS, A_P, A_Q, A_IFD) = range(10)
+N_ADVANCE = 10
+#: flag bits of A_FLAGS (the no-load plant's FLAG_CEILING and FLAG_FAILED)
+A_FLAG_CEILING, A_FLAG_FAILED = 1, 8
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FM)
+def advance(D, G, X, u, usetp_pre, dt, out, last):
+    """Step candidate 0 (D, G transposed) from its states X (in place) over the setpoint series u,
+    one sample per step as `_run` records it (the sample at t_k with the setpoint of step k, then
+    the step): the real-time plant on line. `last` gets (efd, Vt, P, Q, Ifd, flags) at the final
+    state. A state that leaves its sane range is parked at the operating point (flag bit 8)."""
+    flags = 0.0
+    for s in range(u.shape[0]):
+        ref = D[D_UREF0, 0] + u[s] - usetp_pre
+        r = _readout(D, G, 0, ref, X)
+        out[s, A_USETP] = u[s]
+        out[s, A_EFD_REC] = D[D_GAIN, 0] * r[0]
+        out[s, A_VT] = r[1]
+        out[s, A_EFD] = r[0]
+        out[s, A_EQP] = X[4]
+        out[s, A_UREF] = ref
+        out[s, A_P] = r[2]
+        out[s, A_Q] = r[3]
+        out[s, A_IFD] = r[4]
+        hi, lo = ceilings_at(D, 0, r[1], r[4])
+        flags = A_FLAG_CEILING if (X[3] >= hi or X[3] <= lo) else 0.0
+        step_online(D, G, 0, ref, X, dt)
+        mag = 0.0
+        for q in range(N_ONLINE):
+            mag += abs(X[q])
+        if not (mag < BLOWUP):
+            initial_state(D, G, 0, X)
+            flags += A_FLAG_FAILED
+        out[s, A_FLAGS] = flags
+    if u.shape[0]:
+        ref = D[D_UREF0, 0] + u[u.shape[0] - 1] - usetp_pre
+        r = _readout(D, G, 0, ref, X)
+        for q in range(5):
+            last[q] = r[q]
+        last[5] = flags
+
+
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM, parallel=True)
 def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, traces, sse, ends, fail_step):
     n = D.shape[1]
@@ -302,15 +360,7 @@ def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, tr
     ne = eidx.shape[0]
     for i in nb.prange(n):
         X = np.empty(N_ONLINE)
-        x = steady_state(D, i)
-        for q in range(8):
-            X[q] = x[q]
-        X[4] = G[G_E1Q0, i]
-        X[5] = G[G_E2D0, i]
-        X[8] = G[G_E1D0, i]
-        X[9] = G[G_E2Q0, i]
-        X[10] = G[G_DELTA0, i]
-        X[11] = 1.0
+        initial_state(D, G, i, X)
         bs = np.empty(ne + 1)
         bj = np.empty(ne + 1)
         failed = D[D_VALID, i] == 0.0 or G[G_VALID, i] == 0.0
@@ -373,12 +423,25 @@ def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, tr
                 fail_step[i] = k + 1
 
 
-K.drop_stale_cache((machine, rhs_online, step_online, _readout, _run), K.SOURCES + (__file__,), "online")
+K.drop_stale_cache((machine, rhs_online, step_online, _readout, initial_state, advance, _run), K.SOURCES + (__file__,), "online")
 
 #: the recorded signals of an on-line run, in the order of its traces and weights
 SIGNALS = ("efd", "vt", "p", "q", "ifd")
 #: effects the on-line machine does not run yet (their kernel parameters must be neutral)
 NOT_ON_LINE = ("TD", "RAMP", "SKEW")
+
+
+def derive_on_line(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel's and the machine's derived matrices of the candidates P on the grid M, transposed
+    as the compiled loops read them (D[name, i], G[name, i]); an effect not simulated on line yet
+    (NOT_ON_LINE) away from its neutral value is an error that names it."""
+    for name in NOT_ON_LINE:
+        neutral = PARAMS[name].neutral
+        if np.any(P[:, COL[name]] != neutral):
+            raise ValueError(f"{name} is not simulated on line yet: set it to its neutral value ({neutral})")
+    G, fld0 = derive_machine(P, M)
+    D = K.derive(P, field0=fld0)
+    return np.ascontiguousarray(D.T), np.ascontiguousarray(G.T)
 
 
 def run_online(P: np.ndarray, M: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
@@ -399,12 +462,7 @@ def run_online(P: np.ndarray, M: np.ndarray, usetp: np.ndarray, dt: float, usetp
         raise ValueError("a simulation needs at least two samples")
     if not (dt > 0 and math.isfinite(dt)):
         raise ValueError(f"time step {dt!r} must be positive")
-    for name in NOT_ON_LINE:
-        neutral = PARAMS[name].neutral
-        if np.any(P[:, COL[name]] != neutral):
-            raise ValueError(f"{name} is not simulated on line yet: set it to its neutral value ({neutral})")
-    G, fld0 = derive_machine(P, M)
-    D = K.derive(P, field0=fld0)
+    D, G = derive_on_line(P, M)
     measured = dict(measured or {})
     unknown = set(measured) - set(SIGNALS[:4])
     if unknown:
@@ -427,7 +485,7 @@ def run_online(P: np.ndarray, M: np.ndarray, usetp: np.ndarray, dt: float, usetp
     ends = np.zeros((4, n))
     fail_step = np.full(n, -1, dtype=np.int64)
     if n:
-        _run(np.ascontiguousarray(D.T), np.ascontiguousarray(G.T), usetp, float(usetp_pre), float(dt),
+        _run(D, G, usetp, float(usetp_pre), float(dt),
              np.require(edges.index, np.int64, ("C", "W")), np.require(edges.jump, np.float64, ("C", "W")),
              np.require(edges.nominal_s, np.float64, ("C", "W")), np.require(edges.slot, np.int64, ("C", "W")),
              meas, w, bool(store), traces, sse, ends, fail_step)

@@ -93,8 +93,10 @@ class PlantState:
     active_setpoint: float    # setpoint after the device's ramp (pu)
     vt: float
     efd: float
-    ifd: float                # field current, pu: E'q + Sat(E'q)
+    ifd: float                # field current, pu: E'q + Sat(E'q) (on line: XadIfd)
     flags: int                # FLAG_* bits
+    p: float = 0.0            # active and reactive power, pu on the machine base (on line)
+    q: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -123,13 +125,7 @@ class Plant:
     def __init__(self, unit: Unit | None = None, *, dt: float = 1e-3,
                  usetp0: float | None = None, rt_priority: int | None = 10) -> None:
         self.unit = unit if unit is not None else load_unit(None)
-        self.dt = float(dt)
-        self._dt_ns = int(round(self.dt * 1e9))
-        if self._dt_ns * 1e-9 != self.dt and abs(self._dt_ns * 1e-9 - self.dt) > 1e-15:
-            raise ValueError(f"plant step {dt!r} s is not a whole number of ns")
-        #: SCHED_FIFO priority of the stepping thread (None: normal scheduling)
-        self.rt_priority = rt_priority
-        self.rt_active = False
+        self._clock(dt, rt_priority)
         values = self.unit.values()
         self._D = np.ascontiguousarray(K.derive(param_matrix(values)).T)
         if self._D[K.D_VALID, 0] == 0.0:
@@ -146,12 +142,31 @@ class Plant:
                             D[K.D_UREF0, 0], D[K.D_GAIN, 0] * e0, 0.0])
         self._hist = (np.full((1, L), e0), np.full((1, L), e0), np.full((1, Ls), e0),
                       np.zeros((1, Ls)), np.zeros((1, Ls)))
+        self._runtime(N_OUT)
+
+    #: the unit is synchronised (P and Q are the machine's, not a set load)
+    on_line = False
+    #: recorded channel -> column of the per-sample block the listeners get
+    channels: dict[str, int] = {"usetp": O_USETP, "efd": O_EFD_REC, "vt": O_VT}
+
+    def _clock(self, dt: float, rt_priority: int | None) -> None:
+        self.dt = float(dt)
+        self._dt_ns = int(round(self.dt * 1e9))
+        if self._dt_ns * 1e-9 != self.dt and abs(self._dt_ns * 1e-9 - self.dt) > 1e-15:
+            raise ValueError(f"plant step {dt!r} s is not a whole number of ns")
+        #: SCHED_FIFO priority of the stepping thread (None: normal scheduling)
+        self.rt_priority = rt_priority
+        self.rt_active = False
+
+    def _runtime(self, n_out: int) -> None:
+        """What stepping needs whatever the model: control words, rings, locks, listeners."""
+        self._n_out = n_out
         self._ctrl = np.zeros(N_CTRL, np.int64)          # shared with the compiled loop
         self._fst = np.zeros(N_F)
         self._fst[F_USETP] = self.usetp_pre
         self._sp_step = np.zeros(SP_RING, np.int64)
         self._sp_val = np.zeros(SP_RING)
-        self._ring = np.zeros((RING, N_OUT))
+        self._ring = np.zeros((RING, n_out))
         self._lag = np.zeros(STAT_RING)
         self._behind = np.zeros(STAT_RING)
         self._flags = 0
@@ -177,7 +192,7 @@ class Plant:
     def advance(self, usetp: np.ndarray | float, n: int | None = None) -> np.ndarray:
         """Take len(usetp) steps (or n steps at a constant setpoint); returns the samples (n, N_OUT)."""
         u = np.full(int(n), float(usetp)) if n is not None else np.ascontiguousarray(usetp, float)
-        out = np.empty((u.shape[0], N_OUT))
+        out = np.empty((u.shape[0], self._n_out))
         with self._lock:
             self._step_locked(u, out)
         return out
@@ -208,7 +223,7 @@ class Plant:
                 pos = max(pos, idx)
                 cur = v
             u[pos:] = cur
-            out = np.empty((n, N_OUT))
+            out = np.empty((n, self._n_out))
             self._step_locked(u, out)
         for fn in list(self._listeners):
             fn(k0, out)
