@@ -13,6 +13,9 @@ Embedding (tests, `bench-ctl run --dry-run`, `bench-ctl demo`)::
         bench.exciter.set_load_mw(50.0)     # break the no-load precondition
         bench.plant.state()                 # PlantState (vt, efd, ...)
 
+    SimBench(online=True, recorder_profile="sim-recorder-online")   # the unit on the grid: P, Q
+        # follow the machine (its [grid] data), the recorder records p, q and ifd too
+
 `start()` returns once both servers listen and the plant runs (no sleeps to guess); `stop()`
 (or leaving the `with`) shuts everything down. The servers run on an asyncio loop in a
 background thread, the plant in its own thread; `async with SimBench(...)` works too (start
@@ -40,6 +43,7 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench_ctl.model.online_plant import OnlinePlant
 from bench_ctl.model.plant import Plant
 from bench_ctl.model.unit import Unit, load_unit
 from drivers.profile import Profile, load_profile
@@ -144,7 +148,8 @@ class SimBench:
                  heartbeat_timeout_s: float | None = None, load_mw: float = 0.0,
                  noise_pu: float = 0.01, seed: int | None = 0,
                  faults: Iterable[Fault] = (), switch_interval_s: float | None = 0.0005,
-                 control: tuple[str, int] | None = None, rt_priority: int | None = 10) -> None:
+                 control: tuple[str, int] | None = None, rt_priority: int | None = 10,
+                 online: bool = False, mva: float = 100.0) -> None:
         self.unit = unit if isinstance(unit, Unit) else load_unit(unit)
         self.tcp = tcp
         self.recorder_tcp = recorder_tcp
@@ -152,7 +157,9 @@ class SimBench:
         self.exciter_unit_id = exciter_unit_id
         self.recorder_unit_id = recorder_unit_id
         self.faults = FaultSet(faults)
-        self.plant = Plant(self.unit, rt_priority=rt_priority)
+        #: on line: the unit synchronised through XE (`OnlinePlant`, machine base `mva` MVA)
+        self.plant = OnlinePlant(self.unit, rt_priority=rt_priority, mva=mva) if online \
+            else Plant(self.unit, rt_priority=rt_priority)
         self.exciter = ExciterDevice(self.plant, _profile(exciter_profile),
                                      heartbeat_timeout_s=heartbeat_timeout_s, load_mw=load_mw)
         self.recorder = RecorderDevice(self.plant, _profile(recorder_profile), noise_pu=noise_pu,

@@ -2,7 +2,9 @@
 
 Works on register names (see docs/devices.md); any exciter profile that names the
 registers below can be served. Required: setpoint, active_setpoint, vt, efd, ifd, p, mode,
-status, heartbeat. Optional: watchdog_timeout, device_code, firmware. Other writable registers
+status, heartbeat. Optional: watchdog_timeout, device_code, firmware, q, mech_power (on line: P and
+Q are the machine's in MW / Mvar on its base, mech_power sets the turbine; at no load p reads the
+set load, q 0, and a mech_power write is refused with exception 01). Other writable registers
 a vendor profile adds are stored and read back as written.
 
 Behaviour:
@@ -32,6 +34,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from pymodbus.constants import ExcCodes
 
+from bench_ctl.model.online_plant import TURBINE_PU
 from bench_ctl.model.plant import FLAG_CEILING, FLAG_RAMP, FLAG_RATE, Plant
 from drivers.exciter import OTHER_MASTER_BIT, watchdog_register
 from drivers.profile import Profile, Register
@@ -123,8 +126,12 @@ class ExciterDevice:
         with self._lock:
             snap = dict(self._extra)
             snap.update(setpoint=self.setpoint, heartbeat=self.heartbeat, mode=self.mode_word())
+        on_line = self.plant.on_line
         snap.update(active_setpoint=st.active_setpoint, vt=st.vt, efd=st.efd, ifd=st.ifd,
-                    p=self.load_mw, status=flags, device_code=DEVICE_CODE, firmware=FIRMWARE)
+                    p=st.p * self.plant.mva if on_line else self.load_mw,
+                    q=st.q * self.plant.mva if on_line else 0.0,
+                    mech_power=self.plant.mech_power * self.plant.mva if on_line else 0.0,
+                    status=flags, device_code=DEVICE_CODE, firmware=FIRMWARE)
         if self.watchdog_register is not None:
             snap[self.watchdog_register] = self.heartbeat_timeout_s
         return snap
@@ -158,6 +165,11 @@ class ExciterDevice:
     def _check(self, name: str, value: float) -> ExcCodes | None:
         if name == "setpoint" and self.require_remote and not self.remote:
             return ExcCodes.ILLEGAL_FUNCTION
+        if name == "mech_power":
+            if not self.plant.on_line:
+                return ExcCodes.ILLEGAL_FUNCTION   # no turbine to set at no load
+            if not TURBINE_PU[0] <= value / self.plant.mva <= TURBINE_PU[1]:
+                return ExcCodes.ILLEGAL_VALUE
         if name == "mode":
             word = int(value)
             known = (1 << self._mode_bits["auto"]) | (1 << self._mode_bits["remote"])
@@ -188,13 +200,18 @@ class ExciterDevice:
                 self._owner = None
                 self.events.append((now, "local", self.setpoint))
             self.remote = remote
+        elif name == "mech_power":
+            self.set_load_mw(value)
         else:
             self._extra[name] = value
 
     def set_load_mw(self, p_mw: float) -> None:
-        """Change the simulated active power (e.g. to test a no-load precondition)."""
+        """Change the simulated active power (e.g. to test a no-load precondition); on line, the
+        turbine's mechanical power, which the machine's P follows."""
         if not np.isfinite(p_mw):
             raise ValueError(f"load {p_mw!r} MW is not finite")
+        if self.plant.on_line:
+            self.plant.set_mech_power(p_mw / self.plant.mva)
         self.load_mw = float(p_mw)
 
     # ---------------------------------------------------------------- watchdog

@@ -1,4 +1,5 @@
-"""The simulated transient recorder: samples usetp, efd and vt of the shared plant.
+"""The simulated transient recorder: samples usetp, efd and vt of the shared plant (and p, q, ifd
+on line, when its profile's `channels` lists them: `sim-recorder-online`).
 
 State machine (status values from the profile, see docs/devices.md):
 idle -> (arm = 1) recording (pre-trigger filling, triggers not accepted) -> armed (waiting)
@@ -6,9 +7,9 @@ idle -> (arm = 1) recording (pre-trigger filling, triggers not accepted) -> arme
 
 Samples are taken every `1000 / sample_rate` plant steps from the first plant step after the
 arm write. usetp is the digital setpoint (1e-4 pu per count, noise-free); efd (as recorded:
-recorder_gain and time_skew act here) and vt get Gaussian noise and 12-bit quantisation over
+recorder_gain and time_skew act here), vt and the other channels get Gaussian noise and 12-bit quantisation over
 +-10 pu (counts saturate at -2048..2047, like an ADC). The stored record is a flat array of
-int16 words, frames [usetp, efd, vt], downloaded in blocks of `block_words` through a data
+int16 words, frames [usetp, efd, vt, ...] in the profile's channel order, downloaded in blocks of `block_words` through a data
 window; integrity: sample_count, block_count, CRC-32 of the words (big-endian bytes).
 """
 from __future__ import annotations
@@ -24,7 +25,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from pymodbus.constants import ExcCodes
 
-from bench_ctl.model.plant import O_EFD_REC, O_USETP, O_VT, Plant
+from bench_ctl.model.plant import O_USETP, Plant
 from drivers.profile import Profile, Register
 
 log = logging.getLogger(__name__)
@@ -57,6 +58,17 @@ class RecorderDevice:
             raise ValueError(f"recorder profile {profile.name!r}: settings lack block_data_address")
         self.plant = plant
         self.profile = profile
+        #: the frame's channels (the profile's `channels`), each a column the plant hands out
+        self.channels = tuple(c.strip() for c in str(profile.settings.get("channels", "usetp,efd,vt")).split(","))
+        absent = [c for c in self.channels if c not in plant.channels]
+        if absent or self.channels[0] != "usetp":
+            raise ValueError(f"recorder profile {profile.name!r} records {', '.join(self.channels)}: the "
+                             f"{'on-line' if plant.on_line else 'no-load'} plant has "
+                             f"{', '.join(plant.channels)}, and usetp comes first")
+        missing = [f"{c}_scale" for c in self.channels if f"{c}_scale" not in profile.registers]
+        if missing:
+            raise ValueError(f"recorder profile {profile.name!r} lacks registers {missing}")
+        self._cols = [plant.channels[c] for c in self.channels]
         self.block_words = int(profile.settings["block_words"])
         self.noise_pu = float(noise_pu)
         self._rng = np.random.default_rng(seed)
@@ -99,9 +111,9 @@ class RecorderDevice:
             snap.update(
                 arm=self.arm_value, trigger=1.0 if (self._triggered or self._manual_step is not None) else 0.0,
                 block_index=self.block_index or 0, status=self._code[self.status], sample_count=n,
-                channel_count=3, block_count=self._blocks(), record_crc=self._crc,
+                channel_count=len(self.channels), block_count=self._blocks(), record_crc=self._crc,
                 trigger_sample=self._trigger_sample if self.record is not None else 0,
-                usetp_scale=USETP_LSB, efd_scale=ADC_LSB, vt_scale=ADC_LSB,
+                **{f"{c}_scale": ADC_LSB for c in self.channels[1:]}, usetp_scale=USETP_LSB,
                 record_rate=self._rate if self.record is not None else 0, samples_stored=self._stored,
                 trigger_time=(self.trigger_step * self.plant.dt
                               if self.record is not None and self.trigger_step is not None else 0.0),
@@ -221,9 +233,9 @@ class RecorderDevice:
             ks = ks[sel]
             rows = out[sel]
             u = rows[:, O_USETP]
-            frames = np.empty((rows.shape[0], 3), dtype=np.int16)
+            frames = np.empty((rows.shape[0], len(self._cols)), dtype=np.int16)
             frames[:, 0] = np.clip(np.round(u / USETP_LSB), -32768, 32767)
-            for col, src in ((1, O_EFD_REC), (2, O_VT)):
+            for col, src in enumerate(self._cols[1:], start=1):
                 x = rows[:, src]
                 if self.noise_pu > 0:
                     x = x + self._rng.normal(0.0, self.noise_pu, size=x.shape)
@@ -268,7 +280,7 @@ class RecorderDevice:
 
     def _finish(self) -> None:
         both = self._pre_frames + self._post
-        self.record = np.array([f for _, f in both], dtype=np.int16).reshape(-1, 3)
+        self.record = np.array([f for _, f in both], dtype=np.int16).reshape(-1, len(self.channels))
         self.first_step = both[0][0]
         self._trigger_sample = len(self._pre_frames)
         self._words = self.record.reshape(-1).view(np.uint16).copy()
@@ -289,4 +301,4 @@ class RecorderDevice:
             r = self.record.astype(float)
             t = (np.arange(r.shape[0]) - self._trigger_sample) / self._rate
             u, a = float(np.float32(USETP_LSB)), float(np.float32(ADC_LSB))   # published scales
-            return {"time": t, "usetp": r[:, 0] * u, "efd": r[:, 1] * a, "vt": r[:, 2] * a}
+            return {"time": t, "usetp": r[:, 0] * u, **{c: r[:, j] * a for j, c in enumerate(self.channels) if j}}

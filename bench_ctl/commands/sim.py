@@ -50,15 +50,22 @@ def _hostport(text: str, option: str) -> tuple[str, int]:
 @click.option("--no-serial", is_flag=True, help="Do not open a pseudo-terminal for the recorder.")
 @click.option("--exciter-profile", default="sim-exciter", show_default=True,
               help="Exciter profile name (drivers/profiles/NAME.toml) or path.")
-@click.option("--recorder-profile", default="sim-recorder", show_default=True,
-              help="Recorder profile name or path.")
+@click.option("--recorder-profile", default=None,
+              help="Recorder profile name or path [default: sim-recorder; with --online sim-recorder-online].")
 @click.option("--exciter-unit-id", type=int, default=1, show_default=True)
 @click.option("--recorder-unit-id", type=int, default=1, show_default=True)
 @click.option("--heartbeat-timeout", type=float, default=None,
               help="Exciter watchdog period (s), served in the profile's watchdog register (what a "
                    "run reads and checks); default from the profile.")
-@click.option("--load-mw", type=float, default=0.0, show_default=True,
-              help="Simulated active power (MW); 0 = no load.")
+@click.option("--load-mw", type=float, default=None,
+              help="Simulated active power (MW) [default: 0, no load]; with --online the turbine's mechanical "
+                   "power [default: the unit's [grid] P0].")
+@click.option("--online", is_flag=True,
+              help="The unit synchronised through XE to an infinite bus (its [grid] data, --set XE=..., or a "
+                   "GENROU / GENSAL record via --from-dyr): P follows the turbine (register mech_power), Q the "
+                   "excitation; the recorder records p, q and ifd too.")
+@click.option("--mva", type=float, default=100.0, show_default=True,
+              help="The machine base (MVA) of --online: P and Q in MW and Mvar on the exciter's registers.")
 @click.option("--noise", type=float, default=0.01, show_default=True,
               help="Recorder noise sigma on efd and vt (pu).")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -68,7 +75,7 @@ def _hostport(text: str, option: str) -> tuple[str, int]:
               help="Open a line-based control port for run-time faults.")
 def sim(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, tcp, recorder_tcp, serial_link, no_serial,
         exciter_profile, recorder_profile, exciter_unit_id, recorder_unit_id, heartbeat_timeout,
-        load_mw, noise, seed, faults, control) -> int:
+        load_mw, online, mva, noise, seed, faults, control) -> int:
     """Run the simulated exciter and recorder around one real-time plant until Ctrl-C."""
     from simulators.bench import SimBench
     from simulators.faults import parse_fault
@@ -79,16 +86,21 @@ def sim(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, tcp, re
     try:
         unit = build_unit(unit_path, overrides, effects, model=model, from_dyr=from_dyr,
                           dyr_bus=dyr_bus, dyr_id=dyr_id)
-        if unit.model != "REFERENCE":   # the real-time plant steps the reference blocks only
-            raise UnitError(f"the simulated bench runs the REFERENCE structure only, not {unit.model}; "
-                            "use `bench-ctl simulate` for a capture of another structure")
+        if unit.model != "REFERENCE" and not online:   # the no-load plant steps the reference blocks only
+            raise UnitError(f"the simulated bench at no load runs the REFERENCE structure only, not {unit.model} "
+                            "(on line, --online, it runs any); use `bench-ctl simulate` for a capture of another "
+                            "structure")
+        if recorder_profile is None:
+            recorder_profile = "sim-recorder-online" if online else "sim-recorder"
         armed = [parse_fault(f) for f in faults]
         bench = SimBench(unit, tcp=tcp_addr, recorder_tcp=rec_addr,
                          serial=False if no_serial else (serial_link or True),
                          exciter_profile=exciter_profile, recorder_profile=recorder_profile,
                          exciter_unit_id=exciter_unit_id, recorder_unit_id=recorder_unit_id,
-                         heartbeat_timeout_s=heartbeat_timeout, load_mw=load_mw, noise_pu=noise,
-                         seed=seed, faults=armed, control=control_addr)
+                         heartbeat_timeout_s=heartbeat_timeout, load_mw=0.0, noise_pu=noise,
+                         seed=seed, faults=armed, control=control_addr, online=online, mva=mva)
+        if load_mw is not None:
+            bench.exciter.set_load_mw(load_mw)
     except (UnitError, ValueError, FileNotFoundError) as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
@@ -102,6 +114,10 @@ def sim(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, tcp, re
             return ExitCode.COMMS
         click.echo(f"simulated bench: unit {unit.name!r}, effects "
                    f"{', '.join(unit.effects) or 'none'}")
+        if online:
+            st = bench.plant.state()
+            click.echo(f"on line through XE {unit.grid['XE']:g} pu: P {st.p * mva:.1f} MW, Q {st.q * mva:.1f} Mvar, "
+                       f"Vt {st.vt:.4f} pu ({mva:g} MVA base)")
         click.echo(endpoints.describe())
         if bench.control_address:
             click.echo(f"control  line protocol   {bench.control_address[0]}:{bench.control_address[1]}")

@@ -69,6 +69,10 @@ from .simulate import param_matrix
 from .unit import Unit, load_unit
 
 
+#: the turbine's mechanical power the plant accepts, pu on the machine base
+TURBINE_PU = (-0.2, 1.2)
+
+
 class OnlinePlant(Plant):
     """The unit synchronised to an infinite bus, stepping with carried state (see the module
     docstring); `unit` needs the machine's data, XE and the operating point P0, Q0 in its [grid]."""
@@ -107,8 +111,8 @@ class OnlinePlant(Plant):
 
     def set_mech_power(self, pu: float) -> None:
         """Set the turbine's mechanical power (pu on the machine base); acts from the next step."""
-        if not math.isfinite(pu) or not -0.2 <= pu <= 1.2:
-            raise ValueError(f"mechanical power {pu!r} pu outside -0.2..1.2 pu")
+        if not math.isfinite(pu) or not TURBINE_PU[0] <= pu <= TURBINE_PU[1]:
+            raise ValueError(f"mechanical power {pu!r} pu outside {TURBINE_PU[0]:g}..{TURBINE_PU[1]:g} pu")
         self._G[G_TM, 0] = float(pu)
 
     # ------------------------------------------------------------------ stepping

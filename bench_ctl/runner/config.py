@@ -39,6 +39,11 @@ ConfigError line naming the profile, the role and what is wrong.
     watchdog_max_s = 3.0              # optional: the longest device watchdog accepted (read from
                                       # the device before the first write); default
                                       # pulse_width_max_s + WATCHDOG_MARGIN_S
+    vt_min_pu = 0.95                  # optional, on line: the band Vt must stay in during the
+    vt_max_pu = 1.08                  # test (default the setpoint band); leaving it aborts
+    q_min_mvar = -30.0                # on line: the band Q must stay in (the unit's capability
+    q_max_mvar = 60.0                 # at this P, less a margin); without it no on-line test
+    step_hold_max_s = 30.0            # on line: the longest hold of a reference step
 
     [procedures.no_load_pulse]        # optional: keyword parameters of a procedure
     amplitude_pu = 0.05
@@ -98,6 +103,19 @@ class Limits:
     no_load_p_max_mw: float
     restore_deadline_s: float = 10.0
     watchdog_max_s: float | None = None   # None: pulse_width_max_s + WATCHDOG_MARGIN_S
+    # on line (procedures/online_step.py): the band Vt and Q must stay in, the hold cap
+    vt_min_pu: float | None = None        # None: setpoint_min_pu
+    vt_max_pu: float | None = None        # None: setpoint_max_pu
+    q_min_mvar: float | None = None       # None: no on-line test (the unit's capability is needed)
+    q_max_mvar: float | None = None
+    step_hold_max_s: float = 30.0
+
+    @property
+    def vt_band_pu(self) -> tuple[float, float]:
+        """The terminal voltage band of an on-line test (limits.vt_min_pu / vt_max_pu, or the
+        setpoint band)."""
+        return (self.setpoint_min_pu if self.vt_min_pu is None else self.vt_min_pu,
+                self.setpoint_max_pu if self.vt_max_pu is None else self.vt_max_pu)
 
     @property
     def watchdog_limit_s(self) -> float:
@@ -161,7 +179,8 @@ _RECORDER_KEYS = {**_DEVICE_KEYS, "baudrate": (int, False), "parity": (str, Fals
 _LIMIT_KEYS = {"pulse_amplitude_max_pu": (float, True), "pulse_width_max_s": (float, True),
                "setpoint_min_pu": (float, True), "setpoint_max_pu": (float, True),
                "no_load_p_max_mw": (float, True), "restore_deadline_s": (float, False),
-               "watchdog_max_s": (float, False)}
+               "watchdog_max_s": (float, False), "vt_min_pu": (float, False), "vt_max_pu": (float, False),
+               "q_min_mvar": (float, False), "q_max_mvar": (float, False), "step_hold_max_s": (float, False)}
 _BENCH_KEYS = {"name": (str, False)}
 _TOP = {"bench", "exciter", "recorder", "limits", "procedures"}
 
@@ -241,10 +260,16 @@ def config_from_dict(doc: Mapping[str, Any], source: str = "<dict>",
     lim = _section(doc, "limits", _LIMIT_KEYS, source)
     _positive(source, "limits", lim, ("pulse_amplitude_max_pu", "pulse_width_max_s",
                                       "no_load_p_max_mw", "restore_deadline_s",
-                                      "setpoint_min_pu", "watchdog_max_s"))
+                                      "setpoint_min_pu", "watchdog_max_s", "vt_min_pu",
+                                      "step_hold_max_s"))
     if lim["setpoint_min_pu"] >= lim["setpoint_max_pu"]:
         raise ConfigError(f"{source}: limits.setpoint_min_pu {lim['setpoint_min_pu']} must be "
                           f"below limits.setpoint_max_pu {lim['setpoint_max_pu']}")
+    for lo, hi in (("vt_min_pu", "vt_max_pu"), ("q_min_mvar", "q_max_mvar")):
+        if (lo in lim) != (hi in lim):
+            raise ConfigError(f"{source}: limits.{lo} and limits.{hi} go together (a band has two ends)")
+        if lo in lim and lim[lo] >= lim[hi]:
+            raise ConfigError(f"{source}: limits.{lo} {lim[lo]} must be below limits.{hi} {lim[hi]}")
     procs = doc.get("procedures", {})
     if not isinstance(procs, Mapping) or not all(isinstance(v, Mapping) for v in procs.values()):
         raise ConfigError(f"{source}: [procedures.NAME] must be tables of parameters")

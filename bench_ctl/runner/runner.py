@@ -136,6 +136,12 @@ def procedure_params(fn: Any, config: BenchConfig, name: str,
     return params
 
 
+def simulated_options(fn: Any, sim_options: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The simulated bench a dry run of the procedure starts: its module's SIMULATED_BENCH (e.g. the
+    unit on line for an on-line test), then `sim_options`."""
+    return {**dict(getattr(inspect.getmodule(fn), "SIMULATED_BENCH", {})), **dict(sim_options or {})}
+
+
 def records_capture(fn: Any) -> bool:
     """Whether a procedure is meant to leave a capture (its module's CAPTURES, False unless it says
     True): a run of it that ends without one says so."""
@@ -296,7 +302,7 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
         if dry_run:
             from bench_ctl.runner.dryrun import simulated_bench
 
-            config, _sim = stack.enter_context(simulated_bench(config, **dict(sim_options or {})))
+            config, _sim = stack.enter_context(simulated_bench(config, **simulated_options(fn, sim_options)))
         audit.event("config", bench_config=config.to_dict())
         for w in warnings:
             log.warning("WARNING: %s", w)
