@@ -2,7 +2,7 @@
 delay from a setpoint write to its appearance in the recorded usetp channel.
 
     python benchmarks/sim_latency.py [--seconds 60] [--requests 500] [--trials 20] [--probe-seconds 20]
-                                     [--json OUT]
+                                     [--online] [--json OUT]
 
 Latency is measured with minimal raw-frame clients (what the simulator itself costs) and with
 pymodbus 3.16 sync clients (what a driver sees; its serial client polls the port every 1 ms and
@@ -13,7 +13,8 @@ the exciter with heartbeats, and a 10 s recording downloaded over the pseudo-ter
 download time is reported too). Before the bench starts, `machine_timer_*` is the host's own
 wake-up lateness for a bare 1 kHz sleeper with the plant's clock calls and priority
 (`bench_ctl.model.realtime.timer_jitter`): on a virtual machine that floor, not the plant, is what
-sets the plant's late steps. Exits 0 when it ran; it reports, it does not judge.
+sets the plant's late steps. `--online`: the same on the bench on line (the unit on the grid, stepped
+by a Python-timed loop, docs/decisions/0018). Exits 0 when it ran; it reports, it does not judge.
 """
 from __future__ import annotations
 
@@ -145,7 +146,7 @@ def wait_status(r, want: int, timeout: float) -> None:
 
 def download(r) -> tuple[np.ndarray, dict]:
     head = r.read_input_registers(0, count=20, device_id=1).registers
-    n, nblk, crc = u32(head[1:3]), head[4], u32(head[5:7])
+    n, nch, nblk, crc = u32(head[1:3]), head[3], head[4], u32(head[5:7])
     words: list[int] = []
     for b in range(nblk):
         if r.write_register(9, b, device_id=1).isError():
@@ -154,10 +155,10 @@ def download(r) -> tuple[np.ndarray, dict]:
         if win.isError() or win.registers[0] != b:
             raise RuntimeError(f"block {b}: {win}")
         words.extend(win.registers[1:])
-    words = words[: 3 * n]
+    words = words[: nch * n]
     if zlib.crc32(struct.pack(f">{len(words)}H", *words)) != crc:
         raise RuntimeError("record CRC mismatch")
-    frames = np.array(words, dtype=np.uint16).view(np.int16).reshape(n, 3)
+    frames = np.array(words, dtype=np.uint16).view(np.int16).reshape(n, nch)
     return frames, {"trigger_sample": u32(head[7:9]), "rate": head[15],
                     "trigger_time_s": u32(head[18:20]) * 1e-3}
 
@@ -277,6 +278,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", type=int, default=20, help="setpoint-to-record trials")
     ap.add_argument("--probe-seconds", type=float, default=20.0,
                     help="machine timer-jitter baseline before the bench starts (s; 0: skip)")
+    ap.add_argument("--online", action="store_true",
+                    help="the bench on line (the unit on the grid, its Python-timed plant loop; the recorder "
+                         "records six channels)")
     ap.add_argument("--json", type=Path, default=None, help="write the figures as flat JSON")
     args = ap.parse_args(argv)
     baseline: dict[str, float] = {}
@@ -285,9 +289,10 @@ def main(argv: list[str] | None = None) -> int:
         baseline = {f"machine_timer_{k}": v for k, v in probe.items()}
         baseline["machine_timer_seconds"] = args.probe_seconds
     t0 = time.monotonic()
-    with SimBench(heartbeat_timeout_s=5.0) as bench:
+    on_line = {"online": True, "recorder_profile": "sim-recorder-online"} if args.online else {}
+    with SimBench(heartbeat_timeout_s=5.0, **on_line) as bench:
         start_s = time.monotonic() - t0
-        figures: dict[str, float] = {**baseline, "bench_start_s": start_s}
+        figures: dict[str, float] = {**baseline, "online": args.online, "bench_start_s": start_s}
         figures.update(latency(bench, args.requests))
         figures.update(setpoint_delay(bench, args.trials))
         figures.update(plant_timing(bench, args.seconds))

@@ -212,6 +212,15 @@ class Exciter(RegisterDevice):
             return None
         return bool(int(self.read(register)) >> reg.bits[name] & 1)
 
+    def bits(self, register: str) -> dict[str, bool]:
+        """Every named bit of a register, read at once ({} when the profile lacks the register or
+        names no bit of it)."""
+        reg = self.profile.registers.get(register)
+        if reg is None or not reg.bits:
+            return {}
+        word = int(self.read(register))
+        return {name: bool(word >> bit & 1) for name, bit in reg.bits.items()}
+
     def read_watchdog(self) -> WatchdogReading:
         """Read the device's heartbeat watchdog period from the register the profile names
         (settings.watchdog_register); kept in `self.watchdog`. A read the device refuses is a

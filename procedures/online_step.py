@@ -290,12 +290,7 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
 
 def _limiters_acting(ex: ExcitationSystem) -> list[str]:
     """The status bits named *_limit or *_active that read 1 (the profile's names)."""
-    reg = ex.profile.registers.get("status")
-    if reg is None:
-        return []
-    names = [n for n in reg.bits if n.endswith(LIMITER_SUFFIXES)]
-    word = int(ex.read("status")) if names else 0
-    return [n for n in names if word >> reg.bits[n] & 1]
+    return [name for name, on in ex.bits("status").items() if on and name.endswith(LIMITER_SUFFIXES)]
 
 
 def _check_margins(band: Band, vt0: float, q0: float, amplitude_pu: float, vt_margin_pu: float,

@@ -7,10 +7,11 @@ idle -> (arm = 1) recording (pre-trigger filling, triggers not accepted) -> arme
 
 Samples are taken every `1000 / sample_rate` plant steps from the first plant step after the
 arm write. usetp is the digital setpoint (1e-4 pu per count, noise-free); efd (as recorded:
-recorder_gain and time_skew act here), vt and the other channels get Gaussian noise and 12-bit quantisation over
-+-10 pu (counts saturate at -2048..2047, like an ADC). The stored record is a flat array of
-int16 words, frames [usetp, efd, vt, ...] in the profile's channel order, downloaded in blocks of `block_words` through a data
-window; integrity: sample_count, block_count, CRC-32 of the words (big-endian bytes).
+recorder_gain and time_skew act here), vt and the other channels get Gaussian noise and 12-bit
+quantisation over +-10 pu (counts saturate at -2048..2047, like an ADC). The stored record is a
+flat array of int16 words, frames [usetp, efd, vt, ...] in the profile's channel order,
+downloaded in blocks of `block_words` through a data window; integrity: sample_count,
+block_count, CRC-32 of the words (big-endian bytes).
 """
 from __future__ import annotations
 

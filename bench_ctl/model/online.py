@@ -423,7 +423,8 @@ def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, tr
                 fail_step[i] = k + 1
 
 
-K.drop_stale_cache((machine, rhs_online, step_online, _readout, initial_state, advance, _run), K.SOURCES + (__file__,), "online")
+K.drop_stale_cache((machine, rhs_online, step_online, _readout, initial_state, advance, _run), K.SOURCES + (__file__,),
+                   "online")
 
 #: the recorded signals of an on-line run, in the order of its traces and weights
 SIGNALS = ("efd", "vt", "p", "q", "ifd")

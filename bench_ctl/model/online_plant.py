@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from .kernel.layout import D_UREF0, D_VALID
 from .online import (
     A_EFD_REC,
     A_IFD,
@@ -43,7 +44,6 @@ from .online import (
     machine_matrix,
     unit_machine,
 )
-from .kernel.layout import D_UREF0, D_VALID
 from .plant import Plant, PlantState
 from .realtime import (
     C_BURSTS,
@@ -67,7 +67,6 @@ from .realtime import (
 )
 from .simulate import param_matrix
 from .unit import Unit, load_unit
-
 
 #: the turbine's mechanical power the plant accepts, pu on the machine base
 TURBINE_PU = (-0.2, 1.2)

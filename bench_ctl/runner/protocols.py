@@ -66,6 +66,8 @@ class ExcitationSystem(Device, Protocol):
 
     def heartbeat_stats(self) -> HeartbeatStats: ...
 
+    def bits(self, register: str) -> dict[str, bool]: ...
+
     def safe_state(self, reason: str, *, deadline_s: float | None = None, reconnect: bool = False,
                    cancel: threading.Event | None = None) -> SafeStateReport: ...
 
@@ -73,6 +75,9 @@ class ExcitationSystem(Device, Protocol):
 @runtime_checkable
 class Recorder(Device, Protocol):
     """The recorder's sequence (docs/devices.md, "Recorder protocol")."""
+
+    #: the recorded channels, in frame order (the profile's `channels`)
+    channels: tuple[str, ...]
 
     def status(self) -> str: ...
 
