@@ -46,3 +46,22 @@ def test_demo_writes_every_artifact_and_fits(tmp_path, capsys):
     assert "setpoint restored (raw): 1.0000 pu, pre-test 1.0000 pu (register words identical)" in printed
     # a second run into the same folder is refused: captures are never overwritten
     assert main(["demo", "--out", str(out), "--evals", "400"]) == 2
+
+
+@pytest.mark.slow
+def test_demo_online_runs_the_reference_step_end_to_end(tmp_path, capsys):
+    out = tmp_path / "demo-online"
+    rc = main(["demo", "--online", "--out", str(out), "--evals", "400"])
+    printed = capsys.readouterr().out
+    assert rc == 0, printed
+    for name in ("capture.csv", "capture.json", "audit.jsonl", "result.json", "report.html"):
+        assert (out / name).is_file(), name
+    assert not (out / "diagnosis.json").exists() and "not on line yet" in printed
+    cap = read_capture(out / "capture.csv")
+    assert {"p", "q", "ifd"} <= set(cap.columns()) and cap.meta["test"]["online"] is True
+    result = json.loads((out / "result.json").read_text())
+    # fitted on efd, Vt and Q of the unit on the grid: efd at the recorder's noise (0.01 pu)
+    assert 0.8e-4 < result["mse"] < 1.3e-4
+    html = (out / "report.html").read_text()
+    assert "On line: P, Q, Vt and efd" in html
+    assert "vt and q inside the band" in printed and "online_step: PASSED" in printed

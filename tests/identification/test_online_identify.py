@@ -3,6 +3,8 @@ machine on the grid from its own pre-step operating point, the objective weighs 
 the report re-simulates it the same way."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -60,7 +62,7 @@ def test_online_identification_reaches_the_noise():
 
 def test_online_record_needs_the_machine_and_all_three_channels():
     cap = _capture(0.0)
-    bare = with_model(reference_unit(), "SEXS")
+    bare = replace(with_model(reference_unit(), "SEXS"), grid={})   # no machine data
     with pytest.raises(ProblemError, match="on-line record .*needs XD, XQ, XDP, XQP, XDPP, XLS, Tq0p, Tq0pp, H, XE"):
         make_problem([cap], bare)
     half = Capture(time=cap.time, usetp=cap.usetp, efd=cap.efd, vt=cap.vt, extra={"p": cap.channel("p")},
@@ -111,3 +113,20 @@ def test_the_grid_reactance_is_fitted_on_line_when_unknown():
     no_load = Capture(time=cap.time, usetp=cap.usetp, efd=cap.efd, vt=cap.vt, source="no_load.csv")
     with pytest.raises(ProblemError, match="XE fitted .*only an on-line record"):
         make_problem([no_load], unit)
+
+
+def test_a_no_load_pulse_and_an_on_line_step_of_one_unit_fit_together():
+    """Several records in one fit (issue 27, item 3): the no-load pulse and the on-line step share the
+    excitation system's values; each runs on its own generator, and the fit reaches both noises."""
+    t, usetp = pulse_usetp(amplitude=0.05, width=1.0, start=0.5, duration=4.0, rate=1000.0, usetp0=1.02)
+    rec = synthetic_record(_unit(), t, usetp, RecorderModel(0.01, 0.0), 7)
+    no_load = Capture(time=rec["time"], usetp=rec["usetp"], efd=rec["efd"], vt=rec["vt"], source="noload.csv")
+    on_line = _capture(0.01)
+    start = _unit({"K": 120.0, "TA": 2.0, "TB": 5.0, "TE": 0.1})
+    ident = run_identification([no_load, on_line], start, max_evals=800, seed=1)
+    prob = ident.problem
+    assert [r.machine is not None for r in prob.records] == [False, True]
+    mse = prob.mse(ident.best.x)
+    assert len(mse) == 2 and all(m < 1.05 * 0.01 ** 2 for m in mse), mse
+    values = prob.params(ident.best.x)
+    assert values["TE"] == pytest.approx(0.05, rel=0.1)
