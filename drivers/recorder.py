@@ -126,6 +126,9 @@ Progress = Callable[[int, int], None]   # (blocks done, blocks total)
 class Recorder(RegisterDevice):
     """Recorder over Modbus RTU. No I/O before `connect()`."""
 
+    #: the recorded channels in frame order (the profile's `channels`)
+    channels: tuple[str, ...] = ()
+
     def __init__(self, link: ModbusLink, profile: Profile, *, attempts: int = 3,
                  guard: WriteGuard | None = None,
                  listener: WriteListener | None = None) -> None:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 
@@ -94,7 +95,11 @@ def test_simulate_online_records_p_q_and_ifd(tmp_path):
 
 
 def test_simulate_online_names_what_the_unit_lacks(tmp_path, capsys):
-    rc = main(["simulate", "--online", "--set", "XE=0.2", "-o", str(tmp_path / "x.csv")])
+    from importlib import resources
+    text = resources.files("bench_ctl.data").joinpath("reference_unit.toml").read_text("utf-8")
+    bare = tmp_path / "bare.toml"   # the reference unit without its [grid] data
+    bare.write_text(re.sub(r"\n\[grid\]\n(?:\w+ = .*\n)+", "\n", text))
+    rc = main(["simulate", "--online", "--unit", str(bare), "--set", "XE=0.2", "-o", str(tmp_path / "x.csv")])
     assert rc == 2
     err = capsys.readouterr().err
     assert "on line needs XD, XQ, XDP, XQP, XDPP, XLS, Tq0p, Tq0pp, H, P0, Q0" in err

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 
@@ -154,6 +155,8 @@ def test_genrou_record_gives_the_machine_data(tmp_path):
                                         "Tq0p": 0.4, "Tq0pp": 0.05, "H": 3.0, "DAMP": 0.0}
 
 
-def resources_reference_text() -> str:
+def resources_reference_text(grid: bool = False) -> str:
+    """The built-in reference unit's file, without its [grid] table unless `grid`."""
     from importlib import resources
-    return resources.files("bench_ctl.data").joinpath("reference_unit.toml").read_text("utf-8")
+    text = resources.files("bench_ctl.data").joinpath("reference_unit.toml").read_text("utf-8")
+    return text if grid else re.sub(r"\n\[grid\]\n(?:\w+ = .*\n)+", "\n", text)

@@ -50,6 +50,6 @@ def test_the_runners_bench_is_a_procedure_bench():
     ex = bench.exciter
     assert (ex.endpoint_url, ex.unit_id, ex.request_timeout_s) == ("tcp://192.0.2.10:502", 1, 0.5)
     assert ex.has("efd") and ex.has("q") and not ex.has("pss_output")
-    assert ex.register_names()[:4] == ("setpoint", "heartbeat", "mode", "active_setpoint")
+    assert ex.register_names()[:4] == ("setpoint", "heartbeat", "mode", "mech_power")
     assert ex.decode("setpoint", [0x3F86, 0x6666]) == pytest.approx(1.05)
     assert ex.heartbeat_stats() == P.HeartbeatStats(0, 0, 0.0)
