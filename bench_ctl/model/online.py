@@ -37,7 +37,11 @@ Numerics as the kernel's: classical RK4 at the record's step, the setpoint zero-
 each edge at its fitted instant (the step split there), the regulator lag held at its ceilings
 inside each stage and clamped after the step (the ceilings move with Vt and Ifd; at a limit the
 lag is held there, not moved with it). Not yet on line: the dead time, the setpoint ramp and the
-recorder skew (refused). Candidates run in parallel, each its own loop.
+recorder skew (refused). Candidates run as the kernel's: chunks of CHUNK in parallel, each chunk
+time outer and candidates inner, its RK4 step one branch-free loop LLVM vectorises across the
+candidates. The rotor angle is carried as its sine and cosine (turned at the slip speed, put back on
+the unit circle after each step): with no SVML there is no vector sin / cos, and one call in the
+loop would keep it scalar.
 """
 from __future__ import annotations
 
@@ -55,6 +59,7 @@ from .kernel.blocks import ceilings_at, steady_state
 from .kernel.jit import FASTMATH
 from .kernel.layout import (
     BLOWUP,
+    CHUNK,
     D_EDGE0,
     D_GAIN,
     D_ITD0P,
@@ -65,8 +70,11 @@ from .kernel.layout import (
     D_UREF0,
     D_VALID,
     EDGE_EPS,
+    N_DERIVED,
+    ST4_SOME,
 )
 from .kernel.rhs import exciter, non_windup
+from .kernel.rk4 import _fixed_view, _view_d  # the kernel's fixed-shape views (private to the model)
 from .params import COL, MACHINE_CATALOGUE, MACHINE_DATA, MACHINE_DEFAULTS, MACHINE_PARAMS, MCOL, PARAMS
 
 # ---- the machine's and the grid's parameters ---------------------------------------------------
@@ -77,8 +85,9 @@ from .params import COL, MACHINE_CATALOGUE, MACHINE_DATA, MACHINE_DEFAULTS, MACH
  G_SAL, G_KQ) = range(29)
 N_G = 29
 #: the states of an on-line candidate: the kernel's eight (xm, x1, x2, VR lag, E'q, psikd, rate
-#: feedback, DC/AC exciter), then E'd, psikq, delta, omega
-N_ONLINE = 12
+#: feedback, DC/AC exciter), then E'd, psikq, sin delta, cos delta, omega (the rotor angle as its
+#: sine and cosine: no sin / cos in the step, so the candidate loops vectorise)
+N_ONLINE = 13
 
 
 def machine_matrix(values: Mapping[str, float] | Sequence[Mapping[str, float]]) -> np.ndarray:
@@ -208,8 +217,9 @@ _FM = FASTMATH   # the kernel's fast-math flags
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
-def machine(D, G, i, e1q, e2d, e1d, e2q, delta):
-    """The machine's algebra at its states: (Vt, XadIfd, Id, Iq, P, Q, Te, XaqI1q)."""
+def machine(D, G, i, e1q, e2d, e1d, e2q, sd, cd):
+    """The machine's algebra at its states (sd, cd: sin and cos of the rotor angle):
+    (Vt, XadIfd, Id, Iq, P, Q, Te, XaqI1q)."""
     gd1 = G[G_GD1, i]
     gq1 = G[G_GQ1, i]
     psd = gd1 * e1q + (1.0 - gd1) * e2d
@@ -223,8 +233,8 @@ def machine(D, G, i, e1q, e2d, e1d, e2q, delta):
     xs = xs if xs > 0.0 else 0.0
     sat_eq = sal * D[D_SATB, i] * xs * xs   # a GENSAL's Sat(E'q)
     vinf = G[G_VINF, i]
-    ar = psq - vinf * math.sin(delta)
-    ai = psd - vinf * math.cos(delta)
+    ar = psq - vinf * sd
+    ai = psd - vinf * cd
     rt = G[G_RT, i]
     xt = G[G_XT, i]
     den = rt * rt + xt * xt
@@ -245,68 +255,276 @@ def machine(D, G, i, e1q, e2d, e1d, e2q, delta):
     return vt, ifd, cid, ciq, p, q, te, xaq
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
-def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11):
-    """Derivatives of the 12 on-line states (see N_ONLINE)."""
-    vt, ifd, cid, ciq, _p, _q, te, xaq = machine(D, G, i, x4, x5, x8, x9, x10)
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, st4):
+    """Derivatives of the 13 on-line states (see N_ONLINE); the rotor angle as its sine and cosine,
+    turned at the slip speed."""
+    vt, ifd, cid, ciq, _p, _q, te, xaq = machine(D, G, i, x4, x5, x8, x9, x10, x11)
     hi, lo = ceilings_at(D, i, vt, ifd)
-    dxm, dx1, dx2, de, fld, dxf, dxe = exciter(D, i, uref, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo)
+    dxm, dx1, dx2, de, fld, dxf, dxe = exciter(D, i, uref, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo, st4)
     de = non_windup(D, i, de, x3, hi, lo, 0.0, 0.0)   # held at a limit (the limit's motion not followed)
     d4 = (fld - ifd) * D[D_ITD0P, i]
     d5 = (x4 - x5 - (G[G_XDP, i] - G[G_XL, i]) * cid) * D[D_ITD0PP, i]
     d8 = -xaq * G[G_ITQ0P, i]
     d9 = (x8 - x9 + G[G_KQ, i] * ciq) * G[G_ITQ0PP, i]
-    d10 = G[G_W0, i] * (x11 - 1.0)
-    d11 = (G[G_TM, i] - te - G[G_DAMP, i] * (x11 - 1.0)) * G[G_IM, i]
-    return dxm, dx1, dx2, de, d4, d5, dxf, dxe, d8, d9, d10, d11
+    wd = G[G_W0, i] * (x12 - 1.0)
+    d12 = (G[G_TM, i] - te - G[G_DAMP, i] * (x12 - 1.0)) * G[G_IM, i]
+    return dxm, dx1, dx2, de, d4, d5, dxf, dxe, d8, d9, x11 * wd, -x10 * wd, d12
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
-def step_online(D, G, i, u, X, h):
-    """One RK4 step of length h of candidate i's states X (in place) at the setpoint reference u;
-    the regulator lag clamped to the ceilings at the step's end unless they clamp the output."""
-    a = rhs_online(D, G, i, u, X[0], X[1], X[2], X[3], X[4], X[5], X[6], X[7], X[8], X[9], X[10], X[11])
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def rk4_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, h, st4):
+    """One RK4 step of length h at the setpoint reference u: the 13 states at its end, the rotor
+    angle's sine and cosine put back on the unit circle, the regulator lag clamped to the ceilings
+    unless they clamp the output. Branch-free: candidate loops vectorise."""
     h2 = 0.5 * h
-    b = rhs_online(D, G, i, u, X[0] + h2 * a[0], X[1] + h2 * a[1], X[2] + h2 * a[2], X[3] + h2 * a[3],
-                   X[4] + h2 * a[4], X[5] + h2 * a[5], X[6] + h2 * a[6], X[7] + h2 * a[7], X[8] + h2 * a[8],
-                   X[9] + h2 * a[9], X[10] + h2 * a[10], X[11] + h2 * a[11])
-    c = rhs_online(D, G, i, u, X[0] + h2 * b[0], X[1] + h2 * b[1], X[2] + h2 * b[2], X[3] + h2 * b[3],
-                   X[4] + h2 * b[4], X[5] + h2 * b[5], X[6] + h2 * b[6], X[7] + h2 * b[7], X[8] + h2 * b[8],
-                   X[9] + h2 * b[9], X[10] + h2 * b[10], X[11] + h2 * b[11])
-    d = rhs_online(D, G, i, u, X[0] + h * c[0], X[1] + h * c[1], X[2] + h * c[2], X[3] + h * c[3],
-                   X[4] + h * c[4], X[5] + h * c[5], X[6] + h * c[6], X[7] + h * c[7], X[8] + h * c[8],
-                   X[9] + h * c[9], X[10] + h * c[10], X[11] + h * c[11])
+    a = rhs_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, st4)
+    b = rhs_online(D, G, i, u, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3], x4 + h2 * a[4],
+                   x5 + h2 * a[5], x6 + h2 * a[6], x7 + h2 * a[7], x8 + h2 * a[8], x9 + h2 * a[9],
+                   x10 + h2 * a[10], x11 + h2 * a[11], x12 + h2 * a[12], st4)
+    c = rhs_online(D, G, i, u, x0 + h2 * b[0], x1 + h2 * b[1], x2 + h2 * b[2], x3 + h2 * b[3], x4 + h2 * b[4],
+                   x5 + h2 * b[5], x6 + h2 * b[6], x7 + h2 * b[7], x8 + h2 * b[8], x9 + h2 * b[9],
+                   x10 + h2 * b[10], x11 + h2 * b[11], x12 + h2 * b[12], st4)
+    d = rhs_online(D, G, i, u, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3], x4 + h * c[4],
+                   x5 + h * c[5], x6 + h * c[6], x7 + h * c[7], x8 + h * c[8], x9 + h * c[9],
+                   x10 + h * c[10], x11 + h * c[11], x12 + h * c[12], st4)
     h6 = h / 6.0
-    for q in range(N_ONLINE):
-        X[q] += h6 * (a[q] + 2.0 * b[q] + 2.0 * c[q] + d[q])
-    r = machine(D, G, i, X[4], X[5], X[8], X[9], X[10])
+    y3 = x3 + h6 * (a[3] + 2.0 * b[3] + 2.0 * c[3] + d[3])
+    y4 = x4 + h6 * (a[4] + 2.0 * b[4] + 2.0 * c[4] + d[4])
+    y5 = x5 + h6 * (a[5] + 2.0 * b[5] + 2.0 * c[5] + d[5])
+    y8 = x8 + h6 * (a[8] + 2.0 * b[8] + 2.0 * c[8] + d[8])
+    y9 = x9 + h6 * (a[9] + 2.0 * b[9] + 2.0 * c[9] + d[9])
+    s = x10 + h6 * (a[10] + 2.0 * b[10] + 2.0 * c[10] + d[10])
+    co = x11 + h6 * (a[11] + 2.0 * b[11] + 2.0 * c[11] + d[11])
+    norm = math.sqrt(s * s + co * co)
+    s = s / norm
+    co = co / norm
+    r = machine(D, G, i, y4, y5, y8, y9, s, co)
     hi, lo = ceilings_at(D, i, r[0], r[1])
-    z = X[3] if X[3] > lo else lo
+    z = y3 if y3 > lo else lo
     z = z if z < hi else hi
-    X[3] = z + D[D_LIMOUT, i] * (X[3] - z)   # (ESST4B's lag: LIMOUT = 1, not limited)
+    y3 = z + D[D_LIMOUT, i] * (y3 - z)   # (ESST4B's lag: LIMOUT = 1, not limited)
+    return (x0 + h6 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0]), x1 + h6 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1]),
+            x2 + h6 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2]), y3, y4, y5,
+            x6 + h6 * (a[6] + 2.0 * b[6] + 2.0 * c[6] + d[6]), x7 + h6 * (a[7] + 2.0 * b[7] + 2.0 * c[7] + d[7]),
+            y8, y9, s, co, x12 + h6 * (a[12] + 2.0 * b[12] + 2.0 * c[12] + d[12]))
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
-def _readout(D, G, i, u, X):
-    """The recorded signals at the state X: (efd, Vt, P, Q, Ifd)."""
-    vt, ifd, _cid, _ciq, p, q, _te, _xaq = machine(D, G, i, X[4], X[5], X[8], X[9], X[10])
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def readout(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, st4):
+    """The recorded signals at a state: (efd, Vt, P, Q, Ifd)."""
+    vt, ifd, _cid, _ciq, p, q, _te, _xaq = machine(D, G, i, x4, x5, x8, x9, x10, x11)
     hi, lo = ceilings_at(D, i, vt, ifd)
-    fld = exciter(D, i, u, 0.0, X[0], X[1], X[2], X[3], X[6], X[7], vt, ifd, hi, lo)[4]
+    fld = exciter(D, i, u, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo, st4)[4]
     return fld, vt, p, q, ifd
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
-def initial_state(D, G, i, X):
-    """Candidate i's 12 states at its operating point (X, in place): where a run starts."""
+def initial_state(D, G, i, S, c):
+    """Candidate i's 13 states at its operating point into column c of S: where a run starts."""
     x = steady_state(D, i)
     for q in range(8):
-        X[q] = x[q]
-    X[4] = G[G_E1Q0, i]
-    X[5] = G[G_E2D0, i]
-    X[8] = G[G_E1D0, i]
-    X[9] = G[G_E2Q0, i]
-    X[10] = G[G_DELTA0, i]
-    X[11] = 1.0
+        S[q, c] = x[q]
+    S[4, c] = G[G_E1Q0, i]
+    S[5, c] = G[G_E2D0, i]
+    S[8, c] = G[G_E1D0, i]
+    S[9, c] = G[G_E2Q0, i]
+    S[10, c] = math.sin(G[G_DELTA0, i])
+    S[11, c] = math.cos(G[G_DELTA0, i])
+    S[12, c] = 1.0
+
+
+# ---- the loops over a chunk's candidates (vectorised across them, as the kernel's) ----
+
+
+# the chunk's 2-D arrays seen with their shape a constant of the code, as the kernel's RK4 loops see
+# theirs (`kernel.rk4.fixed_views`, docs/decisions/0003): each array is then one group for LLVM's
+# runtime overlap checks; with runtime row strides every written row is checked against every
+# row read, past the vectoriser's limit, and the loop stays scalar
+_view_g, _view_x, _view_r = (_fixed_view(rows) for rows in (N_G, N_ONLINE, 5))
+
+
+@nb.njit(cache=True, error_model="numpy")
+def chunk_views(D, G, S):
+    """D, G, S (N_DERIVED, N_G and N_ONLINE rows of CHUNK columns) as fixed-shape views."""
+    if (D.shape[0] != N_DERIVED or G.shape[0] != N_G or S.shape[0] != N_ONLINE
+            or D.shape[1] != CHUNK or G.shape[1] != CHUNK or S.shape[1] != CHUNK):
+        raise ValueError("on-line chunk arrays of the wrong shape")
+    return _view_d(D), _view_g(G), _view_x(S)
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def rk4_chunk(D, G, S, U, H, m):
+    """One RK4 step of every candidate c < m of a chunk (states S[:, c], reference U[c], length
+    H[c]; H[c] = 0 leaves it where it is): a branch-free loop LLVM vectorises across c. The one copy
+    of the step: the chunks, the sub-steps around a jump and the real-time plant all run it. The
+    arrays have CHUNK columns (`chunk_views`)."""
+    D, G, S = chunk_views(D, G, S)
+    for c in range(m):
+        r = rk4_online(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[6, c], S[7, c],
+                       S[8, c], S[9, c], S[10, c], S[11, c], S[12, c], H[c], ST4_SOME)
+        S[0, c] = r[0]
+        S[1, c] = r[1]
+        S[2, c] = r[2]
+        S[3, c] = r[3]
+        S[4, c] = r[4]
+        S[5, c] = r[5]
+        S[6, c] = r[6]
+        S[7, c] = r[7]
+        S[8, c] = r[8]
+        S[9, c] = r[9]
+        S[10, c] = r[10]
+        S[11, c] = r[11]
+        S[12, c] = r[12]
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def readout_chunk(D, G, S, U, m, R):
+    """The recorded signals of every candidate c < m into R (5 rows: efd, Vt, P, Q, Ifd; CHUNK
+    columns, as D, G, S)."""
+    D, G, S = chunk_views(D, G, S)
+    if R.shape[0] != 5 or R.shape[1] != CHUNK:
+        raise ValueError("on-line readout array of the wrong shape")
+    R = _view_r(R)
+    for c in range(m):
+        r = readout(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[6, c], S[7, c],
+                    S[8, c], S[9, c], S[10, c], S[11, c], ST4_SOME)
+        R[0, c] = r[0]
+        R[1, c] = r[1]
+        R[2, c] = r[2]
+        R[3, c] = r[3]
+        R[4, c] = r[4]
+
+
+# ---- the chunk runner and the parallel loop over chunks ----
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, traces, sse, ends,
+               fail_step):
+    """Candidates lo..hi-1 over the record (time outer, candidates inner, as the kernel's chunks):
+    the reference of each step with its edges at their fitted instants, the readout, the errors,
+    one vectorised RK4 step for all; a step with a jump inside is redone from its start in
+    sub-steps between the jumps, in rounds of the same vectorised step (H = 0 for the others)."""
+    m = hi - lo
+    T = usetp.shape[0]
+    ne = eidx.shape[0]
+    Dc = np.zeros((D.shape[0], CHUNK))
+    Gc = np.zeros((G.shape[0], CHUNK))
+    Dc[:, :m] = D[:, lo:hi]
+    Gc[:, :m] = G[:, lo:hi]
+    S = np.zeros((N_ONLINE, CHUNK))
+    S0 = np.zeros((N_ONLINE, m))   # the states at t_k of a step redone in sub-steps
+    X0 = np.zeros((N_ONLINE, m))   # the operating point, where a candidate that blew up is parked
+    U = np.zeros(CHUNK)
+    Us = np.zeros(CHUNK)
+    H = np.zeros(CHUNK)
+    Hs = np.zeros(CHUNK)
+    R = np.zeros((5, CHUNK))
+    held = np.zeros((5, m))
+    failed = np.zeros(m, np.bool_)
+    nbrk = np.zeros(m, np.int64)   # jumps inside the step, per candidate
+    bs = np.zeros((m, ne + 1))      # their instants (fractions of the step, sorted) and sizes
+    bj = np.zeros((m, ne + 1))
+    for c in range(m):
+        initial_state(Dc, Gc, c, S, c)
+        for q in range(N_ONLINE):
+            X0[q, c] = S[q, c]
+        H[c] = dt
+        if Dc[D_VALID, c] == 0.0 or Gc[G_VALID, c] == 0.0:
+            failed[c] = True
+            fail_step[lo + c] = 0
+    for k in range(T):
+        # the reference over [t_k, t_k+1): the zero-order hold of the record, each edge at its
+        # fitted instant (the candidate's offset); the jumps inside the step noted
+        u_k = usetp[k] - usetp_pre
+        rounds = 0
+        for c in range(m):
+            u = Dc[D_UREF0, c] + u_k
+            nb_ = 0
+            for j in range(ne):
+                ke = (etn[j] + Dc[D_EDGE0 + eslot[j], c]) / dt
+                fit_on = 1.0 if ke <= k + EDGE_EPS else 0.0
+                nom_on = 1.0 if k >= eidx[j] else 0.0
+                u += ejump[j] * (fit_on - nom_on)
+                if k + EDGE_EPS < ke < k + 1.0 - EDGE_EPS and not failed[c]:
+                    sv = ke - k   # insertion into the sorted few
+                    jv = ejump[j]
+                    b = nb_ - 1
+                    while b >= 0 and bs[c, b] > sv:
+                        bs[c, b + 1] = bs[c, b]
+                        bj[c, b + 1] = bj[c, b]
+                        b -= 1
+                    bs[c, b + 1] = sv
+                    bj[c, b + 1] = jv
+                    nb_ += 1
+            U[c] = u
+            nbrk[c] = nb_
+            if nb_ > 0:
+                rounds = max(rounds, nb_ + 1)
+        readout_chunk(Dc, Gc, S, U, m, R)
+        for c in range(m):
+            if not failed[c]:
+                held[0, c] = Dc[D_GAIN, c] * R[0, c]   # efd as recorded
+                for q in range(1, 5):
+                    held[q, c] = R[q, c]
+        if store:
+            for q in range(5):
+                for c in range(m):
+                    traces[q, lo + c, k] = held[q, c]
+        for q in range(4):
+            if w[q] > 0.0:
+                mq = meas[q, k]
+                for c in range(m):
+                    e = held[q, c] - mq
+                    sse[q, lo + c] += e * e
+                    if k == 0 or k == T - 1:   # the trapezoid's half weight at both ends
+                        ends[q, lo + c] += 0.5 * e * e
+        if k == T - 1:
+            break
+        if rounds:
+            for c in range(m):
+                if nbrk[c]:
+                    for q in range(N_ONLINE):
+                        S0[q, c] = S[q, c]
+        rk4_chunk(Dc, Gc, S, U, H, m)
+        if rounds:
+            for c in range(m):
+                if nbrk[c]:
+                    for q in range(N_ONLINE):
+                        S[q, c] = S0[q, c]
+            for r in range(rounds):   # sub-step r of every candidate with a jump inside
+                for c in range(m):
+                    Hs[c] = 0.0
+                    Us[c] = U[c]
+                    nb_ = nbrk[c]
+                    if nb_ and r <= nb_:
+                        sa = bs[c, r - 1] if r > 0 else 0.0
+                        sb = bs[c, r] if r < nb_ else 1.0
+                        Hs[c] = (sb - sa) * dt if sb - sa > 1.0e-12 else 0.0
+                        for q in range(r):
+                            Us[c] += bj[c, q]
+                rk4_chunk(Dc, Gc, S, Us, Hs, m)
+        for c in range(m):
+            mag = 0.0
+            for q in range(N_ONLINE):
+                mag += abs(S[q, c])
+            if not (mag < BLOWUP):
+                if not failed[c]:
+                    failed[c] = True
+                    fail_step[lo + c] = k + 1
+                for q in range(N_ONLINE):
+                    S[q, c] = X0[q, c]
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM, parallel=True)
+def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, traces, sse, ends, fail_step):
+    """Every chunk of CHUNK candidates, in parallel."""
+    n = D.shape[1]
+    for b in nb.prange((n + CHUNK - 1) // CHUNK):
+        lo = b * CHUNK
+        _run_chunk(D, G, lo, min(n, lo + CHUNK), usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store,
+                   traces, sse, ends, fail_step)
 
 
 #: the per-sample columns of `advance`: the no-load plant's seven (`plant_step.O_*`), then P, Q, Ifd
@@ -317,114 +535,48 @@ A_FLAG_CEILING, A_FLAG_FAILED = 1, 8
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FM)
-def advance(D, G, X, u, usetp_pre, dt, out, last):
-    """Step candidate 0 (D, G transposed) from its states X (in place) over the setpoint series u,
-    one sample per step as `_run` records it (the sample at t_k with the setpoint of step k, then
-    the step): the real-time plant on line. `last` gets (efd, Vt, P, Q, Ifd, flags) at the final
-    state. A state that leaves its sane range is parked at the operating point (flag bit 8)."""
+def advance(D, G, S, X0, u, usetp_pre, dt, out, last):
+    """Step candidate 0 (D, G transposed, S the states; CHUNK columns, column 0 used) over the setpoint series
+    u, one sample per step as `_run_chunk` records it (the sample at t_k with the setpoint of step
+    k, then the step): the real-time plant on line. `last` gets (efd, Vt, P, Q, Ifd, flags) at the
+    final state. A state that leaves its sane range is parked at X0 (flag bit 8)."""
+    U = np.zeros(CHUNK)
+    H = np.zeros(CHUNK)
+    H[0] = dt
+    R = np.zeros((5, CHUNK))
     flags = 0.0
     for s in range(u.shape[0]):
-        ref = D[D_UREF0, 0] + u[s] - usetp_pre
-        r = _readout(D, G, 0, ref, X)
+        U[0] = D[D_UREF0, 0] + u[s] - usetp_pre
+        readout_chunk(D, G, S, U, 1, R)
         out[s, A_USETP] = u[s]
-        out[s, A_EFD_REC] = D[D_GAIN, 0] * r[0]
-        out[s, A_VT] = r[1]
-        out[s, A_EFD] = r[0]
-        out[s, A_EQP] = X[4]
-        out[s, A_UREF] = ref
-        out[s, A_P] = r[2]
-        out[s, A_Q] = r[3]
-        out[s, A_IFD] = r[4]
-        hi, lo = ceilings_at(D, 0, r[1], r[4])
-        flags = A_FLAG_CEILING if (X[3] >= hi or X[3] <= lo) else 0.0
-        step_online(D, G, 0, ref, X, dt)
+        out[s, A_EFD_REC] = D[D_GAIN, 0] * R[0, 0]
+        out[s, A_VT] = R[1, 0]
+        out[s, A_EFD] = R[0, 0]
+        out[s, A_EQP] = S[4, 0]
+        out[s, A_UREF] = U[0]
+        out[s, A_P] = R[2, 0]
+        out[s, A_Q] = R[3, 0]
+        out[s, A_IFD] = R[4, 0]
+        hi, lo = ceilings_at(D, 0, R[1, 0], R[4, 0])
+        flags = A_FLAG_CEILING if (S[3, 0] >= hi or S[3, 0] <= lo) else 0.0
+        rk4_chunk(D, G, S, U, H, 1)
         mag = 0.0
         for q in range(N_ONLINE):
-            mag += abs(X[q])
+            mag += abs(S[q, 0])
         if not (mag < BLOWUP):
-            initial_state(D, G, 0, X)
+            for q in range(N_ONLINE):
+                S[q, 0] = X0[q]
             flags += A_FLAG_FAILED
         out[s, A_FLAGS] = flags
-    if u.shape[0]:
-        ref = D[D_UREF0, 0] + u[u.shape[0] - 1] - usetp_pre
-        r = _readout(D, G, 0, ref, X)
-        for q in range(5):
-            last[q] = r[q]
-        last[5] = flags
+    U[0] = D[D_UREF0, 0] + (u[u.shape[0] - 1] if u.shape[0] else usetp_pre) - usetp_pre
+    readout_chunk(D, G, S, U, 1, R)
+    for q in range(5):
+        last[q] = R[q, 0]
+    last[5] = flags
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=_FM, parallel=True)
-def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, traces, sse, ends, fail_step):
-    n = D.shape[1]
-    T = usetp.shape[0]
-    ne = eidx.shape[0]
-    for i in nb.prange(n):
-        X = np.empty(N_ONLINE)
-        initial_state(D, G, i, X)
-        bs = np.empty(ne + 1)
-        bj = np.empty(ne + 1)
-        failed = D[D_VALID, i] == 0.0 or G[G_VALID, i] == 0.0
-        if failed:
-            fail_step[i] = 0
-        held = np.zeros(5)
-        for k in range(T):
-            # the reference over [t_k, t_k+1): the zero-order hold of the record, each edge at
-            # its fitted instant (the candidate's offset), a jump inside the step split there
-            u = D[D_UREF0, i] + usetp[k] - usetp_pre
-            nb_ = 0
-            for j in range(ne):
-                ke = (etn[j] + D[D_EDGE0 + eslot[j], i]) / dt
-                fit_on = 1.0 if ke <= k + EDGE_EPS else 0.0
-                nom_on = 1.0 if k >= eidx[j] else 0.0
-                u += ejump[j] * (fit_on - nom_on)
-                if k + EDGE_EPS < ke < k + 1.0 - EDGE_EPS:
-                    bs[nb_] = ke - k
-                    bj[nb_] = ejump[j]
-                    nb_ += 1
-            if not failed:
-                r = _readout(D, G, i, u, X)
-                held[0] = D[D_GAIN, i] * r[0]
-                for q in range(1, 5):
-                    held[q] = r[q]
-            if store:
-                for q in range(5):
-                    traces[q, i, k] = held[q]
-            for q in range(4):
-                if w[q] > 0.0:
-                    e = held[q] - meas[q, k]
-                    sse[q, i] += e * e
-                    if k == 0 or k == T - 1:   # the trapezoid's half weight at both ends
-                        ends[q, i] += 0.5 * e * e
-            if k == T - 1 or failed:
-                continue
-            for a in range(1, nb_):  # insertion sort of the few jumps inside the step
-                sv = bs[a]
-                jv = bj[a]
-                b = a - 1
-                while b >= 0 and bs[b] > sv:
-                    bs[b + 1] = bs[b]
-                    bj[b + 1] = bj[b]
-                    b -= 1
-                bs[b + 1] = sv
-                bj[b + 1] = jv
-            sa = 0.0
-            for q in range(nb_ + 1):
-                sb = bs[q] if q < nb_ else 1.0
-                if sb - sa > 1.0e-12:
-                    step_online(D, G, i, u, X, (sb - sa) * dt)
-                if q < nb_:
-                    u += bj[q]
-                sa = sb
-            mag = 0.0
-            for q in range(N_ONLINE):
-                mag += abs(X[q])
-            if not (mag < BLOWUP):
-                failed = True
-                fail_step[i] = k + 1
-
-
-K.drop_stale_cache((machine, rhs_online, step_online, _readout, initial_state, advance, _run), K.SOURCES + (__file__,),
-                   "online")
+K.drop_stale_cache((machine, rhs_online, rk4_online, readout, initial_state, rk4_chunk, readout_chunk, _run_chunk,
+                    advance, _run), K.SOURCES + (__file__,), "online")
 
 #: the recorded signals of an on-line run, in the order of its traces and weights
 SIGNALS = ("efd", "vt", "p", "q", "ifd")

@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from .kernel.layout import D_UREF0, D_VALID
+from .kernel.layout import CHUNK, D_VALID
 from .online import (
     A_EFD_REC,
     A_IFD,
@@ -37,7 +37,6 @@ from .online import (
     G_VALID,
     N_ADVANCE,
     N_ONLINE,
-    _readout,
     advance,
     derive_on_line,
     initial_state,
@@ -88,7 +87,9 @@ class OnlinePlant(Plant):
         #: the machine base (MVA): P and Q in MW and Mvar on the device
         self.mva = float(mva)
         values = self.unit.values()
-        self._D, self._G = derive_on_line(param_matrix(values), machine_matrix(unit_machine(self.unit)))
+        # the compiled step runs chunks of CHUNK candidates: candidate 0 is the plant, the others copies
+        P, M = param_matrix(values), machine_matrix(unit_machine(self.unit))
+        self._D, self._G = derive_on_line(np.repeat(P, CHUNK, axis=0), np.repeat(M, CHUNK, axis=0))
         if self._D[D_VALID, 0] == 0.0:
             raise ValueError(f"unit {self.unit.name!r}: parameters are not valid for the kernel")
         if self._G[G_VALID, 0] == 0.0:
@@ -96,11 +97,13 @@ class OnlinePlant(Plant):
                              "(Xd > X'd > X''d > Xl, Xq >= X'q >= X''d) or H, T''q0 not positive")
         self.vt0 = float(values["Vt0"])
         self.usetp_pre = float(values["Vt0"] if usetp0 is None else usetp0)
-        self._X = np.empty(N_ONLINE)
-        initial_state(self._D, self._G, 0, self._X)
+        self._X = np.zeros((N_ONLINE, CHUNK))
+        initial_state(self._D, self._G, 0, self._X, 0)
+        self._X0 = self._X[:, 0].copy()    # the operating point, where a blown-up state is parked
         self._last = np.zeros(6)         # (efd, Vt, P, Q, Ifd, flags) after the last step
-        self._last[:5] = _readout(self._D, self._G, 0, self._D[D_UREF0, 0], self._X)
         self._runtime(N_ADVANCE)
+        advance(self._D, self._G, self._X, self._X0, np.empty(0), self.usetp_pre, self.dt,
+                np.empty((0, N_ADVANCE)), self._last)
 
     # ------------------------------------------------------------------ the turbine
     @property
@@ -120,7 +123,7 @@ class OnlinePlant(Plant):
             raise RuntimeError("the plant runs in real time; offline stepping is not possible")
         if u.shape[0] == 0:
             return
-        advance(self._D, self._G, self._X, u, self.usetp_pre, self.dt, out, self._last)
+        advance(self._D, self._G, self._X, self._X0, u, self.usetp_pre, self.dt, out, self._last)
         self._ctrl[C_K] += u.shape[0]
         self._fst[F_USETP] = float(u[-1])
         self._flags = int(self._last[5])
@@ -135,7 +138,7 @@ class OnlinePlant(Plant):
     def _warm(self) -> None:
         """Compile (or load from cache) before the clock starts."""
         u = np.full(2, self.usetp_pre)
-        advance(self._D, self._G.copy(), self._X.copy(), u, self.usetp_pre, self.dt,
+        advance(self._D, self._G.copy(), self._X.copy(), self._X0, u, self.usetp_pre, self.dt,
                 np.empty((2, self._n_out)), np.zeros(6))
 
     def _loop_thread(self) -> None:
@@ -165,7 +168,7 @@ class OnlinePlant(Plant):
                 spr += 1
             ctrl[C_SPR] = spr
             rows = buf[:n]
-            advance(self._D, self._G, self._X, u, self.usetp_pre, self.dt, rows, self._last)
+            advance(self._D, self._G, self._X, self._X0, u, self.usetp_pre, self.dt, rows, self._last)
             self._ring[(k + np.arange(n)) % RING] = rows
             fst[F_USETP] = usetp
             k += n
