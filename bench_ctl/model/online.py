@@ -426,7 +426,10 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
     nbrk = np.zeros(m, np.int64)   # jumps inside the step, per candidate
     bs = np.zeros((m, ne + 1))      # their instants (fractions of the step, sorted) and sizes
     bj = np.zeros((m, ne + 1))
+    ke = np.zeros((m, ne))          # each edge's fitted instant in steps, per candidate
     for c in range(m):
+        for j in range(ne):
+            ke[c, j] = (etn[j] + Dc[D_EDGE0 + eslot[j], c]) / dt
         initial_state(Dc, Gc, c, S, c)
         for q in range(N_ONLINE):
             X0[q, c] = S[q, c]
@@ -443,12 +446,12 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
             u = Dc[D_UREF0, c] + u_k
             nb_ = 0
             for j in range(ne):
-                ke = (etn[j] + Dc[D_EDGE0 + eslot[j], c]) / dt
-                fit_on = 1.0 if ke <= k + EDGE_EPS else 0.0
+                kj = ke[c, j]
+                fit_on = 1.0 if kj <= k + EDGE_EPS else 0.0
                 nom_on = 1.0 if k >= eidx[j] else 0.0
                 u += ejump[j] * (fit_on - nom_on)
-                if k + EDGE_EPS < ke < k + 1.0 - EDGE_EPS and not failed[c]:
-                    sv = ke - k   # insertion into the sorted few
+                if k + EDGE_EPS < kj < k + 1.0 - EDGE_EPS and not failed[c]:
+                    sv = kj - k   # insertion into the sorted few
                     jv = ejump[j]
                     b = nb_ - 1
                     while b >= 0 and bs[c, b] > sv:
