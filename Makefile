@@ -26,7 +26,8 @@ PYTEST = $(BIN)/python -m pytest -q -n auto --dist loadfile --durations=25
 WARM_UP = $(BIN)/python -c 'from bench_ctl.identification.identify import warm_up; \
 	  from bench_ctl.model import online, simulate; from bench_ctl.model.unit import reference_unit; \
 	  print(f"kernel compiled or loaded from its cache in {warm_up(reference_unit()):.0f} s"); \
-	  print(f"on-line machine in {online.warm_up(simulate.param_matrix(reference_unit().values())):.0f} s")'
+	  print(f"on-line machine in {online.warm_up(simulate.param_matrix(reference_unit().values())):.0f} s"); \
+	  from bench_ctl.model import online_plant; print(f"on-line plant in {online_plant.warm_up():.0f} s")'
 
 test: $(STAMP)
 	$(WARM_UP)
@@ -39,7 +40,7 @@ test-slow: $(STAMP)
 bench: $(STAMP)
 	mkdir -p bench-out
 	for b in benchmarks/*.py; do \
-	  case $$b in *andes_captures.py|*andes_online.py|*andes_dyr.py|*mvmo_cec.py) continue;; esac; \
+	  case $$b in *andes_captures.py|*andes_online.py|*andes_dyr.py|*andes_online_dyr.py|*mvmo_cec.py) continue;; esac; \
 	  $(BIN)/python $$b --json bench-out/$$(basename $$b .py).json || exit 1; done
 
 clean:

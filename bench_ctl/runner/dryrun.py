@@ -31,7 +31,7 @@ from bench_ctl.runner.config import BenchConfig
 
 log = logging.getLogger(__name__)
 
-START_TIMEOUT_S = 120.0   # a first start may compile the plant kernel
+START_TIMEOUT_S = 600.0   # a first start may compile the plant's step (the on-line one: minutes)
 
 
 def _child() -> None:
