@@ -48,8 +48,9 @@ ANDES_ESST1A_ORDER = ("TR", "VIMAX", "VIMIN", "TB", "TC", "TB1", "TC1", "VAMAX",
 
 def andes_order(rec) -> str:
     """The ESST1A record with its CONs in the order ANDES 2.0 reads them (to check the model
-    apart from ANDES' reader)."""
-    vals = " ".join(f"{rec.values[k]:.6G}" for k in ANDES_ESST1A_ORDER)
+    apart from ANDES' reader), each value as the export writes it (the shortest text that reads
+    back as the same float), not rounded."""
+    vals = " ".join(repr(float(rec.values[k])) for k in ANDES_ESST1A_ORDER)
     return f"{rec.bus} 'ESST1A' {rec.id} {rec.icons['UEL']} {rec.icons['VOS']} {vals} /\n"
 
 

@@ -96,27 +96,47 @@ def case_name(model: str, xe: float) -> str:
 CASES = {case_name(m, xe): (m, xe) for m in MODELS for xe in XES}
 
 
-def _system(andes, model: str, xe: float, step: float = STEP):
-    """The generator bus, the line of reactance `xe`, the Slack as infinite bus and the unit."""
+def _network(andes, xe: float):
+    """The generator bus with the unit's PV (ID 1), the line of reactance `xe`, the Slack as
+    infinite bus."""
     ss = andes.System()
     ss.add("Bus", dict(idx=1, name="G", Vn=20.0, v0=V0))
     ss.add("Bus", dict(idx=2, name="INF", Vn=20.0, v0=V0))
     ss.add("Line", dict(idx="L1", bus1=1, bus2=2, r=0.0, x=xe, b=0.0, Vn1=20.0, Vn2=20.0))
     ss.add("Slack", dict(idx=10, bus=2, Vn=20.0, v0=V0, a0=0.0, p0=0.0, Sn=100.0))
     ss.add("PV", dict(idx=20, bus=1, Vn=20.0, v0=V0, p0=P0, Sn=100.0, subidx=1))
+    return ss
+
+
+def _system(andes, model: str, xe: float, step: float = STEP):
+    """The network and the unit: the GENROU and the exciter with the values of `EXCITERS`."""
+    ss = _network(andes, xe)
     ss.add("GENROU", dict(idx=1, bus=1, gen=20, **GENERATOR))
     ss.add(model, dict(idx=1, syn=1, **EXCITERS[model]))
     return ac._ready(ss, f"{model}, XE {xe}", step)
+
+
+def system_from_dyr(andes, xe: float, dyr_path: str, step: float = STEP):
+    """The same network, the unit's generator and exciter read by ANDES' own PSS/E reader from
+    `dyr_path` (an exciter record beside `andes_captures.generator_record()`, bus 1, ID 1);
+    benchmarks/andes_online_dyr.py runs bench-ctl's exported record so."""
+    from andes.io import psse
+    ss = _network(andes, xe)
+    if not psse.read_add(ss, dyr_path):
+        raise RuntimeError(f"ANDES could not read {dyr_path}")
+    return ac._ready(ss, f"{dyr_path}, XE {xe}", step)
 
 
 def _bus(ss, idx: int) -> int:
     return int(ss.Bus.idx2uid(idx))
 
 
-def make_capture(andes, model: str, xe: float, step: float = STEP, fine_step: float = FINE_STEP) -> dict:
+def make_capture(andes, model: str, xe: float, step: float = STEP, fine_step: float = FINE_STEP,
+                 ss=None) -> dict:
     """A +2 % / -2 % reference step on the unit on line; `step`, `fine_step`: ANDES' integration
-    steps (the time-step check halves both)."""
-    ss = _system(andes, model, xe, step)
+    steps (the time-step check halves both); `ss`: a ready system made with `step` (else built
+    here with the values of `EXCITERS`, by which the time at a limit is judged either way)."""
+    ss = _system(andes, model, xe, step) if ss is None else ss
     b1, b2 = _bus(ss, 1), _bus(ss, 2)
     op = {"P0_pu": float(ss.PV.p0.v[0]), "Q0_pu": float(ss.PV.q.v[0]), "Vt0_pu": float(ss.Bus.v.v[b1]),
           "Vt0_angle_rad": float(ss.Bus.a.v[b1]), "infinite_bus_v_pu": float(ss.Bus.v.v[b2]),
