@@ -248,3 +248,27 @@ def test_manifest_size_bom_and_repeated_rows(tmp_path, capsys):
     os.mkfifo(tmp_path / "fifo.csv")
     (tmp_path / "m2.csv").write_text("capture\nfifo.csv\n")
     assert "not a regular file" in read_manifest(tmp_path / "m2.csv")[0].problem
+
+
+@pytest.mark.timeout(900)
+@pytest.mark.slow
+def test_batch_takes_on_line_captures(cluster, tmp_path, capsys):
+    """Issue 27: an on-line capture (P and Q recorded) through identify + report on the cluster; the
+    diagnosis, which does not run on line yet, is an error row that says so, not a crash."""
+    d = tmp_path / "online"
+    d.mkdir()
+    assert main(["simulate", "--online", "-o", str(d / "on.csv"), "--duration", "4", "--rate", "500",
+                 "--amplitude", "0.02", "--width", "2", "--start", "0.5", "--seed", "3"]) == 0
+    (d / "m.csv").write_text("capture,steps\non.csv,identify+report\non.csv,identify+diagnose+report\n")
+    rc = main(["batch", str(d / "m.csv"), "--out", str(d / "out"), "--scheduler", cluster.scheduler_address,
+               "--evals", "200"])
+    printed = capsys.readouterr()
+    rows = list(csv.DictReader((d / "out" / "summary.csv").open()))
+    assert rc == 1, printed
+    ok = [r for r in rows if r["status"] in ("ok", "criteria failed")]
+    err = [r for r in rows if r["status"] == "error"]
+    assert len(ok) == 1 and len(err) == 1, rows
+    assert "on-line record" in err[0]["error"] and "do not run on line yet" in err[0]["error"]
+    result = json.loads(next((d / "out").glob("*/result.json")).read_text())
+    assert 0.8e-4 < result["mse"] < 2e-4   # near the 0.01 pu noise at a 200-evaluation budget
+    assert result["captures"][0]["path"].endswith("on.csv")
