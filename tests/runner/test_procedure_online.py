@@ -97,3 +97,20 @@ def test_online_limits_go_in_pairs_and_parameters_are_bounded(tmp_path):
         _config(q_min_mvar=70.0)
     with pytest.raises(ConfigError, match="amplitude_pu = 0.1 pu outside"):
         _run(tmp_path, params={"amplitude_pu": 0.1})
+
+
+def test_a_limiter_acting_is_named_by_its_status_bit():
+    from procedures.online_step import _limiters_acting
+
+    class Exciter:   # the protocol's bits(): what the status register reads, by the profile's names
+        def __init__(self, bits):
+            self._bits = bits
+
+        def bits(self, register):
+            assert register == "status"
+            return self._bits
+
+    assert _limiters_acting(Exciter({"ceiling_limit": True, "rate_limit": False, "oel_active": True,
+                                     "watchdog_tripped": True, "remote_other_master": False})) == [
+        "ceiling_limit", "oel_active"]
+    assert _limiters_acting(Exciter({})) == []
