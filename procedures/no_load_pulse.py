@@ -54,7 +54,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -239,16 +239,10 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
         run.note("recovered", vt_pu=vt_end, setpoint_words=list(sp_words))
 
     with run.step("release exciter"):
-        run.note("heartbeat", **asdict(ex.heartbeat_stats()))
-        report = ex.safe_state("pulse test complete")
-        run.note("safe_state", **report.to_dict())
-        if not report.ok:
-            raise DeviceError(f"release failed: {report.detail}", device=ex.name)
+        run.release(ex, "pulse test complete")
 
     with run.step("download"):
-        raw = rec.download(progress=_progress_bar(run))
-        run.save_raw(raw)  # before any conversion
-        data = raw.convert()
+        raw, data = run.download(rec)   # saved as received before any conversion
 
     with run.step("save capture"):
         pulse = measure_pulse(data["time"], data["usetp"], amplitude_pu, raw.trigger_sample)
@@ -257,10 +251,7 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
             "start_s": raw.trigger_sample / raw.rate_hz, "pre_trigger_s": pre_trigger_s,
             "setpoint_pu": plan.setpoint_pu, "commanded_width_s": commanded_width_s,
             "recorded": pulse.__dict__}
-        raw_file = run.raw_path.name if run.raw_path else None
-        meta = run.sidecar_meta(test=test, recorder={**raw.header(), "raw_file": raw_file},
-                                channel_scaling=raw.scales)
-        run.save_capture(data, meta)
+        run.save_record(raw, data, test)
 
     width_err = pulse.width_s - width_s
     amp_err = pulse.amplitude_pu - amplitude_pu
@@ -338,20 +329,3 @@ def _watching(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, vt0:
 def _efd_text(ex: ExcitationSystem) -> str:
     """`, efd X pu` for the operator's live readout, when the exciter's profile maps efd."""
     return f", efd {ex.read('efd'):.3f} pu" if ex.has("efd") else ""
-
-
-def _progress_bar(run: RunContext) -> Any:
-    if not run.progress:
-        return None
-    from tqdm import tqdm
-
-    bar = tqdm(unit="block", desc="download", leave=False, disable=None)  # None: off unless a terminal
-
-    def update(done: int, total: int) -> None:
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-        if done == total:
-            bar.close()
-
-    return update

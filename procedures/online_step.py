@@ -55,14 +55,13 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict
 from typing import Any
 
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
 from bench_ctl.runner.devices import TIMED_WRITE_GUARD_S, DeviceError, RecordSettings, hold_gc
 from bench_ctl.runner.protocols import ExcitationSystem, ProcedureBench
 from bench_ctl.runner.safety import BenchBusy, LimitViolation, PreconditionFailed, check_pulse
-from procedures.no_load_pulse import _progress_bar, _signed, measure_pulse
+from procedures.no_load_pulse import _signed, measure_pulse
 
 #: the run is meant to leave a capture: when it ends without one, the outcome says so
 CAPTURES = True
@@ -236,16 +235,10 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
         run.note("recovered", vt_pu=vt_end, setpoint_words=list(sp_words), band_left=band.worst)
 
     with run.step("release exciter"):
-        run.note("heartbeat", **asdict(ex.heartbeat_stats()))
-        report = ex.safe_state("on-line step complete")
-        run.note("safe_state", **report.to_dict())
-        if not report.ok:
-            raise DeviceError(f"release failed: {report.detail}", device=ex.name)
+        run.release(ex, "on-line step complete")
 
     with run.step("download"):
-        raw = rec.download(progress=_progress_bar(run))
-        run.save_raw(raw)  # before any conversion
-        data = raw.convert()
+        raw, data = run.download(rec)   # saved as received before any conversion
 
     with run.step("save capture"):
         step = measure_pulse(data["time"], data["usetp"], amplitude_pu, raw.trigger_sample)
@@ -255,10 +248,7 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
             "setpoint_pu": plan.setpoint_pu, "commanded_width_s": held_s, "recorded": step.__dict__,
             "operating_point": {"p_mw": p_mw, "q_mvar": q0, "vt_pu": vt0},
             "band": {"vt_pu": list(band.vt), "q_mvar": list(band.q), "left": band.worst}}
-        raw_file = run.raw_path.name if run.raw_path else None
-        meta = run.sidecar_meta(test=test, recorder={**raw.header(), "raw_file": raw_file},
-                                channel_scaling=raw.scales)
-        run.save_capture(data, meta)
+        run.save_record(raw, data, test)
 
     hold_err = step.width_s - hold_s
     amp_err = step.amplitude_pu - amplitude_pu

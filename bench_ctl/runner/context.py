@@ -18,7 +18,7 @@ import logging
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +27,7 @@ from bench_ctl.runner.audit import AuditLog
 from bench_ctl.runner.config import BenchConfig, Limits
 from bench_ctl.runner.safety import NoOperator, OperatorDeclined, OutputLost, Refused, check_watchdog
 from drivers.device import WriteRecord
+from drivers.errors import DeviceError
 from drivers.exciter import WatchdogReading
 from drivers.recorder import RawRecord
 
@@ -278,6 +279,46 @@ class RunContext:
         self.audit.event("output_lost", what=what, error=reason)
         log.error("%s", text)
         raise OutputLost(text) from None
+
+    # -- the end every recording test shares ------------------------------------------------
+    def release(self, ex: Any, reason: str) -> None:
+        """Give the exciter back (the heartbeat's statistics and the safe state noted); DeviceError
+        when the device does not confirm it."""
+        self.note("heartbeat", **asdict(ex.heartbeat_stats()))
+        report = ex.safe_state(reason)
+        self.note("safe_state", **report.to_dict())
+        if not report.ok:
+            raise DeviceError(f"release failed: {report.detail}", device=ex.name)
+
+    def download(self, rec: Any) -> tuple[RawRecord, dict[str, Any]]:
+        """The record downloaded, saved as received (before any conversion), then converted."""
+        raw = rec.download(progress=self.progress_bar())
+        self.save_raw(raw)
+        return raw, raw.convert()
+
+    def save_record(self, raw: RawRecord, data: Mapping[str, Any], test: Mapping[str, Any]) -> Path:
+        """The capture of a recorded test: its data, the test's description, the recorder's header."""
+        raw_file = self.raw_path.name if self.raw_path else None
+        meta = self.sidecar_meta(test=dict(test), recorder={**raw.header(), "raw_file": raw_file},
+                                 channel_scaling=raw.scales)
+        return self.save_capture(data, meta)
+
+    def progress_bar(self) -> Callable[[int, int], None] | None:
+        """A download progress bar on a terminal (None without `progress`)."""
+        if not self.progress:
+            return None
+        from tqdm import tqdm
+
+        bar = tqdm(unit="block", desc="download", leave=False, disable=None)  # None: off unless a terminal
+
+        def update(done: int, total: int) -> None:
+            bar.total = total
+            bar.n = done
+            bar.refresh()
+            if done == total:
+                bar.close()
+
+        return update
 
     def sidecar_meta(self, **extra: Any) -> dict[str, Any]:
         """The capture sidecar's common part: bench config, devices, every write so far."""
