@@ -54,6 +54,21 @@ def andes_order(rec) -> str:
     return f"{rec.bus} 'ESST1A' {rec.id} {rec.icons['UEL']} {rec.icons['VOS']} {vals} /\n"
 
 
+def read_back(ss, model: str, rec) -> list[str]:
+    """What ANDES read differently from what the record `rec` wrote (its exciter `model` in the
+    system `ss`), one line per value: empty when ANDES runs the exported values themselves."""
+    exc = getattr(ss, model)
+    names = ANDES_NAMES.get(model, {})
+    mismatched = []
+    for k, v in rec.values.items():
+        an = names.get(k, k)
+        if hasattr(exc, an):
+            got = float(getattr(exc, an).v[0])
+            if not np.isclose(got, v, rtol=1e-5, atol=1e-9):
+                mismatched.append(f"{k}: wrote {v:g}, ANDES read {got:g}")
+    return mismatched
+
+
 def _run(cmd: list[str]) -> None:
     p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode not in (0, 1):   # 1: identify's criteria (e.g. a parameter not determined)
@@ -97,15 +112,7 @@ def run(model: str, work: Path, seed: int = 0) -> dict:
         both.write_text(ac.generator_record() + andes_order(ours), "utf-8")
         reordered = True
     ss = ac.system_from_dyr(andes, str(both))
-    exc = getattr(ss, model)
-    names = ANDES_NAMES.get(model, {})
-    mismatched = []
-    for k, v in ours.values.items():
-        an = names.get(k, k)
-        if hasattr(exc, an):
-            got = float(getattr(exc, an).v[0])
-            if not np.isclose(got, v, rtol=1e-5, atol=1e-9):
-                mismatched.append(f"{k}: wrote {v:g}, ANDES read {got:g}")
+    mismatched = read_back(ss, model, ours)
     sim = ac.make_capture(andes, model, entry["exciter_params"], entry["amplitude_of_vt0"], ss=ss)
     efd = sim["data"]["efd"]
     var = float(np.mean(noise ** 2))

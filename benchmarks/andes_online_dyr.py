@@ -44,7 +44,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import numpy as np  # noqa: E402
 
-from andes_dyr import ANDES_NAMES, andes_order  # noqa: E402
+from andes_dyr import andes_order, read_back  # noqa: E402
 from andes_units import online_capture, online_manifest, online_unit  # noqa: E402
 from bench_ctl import cli  # noqa: E402
 from bench_ctl.identification.identify import result_for_file, run_identification  # noqa: E402
@@ -92,15 +92,7 @@ def run_in_andes(andes, name: str, fit: dict, work: Path) -> dict:
     plant.write_text(ac.generator_record() + exciter, "utf-8")
     t0 = time.perf_counter()
     ss = ao.system_from_dyr(andes, xe, str(plant))
-    exc = getattr(ss, model)
-    names = ANDES_NAMES.get(model, {})
-    mismatched = []
-    for k, v in rec.values.items():
-        an = names.get(k, k)
-        if hasattr(exc, an):
-            got = float(getattr(exc, an).v[0])
-            if not np.isclose(got, v, rtol=1e-5, atol=1e-9):
-                mismatched.append(f"{k}: wrote {v:g}, ANDES read {got:g}")
+    mismatched = read_back(ss, model, rec)
     efd = ao.make_capture(andes, model, xe, ss=ss)["data"]["efd"]
     mse = float(np.mean((efd - fit["efd"]) ** 2))
     return {"ratio": mse / fit["noise_var"], "mse": mse, "mismatched": mismatched, "reordered": reordered,

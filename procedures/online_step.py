@@ -170,11 +170,8 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
                                      "synchronised (the no-load test is no_load_pulse)")
         if limiters:
             raise PreconditionFailed(f"refused before any write: limiter(s) acting: {', '.join(limiters)}")
-        plan = check_pulse(lim, setpoint_pu=pre.setpoint_pu, amplitude_pu=amplitude_pu,
-                           width_s=min(hold_s, lim.pulse_width_max_s))
-        if hold_s > lim.step_hold_max_s:
-            raise LimitViolation(f"step refused before any write: hold_s = {hold_s:g} s above the cap "
-                                 f"limits.step_hold_max_s = {lim.step_hold_max_s:g} s")
+        plan = check_pulse(lim, setpoint_pu=pre.setpoint_pu, amplitude_pu=amplitude_pu, width_s=hold_s,
+                           width_cap="step_hold_max_s")
         band = Band(lim.vt_band_pu, (lim.q_min_mvar, lim.q_max_mvar))
         _check_margins(band, vt0, q0, amplitude_pu, vt_margin_pu, q_margin)
         if state not in ("idle", "done"):

@@ -72,9 +72,10 @@ def _finite(name: str, value: float) -> str | None:
 
 
 def check_pulse(limits: Limits, *, setpoint_pu: float, amplitude_pu: float,
-                width_s: float) -> PulsePlan:
+                width_s: float, width_cap: str = "pulse_width_max_s") -> PulsePlan:
     """The pulse `setpoint_pu -> setpoint_pu + amplitude_pu` for `width_s`, or LimitViolation
-    listing every violated limit (amplitude cap, width cap, absolute setpoint band)."""
+    listing every violated limit (amplitude cap, width cap, absolute setpoint band). `width_cap`
+    names the limit that caps the width (an on-line step's hold: "step_hold_max_s")."""
     problems = [p for p in (_finite("amplitude_pu", amplitude_pu), _finite("width_s", width_s),
                             _finite("setpoint_pu", setpoint_pu)) if p]
     if problems:
@@ -86,9 +87,9 @@ def check_pulse(limits: Limits, *, setpoint_pu: float, amplitude_pu: float,
                         f"limits.pulse_amplitude_max_pu = {limits.pulse_amplitude_max_pu:g} pu")
     if not width_s > 0:
         problems.append(f"width_s = {width_s:g} s must be > 0")
-    elif width_s > limits.pulse_width_max_s:
-        problems.append(f"width_s = {width_s:g} s above the cap limits.pulse_width_max_s = "
-                        f"{limits.pulse_width_max_s:g} s")
+    elif width_s > getattr(limits, width_cap):
+        problems.append(f"width_s = {width_s:g} s above the cap limits.{width_cap} = "
+                        f"{getattr(limits, width_cap):g} s")
     band = (limits.setpoint_min_pu, limits.setpoint_max_pu)
     for label, value in (("pre-test setpoint", setpoint_pu),
                          ("pulse setpoint", setpoint_pu + amplitude_pu)):
