@@ -14,10 +14,16 @@ of the pre-step efd about a straight line, as benchmarks/import_real.py), the fi
 exciter values, the RMS error of Vt and Q over the test, and the electromechanical mode in P after
 the step, measured and simulated (the report's estimate, `bench_ctl.model.mode`).
 
+`--diagnose`: then `bench-ctl diagnose` on the same capture and unit, from the identification's
+values (`--result`): the verdict, the effects that explain the record together and what is left
+over the diagnosis' noise floor and over the pre-step disturbance (XE is fitted in the base model
+here, so the grid's reactance is no effect of its).
+
 Without a record it runs nothing and exits 0 (`make bench`).
 
 Usage: python benchmarks/real_online.py RECORD.csv --dyr unit.dyr [--efd-base 0.33869rf]
-           [--xe-bounds 0.02,0.8] [--weights vt=100,q=10] [--evals 1000] [--seed 1] [--json OUT]
+           [--xe-bounds 0.02,0.8] [--weights vt=100,q=10] [--evals 1000] [--seed 1] [--diagnose]
+           [--json OUT]
 """
 from __future__ import annotations
 
@@ -68,6 +74,7 @@ def main_(argv: list[str] | None = None) -> int:
     ap.add_argument("--weights", default="vt=100,q=10", help="signal weights beside efd's 1 (the unit's [weights])")
     ap.add_argument("--evals", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--diagnose", action="store_true", help="then diagnose the record (from the identification)")
     ap.add_argument("--json", dest="json_out", default=None)
     args = ap.parse_args(argv)
     if args.record is None:
@@ -95,6 +102,17 @@ def main_(argv: list[str] | None = None) -> int:
             return 1
         cap = read_capture(cap_path)
         result = json.loads(res_path.read_text())
+        diag = None
+        if args.diagnose:
+            diag_path = Path(tmp) / "diagnosis.json"
+            rc, out, err, diag_s = _run(["diagnose", str(cap_path), "--from-dyr", args.dyr, "--result", str(res_path),
+                                         "--seed", str(args.seed), "--json", str(diag_path)]
+                                        + [a for s in sets for a in ("--set", s)])
+            print(out.strip())
+            if not diag_path.is_file():
+                print(f"diagnose wrote no diagnosis (exit {rc}): {err.strip()}")
+                return 1
+            diag = json.loads(diag_path.read_text())
     var, n_pre = pre_step_disturbance(cap.time, cap.usetp, cap.efd)
     sections = kernel_sections(result)
     values = model_values(sections["params"], sections["fixed"], "result")
@@ -119,6 +137,20 @@ def main_(argv: list[str] | None = None) -> int:
         print(f"mode in P, {name}: " + ("none found" if m is None else
                                        f"{m.frequency_hz:.3f} Hz, damping ratio {m.damping:.3f}"))
     print(f"import {imp_s:.1f} s, identify {id_s:.1f} s ({row['evaluations']} evaluations)")
+    if diag is not None:
+        final = diag["explained_by"][-1] if diag["explained_by"] else None
+        left = final["mse"] if final else diag["base"]["mse"]
+        efd_w = float(result["unit"]["weights"].get("efd", 1.0))
+        row["diagnosis"] = {"verdict": diag["verdict"], "wall_s": diag_s, "noise_floor": diag["noise_floor"],
+                            "base_mse": diag["base"]["mse"], "left_mse": left,
+                            "left_over_floor": left / diag["noise_floor"],
+                            "explained_by": [{"effect": s["name"], "params": s["params"],
+                                              "mse_over_floor": s["mse_over_floor"]} for s in diag["explained_by"]],
+                            "not_tried": (diag.get("vocabulary") or {}).get("not_tried"),
+                            "weights_efd": efd_w}
+        print(f"diagnosis: verdict {diag['verdict']}; base {diag['base']['mse']:.4g}, left {left:.4g} = "
+              f"{left / diag['noise_floor']:.2f} x its noise floor ({diag['noise_floor']:.3g}, weighted "
+              f"efd + Q); {diag_s:.1f} s")
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(row, indent=1) + "\n")
         print(f"wrote {args.json_out}")

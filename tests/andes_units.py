@@ -130,13 +130,19 @@ def online_unit(name: str, *, true_values: bool = True) -> Unit:
     return unit.with_effects({"saturation": {"S10": g["S10"], "S12": g["S12"]}})
 
 
-def online_capture(name: str, noise: float = 0.0, seed: int = 0) -> Capture:
-    """On-line capture `name` (efd, vt, p, q, ifd), with seeded Gaussian noise of `noise` pu on efd."""
+def online_capture(name: str, noise: float = 0.0, seed: int = 0, *, q_noise: float = 0.0,
+                   vt_noise: float = 0.0) -> Capture:
+    """On-line capture `name` (efd, vt, p, q, ifd), with seeded Gaussian noise of `noise` pu on efd
+    (and of `q_noise`, `vt_noise` on q and vt, from the next draws of the same generator)."""
     path = ONLINE / online_manifest()["captures"][name]["file"]
     d = np.genfromtxt(path, delimiter=",", names=True)
-    efd = d["efd"] + np.random.default_rng(seed).normal(0.0, noise, d.size) if noise > 0 else d["efd"]
-    return Capture(time=d["time"], usetp=d["usetp"], efd=efd, vt=d["vt"],
-                   extra={k: d[k] for k in ("p", "q", "ifd")}, source=str(path))
+    rng = np.random.default_rng(seed)
+    efd = d["efd"] + rng.normal(0.0, noise, d.size) if noise > 0 else d["efd"]
+    extra = {k: d[k] for k in ("p", "q", "ifd")}
+    if q_noise > 0:
+        extra["q"] = extra["q"] + rng.normal(0.0, q_noise, d.size)
+    vt = d["vt"] + rng.normal(0.0, vt_noise, d.size) if vt_noise > 0 else d["vt"]
+    return Capture(time=d["time"], usetp=d["usetp"], efd=efd, vt=vt, extra=extra, source=str(path))
 
 
 def online_true_edges(name: str, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:

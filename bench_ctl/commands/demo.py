@@ -5,8 +5,9 @@ capture, MVMO identification compared with its peers, gap diagnosis, validation 
 DIR/capture.csv, capture.json, audit.jsonl, result.json, diagnosis.json, report.html.
 
 `--online`: the unit on the grid instead, the reference step of procedures/online_step.py (dry run
-against the simulated bench on line), identification on efd, Vt and Q, and the report with its
-on-line section; the diagnosis does not take on-line records yet, so no diagnosis.json.
+against the simulated bench on line), identification on efd, Vt and Q, the diagnosis with the on-line vocabulary
+(the grid's reactance among the effects; dead time, setpoint ramp and recorder skew not yet), and
+the report with its on-line section.
 """
 from __future__ import annotations
 
@@ -52,7 +53,8 @@ def _claim(out: Path) -> outputs.Outputs:
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--online", is_flag=True,
               help="The on-line test instead: the unit synchronised (80 MW through XE 0.2 pu), a +2 %% reference "
-                   "step held 8 s (procedures/online_step.py), identification on P, Q, Vt and efd, the report.")
+                   "step held 8 s (procedures/online_step.py), identification on efd, Vt and Q, the diagnosis, the "
+                   "report.")
 def demo(out_dir: str | None, evals: int, seed: int, online: bool = False) -> int:
     """Run pulse test, identification, diagnosis and report on the embedded simulated bench."""
     t_start = time.perf_counter()
@@ -89,7 +91,7 @@ def demo(out_dir: str | None, evals: int, seed: int, online: bool = False) -> in
 
 def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, command_line: str,
              t_start: float, online: bool = False) -> int:
-    """Steps 2-4 of the demo on the saved capture (on line: no peers, no diagnosis yet)."""
+    """Steps 2-4 of the demo on the saved capture (on line: no peers)."""
     from bench_ctl.diagnosis.diagnose import diagnose
     from bench_ctl.identification.identify import identify, result_for_file
     from bench_ctl.model.unit import reference_unit
@@ -113,15 +115,12 @@ def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, 
         click.echo(f"    {row['optimizer']:<10} mse {row['mse']:.3e}  evals {row['evaluations']:>5}  "
                    f"{row['wall_s']:.2f} s  violated: {', '.join(row['constraints_violated']) or '-'}")
 
-    diag = diag_path = None
-    if online:
-        click.echo("3/4 gap diagnosis: not on line yet (it takes no-load records); skipped")
-    else:
-        click.echo("3/4 gap diagnosis (each unmodelled effect added to the fitted model)")
-        diag = diagnose(capture, unit, seed=seed, command_line=command_line)
-        diag_path = out / "diagnosis.json"
-        guard.write_json(diag_path, diagnosis_for_file(diag, diag_path).to_json())
-        click.echo(f"    verdict: {diag.verdict}")
+    click.echo("3/4 gap diagnosis (each unmodelled effect added to the fitted model"
+               + (", the grid's reactance among them)" if online else ")"))
+    diag = diagnose(capture, unit, seed=seed, command_line=command_line)
+    diag_path = out / "diagnosis.json"
+    guard.write_json(diag_path, diagnosis_for_file(diag, diag_path).to_json())
+    click.echo(f"    verdict: {diag.verdict}")
 
     click.echo("4/4 validation report")
     data = analyse(result, diagnosis=diag, report_command=command_line)

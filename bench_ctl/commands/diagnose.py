@@ -72,6 +72,10 @@ def summary(d: Diagnosis) -> str:
                      + ("" if e.significant else "  (not significant)"))
     for a in d.ambiguous:
         lines.append(f"ambiguous: {' / '.join(a['effects'])}: {a['separating_test']}")
+    not_tried = (d.vocabulary or {}).get("not_tried") or {}
+    if not_tried:
+        lines.append(f"not tried{' on line' if d.vocabulary.get('on_line') else ''}: "
+                     + "; ".join(f"{k} ({v})" for k, v in not_tried.items()))
     if d.explained_by:
         lines += ["", "explained by (each step re-fitted jointly; error over the noise floor):",
                   f"  base model {_ratio(b.mse, d.noise_floor)}x"]

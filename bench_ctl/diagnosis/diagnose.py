@@ -41,7 +41,7 @@ from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.limits import InputError, sha256_file
 from bench_ctl.model.dialect import diagnosis_to_std
-from bench_ctl.model.effects import EFFECT_NAMES, EFFECTS
+from bench_ctl.model.effects import VOCABULARY
 from bench_ctl.model.unit import Unit
 from bench_ctl.records import plain
 from bench_ctl.timestamps import utc_now_text
@@ -103,15 +103,23 @@ def _windows(capture: Capture, edges: Edges) -> tuple[Window, ...]:
                  if s.name in CV_SEGMENTS and s.k1 - s.k0 >= 5)
 
 
+def _on_line(c: Capture) -> bool:
+    return c.channel("p") is not None and c.channel("q") is not None
+
+
 def _fit_floor(capture: Capture, unit: Unit, edges: Edges, efd_floor: NoiseFloor, source: str) -> NoiseFloor:
     """The noise floor of the mean objective every fit is ranked by: efd's at its weight, plus
-    Vt's at its weight when the unit weights a recorded Vt (the default: efd's alone)."""
-    w_efd, w_vt = float(unit.weights.get("efd", 1.0)), float(unit.weights.get("vt", 0.0))
-    if capture.vt is None or w_vt == 0.0:
-        return efd_floor if w_efd == 1.0 else replace(efd_floor, variance=w_efd * efd_floor.variance)
-    vt = noise_floor(capture.vt, capture.dt, edges, source)
-    return replace(efd_floor, variance=w_efd * efd_floor.variance + w_vt * vt.variance,
-                   rel_se=max(efd_floor.rel_se, vt.rel_se))
+    Vt's at its weight when the unit weights a recorded Vt (the default: efd's alone), plus on line
+    Q's at its weight (default 1: `Problem`'s)."""
+    weighted = [(float(unit.weights.get("efd", 1.0)), efd_floor)]
+    w_vt = float(unit.weights.get("vt", 0.0))
+    if capture.vt is not None and w_vt > 0.0:
+        weighted.append((w_vt, noise_floor(capture.vt, capture.dt, edges, source)))
+    w_q = float(unit.weights.get("q", 1.0))
+    if _on_line(capture) and w_q > 0.0:
+        weighted.append((w_q, noise_floor(capture.channel("q"), capture.dt, edges, source)))
+    return replace(efd_floor, variance=sum(w * f.variance for w, f in weighted),
+                   rel_se=max(f.rel_se for _, f in weighted))
 
 
 def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: Edges, floor: NoiseFloor,
@@ -149,10 +157,11 @@ def prepare(capture: Capture, unit: Unit, *, holdout: Capture | None = None, bud
     floor (pre-trigger) and the `Setup` (views, the fit's floor, the check's windows)."""
     budget = budget if budget is not None else Budget()
     src = capture.source or "capture"
-    for c in (capture, holdout):
-        if c is not None and c.channel("p") is not None and c.channel("q") is not None:
-            raise DiagnosisError(f"{c.source or 'capture'} is an on-line record (it has p and q): the diagnosis "
-                                 "and --model auto do not run on line yet; identify it with a named --model")
+    if holdout is not None and _on_line(holdout) != _on_line(capture):
+        kind = {True: "an on-line", False: "a no-load"}
+        raise DiagnosisError(f"{holdout.source or 'the holdout'} is {kind[_on_line(holdout)]} record and {src} "
+                             f"{kind[_on_line(capture)]} one: a "
+                             "holdout is a record of the same test")
     edges = find_edges(capture.usetp, src)
     efd_floor = noise_floor(capture.efd, capture.dt, edges, src)
     floor = _fit_floor(capture, unit, edges, efd_floor, src)
@@ -175,8 +184,12 @@ def _fit_base(st: Setup, budget: Budget, seed: int, base_params: Mapping[str, fl
 
 
 def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: Edges, floor: NoiseFloor,
-              values: Mapping[str, float], efd0_model: float) -> tuple[list[F.Feature], dict[str, float]]:
-    """The feature tests, and the hints they give the effect fits' starting values."""
+              unit: Unit, efd0_model: float) -> tuple[list[F.Feature], dict[str, float]]:
+    """The feature tests, and the hints they give the effect fits' starting values. On line the
+    steady-state ratio is not tested (efd / Vt = 1 + Sat holds at no load only): the pre-trigger
+    level against the model's steady state at the record's operating point stands for it."""
+    values = unit.values()
+    on_line = _on_line(capture)
     sigma = math.sqrt(floor.variance)
     efd_pre = float(np.mean(capture.efd[:floor.n]))
     efd_se = sigma / math.sqrt(floor.n)
@@ -185,8 +198,8 @@ def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: 
     feats = [
         F.flat_top(capture.efd, model, capture.dt, edges, sigma, vt=vt, vt_recorded=capture.vt is not None),
         F.delay(capture.efd, model, capture.dt, edges, sigma),
-        F.steady_state_ratio(efd_pre, efd_se, vt_pre, values["Vt0"]),
-        F.pre_trigger_level(efd_pre, efd_se, efd0_model),
+        *(() if on_line else (F.steady_state_ratio(efd_pre, efd_se, vt_pre, values["Vt0"]),)),
+        F.pre_trigger_level(efd_pre, efd_se, efd0_model, on_line=on_line),
         F.asymmetry(capture.efd, model, capture.dt, edges, sigma),
         F.edge_shape(capture.efd, model, capture.dt, edges, sigma, edges.amplitude),
     ]
@@ -196,10 +209,11 @@ def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: 
         "top_level_vt": fv["flat_top"].get("top_level_vt", math.nan),
         "bottom_level_vt": fv["flat_top"].get("bottom_level_vt", math.nan),
         "delay_s": fv["delay"]["delay_s"],
-        "sat0": efd_pre - fv["steady_state_ratio"]["vt"],
+        "sat0": efd_pre - fv["steady_state_ratio"]["vt"] if not on_line else math.nan,
         "slope_up": fv["asymmetry"].get("slope_up", math.nan),
         "slope_down": fv["asymmetry"].get("slope_down", math.nan),
         "gain": fv["pre_trigger_level"]["ratio"],
+        "xe": float(unit.grid.get("XE", math.nan)),
     }
     return feats, hints
 
@@ -211,7 +225,7 @@ def _fit_effects(st: Setup, base: ModelFit, hints: Mapping[str, float], budget: 
     avr = {**base.params}
     starts = all_starts(views, lag_variants(st.views.unit, avr), hints)
     fits: dict[str, ModelFit] = {}
-    for i, e in enumerate(EFFECT_NAMES):
+    for i, e in enumerate(views.vocabulary):
         t0 = time.perf_counter()
         fits[e] = fit_model(views, (e,), [{**avr, **s} for s in starts[e]], evals=0, seed=seed + 1 + i,
                             polish_coarse=budget.polish_coarse, polish_fine=0, multi=budget.starts)
@@ -246,7 +260,7 @@ def _variants(st: Setup, fits: dict[str, ModelFit], budget: Budget, seed: int) -
     views, n = st.views, st.n
     kept = {}
     for e, first in list(fits.items()):
-        eff = EFFECTS[e]
+        eff = VOCABULARY[e]
         if not eff.variants:
             continue
         best, name = first, eff.plain
@@ -304,8 +318,9 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     traces = p0.simulate(s0.vector(base.params))[0]
     sim = traces["efd"]
     # the model's Vt0 + Sat(Vt0) from the unit file, against the recorded pre-trigger efd
-    feats, hints = _features(capture, sim, traces["vt"], edges, efd_floor, unit.values(),
-                             p0.steady_efd(p0.x_start()))
+    efd0 = (float(p0.simulate(p0.x_start())[0]["efd"][0]) if _on_line(capture)
+            else p0.steady_efd(p0.x_start()))
+    feats, hints = _features(capture, sim, traces["vt"], edges, efd_floor, unit, efd0)
 
     fits = _fit_effects(st, base, hints, budget, seed)
     variants = _variants(st, fits, budget, seed)
@@ -366,4 +381,21 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
                      "score": "BIC on the capture + sum over the check's parts of n ln(mse), relative to the base "
                               "model"},
         "wall_s": time.perf_counter() - t_start,
+        "vocabulary": _vocabulary(views),
     })), "the diagnosis")
+
+
+def _vocabulary(views: Views) -> dict[str, Any]:
+    """The JSON `vocabulary`: the effects tried on this record and why the others were not."""
+    tried = views.vocabulary
+    why = {}
+    for name, e in VOCABULARY.items():
+        if name in tried:
+            continue
+        if views.on_line and not e.on_line:
+            why[name] = "not simulated on line yet"
+        elif not views.on_line and not e.at_no_load:
+            why[name] = "acts on line only"
+        else:
+            why[name] = "the unit fits " + ", ".join(e.params)
+    return {"on_line": views.on_line, "tried": list(tried), "not_tried": why}

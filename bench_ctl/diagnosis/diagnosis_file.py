@@ -114,8 +114,11 @@ class Diagnosis(Record):
     #: `diagnose --model auto`: the structures ranked before the first one was diagnosed (the
     #: result's `selection`, docs/formats.md)
     selection: dict[str, Any] | None = None
+    #: the effects tried on this record (`on_line`, `tried`) and those not, each with the reason
+    #: (`not_tried`); absent in files before the diagnosis ran on line (every effect, at no load)
+    vocabulary: dict[str, Any] | None = None
 
-    OMITTED_WHEN_NONE = ("kernel", "selection")
+    OMITTED_WHEN_NONE = ("kernel", "selection", "vocabulary")
 
     @classmethod
     def from_json(cls, data: Any, where: str = "") -> Diagnosis:

@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from bench_ctl.capture import Capture
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.model.edges import EDGE_PARAMS
-from bench_ctl.model.effects import EFFECT_NAMES, EFFECTS
+from bench_ctl.model.effects import VOCABULARY
 
 from .check import bic, check_deviance, checked, score
 from .localize import Edges, localization
@@ -50,8 +50,8 @@ def without(st: Setup, m: ModelFit, e: str, budget: Budget, *, check: bool = Tru
     """m with effect e taken out (its parameters back to neutral), the rest re-fitted; checked
     unless the fit loses so much (KEEP_WITHOUT_CHECK) that the check could not change the answer."""
     effects = tuple(x for x in m.effects if x != e)
-    fixed = {k: v for k, v in m.fixed.items() if k not in EFFECTS[e].options}
-    extra = tuple(x for x in m.extra if x not in EFFECTS[e].options)
+    fixed = {k: v for k, v in m.fixed.items() if k not in VOCABULARY[e].options}
+    extra = tuple(x for x in m.extra if x not in VOCABULARY[e].options)
     p = st.views.problem(effects, fixed, extra=extra)
     out = finish(st.views, effects, fixed, SearchSpace(p).vector(m.params), polish_fine=budget.combo_polish,
                  extra=extra)
@@ -71,7 +71,7 @@ def sequence(st: Setup, fits: Mapping[str, ModelFit], verdict: str, hints: Mappi
     dropped_all: set[str] = set()
     step_gain = max(SIGNIFICANT, -st.n * math.log(1.0 - STEP_REL))
     while len(current.effects) < budget.max_sequence:
-        cands = [c for c in EFFECT_NAMES if c not in current.effects and c not in dropped_all]
+        cands = [c for c in st.views.vocabulary if c not in current.effects and c not in dropped_all]
         if not cands:
             break
         # the current model polished as far as each candidate will be: a gain is then the effect's

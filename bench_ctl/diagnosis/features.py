@@ -180,11 +180,14 @@ def steady_state_ratio(efd_pre: float, efd_se: float, vt_pre: float | None, vt0_
     return Feature("steady_state_ratio", detected, ev, {"ratio": r, "ratio_se": se, "vt": vt})
 
 
-def pre_trigger_level(efd_pre: float, efd_se: float, efd0_model: float) -> Feature:
+def pre_trigger_level(efd_pre: float, efd_se: float, efd0_model: float, *, on_line: bool = False) -> Feature:
+    """The recorded pre-trigger efd against the model's steady state: at no load Vt0 + Sat(Vt0), on
+    line the field voltage of the machine at the record's P, Q and Vt."""
     g = efd_pre / efd0_model
     se = efd_se / abs(efd0_model)
     detected = abs(g - 1.0) > max(4.0 * se, 0.005)
-    ev = (f"recorded pre-trigger efd {efd_pre:.4f} pu against the model's Vt0 + Sat(Vt0) = {efd0_model:.4f} pu: "
+    model = "the model's steady state at the record's P, Q, Vt" if on_line else "the model's Vt0 + Sat(Vt0)"
+    ev = (f"recorded pre-trigger efd {efd_pre:.4f} pu against {model} = {efd0_model:.4f} pu: "
           f"ratio {g:.4f} +- {se:.4f}")
     return Feature("pre_trigger_level", detected, ev, {"ratio": g, "ratio_se": se, "efd_pre": efd_pre,
                                                        "efd0_model": efd0_model})

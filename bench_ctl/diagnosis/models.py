@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from bench_ctl.capture import Capture
 from bench_ctl.identification.problem import Problem, make_problem
 from bench_ctl.identification.result import Result
 from bench_ctl.model.edges import EDGE_PARAMS
-from bench_ctl.model.effects import EFFECTS
-from bench_ctl.model.unit import Unit
+from bench_ctl.model.effects import VOCABULARY, vocabulary
+from bench_ctl.model.unit import Bound, Unit
 
 from .localize import NoiseFloor
 
@@ -60,7 +60,7 @@ class Part:
 
 
 def added_params(effects: Sequence[str]) -> int:
-    return sum(len(EFFECTS[e].params) for e in effects)
+    return sum(len(VOCABULARY[e].params) for e in effects)
 
 
 @dataclass(frozen=True)
@@ -93,7 +93,7 @@ class ModelFit:
 
     def effect_params(self) -> dict[str, float]:
         params = self.params
-        out = {p: params[p] for e in self.effects for p in EFFECTS[e].params}
+        out = {p: params[p] for e in self.effects for p in VOCABULARY[e].params}
         out.update({p: params[p] for p in self.extra})
         return out
 
@@ -123,6 +123,24 @@ class Views:
     holdout_calls: int = 24            # least-squares simulations for the holdout's edge instants
     _cache: dict = field(default_factory=dict, repr=False)
 
+    @property
+    def on_line(self) -> bool:
+        """The capture is an on-line record (it has p and q): the machine on the grid runs it."""
+        return self.capture.channel("p") is not None and self.capture.channel("q") is not None
+
+    @property
+    def model_start(self) -> dict[str, float]:
+        """The base model's fitted parameters (the unit's identified ones and the [grid] values it
+        fits on line) at the unit file's values: every other fitted name is an effect's or an edge's."""
+        values = self.unit.values()
+        return {**{n: values[n] for n in self.unit.identify},
+                **{n: b.value for n, b in self.unit.grid_identify.items()}}
+
+    @property
+    def vocabulary(self) -> tuple[str, ...]:
+        """The effects tried on this record (`effects.vocabulary`: at no load, or on line)."""
+        return vocabulary(self.on_line, tuple(self.unit.grid_identify))
+
     def problem(self, effects: Sequence[str] = (), fixed: Mapping[str, float] | None = None, *,
                 with_effects: bool = True, extra: Sequence[str] = ()) -> Problem:
         """The model's problem on the capture: identified parameters + the effects' parameters
@@ -133,16 +151,35 @@ class Views:
         p = self._cache.get(key)
         if p is None:
             names = list(self.unit.identified_names)
+            grid = [e for e in effects if VOCABULARY[e].frees_grid]
             if with_effects:
                 for e in effects:
-                    names += [n for n in EFFECTS[e].params if n not in names]
+                    if e not in grid:
+                        names += [n for n in VOCABULARY[e].params if n not in names]
                 names += [n for n in extra if n not in names]
-            bounds = {n: b[n] for e in effects for b in (EFFECTS[e].bounds,) for n in b if n in names}
-            p = make_problem([self.capture], self.unit, names=names, bounds=bounds, values=fixed or None)
+            bounds = {n: b[n] for e in effects for b in (VOCABULARY[e].bounds,) for n in b if n in names}
+            unit, values = self._grid_unit(grid, fixed, with_effects)
+            p = make_problem([self.capture], unit, names=names, bounds=bounds, values=values or None)
             if len(self._cache) > 256:
                 self._cache.clear()
             self._cache[key] = p
         return p
+
+    def _grid_unit(self, grid: Sequence[str], fixed: Mapping[str, float], fitted: bool
+                   ) -> tuple[Unit, dict[str, float]]:
+        """The unit with the grid effects' [grid] values fitted within their bounds (from the
+        unit's own, `fitted`) or held at `fixed`'s; and the kernel values `fixed` holds."""
+        unit = self.unit
+        names = {n for e in grid for n in VOCABULARY[e].params}
+        for e in grid:
+            for n in VOCABULARY[e].params:
+                if fitted:
+                    lo, hi = VOCABULARY[e].bounds[n]
+                    start = min(max(float(fixed.get(n, unit.grid.get(n, 0.5 * (lo + hi)))), lo), hi)
+                    unit = replace(unit, grid_identify={**unit.grid_identify, n: Bound(start, lo, hi)})
+                elif n in fixed:
+                    unit = replace(unit, grid={**unit.grid, n: float(fixed[n])})
+        return unit, {k: v for k, v in fixed.items() if k not in names}
 
     def coarse(self, p: Problem) -> Problem:
         return p.decimated(self.q, n_max=self.n_coarse, offset=self.offset)

@@ -76,7 +76,7 @@ def fit_model(views: Views, effects: Sequence[str], starts: Sequence[Mapping[str
     nfev = 0
     counter = [0]
     cands: list[tuple[float, dict[str, float]]] = []
-    eff_names = [n for n in pc.names if n not in views.unit.identify]
+    eff_names = [n for n in pc.names if n not in views.model_start]
     short = max(3 * (sc.d + 1), polish_coarse // 3)
     for x0 in starts[:max(1, multi)]:
         # a profile (the effect parameters held at the start while the model parameters move, so
@@ -121,13 +121,13 @@ def _global(views: Views, effects: Sequence[str], fixed: Mapping[str, float], pc
        values (a profile, `options.PROFILE`), then everything free.
     Returns the best (coarse mean objective, values) of x0, a and b."""
     sc = SearchSpace(pc)
-    eff_names = [n for n in sc.names if n not in views.unit.identify]
+    model = views.model_start
+    eff_names = [n for n in sc.names if n not in model]
     best = (float(pc.mean_objective(sc.vector(x0)[None])[0]), dict(x0))
     if not sc.feasible(sc.vector(x0)[None])[0]:
         best = (math.inf, dict(x0))
     counter[0] += 1
-    unit_values = views.unit.values()
-    typical = {n: (unit_values[n] if n in views.unit.identify else x0[n]) for n in sc.names}
+    typical = {n: model.get(n, x0[n]) for n in sc.names}
     for r in range(RESTARTS if evals > 0 else 0):
         res = fit(pc, x0=sc.vector(typical), evals=evals // RESTARTS, seed=seed + 100 * r,
                   polish_evals=polish_coarse, options=mvmo_sets.WHOLE_BOX)

@@ -9,7 +9,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from bench_ctl.identification.constraints import parse_constraints
-from bench_ctl.model.effects import EFFECT_NAMES, EFFECTS
+from bench_ctl.model.effects import EFFECTS, VOCABULARY
 from bench_ctl.model.unit import Unit
 
 from .models import Views
@@ -20,9 +20,9 @@ __all__ = ["effect_starts", "lag_variants", "all_starts", "ORDER_SENSITIVE"]
 def effect_starts(effect: str, hints: Mapping[str, float]) -> list[dict[str, float]]:
     """Starting values of an effect's parameters: from the feature tests plus a small grid (the
     effect's own, `Effect.starts`)."""
-    if effect not in EFFECTS:
+    if effect not in VOCABULARY:
         raise ValueError(f"unknown effect {effect!r}")
-    return EFFECTS[effect].starts(hints)
+    return VOCABULARY[effect].starts(hints)
 
 
 #: effects acting between the exciter lag TE and the record (limits on the efd state): for them
@@ -60,22 +60,29 @@ def lag_variants(unit: Unit, avr: Mapping[str, float]) -> list[dict[str, float]]
 
 
 def all_starts(views: Views, avr_sets: Sequence[Mapping[str, float]], hints: Mapping[str, float],
-               effects: Sequence[str] = EFFECT_NAMES, fixed: Mapping[str, float] | None = None
+               effects: Sequence[str] | None = None, fixed: Mapping[str, float] | None = None
                ) -> dict[str, list[dict[str, float]]]:
     """Starting points (model + effect parameters + edge instants) for every effect, best first by
     their mean objective on the coarse record: each effect start with the base parameters and,
     for the order-sensitive effects, with every lag variant. All starts of all effects are scored
-    at once (`Problem.mean_objective_of`, one kernel call)."""
-    coarse = views.coarse(views.problem((), fixed))
-    rows, owners = [], []
-    for e in effects:
-        sets = avr_sets if EFFECTS[e].order_sensitive else avr_sets[:1]
-        for avr in sets:
-            for s in effect_starts(e, hints):
-                rows.append({**avr, **s})
-                owners.append((e, {**dict(avr), **s}))
-    score = coarse.mean_objective_of(rows)
+    at once (`Problem.mean_objective_of`, one kernel call); an effect of the grid's (`frees_grid`,
+    its values not the kernel's) in a call of its own. `effects`: default the record's vocabulary."""
+    effects = views.vocabulary if effects is None else tuple(effects)
     result: dict[str, list[tuple[float, dict[str, float]]]] = {}
-    for (e, s), m in zip(owners, score):
-        result.setdefault(e, []).append((float(m), s))
+    for group in ([e for e in effects if not VOCABULARY[e].frees_grid],
+                  *([e] for e in effects if VOCABULARY[e].frees_grid)):
+        if not group:
+            continue
+        grid = tuple(e for e in group if VOCABULARY[e].frees_grid)
+        coarse = views.coarse(views.problem(grid, fixed))
+        rows, owners = [], []
+        for e in group:
+            sets = avr_sets if VOCABULARY[e].order_sensitive else avr_sets[:1]
+            for avr in sets:
+                for s in effect_starts(e, hints):
+                    rows.append({**avr, **s})
+                    owners.append((e, {**dict(avr), **s}))
+        score = coarse.mean_objective_of(rows)
+        for (e, s), m in zip(owners, score):
+            result.setdefault(e, []).append((float(m), s))
     return {e: [s for _, s in sorted(v, key=lambda t: t[0])] for e, v in result.items()}

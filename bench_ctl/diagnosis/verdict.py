@@ -11,7 +11,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from bench_ctl.model.effects import EFFECTS
+from bench_ctl.model.effects import VOCABULARY
 from bench_ctl.model.effects import separating_test as effect_separating_test
 from bench_ctl.model.unit import Unit
 
@@ -111,7 +111,7 @@ def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, Model
             "delta_bic": d_bic, "delta_check": d_check, "significant": significant,
             "k": m.k, "evaluations": m.evaluations, "start": {p: m.start.get(p) for p in params},
         }
-        if EFFECTS[e].variants:
+        if VOCABULARY[e].variants:
             entry["variant"] = variants[e]
         entries.append(entry)
     entries.sort(key=lambda d: (d["score"], -d["delta_bic"]))

@@ -60,6 +60,12 @@ class Effect:
     #: the test that separates this effect from another one (by its name) that explains a capture
     #: as well; one of the two effects holds it
     separating: Mapping[str, str] = field(default_factory=dict)
+    #: where the diagnosis tries it: at no load, on line (the machine on the grid runs it)
+    at_no_load: bool = True
+    on_line: bool = True
+    #: its parameters are the unit's [grid] values, fitted (not kernel parameters): a diagnosis
+    #: effect only, never a unit file's [effects] section
+    frees_grid: bool = False
 
     def starts(self, hints: Hints) -> list[dict[str, float]]:
         """Starting values of the parameters: from the feature tests plus a small grid, inside
@@ -136,7 +142,7 @@ EFFECTS: dict[str, Effect] = {
                                          "ceiling caps the level at the same value, a slew limit caps the slope"}),
         Effect("dead_time", ("TD",), {"TD": (0.0, 0.1)},
                "pure delay in the control path (digital AVR + thyristor firing)",
-               grid=_delay("TD"),
+               grid=_delay("TD"), on_line=False,
                separating={"time_skew": "record the AVR output or the field voltage at the exciter on a second "
                                         "channel (or efd and usetp on the same channel group): a recorder skew "
                                         "delays only the efd channel, a dead time delays the response"}),
@@ -155,7 +161,7 @@ EFFECTS: dict[str, Effect] = {
                "slew limit on the exciter output", grid=_rate, order_sensitive=True),
         Effect("setpoint_ramp", ("RAMP",), {"RAMP": (0.01, 10.0)},
                "the device ramps setpoint changes instead of stepping",
-               grid=lambda h: [{"RAMP": v} for v in (0.05, 0.1, 0.2, 0.4, 0.8, 2.0, 5.0)],
+               grid=lambda h: [{"RAMP": v} for v in (0.05, 0.1, 0.2, 0.4, 0.8, 2.0, 5.0)], on_line=False,
                separating={"rate_limit": "read the device's active setpoint during the test (a setpoint ramp "
                                          "shows there), or a step of another size: a ramp lengthens the rise "
                                          "in proportion to the step, a slew limit caps the efd slope",
@@ -167,9 +173,47 @@ EFFECTS: dict[str, Effect] = {
                grid=lambda h: [{"GAIN": h.get("gain", 1.0)}, {"GAIN": 1.0}]),
         Effect("time_skew", ("SKEW",), {"SKEW": (0.0, 0.05)},
                "efd channel recorded late relative to the usetp channel", in_loop=False,
-               grid=_delay("SKEW")),
+               grid=_delay("SKEW"), on_line=False),
     ]
 }
+
+#: the diagnosis' effects on line that are not kernel parameters: the grid seen from the unit other
+#: than the unit file says (its [grid] values fitted within the effect's bounds, from its own)
+GRID_EFFECTS: dict[str, Effect] = {
+    e.name: e
+    for e in [
+        Effect("grid_reactance", ("XE",), {"XE": (0.02, 1.2)},
+               "the grid's reactance to the infinite bus (step-up transformer + line) other than the unit's XE",
+               grid=lambda h: [{"XE": h["xe"] * f} for f in (1.0, 0.6, 1.6, 0.35, 2.5)] if h.get("xe", 0) > 0
+               else [{"XE": v} for v in (0.1, 0.2, 0.4, 0.7)],
+               at_no_load=False, frees_grid=True,
+               separating={"saturation": "a step at another operating point (P or Q): a wrong grid reactance "
+                                         "changes the swing mode and Q's share of the step, saturation the "
+                                         "field's level"}),
+        Effect("pss", ("PSS_KS", "PSS_T1", "PSS_T2"),
+               {"PSS_KS": (0.0, 150.0), "PSS_T1": (0.01, 2.0), "PSS_T2": (0.01, 2.0)},
+               "an active power system stabiliser (speed input: gain, lead-lag, washout PSS_TW) the unit file "
+               "does not have",
+               grid=lambda h: [{"PSS_KS": k, "PSS_T1": t1, "PSS_T2": t2} for k in (5.0, 20.0, 60.0)
+                               for t1, t2 in ((0.2, 0.05), (0.5, 0.1), (0.1, 0.1))],
+               at_no_load=False, frees_grid=True,
+               separating={"grid_reactance": "the same step with the stabiliser switched off (or its output "
+                                             "recorded): a stabiliser acts through the speed only",
+                           "transducer_lag": "the same step with the stabiliser switched off (or its output "
+                                             "recorded): a stabiliser acts through the speed only"}),
+    ]
+}
+
+#: every effect the diagnosis knows, by name: the kernel's and the grid's
+VOCABULARY: dict[str, Effect] = {**EFFECTS, **GRID_EFFECTS}
+
+
+def vocabulary(on_line: bool, fitted_grid: tuple[str, ...] | frozenset[str] = ()) -> tuple[str, ...]:
+    """The effects the diagnosis tries on a record at no load or on line (`on_line`); an effect
+    whose [grid] values the unit already fits (`fitted_grid`) is no effect there."""
+    return tuple(e.name for e in VOCABULARY.values()
+                 if (e.on_line if on_line else e.at_no_load) and not set(e.params) & set(fitted_grid))
+
 
 #: the test for two effects that explain a capture equally well when neither record names one
 DEFAULT_TEST = "a step of another size and a record of the AVR input (the transducer output) beside efd"
@@ -177,7 +221,7 @@ DEFAULT_TEST = "a step of another size and a record of the AVR input (the transd
 
 def separating_test(a: str, b: str) -> str:
     """The test that would tell effects `a` and `b` apart (held by either record)."""
-    return EFFECTS[a].separating.get(b) or EFFECTS[b].separating.get(a) or DEFAULT_TEST
+    return VOCABULARY[a].separating.get(b) or VOCABULARY[b].separating.get(a) or DEFAULT_TEST
 
 EFFECT_NAMES = tuple(EFFECTS)
 

@@ -28,6 +28,13 @@ Vinf_dq = Vinf (sin delta + j cos delta):
     I = (E'' - Vinf_dq) / (RA + RE + j (X''d + XE)),   V = E'' - (RA + j X''d) I
     Vt = |V|, P = Re(V conj I), Q = Im(V conj I), Te = P + RA |I|^2
 
+A power system stabiliser (PSS_KS > 0: ANDES' and PSS/E's IEEEST on the rotor speed, without its
+notch filters A1..A6) adds its output to the reference:
+
+    vs = clamp(KS (1 + s T1)/(1 + s T2) (1 + s T3)/(1 + s T4) s TW/(1 + s TW) (omega - 1), +-LSMAX)
+
+(three states, 0 at the operating point; KS = 0, the default, is no stabiliser).
+
 The initial operating point comes from the record's pre-step P, Q and Vt (machine base): the
 steady state as ANDES initialises a GENROU, the infinite bus from V - (RE + j XE) I, its angle
 the reference. The excitation system starts in its steady state at that field voltage and field
@@ -82,17 +89,19 @@ from .params import COL, MACHINE_CATALOGUE, MACHINE_DATA, MACHINE_DEFAULTS, MACH
 #: the columns of the machine's derived matrix G (transposed as the kernel's: G[G_NAME, i])
 (G_GD1, G_GQ1, G_GD2, G_GQ2, G_GQD, G_XD, G_XQ, G_XDP, G_XQP, G_XDPP, G_XL, G_ITQ0P, G_ITQ0PP, G_IM,
  G_DAMP, G_W0, G_RA, G_RT, G_XT, G_VINF, G_TM, G_E1Q0, G_E2D0, G_E1D0, G_E2Q0, G_DELTA0, G_VALID,
- G_SAL, G_KQ) = range(29)
-N_G = 29
+ G_SAL, G_KQ, G_PSS_KS, G_PSS_IT2, G_PSS_R1, G_PSS_IT4, G_PSS_R3, G_PSS_ITW, G_PSS_LIM) = range(36)
+N_G = 36
 #: the states of an on-line candidate: the kernel's eight (xm, x1, x2, VR lag, E'q, psikd, rate
 #: feedback, DC/AC exciter), then E'd, psikq, sin delta, cos delta, omega (the rotor angle as its
-#: sine and cosine: no sin / cos in the step, so the candidate loops vectorise)
-N_ONLINE = 13
+#: sine and cosine: no sin / cos in the step, so the candidate loops vectorise), then the
+#: stabiliser's two lead-lags and its washout
+N_ONLINE = 16
 
 
 def machine_matrix(values: Mapping[str, float] | Sequence[Mapping[str, float]]) -> np.ndarray:
     """The machine matrix (n, len(MACHINE_PARAMS)) of one or more parameter mappings; every name is
-    needed but RA, RE, DAMP (0) and FN (50). A name outside its range is an error that names it."""
+    needed but RA, RE, DAMP (0), FN (50) and the stabiliser's (PSS_KS 0: none; `params.MACHINE_DEFAULTS`). A name
+    outside its range is an error that names it."""
     rows = [values] if isinstance(values, Mapping) else list(values)
     M = np.empty((len(rows), len(MACHINE_PARAMS)))
     defaults = MACHINE_DEFAULTS
@@ -206,6 +215,10 @@ def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray
         G[i, G_E1D0] = 0.0 if sal else iq0 * (xq - x1q) - se0 * gqd * psi2q0
         G[i, G_E2Q0] = psi2q0 if sal else -iq0 * (xl - xq) - se0 * gqd * psi2q0
         G[i, G_DELTA0] = delta0 - cmath.phase(vinf)   # the infinite bus at angle 0
+        G[i, G_PSS_KS], G[i, G_PSS_LIM] = m["PSS_KS"], m["PSS_LSMAX"]
+        G[i, G_PSS_IT2], G[i, G_PSS_R1] = 1.0 / m["PSS_T2"], m["PSS_T1"] / m["PSS_T2"]
+        G[i, G_PSS_IT4], G[i, G_PSS_R3] = 1.0 / m["PSS_T4"], m["PSS_T3"] / m["PSS_T4"]
+        G[i, G_PSS_ITW] = 1.0 / m["PSS_TW"]
         G[i, G_VALID] = 1.0
         fld0[i] = vf0
     return G, fld0
@@ -256,12 +269,29 @@ def machine(D, G, i, e1q, e2d, e1d, e2q, sd, cd):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
-def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, st4):
-    """Derivatives of the 13 on-line states (see N_ONLINE); the rotor angle as its sine and cosine,
-    turned at the slip speed."""
+def stabiliser(G, i, w, x13, x14, x15):
+    """The stabiliser (IEEEST on the rotor speed, without its filters): the speed deviation through
+    two lead-lags, the gain KS and the washout, limited to +-LSMAX; (vs, d13, d14, d15). With KS = 0
+    it gives 0 and its states stay 0."""
+    dw = w - 1.0
+    y1 = x13 + G[G_PSS_R1, i] * (dw - x13)
+    y2 = x14 + G[G_PSS_R3, i] * (y1 - x14)
+    v = G[G_PSS_KS, i] * y2
+    lim = G[G_PSS_LIM, i]
+    vs = v - x15
+    vs = vs if vs < lim else lim
+    vs = vs if vs > -lim else -lim
+    return vs, (dw - x13) * G[G_PSS_IT2, i], (y1 - x14) * G[G_PSS_IT4, i], (v - x15) * G[G_PSS_ITW, i]
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15, st4):
+    """Derivatives of the 16 on-line states (see N_ONLINE); the rotor angle as its sine and cosine,
+    turned at the slip speed; the stabiliser's output added to the reference."""
     vt, ifd, cid, ciq, _p, _q, te, xaq = machine(D, G, i, x4, x5, x8, x9, x10, x11)
     hi, lo = ceilings_at(D, i, vt, ifd)
-    dxm, dx1, dx2, de, fld, dxf, dxe = exciter(D, i, uref, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo, st4)
+    vs, d13, d14, d15 = stabiliser(G, i, x12, x13, x14, x15)
+    dxm, dx1, dx2, de, fld, dxf, dxe = exciter(D, i, uref + vs, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo, st4)
     de = non_windup(D, i, de, x3, hi, lo, 0.0, 0.0)   # held at a limit (the limit's motion not followed)
     d4 = (fld - ifd) * D[D_ITD0P, i]
     d5 = (x4 - x5 - (G[G_XDP, i] - G[G_XL, i]) * cid) * D[D_ITD0PP, i]
@@ -269,25 +299,28 @@ def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, 
     d9 = (x8 - x9 + G[G_KQ, i] * ciq) * G[G_ITQ0PP, i]
     wd = G[G_W0, i] * (x12 - 1.0)
     d12 = (G[G_TM, i] - te - G[G_DAMP, i] * (x12 - 1.0)) * G[G_IM, i]
-    return dxm, dx1, dx2, de, d4, d5, dxf, dxe, d8, d9, x11 * wd, -x10 * wd, d12
+    return dxm, dx1, dx2, de, d4, d5, dxf, dxe, d8, d9, x11 * wd, -x10 * wd, d12, d13, d14, d15
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
-def rk4_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, h, st4):
-    """One RK4 step of length h at the setpoint reference u: the 13 states at its end, the rotor
+def rk4_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15, h, st4):
+    """One RK4 step of length h at the setpoint reference u: the 16 states at its end, the rotor
     angle's sine and cosine put back on the unit circle, the regulator lag clamped to the ceilings
     unless they clamp the output. Branch-free: candidate loops vectorise."""
     h2 = 0.5 * h
-    a = rhs_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, st4)
+    a = rhs_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15, st4)
     b = rhs_online(D, G, i, u, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3], x4 + h2 * a[4],
                    x5 + h2 * a[5], x6 + h2 * a[6], x7 + h2 * a[7], x8 + h2 * a[8], x9 + h2 * a[9],
-                   x10 + h2 * a[10], x11 + h2 * a[11], x12 + h2 * a[12], st4)
+                   x10 + h2 * a[10], x11 + h2 * a[11], x12 + h2 * a[12], x13 + h2 * a[13], x14 + h2 * a[14],
+                   x15 + h2 * a[15], st4)
     c = rhs_online(D, G, i, u, x0 + h2 * b[0], x1 + h2 * b[1], x2 + h2 * b[2], x3 + h2 * b[3], x4 + h2 * b[4],
                    x5 + h2 * b[5], x6 + h2 * b[6], x7 + h2 * b[7], x8 + h2 * b[8], x9 + h2 * b[9],
-                   x10 + h2 * b[10], x11 + h2 * b[11], x12 + h2 * b[12], st4)
+                   x10 + h2 * b[10], x11 + h2 * b[11], x12 + h2 * b[12], x13 + h2 * b[13], x14 + h2 * b[14],
+                   x15 + h2 * b[15], st4)
     d = rhs_online(D, G, i, u, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3], x4 + h * c[4],
                    x5 + h * c[5], x6 + h * c[6], x7 + h * c[7], x8 + h * c[8], x9 + h * c[9],
-                   x10 + h * c[10], x11 + h * c[11], x12 + h * c[12], st4)
+                   x10 + h * c[10], x11 + h * c[11], x12 + h * c[12], x13 + h * c[13], x14 + h * c[14],
+                   x15 + h * c[15], st4)
     h6 = h / 6.0
     y3 = x3 + h6 * (a[3] + 2.0 * b[3] + 2.0 * c[3] + d[3])
     y4 = x4 + h6 * (a[4] + 2.0 * b[4] + 2.0 * c[4] + d[4])
@@ -307,21 +340,26 @@ def rk4_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12
     return (x0 + h6 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0]), x1 + h6 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1]),
             x2 + h6 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2]), y3, y4, y5,
             x6 + h6 * (a[6] + 2.0 * b[6] + 2.0 * c[6] + d[6]), x7 + h6 * (a[7] + 2.0 * b[7] + 2.0 * c[7] + d[7]),
-            y8, y9, s, co, x12 + h6 * (a[12] + 2.0 * b[12] + 2.0 * c[12] + d[12]))
+            y8, y9, s, co, x12 + h6 * (a[12] + 2.0 * b[12] + 2.0 * c[12] + d[12]),
+            x13 + h6 * (a[13] + 2.0 * b[13] + 2.0 * c[13] + d[13]),
+            x14 + h6 * (a[14] + 2.0 * b[14] + 2.0 * c[14] + d[14]),
+            x15 + h6 * (a[15] + 2.0 * b[15] + 2.0 * c[15] + d[15]))
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
-def readout(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, st4):
+def readout(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15, st4):
     """The recorded signals at a state: (efd, Vt, P, Q, Ifd)."""
     vt, ifd, _cid, _ciq, p, q, _te, _xaq = machine(D, G, i, x4, x5, x8, x9, x10, x11)
     hi, lo = ceilings_at(D, i, vt, ifd)
-    fld = exciter(D, i, u, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo, st4)[4]
+    vs = stabiliser(G, i, x12, x13, x14, x15)[0]
+    fld = exciter(D, i, u + vs, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo, st4)[4]
     return fld, vt, p, q, ifd
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
 def initial_state(D, G, i, S, c):
-    """Candidate i's 13 states at its operating point into column c of S: where a run starts."""
+    """Candidate i's 16 states at its operating point into column c of S: where a run starts (the
+    stabiliser's at 0: the speed is nominal)."""
     x = steady_state(D, i)
     for q in range(8):
         S[q, c] = x[q]
@@ -332,6 +370,9 @@ def initial_state(D, G, i, S, c):
     S[10, c] = math.sin(G[G_DELTA0, i])
     S[11, c] = math.cos(G[G_DELTA0, i])
     S[12, c] = 1.0
+    S[13, c] = 0.0
+    S[14, c] = 0.0
+    S[15, c] = 0.0
 
 
 # ---- the loops over a chunk's candidates (vectorised across them, as the kernel's) ----
@@ -362,7 +403,7 @@ def rk4_chunk(D, G, S, U, H, m):
     D, G, S = chunk_views(D, G, S)
     for c in range(m):
         r = rk4_online(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[6, c], S[7, c],
-                       S[8, c], S[9, c], S[10, c], S[11, c], S[12, c], H[c], ST4_SOME)
+                       S[8, c], S[9, c], S[10, c], S[11, c], S[12, c], S[13, c], S[14, c], S[15, c], H[c], ST4_SOME)
         S[0, c] = r[0]
         S[1, c] = r[1]
         S[2, c] = r[2]
@@ -376,6 +417,9 @@ def rk4_chunk(D, G, S, U, H, m):
         S[10, c] = r[10]
         S[11, c] = r[11]
         S[12, c] = r[12]
+        S[13, c] = r[13]
+        S[14, c] = r[14]
+        S[15, c] = r[15]
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
@@ -388,7 +432,7 @@ def readout_chunk(D, G, S, U, m, R):
     R = _view_r(R)
     for c in range(m):
         r = readout(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[6, c], S[7, c],
-                    S[8, c], S[9, c], S[10, c], S[11, c], ST4_SOME)
+                    S[8, c], S[9, c], S[10, c], S[11, c], S[12, c], S[13, c], S[14, c], S[15, c], ST4_SOME)
         R[0, c] = r[0]
         R[1, c] = r[1]
         R[2, c] = r[2]
@@ -578,8 +622,8 @@ def advance(D, G, S, X0, u, usetp_pre, dt, out, last):
     last[5] = flags
 
 
-K.drop_stale_cache((machine, rhs_online, rk4_online, readout, initial_state, rk4_chunk, readout_chunk, _run_chunk,
-                    advance, _run), K.SOURCES + (__file__,), "online")
+K.drop_stale_cache((machine, stabiliser, rhs_online, rk4_online, readout, initial_state, rk4_chunk, readout_chunk,
+                    _run_chunk, advance, _run), K.SOURCES + (__file__,), "online")
 
 #: the recorded signals of an on-line run, in the order of its traces and weights
 SIGNALS = ("efd", "vt", "p", "q", "ifd")

@@ -145,12 +145,22 @@ MACHINE_CATALOGUE: tuple[ParamInfo, ...] = (
     ParamInfo("P0", "pu", "active power before the test (machine base)", -0.2, 1.2),
     ParamInfo("Q0", "pu", "reactive power before the test (machine base)", -1.0, 1.0),
     ParamInfo("FN", "Hz", "nominal frequency", 45.0, 65.0),
+    # the unit's power system stabiliser on line (IEEEST on the rotor speed, without its filters)
+    ParamInfo("PSS_KS", "pu", "stabiliser gain KS on the speed deviation (0: no stabiliser)", 0.0, 200.0),
+    ParamInfo("PSS_T1", "s", "stabiliser first lead-lag, lead T1", 0.0, 10.0),
+    ParamInfo("PSS_T2", "s", "stabiliser first lead-lag, lag T2", 0.001, 10.0),
+    ParamInfo("PSS_T3", "s", "stabiliser second lead-lag, lead T3", 0.0, 10.0),
+    ParamInfo("PSS_T4", "s", "stabiliser second lead-lag, lag T4", 0.001, 10.0),
+    ParamInfo("PSS_TW", "s", "stabiliser washout T5 = T6", 0.1, 60.0),
+    ParamInfo("PSS_LSMAX", "pu", "stabiliser output limit, +-LSMAX", 0.0, 0.5),
 )
 MACHINE_PARAMS: tuple[str, ...] = tuple(p.name for p in MACHINE_CATALOGUE)
 MCOL: dict[str, int] = {name: i for i, name in enumerate(MACHINE_PARAMS)}
 
 #: what a machine on the grid takes when not given
-MACHINE_DEFAULTS: dict[str, float] = {"RA": 0.0, "RE": 0.0, "DAMP": 0.0, "FN": 50.0}
+MACHINE_DEFAULTS: dict[str, float] = {"RA": 0.0, "RE": 0.0, "DAMP": 0.0, "FN": 50.0, "PSS_KS": 0.0,
+                                      "PSS_T1": 1.0, "PSS_T2": 1.0, "PSS_T3": 1.0, "PSS_T4": 1.0, "PSS_TW": 10.0,
+                                      "PSS_LSMAX": 0.1}
 #: what a unit needs in [grid] (or a .dyr generator record, --set) to run on line, beside P0, Q0 of the record
 MACHINE_DATA = ("XD", "XQ", "XDP", "XQP", "XDPP", "XLS", "Tq0p", "Tq0pp", "H")
 

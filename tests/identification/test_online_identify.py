@@ -71,14 +71,6 @@ def test_online_record_needs_the_machine_and_all_three_channels():
         make_problem([half], _unit())
 
 
-def test_diagnosis_says_it_does_not_run_on_line_yet():
-    from bench_ctl.diagnosis.diagnose import prepare
-    from bench_ctl.diagnosis.localize import DiagnosisError
-
-    with pytest.raises(DiagnosisError, match="online.csv is an on-line record .*do not run on line yet"):
-        prepare(_capture(0.0), _unit())
-
-
 def test_report_of_an_online_result_shows_p_q_and_the_mode(tmp_path):
     """simulate --online, identify, report: the report re-simulates on the grid (its MSE check
     passes) and has an on-line section with the mode in P measured and simulated."""

@@ -110,9 +110,10 @@ class Machine:
 
 
 def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float, steps, t_end: float, dt: float,
-               g: dict = GEN):
+               g: dict = GEN, pss: dict | None = None):
     """efd, Vt, P, Q of the exciter `model` on the machine by solve_ivp; `steps`: (instant, change
-    of the reference)."""
+    of the reference); `pss`: an IEEEST on the speed (KS, T1..T4, TW, LSMAX; lead-lags, gain,
+    washout, limit) whose output adds to the reference."""
     from scipy.integrate import solve_ivp
 
     mach = Machine(xe, g=g)
@@ -143,15 +144,29 @@ def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float,
             return [(vt - xm) / s["TR"], (e - x1) / s["TB"], (y1 - x2) / s["TB1"], (ka * y2 - va) / s["TA"]], efd
     vref0 = vt0 + efd0 / ka
     ne = len(x0)
+    ks = pss["KS"] if pss else 0.0
+
+    def stabiliser(w, xs):
+        """(vs, its state derivatives) of the IEEEST at speed w."""
+        if not pss:
+            return 0.0, [0.0, 0.0, 0.0]
+        a, b, c = xs
+        dw = w - 1.0
+        y1 = a + pss["T1"] / pss["T2"] * (dw - a)
+        y2 = b + pss["T3"] / pss["T4"] * (y1 - b)
+        v = ks * y2
+        vs = min(max(v - c, -pss["LSMAX"]), pss["LSMAX"])
+        return vs, [(dw - a) / pss["T2"], (y1 - b) / pss["T4"], (v - c) / pss["TW"]]
 
     def f(t, z, vref):
-        m, x = z[:6], z[6:]
+        m, x, xs = z[:6], z[6:6 + ne], z[6 + ne:]
         vt, ifd, *_ = mach.algebra(*m[:5], vinf)
-        dx, efd = exc(x, vt, ifd, vref)
-        return mach.derivatives(m, efd, vinf) + dx
+        vs, dxs = stabiliser(m[5], xs)
+        dx, efd = exc(x, vt, ifd, vref + vs)
+        return mach.derivatives(m, efd, vinf) + dx + dxs
 
     t = np.arange(int(round(t_end / dt)) + 1) * dt
-    z = np.array(m0 + x0)
+    z = np.array(m0 + x0 + [0.0, 0.0, 0.0])
     cuts = [0.0] + [a for a, _ in steps] + [t[-1] + dt]
     vref = vref0
     ys = []
@@ -167,17 +182,17 @@ def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float,
     Y = np.concatenate(ys, axis=1)
     out = np.empty((4, Y.shape[1]))
     for k in range(Y.shape[1]):
-        m, x = Y[:6, k], Y[6:, k]
+        m, x = Y[:6, k], Y[6:6 + ne, k]
         vt, ifd, _cid, _ciq, p, q, _xaq = mach.algebra(*m[:5], vinf)
         out[:, k] = [exc(x, vt, ifd, vref0)[1], vt, p, q]
-    assert ne == Y.shape[0] - 6
+    assert ne + 3 == Y.shape[0] - 6
     return out
 
 
-def _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt, g=GEN):
+def _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt, g=GEN, pss=None):
     unit = _unit(model, s, vt0, g)
     P = param_matrix(unit.values())
-    M = machine_matrix(_machine(xe, p0, q0, g))
+    M = machine_matrix({**_machine(xe, p0, q0, g), **{f"PSS_{k}": v for k, v in (pss or {}).items()}})
     n = int(round(t_end / dt)) + 1
     usetp = np.ones(n)
     for at, change in steps:
@@ -214,6 +229,31 @@ def test_online_machine_matches_its_equations_solved_by_solve_ivp(model, s, xe, 
     if model == "ESST1A" and g is GEN:   # the 10 % pulse reached the ceiling: VRMAX Vt - KC Ifd
         hi = s["VRMAX"] * out["vt"][0] - s["KC"] * out["ifd"][0]
         assert np.any(out["efd"][0] >= hi - 1e-6)
+
+
+#: an IEEEST on the speed, active: two lead-lags, washout 5 s, output limit +-0.1 pu
+PSS = dict(KS=20.0, T1=0.3, T2=0.05, T3=0.2, T4=0.1, TW=5.0, LSMAX=0.1)
+
+
+def test_online_stabiliser_matches_its_equations_and_damps_the_swing():
+    """SEXS on the GENROU through XE 0.4 with an active stabiliser against solve_ivp (the same
+    tolerances), and the swing it damps: the electromechanical mode in P, with and without it."""
+    from bench_ctl.model.mode import electromechanical_mode
+
+    dt, steps = 1e-3, [(0.5, 0.02)]
+    out, _unit_ = _kernel("SEXS", SEXS, 0.4, 0.8, 0.2, 1.0, steps, 6.0, dt, pss=PSS)
+    ref = _reference("SEXS", SEXS, 0.4, 0.8, 0.2, 1.0, steps, 6.0, dt, pss=PSS)
+    k = ref.shape[1]
+    errs = {name: np.abs(out[name][0, :k] - ref[q]).max() for q, name in enumerate(("efd", "vt", "p", "q"))}
+    assert errs["efd"] < 1e-3 and errs["vt"] < 1e-4 and errs["q"] < 1e-4 and errs["p"] < 1e-4, errs
+    plain, _unit_ = _kernel("SEXS", SEXS, 0.4, 0.8, 0.2, 1.0, steps, 6.0, dt)
+    t = np.arange(k) * dt
+    with_pss, without = (electromechanical_mode(t, o["p"][0, :k], 0.5) for o in (out, plain))
+    assert with_pss is not None and without is not None
+    assert with_pss.damping > without.damping + 0.05, (with_pss, without)
+    # a stabiliser with KS = 0 is none: the same run to the last bit
+    zero, _unit_ = _kernel("SEXS", SEXS, 0.4, 0.8, 0.2, 1.0, steps, 6.0, dt, pss={**PSS, "KS": 0.0})
+    assert np.array_equal(zero["efd"], plain["efd"]) and np.array_equal(zero["p"], plain["p"])
 
 
 def test_online_steady_state_is_steady():

@@ -1,0 +1,57 @@
+"""The diagnosis on line (issue 27, item 5): an on-line record (P and Q recorded) is diagnosed on
+the machine on the grid, with the effects the machine runs and the grid's own (`grid_reactance`:
+the unit's XE other than the grid's). Judged on ANDES' on-line captures (tests/fixtures/andes_online),
+which no one here simulated."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+
+from andes_units import online_capture, online_unit
+from bench_ctl.diagnosis.diagnose import diagnose, prepare
+from bench_ctl.diagnosis.localize import DiagnosisError
+from bench_ctl.model.effects import vocabulary
+from bench_ctl.model.unit import apply_overrides
+
+#: recorder noise of the captures: efd 0.01 pu, Q 0.002 pu, Vt 0.0005 pu
+NOISE = {"noise": 0.01, "q_noise": 0.002, "vt_noise": 0.0005}
+
+
+def test_the_vocabulary_on_line_is_what_the_machine_on_the_grid_runs():
+    on, off = vocabulary(True), vocabulary(False)
+    assert "grid_reactance" in on and "grid_reactance" not in off
+    assert not {"dead_time", "setpoint_ramp", "time_skew"} & set(on)
+    assert {"ceiling_limit", "saturation", "transducer_lag", "rate_limit", "recorder_gain"} <= set(on) & set(off)
+    # a unit that already fits XE has no grid_reactance effect
+    assert "grid_reactance" not in vocabulary(True, ("XE",))
+
+
+def test_a_holdout_of_another_kind_is_refused():
+    cap = online_capture("sexs_xe02")
+    at_no_load = replace(cap, extra={}, source="noload.csv")
+    with pytest.raises(DiagnosisError, match="noload.csv is a no-load record and .*sexs_xe02.csv an on-line one"):
+        prepare(cap, online_unit("sexs_xe02"), holdout=at_no_load)
+
+
+def test_a_wrong_grid_reactance_is_found_and_explains_the_record():
+    """ANDES ran the unit through XE = 0.4; the unit file says 0.2. The diagnosis names the grid's
+    reactance, finds 0.4, and what is left is the noise."""
+    cap = online_capture("sexs_xe04", seed=3, **NOISE)
+    unit = apply_overrides(online_unit("sexs_xe04"), ["XE=0.2"])
+    d = diagnose(cap, unit, seed=0).to_json()
+    assert d["verdict"] == "grid_reactance", [(e["name"], e["significant"]) for e in d["effects"]]
+    top = next(e for e in d["effects"] if e["name"] == "grid_reactance")
+    assert top["params"]["XE"] == pytest.approx(0.4, rel=0.02)
+    assert top["gap_closed"] > 0.95
+    assert [s["added"] for s in d["sequence"]] == ["grid_reactance"]
+    assert d["explained_by"][-1]["mse_over_floor"] < 1.15
+    assert not any(f["name"] == "steady_state_ratio" for f in d["features"])   # a no-load relation
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["sexs_xe02", "esst1a_xe04"])
+def test_an_on_line_record_the_model_explains_has_no_effect(name):
+    d = diagnose(online_capture(name, seed=1, **NOISE), online_unit(name), seed=0).to_json()
+    assert d["verdict"] == "none", [(e["name"], e["delta_bic"], e["delta_check"]) for e in d["effects"]]
+    assert d["base"]["at_noise_floor"]
