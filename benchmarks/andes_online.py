@@ -6,7 +6,12 @@ the system base, so P and Q are on the machine base) at bus 1, tied by a line of
 (r = 0, no charging) to bus 2, where an ANDES `Slack` is the infinite bus; the line stays in. Power
 flow: PV at bus 1 with P0 = 0.8, V0 = 1.0 (Q from the power flow), Slack at 1.0 pu, angle 0. The
 exciter is SEXS or ESST1A with the unscaled values of `EXCITERS` there; XE 0.2 or 0.4: four
-captures, NAME = `sexs_xe02`, `esst1a_xe04`, ... The record starts at 0.5 s of ANDES time (the
+captures, NAME = `sexs_xe02`, `esst1a_xe04`, ... Two more, `sexs_xe02_pss` and `esst1a_xe02_pss`,
+are sexs_xe02 and esst1a_xe02 with a power system stabiliser that bench-ctl's model does not have:
+ANDES' `IEEEST` on the exciter (avr = 1), input the rotor speed deviation (MODE 1), its output
+vsout added to the exciter's input, with the values of `PSS` (washout T5 = T6 = 10 s, two
+lead-lags, gain KS, output limits +-0.1 pu; ANDES documents T6 as 0.04 .. 2 s but does not
+enforce it); everything else is the same. The record starts at 0.5 s of ANDES time (the
 steady state since t = 0); the reference `vref0` is raised by 2 % of the power-flow terminal
 voltage at `EDGE_ON` after the record's start and lowered back at `EDGE_OFF`, both off the 1 kHz
 grid, by stopping the time-domain simulation there, changing `vref0` and running on. The
@@ -16,7 +21,10 @@ is kept): `time`, `usetp` (1 + the reference change, as a recorder samples it), 
 vf), `vt` (bus 1 voltage), `p`, `q` (GENROU Pe, Qe), `ifd` (XadIfd), `delta` (rad), `omega` (pu).
 No noise: the consumers add seeded noise. Files: tests/fixtures/andes_online/NAME.csv and
 manifest.json (true parameters, XE, the power-flow operating point, edges, step, excursions,
-limits, the electromechanical mode, the checks below, the ANDES version, the command, sha256).
+limits, the electromechanical mode, the checks below, the ANDES version, the command, sha256);
+the PSS captures under `pss_captures` (not `captures`, which the consumers that model the unit
+read), each with the PSS's values as given to ANDES, its output's largest excursion, whether that
+reached the limits, and the mode of the capture without the PSS.
 
 The electromechanical mode of each capture is measured on `p` over 0.02 .. 4.9 s after the first
 edge, by a least-squares fit (variable projection: the linear coefficients solved for each set of
@@ -29,7 +37,9 @@ matrix pencil on `p` and on `delta` (0.5 .. 4.9 s after the edge, 100 Hz), and A
 eigenvalue analysis (EIG: the complex mode in which the rotor speed participates most, of the
 system linearised at the initial operating point, before the step). A fit of the same model to
 `delta` is no check: delta drifts to its new angle along a slow, well damped 0.1 Hz mode that one
-exponential does not follow.
+exponential does not follow. With the PSS the swing has died out about 1.5 s after the edge and
+the FFT peak of the span is the slow drift's (the fit found 0.35 Hz, zeta 0.96, on trial runs):
+the fit starts at the frequency of the capture without the PSS instead.
 
 Checks, measured on the captures (ANDES 2.0.0):
 1. The Slack holds bus 2: over the whole run (all of ANDES' points, 0 .. 10.51 s) max |v - 1| and
@@ -44,14 +54,24 @@ Checks, measured on the captures (ANDES 2.0.0):
 4. ANDES' own time-step error: esst1a_xe04 made again with 0.1 ms (0.005 ms after the edges)
    differs from the stored one by at most 1.2e-4 pu in efd, 2.0e-7 pu in vt, 7.0e-7 pu in q
    (2.3e-6 in p, 1.7e-6 rad in delta).
+5. The PSS damps the mode (fit on p, f Hz / zeta, without -> with): sexs_xe02 1.717 / 0.078 ->
+   1.812 / 0.311, esst1a_xe02 1.725 / 0.071 -> 1.701 / 0.303 (ANDES' eigenvalues with it: 1.741 /
+   0.326 and 1.640 / 0.328, the matrix pencil on p within 1.1 % of them; the fit's frequency is
+   about 4 % above them: ANDES' eigenvalues show a second, heavily damped mode beside the swing,
+   1.86 Hz zeta 0.83 and 2.61 Hz zeta 0.75). The PSS output's largest excursion is 0.0079 and
+   0.0075 pu, far from its +-0.1 pu limits; efd / vt / q excursions 0.430 / 0.0224 / 0.113 and
+   0.794 / 0.0215 / 0.108, no exciter limit reached. sexs_xe02 made again after the PSS was
+   added to the script is byte-identical to the stored one.
 The modes and the time each capture took are in docs/benchmarks.md.
 
 ANDES is a benchmark extra (`pip install -e '.[andes]'`), never a runtime dependency; the tests
 read the fixtures without it. ANDES writes generated code under $HOME/.andes: HOME is pointed at
 a temporary folder here. Each `System.add` gets a fresh dict (ANDES mutates the one it gets).
 
-Usage: python benchmarks/andes_online.py [--out tests/fixtures/andes_online] [--only sexs_xe02,...]
-           [--convergence esst1a_xe04|none] [--json OUT]
+Usage: python benchmarks/andes_online.py [--out tests/fixtures/andes_online]
+           [--only sexs_xe02,...,sexs_xe02_pss,esst1a_xe02_pss] [--convergence esst1a_xe04|none] [--json OUT]
+(all six captures without --only; a PSS capture made alone takes its base's mode from the
+manifest in OUT, else makes the base capture too)
 """
 from __future__ import annotations
 
@@ -87,6 +107,24 @@ PENCIL_ORDER_DELTA = 8      # as well, needs 8
 BAND_HZ = (0.2, 3.0)        # where an electromechanical mode lies
 COLUMNS = ("time", "usetp", "efd", "vt", "p", "q", "ifd", "delta", "omega")
 LIMITS = {"ESST1A": "VRMAX*Vt - KC*Ifd / VRMIN*Vt", "SEXS": "EMAX / EMIN"}
+PSS_MODEL = "IEEEST"        # ANDES' IEEE ST stabiliser, on the exciter (avr = 1)
+PSS_XE = 0.2                # the PSS captures' line
+_PSS_COMMON = dict(MODE=1,  # input: the GENROU's speed deviation omega - 1 (pu)
+                   # A1 .. A6 (filters) off; A1 1 ms rather than 0: ANDES' EIG mishandles A1 = A2 = 0 (a
+                   # real eigenvalue at +1.1/s that the time domain does not show); in a trial time-domain
+                   # run (2 ms step) A1 0 and 1 ms gave the same mode to 0.001
+                   A1=0.001, A2=0.0, A3=0.0, A4=0.0, A5=0.0, A6=0.0,
+                   T5=10.0, T6=10.0,                 # washout T5 s / (1 + T6 s): 10 s, unity gain
+                   LSMAX=0.1, LSMIN=-0.1,            # output limits
+                   VCU=999.0, VCL=-999.0)            # no cut-off by the terminal voltage
+#: IEEEST values per exciter, as given to ANDES: two lead-lags (1 + T1 s)/(1 + T2 s) (1 + T3 s)/(1 + T4 s)
+#: and the gain KS, tuned on ANDES' eigenvalues for a damping ratio of about 0.3 at a nearly
+#: unchanged frequency. One lead-lag 0.2 / 0.05 s (37 degrees at 1.7 Hz) is far too little: with
+#: SEXS at KS 20 it raised the frequency 1.72 -> 1.92 Hz and lowered zeta 0.078 -> 0.061 (a torque
+#: nearly all synchronising: exciter and field lag by more than 90 + 37 degrees there); ESST1A,
+#: whose TC1 / TB1 lead, needs less lead than SEXS
+PSS = {"SEXS": dict(_PSS_COMMON, T1=0.2, T2=0.02, T3=0.2, T4=0.02, KS=15.0),
+       "ESST1A": dict(_PSS_COMMON, T1=0.15, T2=0.03, T3=0.15, T4=0.03, KS=10.0)}
 
 
 def case_name(model: str, xe: float) -> str:
@@ -94,6 +132,8 @@ def case_name(model: str, xe: float) -> str:
 
 
 CASES = {case_name(m, xe): (m, xe) for m in MODELS for xe in XES}
+#: with the PSS: NAME_pss -> (model, XE, the capture without it)
+PSS_CASES = {case_name(m, PSS_XE) + "_pss": (m, PSS_XE, case_name(m, PSS_XE)) for m in MODELS}
 
 
 def _network(andes, xe: float):
@@ -108,12 +148,15 @@ def _network(andes, xe: float):
     return ss
 
 
-def _system(andes, model: str, xe: float, step: float = STEP):
-    """The network and the unit: the GENROU and the exciter with the values of `EXCITERS`."""
+def _system(andes, model: str, xe: float, step: float = STEP, pss: dict | None = None):
+    """The network and the unit: the GENROU and the exciter with the values of `EXCITERS`; with
+    `pss` (IEEEST values) an IEEEST on the exciter as well."""
     ss = _network(andes, xe)
     ss.add("GENROU", dict(idx=1, bus=1, gen=20, **GENERATOR))
     ss.add(model, dict(idx=1, syn=1, **EXCITERS[model]))
-    return ac._ready(ss, f"{model}, XE {xe}", step)
+    if pss is not None:
+        ss.add(PSS_MODEL, dict(idx=1, avr=1, **pss))
+    return ac._ready(ss, f"{model}, XE {xe}" + (" with PSS" if pss is not None else ""), step)
 
 
 def system_from_dyr(andes, xe: float, dyr_path: str, step: float = STEP):
@@ -132,11 +175,14 @@ def _bus(ss, idx: int) -> int:
 
 
 def make_capture(andes, model: str, xe: float, step: float = STEP, fine_step: float = FINE_STEP,
-                 ss=None) -> dict:
+                 ss=None, pss: dict | None = None) -> dict:
     """A +2 % / -2 % reference step on the unit on line; `step`, `fine_step`: ANDES' integration
     steps (the time-step check halves both); `ss`: a ready system made with `step` (else built
-    here with the values of `EXCITERS`, by which the time at a limit is judged either way)."""
-    ss = _system(andes, model, xe, step) if ss is None else ss
+    here with the values of `EXCITERS`, by which the time at a limit is judged either way, and
+    with an IEEEST of the values `pss` if given). With a PSS in the system, "pss" holds its
+    output `vsout`: the largest excursion over all of ANDES' points and whether it reached its
+    limits."""
+    ss = _system(andes, model, xe, step, pss) if ss is None else ss
     b1, b2 = _bus(ss, 1), _bus(ss, 2)
     op = {"P0_pu": float(ss.PV.p0.v[0]), "Q0_pu": float(ss.PV.q.v[0]), "Vt0_pu": float(ss.Bus.v.v[b1]),
           "Vt0_angle_rad": float(ss.Bus.a.v[b1]), "infinite_bus_v_pu": float(ss.Bus.v.v[b2]),
@@ -156,6 +202,15 @@ def make_capture(andes, model: str, xe: float, step: float = STEP, fine_step: fl
            "q": y[:, int(g.Qe.a[0])], "ifd": y[:, int(ifd_var.a[0])], "delta": x[:, int(g.delta.a[0])],
            "omega": x[:, int(g.omega.a[0])]}
     inf_v, inf_a = y[:, int(ss.Bus.v.a[b2])], y[:, int(ss.Bus.a.a[b2])]
+    pss_out = None
+    if getattr(ss, PSS_MODEL).n:
+        st = getattr(ss, PSS_MODEL)
+        vs = y[:, int(st.vsout.a[0])]
+        hi_s, lo_s = float(st.LSMAX.v[0]), float(st.LSMIN.v[0])
+        pss_out = {"variable": f"{PSS_MODEL}.vsout", "initial_pu": float(vs[0]),
+                   "max_excursion_pu": float(np.max(np.abs(vs - vs[0]))),
+                   "range_pu": [float(vs.min()), float(vs.max())], "limits_pu": [lo_s, hi_s],
+                   "limits_reached": bool(vs.max() >= hi_s - 1e-9 or vs.min() <= lo_s + 1e-9)}
     initial = {k: float(v[0]) for k, v in raw.items()}  # ANDES' initialised values at t = 0
     # ANDES keeps the state before and after an event at the same instant: take the last one
     keep = np.r_[np.diff(t_raw) > 0, True]
@@ -176,7 +231,8 @@ def make_capture(andes, model: str, xe: float, step: float = STEP, fine_step: fl
             # check 2: the record before the first edge against ANDES' initial values
             "flat_before_edge": {k: float(np.max(np.abs(out[k][before] - initial[k]))) for k in COLUMNS[2:]},
             # check 3
-            "max_excursion": {k: float(np.max(np.abs(out[k] - initial[k]))) for k in COLUMNS[2:]}}
+            "max_excursion": {k: float(np.max(np.abs(out[k] - initial[k]))) for k in COLUMNS[2:]},
+            "pss": pss_out}
 
 
 def _mode_basis(t: np.ndarray, tau: float, sigma: float, w: float) -> np.ndarray:
@@ -243,10 +299,10 @@ def pencil_mode(time_s: np.ndarray, y: np.ndarray, t_edge: float, span: tuple[fl
             "order": order, "rate_hz": 1.0 / dt}
 
 
-def eig_mode(andes, model: str, xe: float) -> dict:
+def eig_mode(andes, model: str, xe: float, pss: dict | None = None) -> dict:
     """ANDES' small-signal analysis at the same operating point: the complex mode (0.2 .. 3 Hz) in
-    which the GENROU's speed participates most."""
-    ss = _system(andes, model, xe)
+    which the GENROU's speed participates most (with the IEEEST of the values `pss` if given)."""
+    ss = _system(andes, model, xe, pss=pss)
     ss.TDS.init()
     ss.EIG.run()
     mu = np.asarray(ss.EIG.mu)
@@ -271,15 +327,16 @@ def _read_csv(path: Path) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(ROOT / "tests" / "fixtures" / "andes_online"))
-    ap.add_argument("--only", default=None, help="comma-separated capture names among " + ",".join(CASES))
+    ap.add_argument("--only", default=None,
+                    help="comma-separated capture names among " + ",".join([*CASES, *PSS_CASES]))
     ap.add_argument("--convergence", default="esst1a_xe04",
                     help="the capture made again with half the steps (check 4), or 'none'")
     ap.add_argument("--json", dest="json_out", default=None)
     argv_list = list(sys.argv[1:] if argv is None else argv)
     args = ap.parse_args(argv_list)
-    names = args.only.split(",") if args.only else list(CASES)
-    if not set(names) <= set(CASES):
-        ap.error(f"--only {args.only}: choose among {', '.join(CASES)}")
+    names = args.only.split(",") if args.only else [*CASES, *PSS_CASES]
+    if not set(names) <= set(CASES) | set(PSS_CASES):
+        ap.error(f"--only {args.only}: choose among {', '.join([*CASES, *PSS_CASES])}")
     if args.convergence != "none" and args.convergence not in CASES:
         ap.error(f"--convergence {args.convergence}: choose among {', '.join(CASES)} or none")
     flat: dict = {}
@@ -309,30 +366,43 @@ def main(argv: list[str] | None = None) -> int:
                                    "the matrix pencil on p (6 poles) and on delta (8 poles) over 0.5 .. 4.9 s "
                                    "at 100 Hz, and ANDES' EIG eigenvalue with the largest rotor-speed "
                                    "participation, linearised at the initial (pre-step) operating point",
-                    "captures": {}}
+                    "pss_mode_method": "the same fit, started at the frequency of the capture without "
+                                       "the PSS (the swing, damped within about 1.5 s, is no longer the FFT "
+                                       "peak of the span)",
+                    "captures": {}, "pss_captures": {}}
         if args.only and (out / "manifest.json").exists():  # add to the captures already there
             old = json.loads((out / "manifest.json").read_text("utf-8"))
             manifest["captures"] = old["captures"]
+            manifest["pss_captures"] = old.get("pss_captures", {})
             manifest["step_convergence"] = old.get("step_convergence")
-            manifest["command"] = "python benchmarks/andes_online.py (captures in turn, --only)"
+            manifest["command"] = f"{old['command']} && {manifest['command']}"  # the commands in turn
         print(f"{'capture':<14}{'Q0':>8}{'efd0':>8}{'d efd':>8}{'d vt':>8}{'d q':>8}{'flat':>9}{'inf bus':>9}"
               f"{'f Hz':>7}{'zeta':>8}{'eig f':>7}{'eig z':>8}{'lim ms':>7}{'s':>6}")
-        made = {}
-        for name in names:
-            model, xe = CASES[name]
+        made, modes = {}, {}
+        for name in sorted(names, key=lambda n: n in PSS_CASES):  # a PSS capture after its base
+            model, xe, base = PSS_CASES[name] if name in PSS_CASES else (*CASES[name], None)
+            pss = PSS[model] if base else None
             t0 = time.perf_counter()
-            cap = make_capture(andes, model, xe)
+            cap = make_capture(andes, model, xe, pss=pss)
             wall = time.perf_counter() - t0
             d = cap["data"]
             made[name] = d
             sha = ac._write_csv(out / f"{name}.csv", d)
-            mode_p = fit_mode(d["time"], d["p"], EDGE_ON)
+            if base:  # the capture without the PSS: its mode by the same fit, made here if need be
+                if base not in modes and base in manifest["captures"]:
+                    modes[base] = manifest["captures"][base]["mode"]
+                elif base not in modes:
+                    bd = make_capture(andes, model, xe)["data"]
+                    modes[base] = {"from": "p", **fit_mode(bd["time"], bd["p"], EDGE_ON)}
+            f_start = modes[base]["frequency_hz"] if base else None
+            mode_p = fit_mode(d["time"], d["p"], EDGE_ON, f_start=f_start)
+            modes[name] = {"from": "p", **mode_p}
             pencil_p = pencil_mode(d["time"], d["p"], EDGE_ON)
             pencil_delta = pencil_mode(d["time"], d["delta"], EDGE_ON, order=PENCIL_ORDER_DELTA)
-            mode_eig = eig_mode(andes, model, xe)
+            mode_eig = eig_mode(andes, model, xe, pss)
             flat_dev = max(cap["flat_before_edge"][k] for k in ("efd", "vt", "p", "q"))
             inf_dev = max(cap["infinite_bus_max_dev"].values())
-            manifest["captures"][name] = {
+            entry = {
                 "file": f"{name}.csv", "sha256": sha, "exciter": model, "exciter_params": dict(EXCITERS[model]),
                 "xe_pu": xe, "operating_point": cap["operating_point"], "initial_values": cap["initial"],
                 "step_of_vt0": STEP_OF_VT0, "usetp_step_pu": cap["step_pu"],
@@ -345,6 +415,16 @@ def main(argv: list[str] | None = None) -> int:
                 "mode": {"from": "p", **mode_p},
                 "mode_checks": {"pencil_p": pencil_p, "pencil_delta": pencil_delta,
                                 "andes_eig_at_the_initial_point": mode_eig}}
+            if base:
+                entry.update({"without_pss": base, "pss_model": PSS_MODEL,
+                              "pss_connection": "avr = 1 (the exciter); MODE 1: input the GENROU's speed "
+                                                "deviation omega - 1 (pu), output vsout added to the "
+                                                "exciter's input vi",
+                              "pss_params": dict(pss), "pss_output": cap["pss"],
+                              "mode_without_pss": modes[base]})
+                manifest["pss_captures"][name] = entry
+            else:
+                manifest["captures"][name] = entry
             ex = cap["max_excursion"]
             print(f"{name:<14}{cap['operating_point']['Q0_pu']:>8.4f}{cap['initial']['efd']:>8.4f}{ex['efd']:>8.4f}"
                   f"{ex['vt']:>8.4f}{ex['q']:>8.4f}{flat_dev:>9.1e}{inf_dev:>9.1e}{mode_p['frequency_hz']:>7.3f}"
@@ -352,6 +432,15 @@ def main(argv: list[str] | None = None) -> int:
                   f"{cap['ceiling_ms'] + cap['floor_ms']:>7.0f}{wall:>6.0f}", flush=True)
             if flat_dev >= FLAT_TOL:
                 print(f"  {name}: NOT flat before the edge ({flat_dev:.2e} pu)", flush=True)
+            if base:
+                po = cap["pss"]
+                print(f"  {name}: without the PSS {modes[base]['frequency_hz']:.3f} Hz, zeta "
+                      f"{modes[base]['damping']:.4f}; vsout max |excursion| {po['max_excursion_pu']:.4f} pu, "
+                      f"limits {'REACHED' if po['limits_reached'] else 'not reached'}", flush=True)
+                flat.update({f"{name}_pss_max_excursion": po["max_excursion_pu"],
+                             f"{name}_pss_limits_reached": po["limits_reached"],
+                             f"{name}_mode_hz_without_pss": modes[base]["frequency_hz"],
+                             f"{name}_mode_damping_without_pss": modes[base]["damping"]})
             flat.update({f"{name}_wall_s": wall, f"{name}_efd_excursion": ex["efd"], f"{name}_vt_excursion": ex["vt"],
                          f"{name}_q_excursion": ex["q"], f"{name}_ceiling_ms": cap["ceiling_ms"],
                          f"{name}_floor_ms": cap["floor_ms"], f"{name}_flat_max_dev": flat_dev,
@@ -376,6 +465,7 @@ def main(argv: list[str] | None = None) -> int:
         (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
     if args.json_out:
         flat["captures"] = len(manifest["captures"])
+        flat["pss_captures"] = len(manifest["pss_captures"])
         Path(args.json_out).write_text(json.dumps(flat, indent=1) + "\n")
     return 0
 

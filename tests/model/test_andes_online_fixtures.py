@@ -1,8 +1,9 @@
 """On-line captures made by another simulator (ANDES, benchmarks/andes_online.py) kept as fixtures:
 every file is the one its manifest names, has the documented columns on a uniform 1 kHz grid, and
 starts in the power-flow steady state (P0 = 0.8, Vt0 as the manifest says) flat up to the first
-edge, which lies between samples where the manifest says. Read with numpy alone: no ANDES, no
-bench-ctl reader."""
+edge, which lies between samples where the manifest says; the captures with ANDES' IEEEST
+stabiliser (`pss_captures`) differ from theirs without it only by the PSS, which damps the swing.
+Read with numpy alone: no ANDES, no bench-ctl reader."""
 from __future__ import annotations
 
 import hashlib
@@ -15,6 +16,7 @@ import pytest
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "andes_online"
 MANIFEST = json.loads((FIXTURES / "manifest.json").read_text(encoding="utf-8"))
 CAPTURES = MANIFEST["captures"]
+PSS_CAPTURES = MANIFEST["pss_captures"]
 COLUMNS = ["time", "usetp", "efd", "vt", "p", "q", "ifd", "delta", "omega"]
 
 
@@ -33,9 +35,23 @@ def test_the_fixture_set_covers_both_exciters_and_both_lines():
         assert c["mode"]["frequency_hz"] > 0 and "damping" in c["mode"]
 
 
-@pytest.mark.parametrize("name", sorted(CAPTURES))
+def test_the_pss_captures_differ_from_theirs_only_by_the_pss():
+    assert sorted(PSS_CAPTURES) == ["esst1a_xe02_pss", "sexs_xe02_pss"]
+    for c in PSS_CAPTURES.values():
+        base = CAPTURES[c["without_pss"]]
+        for key in ("exciter", "exciter_params", "xe_pu", "operating_point", "initial_values", "edges_true_s",
+                    "usetp_step_pu"):
+            assert c[key] == base[key], key
+        assert c["pss_model"] == "IEEEST" and c["pss_params"]["MODE"] == 1
+        assert c["mode_without_pss"] == base["mode"]
+        assert c["mode"]["damping"] >= 0.25 > 0.1 > base["mode"]["damping"]   # the PSS is active
+        out = c["pss_output"]
+        assert not out["limits_reached"] and 0.001 < out["max_excursion_pu"] < out["limits_pu"][1]
+
+
+@pytest.mark.parametrize("name", sorted(CAPTURES) + sorted(PSS_CAPTURES))
 def test_fixture_matches_its_manifest_and_starts_flat(name):
-    entry = CAPTURES[name]
+    entry = CAPTURES.get(name) or PSS_CAPTURES[name]
     path = FIXTURES / entry["file"]
     assert path.is_file()
     assert hashlib.sha256(path.read_bytes()).hexdigest() == entry["sha256"]
