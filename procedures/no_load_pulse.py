@@ -54,16 +54,13 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
 from typing import Any
 
-import numpy as np
-
-from bench_ctl.model.edges import SETPOINT, find_edges
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
 from bench_ctl.runner.devices import TIMED_WRITE_GUARD_S, DeviceError, RecordSettings, hold_gc
 from bench_ctl.runner.protocols import ExcitationSystem, ProcedureBench
 from bench_ctl.runner.safety import BenchBusy, PreconditionFailed, check_no_load, check_pulse
+from procedures.recorded import measure_pulse, signed
 
 log = logging.getLogger(__name__)
 
@@ -121,41 +118,6 @@ def check_parameters(params: dict[str, Any]) -> list[str]:
         problems.append(f"amplitude_tolerance_pu = {params['amplitude_tolerance_pu']:g} pu above "
                         f"20 % of |amplitude_pu| = {abs(amp):g} pu")
     return problems
-
-
-@dataclass(frozen=True)
-class RecordedPulse:
-    """The pulse as the recorder saw it in usetp."""
-
-    start_s: float
-    width_s: float
-    amplitude_pu: float
-    baseline_pu: float
-
-
-def measure_pulse(time_s: np.ndarray, usetp: np.ndarray, expected_pu: float,
-                  pre_samples: int = 1) -> RecordedPulse:
-    """The pulse in the recorded setpoint, by the shared edge finder (`bench_ctl.model.edges`, a
-    setpoint channel): the first edge departing from its level by more than half the expected
-    amplitude, either way, and the first later edge back. Its start is the leading edge's first
-    sample, its width the samples from there to the trailing edge's first sample (to the end of
-    the record when usetp never came back) x the sample step, its amplitude the mean of usetp
-    over those samples above the baseline (median of the first `pre_samples`, the pre-trigger
-    part). ValueError when no edge departs that far."""
-    time_s, usetp = np.asarray(time_s, float), np.asarray(usetp, float)
-    baseline = float(np.median(usetp[:max(1, pre_samples)]))
-    half = abs(expected_pu) / 2
-    search = find_edges(time_s, usetp, kind=SETPOINT, channel="usetp")
-    lead, trail = replace(search, edges=tuple(e for e in search.edges if abs(e.departure) > half)).pulse()
-    if lead is None:
-        raise ValueError(f"no pulse in usetp (no edge departs {half:g} pu from the level before it; "
-                         f"initial {baseline:g} pu)")
-    i0 = lead.index
-    i1 = trail.index if trail is not None else usetp.size
-    dt = float(time_s[1] - time_s[0])
-    return RecordedPulse(start_s=float(time_s[i0]), width_s=(i1 - i0) * dt,
-                         amplitude_pu=float(np.mean(usetp[i0:i1]) - baseline),
-                         baseline_pu=baseline)
 
 
 def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float = 0.05,
@@ -258,13 +220,13 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
     criteria = (
         Criterion("pulse width error", abs(width_err) <= width_tolerance_s, width_err,
                   width_tolerance_s, "s",
-                  shown=f"{_signed(width_err * 1e3, 1)} ms (limit ±{width_tolerance_s * 1e3:.1f} ms)"),
+                  shown=f"{signed(width_err * 1e3, 1)} ms (limit ±{width_tolerance_s * 1e3:.1f} ms)"),
         Criterion("pulse amplitude error", abs(amp_err) <= amplitude_tolerance_pu, amp_err,
                   amplitude_tolerance_pu, "pu",
-                  shown=f"{_signed(amp_err, 4)} pu (limit ±{amplitude_tolerance_pu:.4f} pu)"),
+                  shown=f"{signed(amp_err, 4)} pu (limit ±{amplitude_tolerance_pu:.4f} pu)"),
         Criterion("vt recovered", abs(vt_end - vt0) <= recovery_tolerance_pu, vt_end - vt0,
                   recovery_tolerance_pu, "pu",
-                  shown=f"{vt_end:.4f} pu, {_signed(vt_end - vt0, 4)} pu from pre-test "
+                  shown=f"{vt_end:.4f} pu, {signed(vt_end - vt0, 4)} pu from pre-test "
                         f"(limit ±{recovery_tolerance_pu:.4f} pu)"),
         Criterion("setpoint restored (raw)", sp_words == pre.setpoint_words, list(sp_words),
                   list(pre.setpoint_words),
@@ -277,7 +239,7 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
                f"amplitude {pulse.amplitude_pu:.4f} pu (commanded {amplitude_pu:.4f} pu)")
     host_late_s = commanded_width_s - width_s
     if abs(host_late_s) > width_tolerance_s:  # the width error is the host's, not the device's
-        summary += (f"; this host sent the restore write {_signed(host_late_s * 1e3, 1)} ms off its deadline "
+        summary += (f"; this host sent the restore write {signed(host_late_s * 1e3, 1)} ms off its deadline "
                     f"(the process or the machine stalled), so the pulse was that much off on the wire")
     return ProcedureResult(criteria=criteria, summary=summary,
                            data={"width_err_s": width_err, "amplitude_err_pu": amp_err,
@@ -285,12 +247,6 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
                                  "commanded_width_s": commanded_width_s,
                                  "block_retries": raw.block_retries,
                                  "record_attempts": raw.record_attempts})
-
-
-def _signed(value: float, decimals: int) -> str:
-    """`+1.2`, `-0.3`, and `0.0` for anything that rounds to zero (never `-0.0` or `5e-06`)."""
-    text = f"{value:+.{decimals}f}"
-    return text[1:] if float(text) == 0 else text
 
 
 def _pulse_readout(run: RunContext, ex: ExcitationSystem, *, deadline: float, every_s: float = 0.1) -> None:

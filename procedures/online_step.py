@@ -61,7 +61,7 @@ from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
 from bench_ctl.runner.devices import TIMED_WRITE_GUARD_S, DeviceError, RecordSettings, hold_gc
 from bench_ctl.runner.protocols import ExcitationSystem, ProcedureBench
 from bench_ctl.runner.safety import BenchBusy, LimitViolation, PreconditionFailed, check_pulse
-from procedures.no_load_pulse import _signed, measure_pulse
+from procedures.recorded import measure_pulse, signed
 
 #: the run is meant to leave a capture: when it ends without one, the outcome says so
 CAPTURES = True
@@ -255,12 +255,12 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
                                        f"q {band.q[0]:.2f}..{band.q[1]:.2f} Mvar throughout")),
         Criterion("step amplitude error", abs(amp_err) <= amplitude_tolerance_pu, amp_err,
                   amplitude_tolerance_pu, "pu",
-                  shown=f"{_signed(amp_err, 4)} pu (limit ±{amplitude_tolerance_pu:.4f} pu)"),
+                  shown=f"{signed(amp_err, 4)} pu (limit ±{amplitude_tolerance_pu:.4f} pu)"),
         Criterion("step hold error", abs(hold_err) <= hold_tolerance_s, hold_err, hold_tolerance_s, "s",
-                  shown=f"{_signed(hold_err * 1e3, 1)} ms (limit ±{hold_tolerance_s * 1e3:.1f} ms)"),
+                  shown=f"{signed(hold_err * 1e3, 1)} ms (limit ±{hold_tolerance_s * 1e3:.1f} ms)"),
         Criterion("vt recovered", abs(vt_end - vt0) <= recovery_tolerance_pu, vt_end - vt0,
                   recovery_tolerance_pu, "pu",
-                  shown=f"{vt_end:.4f} pu, {_signed(vt_end - vt0, 4)} pu from pre-test "
+                  shown=f"{vt_end:.4f} pu, {signed(vt_end - vt0, 4)} pu from pre-test "
                         f"(limit ±{recovery_tolerance_pu:.4f} pu)"),
         Criterion("setpoint restored (raw)", sp_words == pre.setpoint_words, list(sp_words),
                   list(pre.setpoint_words),

@@ -105,20 +105,21 @@ def check_watchdog(limits: Limits, reading: WatchdogReading | None, *, heartbeat
                    request_timeout_s: float) -> float:
     """The device's watchdog period as read from it, or LimitViolation naming the value found
     and the limit: unknown, zero (off), longer than `limits.watchdog_limit_s` (a host that dies
-    during the pulse leaves it on until the watchdog), or too short for this host's heartbeat
+    during a pulse or a step leaves it on until the watchdog), or too short for this host's heartbeat
     (shorter than its period, under two beats, or a timed write could hold the beats off)."""
     if reading is None or reading.value_s is None:
         why = reading.error if reading is not None else "it was not read"
         raise LimitViolation(f"refused before any write: the exciter's watchdog period is unknown "
-                             f"({why}); if this host dies during a pulse, nothing is known to end it")
+                             f"({why}); if this host dies while the setpoint is moved (a pulse, a step), "
+                             "nothing is known to end it")
     wd = reading.value_s
     found = f"the exciter's watchdog reads {wd:.3f} s ({reading.register})"
     if not math.isfinite(wd) or wd <= 0:
         raise LimitViolation(f"refused before any write: {found}: the device's watchdog is off; "
-                             "if this host dies during a pulse, nothing ends it")
+                             "if this host dies while the setpoint is moved (a pulse, a step), nothing ends it")
     if wd > limits.watchdog_limit_s:
         raise LimitViolation(f"refused before any write: {found}, longer than the limit "
-                             f"{limits.watchdog_limit_text()}: if this host dies during a pulse, the "
+                             f"{limits.watchdog_limit_text()}: if this host dies while the setpoint is moved, the "
                              f"device holds it up to {wd:.3f} s after the last heartbeat; shorten "
                              "the device's watchdog or raise limits.watchdog_max_s")
     problems = heartbeat_problems(wd, heartbeat_period_s, request_timeout_s)

@@ -1,4 +1,4 @@
-"""The pulse test's measurement of the recorded pulse (`procedures.no_load_pulse.measure_pulse`)
+"""The pulse test's measurement of the recorded pulse (`procedures.recorded.measure_pulse`)
 on the shared edge finder: the same start, width and amplitude the procedure's own threshold
 finder gave (kept here as the reference), so the pass criteria keep their meaning."""
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from procedures.no_load_pulse import RecordedPulse, measure_pulse
+from procedures.recorded import RecordedPulse, measure_pulse
 
 
 def threshold_pulse(time_s, usetp, expected_pu, pre_samples=1) -> RecordedPulse:
