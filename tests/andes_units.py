@@ -112,11 +112,18 @@ def machine_values(gen: dict, xe: float) -> dict[str, float]:
             "RA": gen["ra"], "FN": gen["fn"], "XE": xe}
 
 
+def online_entry(name: str) -> dict:
+    """The manifest's entry of on-line capture `name`: among `captures`, or `pss_captures` (the
+    unit with ANDES' IEEEST stabiliser, which the unit here does not have)."""
+    m = online_manifest()
+    return m["captures"].get(name) or m["pss_captures"][name]
+
+
 def online_unit(name: str, *, true_values: bool = True) -> Unit:
     """The structure of on-line capture `name` on the manifest's GENROU and XE, its exciter values
     when `true_values`, else the structure's typical values for the identified ones."""
     m = online_manifest()
-    entry = m["captures"][name]
+    entry = online_entry(name)
     gen = m["generator_params"]
     g = generator_values(gen)
     unit = with_model(reference_unit(), entry["exciter"])
@@ -134,7 +141,7 @@ def online_capture(name: str, noise: float = 0.0, seed: int = 0, *, q_noise: flo
                    vt_noise: float = 0.0) -> Capture:
     """On-line capture `name` (efd, vt, p, q, ifd), with seeded Gaussian noise of `noise` pu on efd
     (and of `q_noise`, `vt_noise` on q and vt, from the next draws of the same generator)."""
-    path = ONLINE / online_manifest()["captures"][name]["file"]
+    path = ONLINE / online_entry(name)["file"]
     d = np.genfromtxt(path, delimiter=",", names=True)
     rng = np.random.default_rng(seed)
     efd = d["efd"] + rng.normal(0.0, noise, d.size) if noise > 0 else d["efd"]
@@ -147,4 +154,4 @@ def online_capture(name: str, noise: float = 0.0, seed: int = 0, *, q_noise: flo
 
 def online_true_edges(name: str, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:
     """The on-line capture's setpoint edges and the EDGE offsets of their true instants."""
-    return _true_edges(online_manifest()["captures"][name], cap)
+    return _true_edges(online_entry(name), cap)

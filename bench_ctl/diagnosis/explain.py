@@ -32,7 +32,11 @@ def combine(st: Setup, current: ModelFit, c: str, single: ModelFit, hints: Mappi
     values with c's own fit and with c's feature starts (the single fit may have missed an effect
     that another one hid), then evaluated on the full record (not polished there yet)."""
     starts = [{**current.params, **single.effect_params()}]
-    starts += [{**current.params, **s} for s in effect_starts(c, hints)[:1]]
+    # a grid effect's values trade against the grid's already fitted (XE against a stabiliser's
+    # gain): its single fit, made with the grid as the unit file had it, is no good start, so
+    # every start of its grid is tried
+    grid = effect_starts(c, hints)
+    starts += [{**current.params, **s} for s in (grid if VOCABULARY[c].frees_grid else grid[:1])]
     return fit_model(st.views, current.effects + (c,), starts, evals=0, seed=seed,
                      fixed={**current.fixed, **single.fixed}, extra=current.extra + single.extra,
                      polish_coarse=budget.polish_coarse // 2, polish_fine=0, multi=len(starts), profile=False)

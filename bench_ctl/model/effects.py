@@ -190,12 +190,16 @@ GRID_EFFECTS: dict[str, Effect] = {
                separating={"saturation": "a step at another operating point (P or Q): a wrong grid reactance "
                                          "changes the swing mode and Q's share of the step, saturation the "
                                          "field's level"}),
-        Effect("pss", ("PSS_KS", "PSS_T1", "PSS_T2"),
-               {"PSS_KS": (0.0, 150.0), "PSS_T1": (0.01, 2.0), "PSS_T2": (0.01, 2.0)},
-               "an active power system stabiliser (speed input: gain, lead-lag, washout PSS_TW) the unit file "
-               "does not have",
-               grid=lambda h: [{"PSS_KS": k, "PSS_T1": t1, "PSS_T2": t2} for k in (5.0, 20.0, 60.0)
-                               for t1, t2 in ((0.2, 0.05), (0.5, 0.1), (0.1, 0.1))],
+        Effect("pss", ("PSS_KS", "PSS_T1", "PSS_T2", "PSS_T3", "PSS_T4"),
+               {"PSS_KS": (0.0, 150.0), "PSS_T1": (0.01, 2.0), "PSS_T2": (0.01, 2.0), "PSS_T3": (0.01, 2.0),
+                "PSS_T4": (0.01, 2.0)},
+               "an active power system stabiliser (speed input: gain, two lead-lags, washout PSS_TW) the unit "
+               "file does not have",
+               # two equal stages of a textbook range (lead 0.1 .. 0.5 s, lag 0.03 .. 0.1 s; no lead),
+               # gains a decade apart: a stabiliser's usual lead is up to ~110 degrees at the swing
+               grid=lambda h: [{"PSS_KS": k, "PSS_T1": t1, "PSS_T2": t2, "PSS_T3": t1, "PSS_T4": t2}
+                               for k in (3.0, 10.0, 30.0)
+                               for t1, t2 in ((0.3, 0.03), (0.1, 0.05), (0.5, 0.1), (0.1, 0.1))],
                at_no_load=False, frees_grid=True,
                separating={"grid_reactance": "the same step with the stabiliser switched off (or its output "
                                              "recorded): a stabiliser acts through the speed only",
