@@ -16,8 +16,8 @@ the step, measured and simulated (the report's estimate, `bench_ctl.model.mode`)
 
 `--diagnose`: then `bench-ctl diagnose` on the same capture and unit, from the identification's
 values (`--result`): the verdict, the effects that explain the record together and what is left
-over the diagnosis' noise floor and over the pre-step disturbance (XE is fitted in the base model
-here, so the grid's reactance is no effect of its).
+(the diagnosis' `left`) over its noise floor. XE is fitted in the base model here, so the grid's
+reactance is no effect of its.
 
 Without a record it runs nothing and exits 0 (`make bench`).
 
@@ -138,8 +138,7 @@ def main_(argv: list[str] | None = None) -> int:
                                        f"{m.frequency_hz:.3f} Hz, damping ratio {m.damping:.3f}"))
     print(f"import {imp_s:.1f} s, identify {id_s:.1f} s ({row['evaluations']} evaluations)")
     if diag is not None:
-        final = diag["explained_by"][-1] if diag["explained_by"] else None
-        left = final["mse"] if final else diag["base"]["mse"]
+        left = diag["left"]["mse"]   # after the last step's model was polished once more
         efd_w = float(result["unit"]["weights"].get("efd", 1.0))
         row["diagnosis"] = {"verdict": diag["verdict"], "wall_s": diag_s, "noise_floor": diag["noise_floor"],
                             "base_mse": diag["base"]["mse"], "left_mse": left,
