@@ -13,7 +13,8 @@ the identified ones), in three cases:
   the unit's XE wrong as well, `explained_by` must hold exactly `grid_reactance` and `pss`.
 
 Printed per case: the verdict, the expected one, the effects explained_by adds with their
-parameters, the error left over the noise floor, the base model's error over it, and the time.
+parameters, the error left over the noise floor (the diagnosis' `left`), the base model's error
+over it, and the time.
 `--json` writes the rows and the tally.
 
 Usage: python benchmarks/diagnose_online.py [--only sexs_xe02,...] [--cases true,xe_half,xe_double]
@@ -62,7 +63,7 @@ def run_case(name: str, case: str, seed: int) -> dict:
                              for s in d["explained_by"]],
             "xe_found": xe_found, "xe_rel_err": None if xe_found is None else abs(xe_found / xe - 1.0),
             "base_over_floor": d["base"]["mse"] / d["noise_floor"],
-            "left_over_floor": (final["mse_over_floor"] if final else d["base"]["mse"] / d["noise_floor"]),
+            "left_over_floor": d["left"]["mse_over_floor"],   # the last model, polished once more
             "noise_floor": d["noise_floor"], "wall_s": wall}
 
 
@@ -94,8 +95,7 @@ def main(argv: list[str] | None = None) -> int:
                 for s in r["explained_by"]:
                     print(f"{'':<36}+ {s['effect']}: " + ", ".join(f"{k}={v:.4g}" for k, v in s["params"].items()
                                                                  if v is not None))
-    judged = rows
-    tally = {"named": sum(r["named"] for r in judged), "judged": len(judged),
+    tally = {"named": sum(r["named"] for r in rows), "judged": len(rows),
              "wall_s_max": max((r["wall_s"] for r in rows), default=None),
              "wall_s_mean": sum(r["wall_s"] for r in rows) / len(rows) if rows else None}
     print(f"\nnamed as expected: {tally['named']}/{tally['judged']}; wall mean {tally['wall_s_mean']:.1f} s, "

@@ -104,6 +104,11 @@ class Capture:
         """A capture column or named channel (`ifd`, `p`, `q`, `vr`), None when not recorded."""
         return self.columns().get(name)
 
+    @property
+    def on_line(self) -> bool:
+        """An on-line record: P and Q recorded (the unit synchronised)."""
+        return self.channel("p") is not None and self.channel("q") is not None
+
     def unit(self, name: str) -> str | None:
         """The unit of a column: the sidecar's, else the capture's own (pu for the named
         channels), None for an extra column of unknown unit."""

@@ -103,10 +103,6 @@ def _windows(capture: Capture, edges: Edges) -> tuple[Window, ...]:
                  if s.name in CV_SEGMENTS and s.k1 - s.k0 >= 5)
 
 
-def _on_line(c: Capture) -> bool:
-    return c.channel("p") is not None and c.channel("q") is not None
-
-
 def _fit_floor(capture: Capture, unit: Unit, edges: Edges, efd_floor: NoiseFloor, source: str) -> NoiseFloor:
     """The noise floor of the mean objective every fit is ranked by: efd's at its weight, plus
     Vt's at its weight when the unit weights a recorded Vt (the default: efd's alone), plus on line
@@ -116,7 +112,7 @@ def _fit_floor(capture: Capture, unit: Unit, edges: Edges, efd_floor: NoiseFloor
     if capture.vt is not None and w_vt > 0.0:
         weighted.append((w_vt, noise_floor(capture.vt, capture.dt, edges, source)))
     w_q = float(unit.weights.get("q", 1.0))
-    if _on_line(capture) and w_q > 0.0:
+    if capture.on_line and w_q > 0.0:
         weighted.append((w_q, noise_floor(capture.channel("q"), capture.dt, edges, source)))
     return replace(efd_floor, variance=sum(w * f.variance for w, f in weighted),
                    rel_se=max(f.rel_se for _, f in weighted))
@@ -157,11 +153,10 @@ def prepare(capture: Capture, unit: Unit, *, holdout: Capture | None = None, bud
     floor (pre-trigger) and the `Setup` (views, the fit's floor, the check's windows)."""
     budget = budget if budget is not None else Budget()
     src = capture.source or "capture"
-    if holdout is not None and _on_line(holdout) != _on_line(capture):
+    if holdout is not None and holdout.on_line != capture.on_line:
         kind = {True: "an on-line", False: "a no-load"}
-        raise DiagnosisError(f"{holdout.source or 'the holdout'} is {kind[_on_line(holdout)]} record and {src} "
-                             f"{kind[_on_line(capture)]} one: a "
-                             "holdout is a record of the same test")
+        raise DiagnosisError(f"{holdout.source or 'the holdout'} is {kind[holdout.on_line]} record and {src} "
+                             f"{kind[capture.on_line]} one: a holdout is a record of the same test")
     edges = find_edges(capture.usetp, src)
     efd_floor = noise_floor(capture.efd, capture.dt, edges, src)
     floor = _fit_floor(capture, unit, edges, efd_floor, src)
@@ -189,7 +184,7 @@ def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: 
     steady-state ratio is not tested (efd / Vt = 1 + Sat holds at no load only): the pre-trigger
     level against the model's steady state at the record's operating point stands for it."""
     values = unit.values()
-    on_line = _on_line(capture)
+    on_line = capture.on_line
     sigma = math.sqrt(floor.variance)
     efd_pre = float(np.mean(capture.efd[:floor.n]))
     efd_se = sigma / math.sqrt(floor.n)
@@ -317,10 +312,9 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     s0 = SearchSpace(p0)
     traces = p0.simulate(s0.vector(base.params))[0]
     sim = traces["efd"]
-    # the model's Vt0 + Sat(Vt0) from the unit file, against the recorded pre-trigger efd
-    efd0 = (float(p0.simulate(p0.x_start())[0]["efd"][0]) if _on_line(capture)
-            else p0.steady_efd(p0.x_start()))
-    feats, hints = _features(capture, sim, traces["vt"], edges, efd_floor, unit, efd0)
+    # the model's steady field voltage at the unit file's values (no load: Vt0 + Sat(Vt0); on line:
+    # at the record's P, Q, Vt), against the recorded pre-trigger efd
+    feats, hints = _features(capture, sim, traces["vt"], edges, efd_floor, unit, p0.steady_efd(p0.x_start()))
 
     fits = _fit_effects(st, base, hints, budget, seed)
     variants = _variants(st, fits, budget, seed)

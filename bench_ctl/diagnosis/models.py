@@ -126,7 +126,7 @@ class Views:
     @property
     def on_line(self) -> bool:
         """The capture is an on-line record (it has p and q): the machine on the grid runs it."""
-        return self.capture.channel("p") is not None and self.capture.channel("q") is not None
+        return self.capture.on_line
 
     @property
     def model_start(self) -> dict[str, float]:

@@ -45,7 +45,7 @@ import numpy as np
 from bench_ctl.capture import Capture
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.kernel import BLOWUP, run_kernel, saturation_ab
-from bench_ctl.model.online import machine_data, machine_matrix, run_online, unit_machine
+from bench_ctl.model.online import derive_machine, machine_data, machine_matrix, run_online, unit_machine
 from bench_ctl.model.params import COL, KERNEL_PARAMS, MCOL, PARAMS
 from bench_ctl.model.simulate import operating_point, param_matrix, pre_trigger_mean
 from bench_ctl.model.unit import Unit
@@ -288,7 +288,12 @@ class Problem:
         return outs
 
     def steady_efd(self, x: Sequence[float]) -> float:
-        """The model's no-load steady-state field voltage at x: Vt0 + Sat(Vt0) (pu)."""
+        """The model's steady-state field voltage at x (pu): at no load Vt0 + Sat(Vt0); for an
+        on-line first record the machine's at that record's P, Q and Vt (`online.derive_machine`)."""
+        r = self.records[0]
+        if r.machine is not None:
+            P, M = _on_line_inputs(self.matrix(np.asarray(x, float)[None]), r)
+            return float(derive_machine(P, M)[1][0])
         v = self.values(x)
         a, b = saturation_ab(np.array([v["S10"]]), np.array([v["S12"]]))
         vt0 = v["Vt0"]
@@ -396,22 +401,29 @@ def _simulate(P: np.ndarray, r: Record, n: int | None = None, *, measured: bool 
     the machine on the grid from the record's operating point."""
     n = r.usetp.size if n is None else int(n)
     store = not measured
-    grid = P[:, len(KERNEL_PARAMS):]   # fitted [grid] values (`Problem.matrix`)
-    P = P[:, :len(KERNEL_PARAMS)]
     if r.machine is None:
         kw = {"efd_meas": r.efd, "vt_meas": r.vt, "w_efd": w_efd, "w_vt": w_vt if r.vt is not None else 0.0} \
             if measured else {}
-        return _kernel(P, r.usetp[:n], r.dt, r.usetp_pre, store=store, edges=r.edges_upto(n), **kw)
-    P = P.copy()
-    P[:, COL["Vt0"]] = r.vt0
-    M = np.repeat(r.machine[None, :], P.shape[0], axis=0)
-    if grid.shape[1]:
-        M[:, list(r.grid_cols)] = grid
+        return _kernel(P[:, :len(KERNEL_PARAMS)], r.usetp[:n], r.dt, r.usetp_pre, store=store,
+                       edges=r.edges_upto(n), **kw)
+    P, M = _on_line_inputs(P, r)
     meas = {"efd": r.efd, "vt": r.vt, "q": r.q} if measured else None
     weights = {"efd": w_efd, "vt": w_vt, "q": w_q}
     with _threads(P.shape[0] * n):
         return run_online(P, M, r.usetp[:n], r.dt, r.usetp_pre, measured=meas, weights=weights, store=store,
                           edges=r.edges_upto(n))
+
+
+def _on_line_inputs(P: np.ndarray, r: Record) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel matrix (Vt0 the record's) and the machine matrix (fitted [grid] values in their
+    columns) of the candidates P (`Problem.matrix`) on the on-line record r."""
+    grid = P[:, len(KERNEL_PARAMS):]
+    P = P[:, :len(KERNEL_PARAMS)].copy()
+    P[:, COL["Vt0"]] = r.vt0
+    M = np.repeat(r.machine[None, :], P.shape[0], axis=0)
+    if grid.shape[1]:
+        M[:, list(r.grid_cols)] = grid
+    return P, M
 
 
 @contextmanager
