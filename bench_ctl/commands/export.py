@@ -10,7 +10,9 @@ same blocks). A limit the model leaves open is written as +-999 on its own side 
 for no limit; `--from-dyr` reads it back as open), every value in full precision, so that
 `--from-dyr` on the export simulates what the result does. What the model has and the record
 cannot hold (a dead time, a rate limit, ...) is named on the console and in the record's
-comment. Exit codes: 0 written, 2 bad input (file, key or value named) or an output refused.
+comment. A unit with a power system stabiliser (its [grid] PSS_KS > 0, given or fitted on line)
+gets its IEEEST record after the exciter's, at the same bus and ID. Exit codes: 0 written, 2 bad
+input (file, key or value named) or an output refused.
 """
 from __future__ import annotations
 
@@ -36,7 +38,7 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
     from bench_ctl.identification.result_file import read_result
     from bench_ctl.limits import InputError
     from bench_ctl.model.dyr import DyrError, DyrRecord, dyr_text
-    from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of, not_carried
+    from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of, not_carried, pss_record
     from bench_ctl.model.structures import StructureError
     from bench_ctl.records import FormatError
 
@@ -54,6 +56,7 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
             if not math.isfinite(v):
                 raise ValueError(f"field {k} = {v} is not finite")
         missing = not_carried(result.to_json(), st, std)
+        pss = pss_record(result.unit.get("grid") or {}, bus, str(machine_id))
     except (InputError, FormatError) as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
@@ -84,8 +87,12 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
               f"fit: mse {result.mse} pu^2 over {len(result.captures)} capture(s)")
     icons = {"UEL": 1, "VOS": 1} if st.dyr_model == "ESST1A" else {}
     rec = DyrRecord(bus, st.dyr_model, str(machine_id), values, icons)  # type: ignore[arg-type]
+    records = [(rec, "\n".join(notes))]
+    if pss is not None:
+        records.append((pss, "the unit's power system stabiliser ([grid] PSS_*): speed input, no filter, "
+                             "washout T5 = T6 = PSS_TW, no cut-off"))
     try:
-        out.write_text(dyr_out, dyr_text([(rec, "\n".join(notes))], header=header))
+        out.write_text(dyr_out, dyr_text(records, header=header))
     except outputs.OutputRefused as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
@@ -93,7 +100,8 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         click.echo(f"error: {outputs.why_not_written(exc, dyr_out)}", err=True)
         return ExitCode.ABORTED
     click.echo(f"wrote {dyr_out}: {st.dyr_model} at bus {bus}, ID {machine_id} "
-               f"({len(identified)} identified, {len(fields) - len(identified)} fixed or default)")
+               f"({len(identified)} identified, {len(fields) - len(identified)} fixed or default)"
+               + (f", and its stabiliser as IEEEST (KS {pss.values['KS']:g})" if pss is not None else ""))
     if missing:
         click.echo(f"warning: the {st.dyr_model} record does not hold: {'; '.join(missing)}; a simulation "
                    "from it differs from the result where these act", err=True)

@@ -15,6 +15,9 @@ cross-checked with ANDES' andes/io/psse-dyr.yaml, the InterPSS reader and publis
 - ESST5B: TR KR T1 KC VRMAX VRMIN TC1 TB1 TC2 TB2 TOC1 TOB1 TOC2 TOB2 TUC1 TUB1 TUC2 TUB2
   (IEEE 421.5 lists the under-excitation channel first; PSS/E's record and the InterPSS reader
   put the over-excitation one first)
+- IEEEST: ICONs MODE BUSR; A1 A2 A3 A4 A5 A6 T1 T2 T3 T4 T5 T6 KS LSMAX LSMIN VCU VCL (the IEEE ST
+  stabiliser: MODE 1 the rotor speed deviation; filter (1 + A5 s + A6 s^2)/((1 + A1 s + A2 s^2)
+  (1 + A3 s + A4 s^2)), two lead-lags, KS, washout T5 s/(1 + T6 s), output limits, cut-off by Vt)
 
 Records of other models are kept with positional names (CON1..), never refused: real files hold
 hundreds of governors and stabilisers. Written by hand (no maintained PyPI reader of .dyr files
@@ -45,8 +48,10 @@ FIELDS: dict[str, tuple[str, ...]] = {
                "TOB2", "TUC1", "TUB1", "TUC2", "TUB2"),
     "EXAC1": ("TR", "TB", "TC", "KA", "TA", "VRMAX", "VRMIN", "TE", "KF", "TF", "KC", "KD", "KE", "E1", "SE1", "E2",
               "SE2"),
+    "IEEEST": ("A1", "A2", "A3", "A4", "A5", "A6", "T1", "T2", "T3", "T4", "T5", "T6", "KS", "LSMAX", "LSMIN", "VCU",
+               "VCL"),
 }
-ICONS: dict[str, tuple[str, ...]] = {"ESST1A": ("UEL", "VOS")}
+ICONS: dict[str, tuple[str, ...]] = {"ESST1A": ("UEL", "VOS"), "IEEEST": ("MODE", "BUSR")}
 DESCRIPTION = {
     "GENROU": "round-rotor generator", "GENSAL": "salient-pole generator",
     "SEXS": "simplified excitation system", "EXST1": "IEEE ST1 static exciter",
@@ -54,6 +59,7 @@ DESCRIPTION = {
     "ESST4B": "IEEE 421.5 ST4B potential-source static exciter",
     "ESST5B": "IEEE 421.5 ST5B static exciter",
     "EXAC1": "IEEE type AC1 rotating exciter",
+    "IEEEST": "IEEE ST power system stabiliser",
 }
 
 _TOKEN = re.compile(r"'[^']*'|\"[^\"]*\"|[^\s']+")

@@ -21,6 +21,14 @@ What a record's values mean, read and written the same way (issue 24 items 6 and
   DC exciter time constant with KE != 1 or saturation is refused: the kernel has no bypass for
   them yet (it needs them > 0).
 
+A stabiliser record (IEEEST, at the exciter's bus and ID) gives the machine on the grid its PSS
+(`[grid]` PSS_*, `pss_from_record`), and `export --dyr` writes one when the result's unit has a
+PSS (`pss_record`). bench-ctl's stabiliser is the IEEEST on the rotor speed without its filter: a
+record with another input (MODE), a filter (A1..A6 not 0), limits that are not symmetric or a
+cut-off that switches it off at 1 pu is refused, naming the field. The washout T5 s/(1 + T6 s)
+is KS T5/T6 times the unity washout of TW = T6; VCU, VCL (the cut-off by the terminal voltage
+outside a band around 1 pu) are not simulated.
+
 Saturation convention: PSS/E's S(1.2) is relative (the field current's excess over the air-gap
 line at 1.2 pu, divided by the air-gap current there, Sat(1.2) = 1.2 S(1.2)); the kernel's S12 is
 the absolute excess Sat(1.2). The conversion is here, in both directions.
@@ -35,15 +43,17 @@ from typing import Any
 
 from .dialect import describe, kernel_sections, std_name
 from .dyr import FIELDS, DyrError, DyrRecord, find, read_dyr
-from .params import GENERATOR_OPTIONAL, PARAMS
+from .params import GENERATOR_OPTIONAL, MACHINE_CATALOGUE, MACHINE_DEFAULTS, PARAMS
 from .structures import STRUCTURES, Structure, structure
 from .unit import Bound, Unit, UnitError, with_model
 
 GENERATORS = ("GENROU", "GENSAL")
+STABILISERS = ("IEEEST",)
 
 
 #: the record written for "no limit" (see the module docstring)
 NO_LIMIT = 999.0
+_MACHINE_INFO = {p.name: p for p in MACHINE_CATALOGUE}
 #: generator record fields that are time constants (s)
 _GEN_TIMES = ("T'do", "T''do", "T'qo", "T''qo")
 
@@ -176,7 +186,8 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
         except DyrError as exc_:
             raise UnitError(f"--from-dyr {path}: neither an exciter record ({', '.join(sorted(exciters))}) "
                             f"nor a usable generator record: {exc_}") from None
-        return _with_generator(replace(unit, source=f"{unit.source} with --from-dyr {path}"), gen)
+        new = _with_generator(replace(unit, source=f"{unit.source} with --from-dyr {path}"), gen)
+        return _with_stabiliser(new, records, gen.bus, gen.id)
     try:
         exc = find(records, exciters, bus=bus, id=ident)
     except DyrError as exc_:
@@ -210,7 +221,8 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
         gen = find(records, set(GENERATORS), bus=exc.bus, id=exc.id)
     except DyrError:
         gen = None
-    return _with_generator(new, gen) if gen is not None else new
+    new = _with_generator(new, gen) if gen is not None else new
+    return _with_stabiliser(new, records, exc.bus, exc.id)
 
 
 def machine_from_record(rec: DyrRecord) -> dict[str, float]:
@@ -220,6 +232,71 @@ def machine_from_record(rec: DyrRecord) -> dict[str, float]:
     names = {"XD": "Xd", "XQ": "Xq", "XDP": "X'd", "XQP": "X'q", "XDPP": "X''d", "XLS": "Xl",
              "Tq0p": "T'qo", "Tq0pp": "T''qo", "H": "H", "DAMP": "D"}
     return {k: v[src] for k, src in names.items() if src in v}
+
+
+def pss_from_record(rec: DyrRecord) -> dict[str, float]:
+    """The unit's [grid] PSS_* from an IEEEST record (see the module docstring); what bench-ctl's
+    stabiliser cannot run is refused naming the record, the field and the value."""
+    where = _where(rec)
+    check_record(rec, {"A1", "A2", "A3", "A4", "A5", "A6", "T1", "T2", "T3", "T4", "T5", "T6"})
+    v = rec.values
+    mode = rec.icons.get("MODE", 1)
+    if mode != 1:
+        raise UnitError(f"{where} MODE = {mode}: bench-ctl's stabiliser reads the rotor speed deviation "
+                        "(MODE 1) only")
+    filt = [f"{k} = {v[k]:g}" for k in ("A1", "A2", "A3", "A4", "A5", "A6") if v[k] != 0.0]
+    if filt:
+        raise UnitError(f"{where} {', '.join(filt)}: the stabiliser's filter is not simulated (bench-ctl runs "
+                        "the IEEEST without it; A1..A6 = 0 is no filter)")
+    if v["LSMIN"] != -v["LSMAX"]:
+        raise UnitError(f"{where} LSMAX = {v['LSMAX']:g}, LSMIN = {v['LSMIN']:g}: bench-ctl's stabiliser "
+                        "limit is symmetric (LSMIN = -LSMAX)")
+    vcu, vcl = v["VCU"], v["VCL"]
+    if (vcu != 0.0 and vcu <= 1.0) or (vcl != 0.0 and vcl >= 1.0):
+        raise UnitError(f"{where} VCU = {vcu:g}, VCL = {vcl:g}: the cut-off switches the stabiliser off at "
+                        "1 pu terminal voltage; bench-ctl does not simulate the cut-off")
+    out = {"PSS_LSMAX": v["LSMAX"]}
+    for lead, lag, a, b in (("T1", "T2", "PSS_T1", "PSS_T2"), ("T3", "T4", "PSS_T3", "PSS_T4")):
+        if v[lead] == 0.0 and v[lag] == 0.0:     # bypassed: the kernel's 1/1
+            out[a] = out[b] = 1.0
+        elif v[lag] == 0.0:
+            raise UnitError(f"{where} {lag} = 0 with {lead} = {v[lead]:g} s: a lead without a lag cannot be "
+                            f"simulated; give {lag} > 0, or {lead} = {lag} = 0 for no lead-lag")
+        else:
+            out[a], out[b] = v[lead], v[lag]
+    if v["T6"] <= 0.0:
+        raise UnitError(f"{where} T6 = {v['T6']:g} s: the washout needs its pole T6 > 0")
+    out["PSS_TW"] = v["T6"]
+    out["PSS_KS"] = v["KS"] * v["T5"] / v["T6"]
+    for k, x in out.items():
+        try:
+            _MACHINE_INFO[k].check(x, where=f"{where} -> grid.")
+        except ValueError as exc:
+            raise UnitError(str(exc)) from None
+    return out
+
+
+def pss_record(grid: Mapping[str, Any], bus: int, ident: str) -> DyrRecord | None:
+    """The IEEEST record of the stabiliser in a unit's [grid] (None without one: PSS_KS 0 or
+    absent): speed input, no filter, T5 = T6 = TW, no cut-off."""
+    g = {**MACHINE_DEFAULTS, **{k: float(x) for k, x in grid.items() if k.startswith("PSS_")}}
+    if g["PSS_KS"] == 0.0:
+        return None
+    values = dict.fromkeys(("A1", "A2", "A3", "A4", "A5", "A6"), 0.0)
+    values.update(T1=g["PSS_T1"], T2=g["PSS_T2"], T3=g["PSS_T3"], T4=g["PSS_T4"], T5=g["PSS_TW"], T6=g["PSS_TW"],
+                  KS=g["PSS_KS"], LSMAX=g["PSS_LSMAX"], LSMIN=-g["PSS_LSMAX"], VCU=NO_LIMIT, VCL=-NO_LIMIT)
+    return DyrRecord(bus, "IEEEST", str(ident), values, {"MODE": 1, "BUSR": 0})
+
+
+def _with_stabiliser(unit: Unit, records: list[DyrRecord], bus: int, ident: str) -> Unit:
+    """`unit` with the PSS of the IEEEST record at `bus`, machine `ident` (unchanged without one)."""
+    hits = [r for r in records if r.model in STABILISERS and r.bus == bus and r.id == ident]
+    if not hits:
+        return unit
+    if len(hits) > 1:
+        raise UnitError(f"several stabiliser records at bus {bus} ID {ident}: "
+                        f"{', '.join(r.source for r in hits)}")
+    return replace(unit, grid={**unit.grid, **pss_from_record(hits[0])})
 
 
 def _with_generator(unit: Unit, gen: DyrRecord) -> Unit:

@@ -8,7 +8,7 @@ import pytest
 
 from bench_ctl.cli import main
 from bench_ctl.model.dyr import FIELDS, ICONS, DyrError, DyrRecord, find, format_record, parse_dyr, read_dyr, write_dyr
-from bench_ctl.model.dyr_unit import unit_from_dyr
+from bench_ctl.model.dyr_unit import pss_from_record, pss_record, unit_from_dyr
 from bench_ctl.model.unit import UnitError, reference_unit
 
 FILE = """// a plant: generator, exciter, and a stabiliser bench-ctl does not model
@@ -16,13 +16,13 @@ FILE = """// a plant: generator, exciter, and a stabiliser bench-ctl does not mo
   101 'GENROU' 1   8.000000  0.030000  0.400000  0.050000  6.500000  0.000000  1.800000
   1.700000  0.300000  0.550000  0.250000  0.200000  0.039200  0.267200  /  a comment after the slash
   101 'ESST1A' 1   1  1  0.01  99  -99  1  10  1  1  200  0.02  4  -4  4  -4  0.1  0  1  0  3  /
-  101 'IEEEST' 1   1 2 3 4 /
+  101 'STAB1' 1   1 2 3 4 /
 """
 
 
 def test_a_realistic_file_parses_with_standard_field_names():
     recs = parse_dyr(FILE, "plant.dyr")
-    assert [r.model for r in recs] == ["GENROU", "ESST1A", "IEEEST"]
+    assert [r.model for r in recs] == ["GENROU", "ESST1A", "STAB1"]
     gen, exc, pss = recs
     assert gen.values["T'do"] == 8.0 and gen.values["S(1.2)"] == 0.2672 and gen.source == "plant.dyr:3"
     assert exc.icons == {"UEL": 1, "VOS": 1}
@@ -86,6 +86,45 @@ def test_from_dyr_takes_the_exciter_and_the_generator(tmp_path):
     assert unit_from_dyr(reference_unit(), two, bus=102).model == "ESST1A"
 
 
+#: an IEEEST on the rotor speed with no filter, the washout 5 s / (1 + 10 s): half its gain
+IEEEST = "  101 'IEEEST' 1   1 0  0 0 0 0 0 0  0.2 0.02 0.15 0.03 5 10  30  0.1 -0.1  0 0 /\n"
+
+
+def test_from_dyr_reads_the_stabiliser_into_the_grid(tmp_path):
+    path = tmp_path / "plant.dyr"
+    path.write_text(FILE + IEEEST)
+    g = unit_from_dyr(reference_unit(), path).grid
+    assert {k: g[k] for k in g if k.startswith("PSS_")} == {
+        "PSS_KS": 15.0, "PSS_T1": 0.2, "PSS_T2": 0.02, "PSS_T3": 0.15, "PSS_T4": 0.03, "PSS_TW": 10.0,
+        "PSS_LSMAX": 0.1}
+    assert "PSS_KS" not in unit_from_dyr(reference_unit(), _plant(tmp_path, FILE)).grid
+    # a lead-lag of 0 / 0 is bypassed (1 / 1)
+    rec = parse_dyr(IEEEST.replace("0.2 0.02", "0 0"))[0]
+    assert (pss_from_record(rec)["PSS_T1"], pss_from_record(rec)["PSS_T2"]) == (1.0, 1.0)
+
+
+def _plant(tmp_path, text, name="p.dyr"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("change, expect", [
+    (("1 0  0 0", "3 0  0 0"), "MODE = 3: .* rotor speed"),
+    (("0 0 0 0 0 0  0.2", "0.01 0 0 0 0 0  0.2"), "A1 = 0.01: the stabiliser's filter is not simulated"),
+    (("0.1 -0.1", "0.1 -0.05"), "LSMIN = -0.05: .* symmetric"),
+    (("0.1 -0.1  0 0", "0.1 -0.1  0.95 0"), "VCU = 0.95, VCL = 0: the cut-off switches the stabiliser off"),
+    (("0.2 0.02", "0.2 0"), "T2 = 0 with T1 = 0.2 s: a lead without a lag"),
+    (("5 10  30", "5 0  30"), "T6 = 0 s: the washout needs its pole"),
+    (("5 10  30", "5 10  500"), r"PSS_KS = 250.0 pu is outside its physical range"),
+])
+def test_a_stabiliser_bench_ctl_cannot_run_is_refused_naming_the_field(tmp_path, change, expect):
+    path = _plant(tmp_path, FILE + IEEEST.replace(*change))
+    with pytest.raises(UnitError, match=expect) as info:
+        unit_from_dyr(reference_unit(), path)
+    assert "p.dyr:" in str(info.value) and "IEEEST" in str(info.value)
+
+
 def test_identify_export_and_start_again_from_the_record(tmp_path, capsys):
     cap = tmp_path / "sexs.csv"
     assert main(["simulate", "--model", "SEXS", "--set", "K=150", "-o", str(cap), "--duration", "4"]) == 0
@@ -116,6 +155,31 @@ def test_identify_export_and_start_again_from_the_record(tmp_path, capsys):
     assert r2["unit"]["model_values"]["EMAX"] == pytest.approx(rec.values["EMAX"])
 
 
+def test_a_units_stabiliser_is_exported_as_ieeest_and_read_back(tmp_path, capsys):
+    cap = tmp_path / "sexs.csv"
+    assert main(["simulate", "--model", "SEXS", "-o", str(cap), "--duration", "3"]) == 0
+    res = tmp_path / "r.json"
+    pss = {"PSS_KS": 12.5, "PSS_T1": 0.25, "PSS_T2": 0.05, "PSS_T3": 1.0, "PSS_T4": 1.0, "PSS_TW": 7.0,
+           "PSS_LSMAX": 0.08}
+    assert main(["identify", str(cap), "--model", "SEXS", "--evals", "40", "--json", str(res), "--no-progress",
+                 *[a for k, v in pss.items() for a in ("--set", f"{k}={v}")]]) in (0, 1)
+    out = tmp_path / "unit.dyr"
+    capsys.readouterr()
+    assert main(["export", str(res), "--dyr", str(out), "--bus", "3"]) == 0
+    assert "and its stabiliser as IEEEST (KS 12.5)" in capsys.readouterr().out
+    exc, st = read_dyr(out)
+    assert (exc.model, st.model, st.bus, st.id, st.icons) == ("SEXS", "IEEEST", 3, "1", {"MODE": 1, "BUSR": 0})
+    assert st.values["T5"] == st.values["T6"] == 7.0 and st.values["LSMIN"] == -0.08
+    g = unit_from_dyr(reference_unit(), out).grid
+    assert {k: g[k] for k in pss} == pss
+    # without a stabiliser, none is written
+    res0 = tmp_path / "r0.json"
+    assert main(["identify", str(cap), "--model", "SEXS", "--evals", "40", "--json", str(res0),
+                 "--no-progress"]) in (0, 1)
+    assert main(["export", str(res0), "--dyr", str(tmp_path / "u0.dyr")]) == 0
+    assert [r.model for r in read_dyr(tmp_path / "u0.dyr")] == ["SEXS"]
+
+
 def test_andes_reads_what_bench_ctl_writes(tmp_path, monkeypatch):
     """ANDES' own PSS/E reader loads the exported records beside a GENROU (needs ANDES)."""
     pytest.importorskip("yaml")
@@ -126,9 +190,9 @@ def test_andes_reads_what_bench_ctl_writes(tmp_path, monkeypatch):
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     import andes_captures as ac
     andes.config_logger(stream_level=50)
+    vals_sexs = {"TA/TB": 0.1, "TB": 10.0, "K": 180.0, "TE": 0.04, "EMIN": -3.0, "EMAX": 4.5}
     for model, vals, names in (
-            ("SEXS", {"TA/TB": 0.1, "TB": 10.0, "K": 180.0, "TE": 0.04, "EMIN": -3.0, "EMAX": 4.5},
-             {"TA/TB": "TATB"}),
+            ("SEXS", vals_sexs, {"TA/TB": "TATB"}),
             ("EXST1", dict(TR=0.01, VIMAX=0.8, VIMIN=-0.8, TC=1.0, TB=10.0, KA=200.0, TA=0.02, VRMAX=4.0,
                            VRMIN=-3.0, KC=0.05, KF=0.0, TF=1.0), {}),
             ("IEEEX1", dict(TR=0.01, KA=40.0, TA=0.04, TB=1.0, TC=1.0, VRMAX=7.3, VRMIN=-7.3, KE=1.0, TE=0.5,
@@ -141,6 +205,16 @@ def test_andes_reads_what_bench_ctl_writes(tmp_path, monkeypatch):
             an = names.get(k, k)
             if hasattr(exc, an):
                 assert float(getattr(exc, an).v[0]) == pytest.approx(v), (model, k)
+    # a unit's stabiliser as export writes it: ANDES puts the IEEEST on that exciter, speed input
+    pss = pss_record({"PSS_KS": 12.0, "PSS_T1": 0.2, "PSS_T2": 0.02, "PSS_T3": 0.15, "PSS_T4": 0.03,
+                      "PSS_TW": 8.0, "PSS_LSMAX": 0.08}, 1, "1")
+    path = tmp_path / "pss.dyr"
+    path.write_text(ac.generator_record() + format_record(DyrRecord(1, "SEXS", "1", vals_sexs))
+                    + format_record(pss))
+    ss = ac.system_from_dyr(andes, str(path))
+    assert ss.IEEEST.n == 1 and int(ss.IEEEST.MODE.v[0]) == 1
+    for k, v in pss.values.items():
+        assert float(getattr(ss.IEEEST, k).v[0]) == pytest.approx(v), k
 
 
 # ---- issue 24 items 6 and 7: every export reads back and simulates the same; a record's NaN,
