@@ -62,20 +62,34 @@ import numpy as np
 
 from . import kernel as K
 from .edges import EdgeSpec
-from .kernel.blocks import ceilings_at, steady_state
+from .kernel.blocks import ceilings_at, lead_lag_or_pi, regulator_input, steady_state
 from .kernel.jit import FASTMATH
 from .kernel.layout import (
     BLOWUP,
     CHUNK,
+    D_ACON,
+    D_DCON,
     D_EDGE0,
     D_GAIN,
+    D_IT2,
+    D_IT4,
     D_ITD0P,
     D_ITD0PP,
+    D_ITE,
+    D_ITR,
+    D_KAVR,
+    D_KFT,
+    D_KI1,
     D_LIMOUT,
+    D_R2,
+    D_RATE,
     D_SATA,
     D_SATB,
+    D_ST4,
+    D_TRON,
     D_UREF0,
     D_VALID,
+    D_VRIN,
     EDGE_EPS,
     N_DERIVED,
     ST4_SOME,
@@ -285,6 +299,35 @@ def stabiliser(G, i, w, x13, x14, x15):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def swing_and_flux(D, G, i, fld, ifd, cid, ciq, te, xaq, x4, x5, x8, x9, x10, x11, x12):
+    """The machine's derivatives at field voltage `fld` and its algebra (`machine`): E'q, psikd,
+    E'd, psikq, the rotor angle's sine and cosine (turned at the slip speed) and the speed."""
+    d4 = (fld - ifd) * D[D_ITD0P, i]
+    d5 = (x4 - x5 - (G[G_XDP, i] - G[G_XL, i]) * cid) * D[D_ITD0PP, i]
+    d8 = -xaq * G[G_ITQ0P, i]
+    d9 = (x8 - x9 + G[G_KQ, i] * ciq) * G[G_ITQ0PP, i]
+    wd = G[G_W0, i] * (x12 - 1.0)
+    d12 = (G[G_TM, i] - te - G[G_DAMP, i] * (x12 - 1.0)) * G[G_IM, i]
+    return d4, d5, d8, d9, x11 * wd, -x10 * wd, d12
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def end_of_step(D, G, i, y3, y4, y5, y8, y9, s, co):
+    """After an RK4 step: the rotor angle's sine and cosine put back on the unit circle, the
+    machine's algebra at the new state, the regulator lag clamped to the ceilings there unless
+    they clamp the output; (VR lag, sin, cos, Vt, Ifd, P, Q)."""
+    norm = math.sqrt(s * s + co * co)
+    s = s / norm
+    co = co / norm
+    r = machine(D, G, i, y4, y5, y8, y9, s, co)
+    hi, lo = ceilings_at(D, i, r[0], r[1])
+    z = y3 if y3 > lo else lo
+    z = z if z < hi else hi
+    y3 = z + D[D_LIMOUT, i] * (y3 - z)   # (ESST4B's lag: LIMOUT = 1, not limited)
+    return y3, s, co, r[0], r[1], r[4], r[5]
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
 def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15, st4):
     """Derivatives of the 16 on-line states (see N_ONLINE); the rotor angle as its sine and cosine,
     turned at the slip speed; the stabiliser's output added to the reference."""
@@ -293,13 +336,9 @@ def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, 
     vs, d13, d14, d15 = stabiliser(G, i, x12, x13, x14, x15)
     dxm, dx1, dx2, de, fld, dxf, dxe = exciter(D, i, uref + vs, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo, st4)
     de = non_windup(D, i, de, x3, hi, lo, 0.0, 0.0)   # held at a limit (the limit's motion not followed)
-    d4 = (fld - ifd) * D[D_ITD0P, i]
-    d5 = (x4 - x5 - (G[G_XDP, i] - G[G_XL, i]) * cid) * D[D_ITD0PP, i]
-    d8 = -xaq * G[G_ITQ0P, i]
-    d9 = (x8 - x9 + G[G_KQ, i] * ciq) * G[G_ITQ0PP, i]
-    wd = G[G_W0, i] * (x12 - 1.0)
-    d12 = (G[G_TM, i] - te - G[G_DAMP, i] * (x12 - 1.0)) * G[G_IM, i]
-    return dxm, dx1, dx2, de, d4, d5, dxf, dxe, d8, d9, x11 * wd, -x10 * wd, d12, d13, d14, d15
+    d4, d5, d8, d9, d10, d11, d12 = swing_and_flux(D, G, i, fld, ifd, cid, ciq, te, xaq, x4, x5, x8, x9, x10, x11,
+                                                   x12)
+    return dxm, dx1, dx2, de, d4, d5, dxf, dxe, d8, d9, d10, d11, d12, d13, d14, d15
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
@@ -329,14 +368,7 @@ def rk4_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12
     y9 = x9 + h6 * (a[9] + 2.0 * b[9] + 2.0 * c[9] + d[9])
     s = x10 + h6 * (a[10] + 2.0 * b[10] + 2.0 * c[10] + d[10])
     co = x11 + h6 * (a[11] + 2.0 * b[11] + 2.0 * c[11] + d[11])
-    norm = math.sqrt(s * s + co * co)
-    s = s / norm
-    co = co / norm
-    r = machine(D, G, i, y4, y5, y8, y9, s, co)
-    hi, lo = ceilings_at(D, i, r[0], r[1])
-    z = y3 if y3 > lo else lo
-    z = z if z < hi else hi
-    y3 = z + D[D_LIMOUT, i] * (y3 - z)   # (ESST4B's lag: LIMOUT = 1, not limited)
+    y3, s, co, _vt, _ifd, _p, _q = end_of_step(D, G, i, y3, y4, y5, y8, y9, s, co)
     return (x0 + h6 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0]), x1 + h6 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1]),
             x2 + h6 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2]), y3, y4, y5,
             x6 + h6 * (a[6] + 2.0 * b[6] + 2.0 * c[6] + d[6]), x7 + h6 * (a[7] + 2.0 * b[7] + 2.0 * c[7] + d[7]),
@@ -344,6 +376,77 @@ def rk4_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12
             x13 + h6 * (a[13] + 2.0 * b[13] + 2.0 * c[13] + d[13]),
             x14 + h6 * (a[14] + 2.0 * b[14] + 2.0 * c[14] + d[14]),
             x15 + h6 * (a[15] + 2.0 * b[15] + 2.0 * c[15] + d[15]))
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def exciter_ref(D, i, uref, xm, x1, x2, ef, vt, ifd):
+    """`kernel.rhs.exciter` of a candidate on the reference blocks alone (`reference_blocks`):
+    the transducer, the two lead-lags, the regulator lag, its derivative slew-limited but not yet
+    held at the ceilings; (dxm, dx1, dx2, dVR-lag). The same sums as `exciter`'s, less the terms
+    that are 0 for such a candidate; its field voltage is the lag's state."""
+    tron = D[D_TRON, i]
+    vm = tron * xm + (1.0 - tron) * vt
+    e = uref - vm
+    y1, _ys1 = lead_lag_or_pi(D, i, e, x1)
+    y2 = x2 + D[D_R2, i] * (y1 - x2)
+    drive = regulator_input(D, i, D[D_KAVR, i] * y2, ifd)
+    rate = D[D_RATE, i]
+    de = (drive - ef) * D[D_ITE, i]
+    de = de if de < rate else rate
+    de = de if de > -rate else -rate
+    return (vt - xm) * D[D_ITR, i], (e - x1) * D[D_IT2, i], (y1 - x2) * D[D_IT4, i], de
+
+
+@nb.njit(cache=True, error_model="numpy")
+def reference_blocks(D, G, i):
+    """Whether candidate i runs on the reference blocks alone, with no stabiliser: no rate
+    feedback, rotating exciter, output clamp, potential-source stage, PI or ST5B regulator input,
+    and PSS_KS = 0. A chunk of such candidates steps with `rk4_chunk_ref`."""
+    return (D[D_KFT, i] == 0.0 and D[D_DCON, i] == 0.0 and D[D_ACON, i] == 0.0 and D[D_LIMOUT, i] == 0.0
+            and D[D_ST4, i] == 0.0 and D[D_VRIN, i] == 0.0 and D[D_KI1, i] == 0.0 and G[G_PSS_KS, i] == 0.0)
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def rhs_online_ref(D, G, i, uref, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12):
+    """`rhs_online` on the reference blocks alone (`reference_blocks`): the derivatives of the 11
+    states that move (the rate feedback's, the rotating exciter's and the stabiliser's do not)."""
+    vt, ifd, cid, ciq, _p, _q, te, xaq = machine(D, G, i, x4, x5, x8, x9, x10, x11)
+    hi, lo = ceilings_at(D, i, vt, ifd)
+    dxm, dx1, dx2, de = exciter_ref(D, i, uref, x0, x1, x2, x3, vt, ifd)
+    de = non_windup(D, i, de, x3, hi, lo, 0.0, 0.0)
+    d4, d5, d8, d9, d10, d11, d12 = swing_and_flux(D, G, i, x3, ifd, cid, ciq, te, xaq, x4, x5, x8, x9, x10, x11,
+                                                   x12)
+    return dxm, dx1, dx2, de, d4, d5, d8, d9, d10, d11, d12
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def rk4_online_ref(D, G, i, u, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12, h):
+    """`rk4_online` on the reference blocks alone: the 11 states that move at the step's end
+    (states 0-5, 8-12), then the recorded signals there (efd, Vt, P, Q, Ifd): the next sample's,
+    so that the chunk needs no readout of its own."""
+    h2 = 0.5 * h
+    a = rhs_online_ref(D, G, i, u, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12)
+    b = rhs_online_ref(D, G, i, u, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3],
+                       x4 + h2 * a[4], x5 + h2 * a[5], x8 + h2 * a[6], x9 + h2 * a[7], x10 + h2 * a[8],
+                       x11 + h2 * a[9], x12 + h2 * a[10])
+    c = rhs_online_ref(D, G, i, u, x0 + h2 * b[0], x1 + h2 * b[1], x2 + h2 * b[2], x3 + h2 * b[3],
+                       x4 + h2 * b[4], x5 + h2 * b[5], x8 + h2 * b[6], x9 + h2 * b[7], x10 + h2 * b[8],
+                       x11 + h2 * b[9], x12 + h2 * b[10])
+    d = rhs_online_ref(D, G, i, u, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3],
+                       x4 + h * c[4], x5 + h * c[5], x8 + h * c[6], x9 + h * c[7], x10 + h * c[8],
+                       x11 + h * c[9], x12 + h * c[10])
+    h6 = h / 6.0
+    y3 = x3 + h6 * (a[3] + 2.0 * b[3] + 2.0 * c[3] + d[3])
+    y4 = x4 + h6 * (a[4] + 2.0 * b[4] + 2.0 * c[4] + d[4])
+    y5 = x5 + h6 * (a[5] + 2.0 * b[5] + 2.0 * c[5] + d[5])
+    y8 = x8 + h6 * (a[6] + 2.0 * b[6] + 2.0 * c[6] + d[6])
+    y9 = x9 + h6 * (a[7] + 2.0 * b[7] + 2.0 * c[7] + d[7])
+    s = x10 + h6 * (a[8] + 2.0 * b[8] + 2.0 * c[8] + d[8])
+    co = x11 + h6 * (a[9] + 2.0 * b[9] + 2.0 * c[9] + d[9])
+    y3, s, co, vt, ifd, p, q = end_of_step(D, G, i, y3, y4, y5, y8, y9, s, co)
+    return (x0 + h6 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0]), x1 + h6 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1]),
+            x2 + h6 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2]), y3, y4, y5, y8, y9, s, co,
+            x12 + h6 * (a[10] + 2.0 * b[10] + 2.0 * c[10] + d[10]), vt, p, q, ifd)
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
@@ -423,6 +526,37 @@ def rk4_chunk(D, G, S, U, H, m):
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def rk4_chunk_ref(D, G, S, U, H, m, R):
+    """`rk4_chunk` of a chunk whose candidates all run on the reference blocks alone
+    (`reference_blocks`; the reference structure's and SEXS's chunks without a stabiliser): the
+    11 states that move, and the recorded signals at the step's end into R (as `readout_chunk`
+    writes them). The fast path, a second copy of the step as the kernel's `rk4_all_ref`."""
+    D, G, S = chunk_views(D, G, S)
+    if R.shape[0] != 5 or R.shape[1] != CHUNK:
+        raise ValueError("on-line readout array of the wrong shape")
+    R = _view_r(R)
+    for c in range(m):
+        r = rk4_online_ref(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[8, c], S[9, c],
+                           S[10, c], S[11, c], S[12, c], H[c])
+        S[0, c] = r[0]
+        S[1, c] = r[1]
+        S[2, c] = r[2]
+        S[3, c] = r[3]
+        S[4, c] = r[4]
+        S[5, c] = r[5]
+        S[8, c] = r[6]
+        S[9, c] = r[7]
+        S[10, c] = r[8]
+        S[11, c] = r[9]
+        S[12, c] = r[10]
+        R[0, c] = r[3]
+        R[1, c] = r[11]
+        R[2, c] = r[12]
+        R[3, c] = r[13]
+        R[4, c] = r[14]
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
 def readout_chunk(D, G, S, U, m, R):
     """The recorded signals of every candidate c < m into R (5 rows: efd, Vt, P, Q, Ifd; CHUNK
     columns, as D, G, S)."""
@@ -471,6 +605,13 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
     bs = np.zeros((m, ne + 1))      # their instants (fractions of the step, sorted) and sizes
     bj = np.zeros((m, ne + 1))
     ke = np.zeros((m, ne))          # each edge's fitted instant in steps, per candidate
+    # the reference blocks' fast path when every candidate of the chunk runs on them alone (an
+    # invalid candidate, failed from the start, does not count: what it computes is not used);
+    # its step leaves the next sample's signals in R
+    ref = True
+    for c in range(m):
+        if Dc[D_VALID, c] != 0.0 and Gc[G_VALID, c] != 0.0 and not reference_blocks(Dc, Gc, c):
+            ref = False
     for c in range(m):
         for j in range(ne):
             ke[c, j] = (etn[j] + Dc[D_EDGE0 + eslot[j], c]) / dt
@@ -509,7 +650,8 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
             nbrk[c] = nb_
             if nb_ > 0:
                 rounds = max(rounds, nb_ + 1)
-        readout_chunk(Dc, Gc, S, U, m, R)
+        if k == 0 or not ref:
+            readout_chunk(Dc, Gc, S, U, m, R)
         for c in range(m):
             if not failed[c]:
                 held[0, c] = Dc[D_GAIN, c] * R[0, c]   # efd as recorded
@@ -534,7 +676,10 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
                 if nbrk[c]:
                     for q in range(N_ONLINE):
                         S0[q, c] = S[q, c]
-        rk4_chunk(Dc, Gc, S, U, H, m)
+        if ref:
+            rk4_chunk_ref(Dc, Gc, S, U, H, m, R)
+        else:
+            rk4_chunk(Dc, Gc, S, U, H, m)
         if rounds:
             for c in range(m):
                 if nbrk[c]:
@@ -551,7 +696,10 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
                         Hs[c] = (sb - sa) * dt if sb - sa > 1.0e-12 else 0.0
                         for q in range(r):
                             Us[c] += bj[c, q]
-                rk4_chunk(Dc, Gc, S, Us, Hs, m)
+                if ref:   # (H = 0 leaves a candidate, and its signals in R, where they are)
+                    rk4_chunk_ref(Dc, Gc, S, Us, Hs, m, R)
+                else:
+                    rk4_chunk(Dc, Gc, S, Us, Hs, m)
         for c in range(m):
             mag = 0.0
             for q in range(N_ONLINE):
@@ -622,8 +770,9 @@ def advance(D, G, S, X0, u, usetp_pre, dt, out, last):
     last[5] = flags
 
 
-K.drop_stale_cache((machine, stabiliser, rhs_online, rk4_online, readout, initial_state, rk4_chunk, readout_chunk,
-                    _run_chunk, advance, _run), K.SOURCES + (__file__,), "online")
+K.drop_stale_cache((machine, stabiliser, swing_and_flux, end_of_step, rhs_online, rk4_online, exciter_ref,
+                    reference_blocks, rhs_online_ref, rk4_online_ref, readout, initial_state, rk4_chunk,
+                    rk4_chunk_ref, readout_chunk, _run_chunk, advance, _run), K.SOURCES + (__file__,), "online")
 
 #: the recorded signals of an on-line run, in the order of its traces and weights
 SIGNALS = ("efd", "vt", "p", "q", "ifd")

@@ -286,3 +286,37 @@ def test_online_refuses_what_it_does_not_simulate():
     out = run_online(np.vstack([P, P]), M2, np.ones(10), 1e-3, 1.0)
     assert list(out["fail_step"]) == [-1, 0]
     assert len(MACHINE_PARAMS) == M.shape[1]
+
+
+def test_the_reference_blocks_fast_path_runs_what_the_full_blocks_run():
+    """A chunk of reference-structure and SEXS candidates without a stabiliser runs on the reference
+    blocks alone (`rk4_chunk_ref`); one ESST1A candidate in the chunk puts it on the full blocks.
+    The same candidates give the same traces either way: a 2 % step and a 20 % pulse into SEXS's
+    EMAX and the reference structure's ceiling (non-windup, moving with Vt), at two XE."""
+    from bench_ctl.model.online import derive_on_line, reference_blocks
+
+    dt, n = 1e-3, 3001
+    usetp = np.ones(n)
+    usetp[500:] += 0.02
+    pulse = np.ones(n)
+    pulse[500:1500] += 0.2
+    ceiling = apply_overrides(with_model(reference_unit(), "REFERENCE"), ["VRMAX=4.0", "VRMIN=-3.0", "VRVT=1"])
+    fast = [param_matrix(_unit("SEXS", {**SEXS, "K": k}, 1.0).values()) for k in (120.0, 200.0, 400.0)]
+    fast.append(param_matrix(ceiling.values()))
+    P = np.vstack(fast)
+    M = machine_matrix([_machine(xe, 0.8, 0.1) for xe in (0.2, 0.4, 0.3, 0.3)])
+    full = np.vstack([P, param_matrix(_unit("ESST1A", ESST1A, 1.0).values())])
+    Mf = machine_matrix([_machine(xe, 0.8, 0.1) for xe in (0.2, 0.4, 0.3, 0.3, 0.3)])
+    D, G = derive_on_line(full, Mf)
+    assert [bool(reference_blocks(D, G, i)) for i in range(5)] == [True, True, True, True, False]
+    Gp = machine_matrix({**_machine(0.3, 0.8, 0.1), "PSS_KS": 10.0})
+    assert not reference_blocks(*derive_on_line(P[:1], Gp), 0)   # a stabiliser: the full blocks
+    for u in (usetp, pulse):
+        a = run_online(P, M, u, dt, 1.0)
+        b = run_online(full, Mf, u, dt, 1.0)
+        assert np.all(a["fail_step"] < 0) and np.all(b["fail_step"] < 0)
+        for name in ("efd", "vt", "p", "q", "ifd"):
+            diff = np.abs(a[name] - b[name][:4]).max()
+            assert diff < 1e-9, f"{name}: {diff:.1e}"
+    hi = 4.0 * a["vt"][3]
+    assert np.any(a["efd"][3] >= hi - 1e-9) and np.any(a["efd"][:3] >= 4.5 - 1e-9)   # the limits acted
