@@ -109,11 +109,14 @@ COLUMNS = ("time", "usetp", "efd", "vt", "p", "q", "ifd", "delta", "omega")
 LIMITS = {"ESST1A": "VRMAX*Vt - KC*Ifd / VRMIN*Vt", "SEXS": "EMAX / EMIN"}
 PSS_MODEL = "IEEEST"        # ANDES' IEEE ST stabiliser, on the exciter (avr = 1)
 PSS_XE = 0.2                # the PSS captures' line
+#: the IEEEST filter's A1 given to ANDES for "no filter": 1 ms rather than 0. ANDES' EIG mishandles
+#: A1 = A2 = 0 (a real eigenvalue at +1.1/s that the time domain does not show); in a trial
+#: time-domain run (2 ms step) A1 0 and 1 ms gave the same mode to 0.001. Over a whole capture
+#: (0.2 ms step, andes_online_dyr.py) A1 = A2 = 0 stopped ANDES at 6.5 s ("time step reduced to zero")
+ANDES_NO_FILTER_A1 = 0.001
 _PSS_COMMON = dict(MODE=1,  # input: the GENROU's speed deviation omega - 1 (pu)
-                   # A1 .. A6 (filters) off; A1 1 ms rather than 0: ANDES' EIG mishandles A1 = A2 = 0 (a
-                   # real eigenvalue at +1.1/s that the time domain does not show); in a trial time-domain
-                   # run (2 ms step) A1 0 and 1 ms gave the same mode to 0.001
-                   A1=0.001, A2=0.0, A3=0.0, A4=0.0, A5=0.0, A6=0.0,
+                   # A1 .. A6 (filters) off, A1 as ANDES_NO_FILTER_A1
+                   A1=ANDES_NO_FILTER_A1, A2=0.0, A3=0.0, A4=0.0, A5=0.0, A6=0.0,
                    T5=10.0, T6=10.0,                 # washout T5 s / (1 + T6 s): 10 s, unity gain
                    LSMAX=0.1, LSMIN=-0.1,            # output limits
                    VCU=999.0, VCL=-999.0)            # no cut-off by the terminal voltage
