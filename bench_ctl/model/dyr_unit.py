@@ -43,9 +43,9 @@ from typing import Any
 
 from .dialect import describe, kernel_sections, std_name
 from .dyr import FIELDS, DyrError, DyrRecord, find, read_dyr
-from .params import GENERATOR_OPTIONAL, MACHINE_CATALOGUE, MACHINE_DEFAULTS, PARAMS
+from .params import GENERATOR_OPTIONAL, MACHINE_DEFAULTS, PARAMS
 from .structures import STRUCTURES, Structure, structure
-from .unit import Bound, Unit, UnitError, with_model
+from .unit import Bound, Unit, UnitError, grid_values, with_model
 
 GENERATORS = ("GENROU", "GENSAL")
 STABILISERS = ("IEEEST",)
@@ -53,7 +53,6 @@ STABILISERS = ("IEEEST",)
 
 #: the record written for "no limit" (see the module docstring)
 NO_LIMIT = 999.0
-_MACHINE_INFO = {p.name: p for p in MACHINE_CATALOGUE}
 #: generator record fields that are time constants (s)
 _GEN_TIMES = ("T'do", "T''do", "T'qo", "T''qo")
 
@@ -268,12 +267,7 @@ def pss_from_record(rec: DyrRecord) -> dict[str, float]:
         raise UnitError(f"{where} T6 = {v['T6']:g} s: the washout needs its pole T6 > 0")
     out["PSS_TW"] = v["T6"]
     out["PSS_KS"] = v["KS"] * v["T5"] / v["T6"]
-    for k, x in out.items():
-        try:
-            _MACHINE_INFO[k].check(x, where=f"{where} -> grid.")
-        except ValueError as exc:
-            raise UnitError(str(exc)) from None
-    return out
+    return grid_values(out, where)
 
 
 def pss_record(grid: Mapping[str, Any], bus: int, ident: str) -> DyrRecord | None:

@@ -356,7 +356,7 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
         generator=generator, identify=identify, fixed=fixed,
         constraints=tuple(constraints), weights=weights, source=source,
         model=st.name, model_values=std_vals, acceptance=_acceptance(data.get("acceptance"), source),
-        grid=_grid(data.get("grid", {}), source),
+        grid=grid_values(data.get("grid", {}), source),
     )
     effects_raw = data.get("effects", {})
     for name in effects_raw:
@@ -372,8 +372,9 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     return check_unit(unit, source)
 
 
-def _grid(raw: Mapping, source: str) -> dict[str, float]:
-    """[grid]: the machine's on-line data, the grid to the infinite bus, the operating point."""
+def grid_values(raw: Mapping, source: str) -> dict[str, float]:
+    """[grid]: the machine's on-line data, the grid to the infinite bus, the operating point, each
+    checked against its physical range (a unit file's, or values read from a .dyr record)."""
     bad = set(raw) - set(MACHINE_PARAMS)
     if bad:
         raise UnitError(f"{source}: [grid] unknown key(s) {sorted(bad)}; allowed: {list(MACHINE_PARAMS)}")
