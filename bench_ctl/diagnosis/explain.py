@@ -130,6 +130,9 @@ def sequence(st: Setup, fits: Mapping[str, ModelFit], verdict: str, hints: Mappi
         dropped_all.update(dropped)
         steps.append({"added": accepted.effects[-1], "model": current, "dropped": dropped,
                       "fit_gain": gains[0], "check_gain": gains[1]})
+    if current.effects == steps[-1]["model"].effects:
+        # the last step as far as it was polished (the next round's refine): the figures `left` gives
+        steps[-1]["model"] = current
     return steps, current
 
 
