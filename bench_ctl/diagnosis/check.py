@@ -5,10 +5,21 @@ edge instants fitted), the recorded terminal voltage when there is one and the f
 and always the cross-validation windows of the capture - the leading edge, the plateau and the
 trailing edge in turn (never the recovery: `diagnose.CV_SEGMENTS`): the model re-fitted with the
 window left out of the objective (the simulation running through it) and scored on it, the re-fit
-being the Gauss-Newton step from the model's fit over the other samples, one Jacobian serving all
-windows. So an effect that acts at the edges (a ceiling, a slew limit, a setpoint ramp, a delay)
-is judged on an edge the fit never saw
-(docs/decisions/0010-diagnosis-one-objective-and-its-check.md).
+being the Gauss-Newton step from the model's fit over the other samples (one Jacobian serving all
+windows), scored on its linear prediction where the step, simulated, does what the linear model
+promised, else damped until it does (`_left_out`): on a real record, with limits reached and edges
+between samples, the undamped prediction can be off by orders of magnitude. So an effect that
+acts at the edges (a ceiling, a slew limit, a setpoint ramp, a delay) is judged on an edge the
+fit never saw (docs/decisions/0010-diagnosis-one-objective-and-its-check.md,
+0020-the-check-samples-every-regime.md).
+
+Beside the windows, the interleaved blocks (`check_and_blocks`): the record cut into blocks of
+`BLOCK_S`, every other block left out of the re-fit in turn (the same Gauss-Newton step) and scored.
+Every regime of the record - the pre-step level, each edge, the plateau, the recovery - is in both
+the fitted and the judged half, so an effect whose evidence lives in one regime (saturation seen
+only on the plateau, a ceiling reached on one edge) is judged on samples of that regime it was not
+fitted to, where a left-out window would ask it to extrapolate. It is not part of the score; the
+verdict uses it only to accept such an effect (`verdict.significance`).
 
 Ranking (`score`): BIC on the capture (n ln(mse) + k ln(n), k = added parameters) plus the
 predictive deviance on the check, the sum over its parts of n_i ln(mse_i).
@@ -29,12 +40,21 @@ from bench_ctl.identification.space import SearchSpace
 
 from .models import ModelFit, Part, Views, mid
 
-__all__ = ["check_parts", "checked", "check_deviance", "describe_check", "fit_holdout", "bic", "aic", "score"]
+__all__ = ["check_parts", "checked", "check_deviance", "block_deviance", "describe_check", "fit_holdout", "bic",
+           "aic", "score", "BLOCK_S", "BLOCK_FOLDS"]
 
 #: Levenberg damping of the leave-window-out step, relative to the mean curvature: a parameter
 #: that only the left-out window determines (an edge instant, a limit reached only there) stays
 #: where the full fit put it instead of taking an arbitrary step
 LEAVE_OUT_DAMPING = 1e-6
+#: the interleaved blocks: their length (s) and how many halves (folds) the record is dealt into
+BLOCK_S = 0.05
+BLOCK_FOLDS = 2
+#: the leave-out re-fit's damping, as multiples of LEAVE_OUT_DAMPING, tried in turn (`_left_out`)
+DAMPING_STEPS = (1.0, 1e2, 1e4, 1e6)
+#: a step's linear prediction is trusted when, simulated, the step gains on the other samples at
+#: least this share of what the linear model promised (a trust-region ratio)
+TRUST = 0.5
 
 
 def fit_holdout(views: Views, values: Mapping[str, float]) -> tuple[Problem, Result]:
@@ -44,17 +64,25 @@ def fit_holdout(views: Views, values: Mapping[str, float]) -> tuple[Problem, Res
     return h, polish(h, x0, budget=views.holdout_calls)
 
 
-def check_parts(views: Views, p: Problem, x: np.ndarray) -> tuple[Part, ...]:
-    """The model at x judged where it was not fitted (module docstring)."""
+def check_parts(views: Views, p: Problem, x: np.ndarray, *, linear: bool = False) -> tuple[Part, ...]:
+    """The model at x judged where it was not fitted (module docstring); `linear`: every left-out
+    part scored on the linear prediction of its re-fit, trusted or not (`_left_out`)."""
+    return check_and_blocks(views, p, x, linear=linear)[0]
+
+
+def check_and_blocks(views: Views, p: Problem, x: np.ndarray, *, linear: bool = False
+                     ) -> tuple[tuple[Part, ...], tuple[Part, ...]]:
+    """The check's parts and the interleaved blocks' parts of the model at x (module docstring)."""
     parts: list[Part] = []
     if views.holdout is not None:
         h, res = fit_holdout(views, p.values(x))
         parts.append(Part("holdout", h.n_scored()[0], res.fun / h.scored_s if res.success else math.inf))
-    parts += _left_out(views, p, x)
+    windows, blocks = _left_out(views, p, x, linear=linear)
+    parts += windows
     vt = _vt_part(views, p, x)
     if vt is not None:
         parts.append(vt)
-    return tuple(parts)
+    return tuple(parts), tuple(blocks)
 
 
 def _vt_part(views: Views, p: Problem, x: np.ndarray) -> Part | None:
@@ -67,10 +95,16 @@ def _vt_part(views: Views, p: Problem, x: np.ndarray) -> Part | None:
     return Part("vt", float(views.capture.vt.size), p.mse(x, signal="vt")[0])
 
 
-def _left_out(views: Views, p: Problem, x: np.ndarray) -> list[Part]:
-    """Per window: the mean objective on the window of the model re-fitted without it, as the
-    Gauss-Newton step from x over the other samples (exact for a model linear in its parameters;
-    the full fit is the start, so the step is small). One kernel call of d + 1 candidates."""
+def _left_out(views: Views, p: Problem, x: np.ndarray, *, linear: bool = False) -> tuple[list[Part], list[Part]]:
+    """Per window, then per half of the interleaved blocks: the mean objective on the left-out
+    samples of the model re-fitted without them, as the linear prediction of the Gauss-Newton step
+    from x over the other samples (exact for a model linear in its parameters; the full fit is the
+    start, so the step is small). The step is trusted when, simulated, it gains on the other
+    samples at least `TRUST` of what the linear model promised; if not (a real record with limits
+    reached and edges between samples, where the undamped prediction can be off by orders of
+    magnitude) it is damped further (`DAMPING_STEPS`, Levenberg-Marquardt's trust region), and with
+    no damping trusted the part is scored on x itself. `linear`: the undamped prediction always
+    (the structure selection's check: docs/decisions/0020). Two kernel calls serve every part."""
     space = SearchSpace(p)
     d = space.d
     z = space.to_z(np.asarray(x, float))
@@ -83,29 +117,60 @@ def _left_out(views: Views, p: Problem, x: np.ndarray) -> list[Part]:
     rows = cap == 0
     R, t, sec = R[:, rows], t[rows], sec[rows]
     if failed[0]:
-        return [Part(w.label, 0.0, math.inf) for w in views.windows]
+        return [Part(w.label, 0.0, math.inf) for w in views.windows], []
     r0 = R[0]
     # per unit of each variable's range (the damping below must weigh the variables alike: per
     # unit of z an edge offset's column, in seconds, would outweigh every other one)
     J = ((R[1:] - r0[None, :]) / (h / span)[:, None]).T    # (rows, d)
     eps = 1e-9 * views.capture.dt
-    out = []
+    parts: list[tuple[str, np.ndarray]] = []
     for w in views.windows:
         inw = (t >= w.t0 - eps) & (t <= w.t1 + eps)
-        if not inw.any() or inw.all():
-            continue
-        Jr, rr = J[~inw], r0[~inw]
-        A = Jr.T @ Jr
-        lam = LEAVE_OUT_DAMPING * max(float(np.trace(A)) / max(d, 1), 1e-300)
-        try:
-            du = -np.linalg.solve(A + lam * np.eye(d), Jr.T @ rr)
-        except np.linalg.LinAlgError:
-            du = np.zeros(d)
-        pred = r0[inw] + J[inw] @ du
-        seconds = float(sec[inw].sum())
-        n = float(np.count_nonzero(sec[inw]))
-        out.append(Part(w.label, n, float(pred @ pred) / seconds if seconds > 0 else math.inf))
-    return out
+        if inw.any() and not inw.all():
+            parts.append((w.label, inw))
+    n_windows = len(parts)
+    fold = np.floor((t - t[0]) / BLOCK_S + 1e-9).astype(np.int64) % BLOCK_FOLDS
+    parts += [(f"blocks_{f + 1}", fold == f) for f in range(BLOCK_FOLDS)
+              if (fold == f).any() and not (fold == f).all()]
+    if not parts:
+        return [], []
+    m = np.asarray((1.0,) if linear else DAMPING_STEPS, float)
+    du = np.array([[_step(J, r0, out, k) for k in m] for _, out in parts])     # (parts, dampings, d)
+    Rc, failed_c = np.empty((len(parts), 0, r0.size)), np.empty((len(parts), 0), bool)
+    if m.size and not linear:
+        Zc = np.clip(z[None, None, :] + du * span[None, None, :], space.zlo, space.zhi)
+        Rc, failed_c = p.residuals(space.to_x(Zc.reshape(-1, d)))
+        Rc = Rc[:, rows].reshape(len(parts), m.size, -1)
+        failed_c = failed_c.reshape(len(parts), m.size)
+    out_parts = []
+    for i, (label, out) in enumerate(parts):
+        best = r0    # no damping trusted: the re-fit does not leave the fit (infinite damping)
+        before = float(r0[~out] @ r0[~out])
+        for j in range(m.size):
+            pred = r0 + J @ du[i, j]
+            promised = before - float(pred[~out] @ pred[~out])
+            gained = before - float(Rc[i, j][~out] @ Rc[i, j][~out]) if Rc.shape[1] else -math.inf
+            if linear or promised <= 1e-12 * max(before, 1e-300) or (not failed_c[i, j]
+                                                                      and gained >= TRUST * promised):
+                best = pred
+                break
+        seconds = float(sec[out].sum())
+        n = float(np.count_nonzero(sec[out]))
+        out_parts.append(Part(label, n, float(best[out] @ best[out]) / seconds if seconds > 0 else math.inf))
+    return out_parts[:n_windows], out_parts[n_windows:]
+
+
+def _step(J: np.ndarray, r0: np.ndarray, out: np.ndarray, damping: float = 1.0) -> np.ndarray:
+    """The Levenberg-damped Gauss-Newton step over the rows not in `out` (per unit of each
+    variable's range), `damping` times `LEAVE_OUT_DAMPING`."""
+    d = J.shape[1]
+    Jr, rr = J[~out], r0[~out]
+    A = Jr.T @ Jr
+    lam = damping * LEAVE_OUT_DAMPING * max(float(np.trace(A)) / max(d, 1), 1e-300)
+    try:
+        return -np.linalg.solve(A + lam * np.eye(d), Jr.T @ rr)
+    except np.linalg.LinAlgError:
+        return np.zeros(d)
 
 
 def check_deviance(ref: ModelFit, m: ModelFit) -> float:
@@ -113,9 +178,13 @@ def check_deviance(ref: ModelFit, m: ModelFit) -> float:
     (-inf when m failed on a part, +inf when only ref did)."""
     if not ref.checks or not m.checks:
         return -math.inf
+    return _deviance(ref.checks, m.checks)
+
+
+def _deviance(ref: tuple[Part, ...], m: tuple[Part, ...]) -> float:
     total = 0.0
-    for a in ref.checks:
-        b = m.part(a.label)
+    for a in ref:
+        b = next((p for p in m if p.label == a.label), None)
         if b is None:
             continue
         if not math.isfinite(b.mse):
@@ -126,14 +195,22 @@ def check_deviance(ref: ModelFit, m: ModelFit) -> float:
     return total
 
 
+def block_deviance(ref: ModelFit, m: ModelFit) -> float:
+    """How much better m predicts the interleaved blocks than ref (as `check_deviance`)."""
+    if not ref.blocks or not m.blocks:
+        return -math.inf
+    return _deviance(ref.blocks, m.blocks)
+
+
 def checked(views: Views, m: ModelFit) -> ModelFit:
-    """`m` with its check computed (once)."""
+    """`m` with its check and interleaved blocks computed (once)."""
     if m.checks is not None:
         return m
     p = views.problem(m.effects, m.fixed, extra=m.extra)
     params = m.params
     x = np.array([params[n] for n in p.names])
-    return replace(m, checks=check_parts(views, p, x))
+    parts, blocks = check_and_blocks(views, p, x)
+    return replace(m, checks=parts, blocks=blocks)
 
 
 def bic(n: int, mse: float, k: int) -> float:
@@ -158,9 +235,12 @@ def describe_check(views: Views) -> dict[str, Any]:
         "kind": ("holdout + windows" if views.holdout is not None else "windows") if views.windows else "holdout",
         "windows": [{"label": w.label, "t0": w.t0, "t1": w.t1} for w in views.windows],
         "how": "each window in turn left out of the fit (the simulation runs through it; the re-fit is the "
-               "Gauss-Newton step from the model's fit over the other samples) and scored on it; the holdout "
+               "Gauss-Newton step from the model's fit over the other samples, its linear prediction, damped "
+               "until the simulated step does what the prediction promised) and scored on it; the holdout "
                "scored with the model held, its edge instants fitted; a recorded Vt the fit did not use "
-               "scored as predicted",
+               "scored as predicted; beside them, not in the score, the interleaved blocks: each half left out "
+               "of the re-fit in turn and scored",
         "holdout": (views.holdout.source or "holdout") if views.holdout is not None else None,
         "vt": bool(views.capture.vt is not None and float(views.unit.weights.get("vt", 0.0)) == 0.0),
+        "blocks": {"seconds": BLOCK_S, "folds": BLOCK_FOLDS},
     }

@@ -57,6 +57,7 @@ from .starts import all_starts, lag_variants
 from .verdict import (
     AMBIGUOUS,
     CHECK_GAIN,
+    ONE_REGIME_GAIN,
     SIGNIFICANT,
     STRONG,
     ambiguous_pairs,
@@ -371,6 +372,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
         "left": left,
         "verdict": verdict,
         "criteria": {"significant_delta": SIGNIFICANT, "check_gain": CHECK_GAIN, "strong_delta": STRONG,
+                     "one_regime_gain": ONE_REGIME_GAIN,
                      "ambiguous_delta": AMBIGUOUS, "floor_sigmas": budget.floor_sigmas,
                      "score": "BIC on the capture + sum over the check's parts of n ln(mse), relative to the base "
                               "model"},

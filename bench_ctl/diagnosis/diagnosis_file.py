@@ -62,9 +62,10 @@ class EffectEntry(Record):
     k: int
     evaluations: int
     start: dict[str, float | None]
+    delta_blocks: float | None = None   # the interleaved blocks' deviance gain (absent: not checked, or an older file)
     variant: str | None = None
 
-    OMITTED_WHEN_NONE = ("variant",)
+    OMITTED_WHEN_NONE = ("variant", "delta_blocks")
 
 
 @dataclass(frozen=True, eq=False)

@@ -76,6 +76,7 @@ class ModelFit:
     start: dict[str, float] = field(default_factory=dict)
     fixed: dict[str, float] = field(default_factory=dict)   # the variant: values it holds (VRVT, ..)
     extra: tuple[str, ...] = ()        # a variant's own fitted parameters (KC), counted in k
+    blocks: tuple[Part, ...] | None = None   # the interleaved blocks (check.check_and_blocks)
 
     @property
     def params(self) -> dict[str, float]:

@@ -1,9 +1,11 @@
 """The verdict: which effect explains the capture, how significant, how close another one is.
 
-An effect is significant when it lowers the BIC on the capture by more than `SIGNIFICANT` and the
-check's deviance by more than `CHECK_GAIN` (`check.score`); the verdict is the best-scored
-significant effect, or `none` (`choose_verdict`); near-equal effects are `ambiguous`, with the
-test that would separate them.
+An effect is significant when it lowers the BIC on the capture by more than `SIGNIFICANT` and
+either the check's deviance by more than `CHECK_GAIN` (`check.score`) or the interleaved blocks'
+deviance by more than `ONE_REGIME_GAIN` (an effect whose evidence lives in one regime, which a
+left-out window can only judge by extrapolation: `check.check_and_blocks`); the verdict is the
+best-scored significant effect, or `none` (`choose_verdict`); near-equal effects are `ambiguous`,
+with the test that would separate them.
 """
 from __future__ import annotations
 
@@ -15,11 +17,11 @@ from bench_ctl.model.effects import VOCABULARY
 from bench_ctl.model.effects import separating_test as effect_separating_test
 from bench_ctl.model.unit import Unit
 
-from .check import aic, bic, check_deviance, score
+from .check import aic, bic, block_deviance, check_deviance, score
 from .models import ModelFit, Setup
 
-__all__ = ["SIGNIFICANT", "CHECK_GAIN", "STRONG", "AMBIGUOUS", "separating_test", "ambiguous_pairs", "gap",
-           "significance", "rank_entries", "check_entry", "choose_verdict", "model_params"]
+__all__ = ["SIGNIFICANT", "CHECK_GAIN", "STRONG", "ONE_REGIME_GAIN", "AMBIGUOUS", "separating_test", "ambiguous_pairs",
+           "gap", "significance", "rank_entries", "check_entry", "choose_verdict", "model_params"]
 
 #: BIC improvement (n ln mse units, i.e. -2 log-likelihood) an effect must bring to count
 SIGNIFICANT = 10.0
@@ -29,6 +31,10 @@ CHECK_GAIN = 2.0
 #: BIC improvement that counts even when the base model is within the noise floor's uncertainty
 #: (about a 1 % lower MSE on a 10 000-sample record)
 STRONG = 100.0
+#: improvement of the interleaved blocks' deviance that accepts an effect the windows cannot judge:
+#: the blocks sample every regime in both halves, so they judge nearly where the fit was made and
+#: must show a strong gain (as STRONG) where the windows need only CHECK_GAIN
+ONE_REGIME_GAIN = 100.0
 #: two effects whose scores differ by less than this explain the capture equally well
 AMBIGUOUS = 6.0
 
@@ -66,10 +72,12 @@ def model_params(unit: Unit, m: ModelFit) -> dict[str, float]:
 
 def significance(st: Setup, ref: ModelFit, m: ModelFit) -> tuple[float, float, bool]:
     """(fit gain, check gain, significant) of m over ref: the BIC falls by more than SIGNIFICANT
-    and the check's deviance by more than CHECK_GAIN."""
+    and the check's deviance by more than CHECK_GAIN or the interleaved blocks' by more than
+    ONE_REGIME_GAIN."""
     gain_fit = bic(st.n, ref.mse, ref.k) - bic(st.n, m.mse, m.k)
     gain_check = check_deviance(ref, m)
-    return gain_fit, gain_check, bool(gain_fit > SIGNIFICANT and gain_check > CHECK_GAIN and m.feasible)
+    judged = gain_check > CHECK_GAIN or block_deviance(ref, m) > ONE_REGIME_GAIN
+    return gain_fit, gain_check, bool(gain_fit > SIGNIFICANT and judged and m.feasible)
 
 
 def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, ModelFit],
@@ -108,7 +116,8 @@ def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, Model
             "check": check_entry(m),
             "score": score(m, n) - s_base if m.checks else math.inf,
             "aic": aic(n, m.mse, m.k), "bic": bic(n, m.mse, m.k),
-            "delta_bic": d_bic, "delta_check": d_check, "significant": significant,
+            "delta_bic": d_bic, "delta_check": d_check, "delta_blocks": block_deviance(base, m),
+            "significant": significant,
             "k": m.k, "evaluations": m.evaluations, "start": {p: m.start.get(p) for p in params},
         }
         if VOCABULARY[e].variants:
@@ -121,7 +130,8 @@ def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, Model
 def check_entry(m: ModelFit) -> dict[str, Any] | None:
     if not m.checks:
         return None
-    return {"mse": m.mse_check, "parts": [{"label": p.label, "samples": p.n, "mse": p.mse} for p in m.checks]}
+    return {"mse": m.mse_check, "parts": [{"label": p.label, "samples": p.n, "mse": p.mse} for p in m.checks],
+            "blocks": [{"label": p.label, "samples": p.n, "mse": p.mse} for p in m.blocks or ()]}
 
 
 def choose_verdict(entries: list[dict], *, at_floor: bool, has_check: bool) -> str:
@@ -133,5 +143,6 @@ def choose_verdict(entries: list[dict], *, at_floor: bool, has_check: bool) -> s
     top = next((e for e in entries if e["significant"]), None)
     if top is None:
         return "none"
-    strong = top["delta_bic"] > STRONG and (not has_check or top["delta_check"] > SIGNIFICANT)
+    strong = top["delta_bic"] > STRONG and (not has_check or top["delta_check"] > SIGNIFICANT
+                                            or (top.get("delta_blocks") or -math.inf) > ONE_REGIME_GAIN)
     return top["name"] if (strong or not at_floor) else "none"

@@ -175,6 +175,41 @@ def test_verdict_is_the_best_significant_effect_not_the_best_scored():
     assert choose_verdict(strong, at_floor=True, has_check=True) == "B"
 
 
+def test_an_effect_the_windows_cannot_judge_is_accepted_on_the_interleaved_blocks():
+    """A one-regime effect: the fit and the interleaved blocks gain, the windows (which leave its
+    regime out) do not. Accepted on a strong gain on the blocks, refused on a weak one; at the
+    noise floor only a strong gain on either counts."""
+    from types import SimpleNamespace
+
+    from bench_ctl.diagnosis.models import ModelFit, Part
+    from bench_ctl.diagnosis.verdict import ONE_REGIME_GAIN, SIGNIFICANT, significance
+
+    n = 5000
+    st = SimpleNamespace(n=n)
+
+    def fit(mse, k, windows, blocks, violated=()):
+        return ModelFit((), SimpleNamespace(violated=violated), mse, tuple(Part(f"w{i}", 100.0, w)
+                        for i, w in enumerate(windows)), k, 0,
+                        blocks=tuple(Part(f"blocks_{i + 1}", n / 2, b) for i, b in enumerate(blocks)))
+
+    base = fit(1e-3, 0, (1e-3, 2e-3), (1e-3, 1e-3))
+    # the windows a little worse (-2 x 100 ln 1.1 = -19), the blocks far better (2 x 2500 ln 2 = 3466)
+    one_regime = fit(5e-4, 2, (1.1e-3, 2.2e-3), (5e-4, 5e-4))
+    g_fit, g_check, ok = significance(st, base, one_regime)
+    assert g_fit > SIGNIFICANT and g_check < 0 and ok
+    # the blocks only a little better (2 x 2500 ln 1.01 = 50 < ONE_REGIME_GAIN): refused
+    weak = fit(5e-4, 2, (1.1e-3, 2.2e-3), (0.99e-3, 0.99e-3))
+    assert 0 < 5000 * math.log(1 / 0.99) < ONE_REGIME_GAIN and not significance(st, base, weak)[2]
+    # a constraint broken: refused whatever the blocks say
+    assert not significance(st, base, fit(5e-4, 2, (1.1e-3, 2.2e-3), (5e-4, 5e-4), violated=("TA",)))[2]
+
+    def e(name, d_bic, d_check, d_blocks):
+        return {"name": name, "score": -d_bic, "delta_bic": d_bic, "delta_check": d_check,
+                "delta_blocks": d_blocks, "significant": True}
+    assert choose_verdict([e("saturation", 300.0, -19.0, 3466.0)], at_floor=True, has_check=True) == "saturation"
+    assert choose_verdict([e("saturation", 300.0, -19.0, 50.0)], at_floor=True, has_check=True) == "none"
+
+
 def test_ambiguity_is_judged_around_the_verdict_not_the_best_score():
     from bench_ctl.diagnosis.verdict import ambiguous_pairs
 
@@ -266,10 +301,55 @@ def test_diagnosis_finds_the_ceiling_and_reports_the_gap(diag, ceiling_case):
     assert top.gap_closed_holdout > 0.8
     assert diag.sequence[0]["added"] == "ceiling_limit"
     assert [s.name for s in diag.explained_by] == ["ceiling_limit"]
+    # the last step is the model `left` speaks of (polished as far as the sequence went)
+    assert diag.explained_by[-1].mse == diag.left["mse"]
     # the check: the holdout and the capture's windows, each window left out of a re-fit
     labels = [p["label"] for p in top.check["parts"]]
     assert labels == ["holdout", "leading_edge", "plateau", "trailing_edge", "vt"]  # vt: recorded, not fitted
     assert diag.validation["kind"] == "holdout + windows"
+    # beside the check, the interleaved blocks: two halves of the record, each scored left out
+    blocks = top.check["blocks"]
+    assert [b["label"] for b in blocks] == ["blocks_1", "blocks_2"]
+    assert sum(b["samples"] for b in blocks) == pytest.approx(ceiling_case.capture.n, abs=2)
+    assert top.delta_blocks > 0 and diag.check["blocks"] == {"seconds": 0.05, "folds": 2}
+
+
+def test_a_left_out_part_is_scored_on_the_linear_prediction_only_where_it_holds(unit, ceiling_case, monkeypatch):
+    """Far from the optimum (the unit file's values) the undamped Gauss-Newton step of a left-out
+    re-fit does not do, simulated, what its linear prediction promised: the check damps it until it
+    does, and with no damping trusted scores the model as it is (its mean objective over the part's
+    samples; the two halves of the blocks are then the whole record). The structure selection's
+    `linear` check scores the undamped prediction, which is other figures there."""
+    from bench_ctl.diagnosis import check
+    from bench_ctl.diagnosis.diagnose import prepare
+
+    _, _, st = prepare(ceiling_case.capture, unit)
+    p = st.views.problem(())
+    x = p.x_start()
+    R, _ = p.residuals(x[None, :])
+    cap, t, sec = p.residual_rows()
+    r = R[0][cap == 0]
+    t, sec = t[cap == 0], sec[cap == 0]
+    itself = {}
+    for w in st.views.windows:
+        inw = (t >= w.t0 - 1e-12) & (t <= w.t1 + 1e-12)
+        itself[w.label] = float(r[inw] @ r[inw] / sec[inw].sum())
+
+    monkeypatch.setattr(check, "TRUST", math.inf)          # no step trusted
+    windows, blocks = check._left_out(st.views, p, x)
+    assert [w.label for w in windows] == list(itself)
+    for w in windows:
+        assert w.mse == pytest.approx(itself[w.label], rel=1e-12)
+    whole = sum(b.mse * b.n for b in blocks) / sum(b.n for b in blocks)
+    assert whole == pytest.approx(float(p.mean_objective(x[None, :])[0]), rel=0.02)
+    monkeypatch.undo()
+
+    linear = check.check_parts(st.views, p, x, linear=True)
+    assert any(abs(a.mse / itself[a.label] - 1.0) > 0.01 for a in linear if a.label in itself)
+    damped, _ = check._left_out(st.views, p, x)
+    assert all(np.isfinite(w.mse) for w in damped)
+    # the damped re-fit predicts no worse than the undamped one here, and never the absurd
+    assert max(w.mse for w in damped) < 10 * max(itself.values())
 
 
 @pytest.mark.slow
