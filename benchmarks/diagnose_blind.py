@@ -81,6 +81,10 @@ def main(argv: list[str] | None = None) -> int:
                          "early, or on the sample")
     ap.add_argument("--effects", default=None, help="comma-separated effects (default all eight); "
                     "a+b withholds two at once")
+    ap.add_argument("--one-regime", action="store_true",
+                    help="independent source: each effect's evidence in one regime of the record (saturation "
+                         "seen on the plateau, a ceiling reached on the leading edge only; tests/independent_plant.py "
+                         "draw_one_regime); effects default to those two")
     ap.add_argument("--json", dest="json_out", default=None)
     ap.add_argument("--csv", dest="csv_out", default=None, help="one row per case")
     args = ap.parse_args(argv)
@@ -88,7 +92,10 @@ def main(argv: list[str] | None = None) -> int:
     none_cases = args.cases_per_effect if args.none_cases is None else args.none_cases
 
     t0 = time.perf_counter()
-    effects = [e.strip() for e in args.effects.split(",")] if args.effects else list(EFFECT_NAMES)
+    if args.one_regime and args.source != "independent":
+        ap.error("--one-regime draws from the independent plant (--source independent)")
+    default_effects = ["saturation", "ceiling_limit"] if args.one_regime else list(EFFECT_NAMES)
+    effects = [e.strip() for e in args.effects.split(",")] if args.effects else default_effects
     if args.source == "andes":
         from andes_cases import EFFECTS, andes_suite
         cases = andes_suite(args.cases_per_effect, none_cases, seed=args.seed,
@@ -96,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     elif args.source == "independent":
         from independent_cases import independent_suite
         cases = independent_suite(args.cases_per_effect, none_cases, seed=args.seed, effects=effects, cfg=cfg,
-                                  edges=args.edges)
+                                  edges=args.edges, one_regime=args.one_regime)
     else:
         cases = make_suite(args.cases_per_effect, none_cases, seed=args.seed, effects=effects, cfg=cfg)
     t_gen = time.perf_counter() - t0
@@ -140,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         flat.update({"confusion": s["confusion"], "seed": args.seed, "cases_per_effect": args.cases_per_effect,
                      "source": args.source, "edges": args.edges if args.source == "independent" else "on",
                      "rate_hz": args.rate, "duration_s": args.duration,
-                     "holdout": not args.no_holdout and args.source != "andes",
+                     "holdout": not args.no_holdout and args.source != "andes", "one_regime": args.one_regime,
                      "seconds_max": max(r.seconds for r in results)})
         Path(args.json_out).write_text(json.dumps(flat, indent=1) + "\n", encoding="utf-8")
     if args.csv_out:

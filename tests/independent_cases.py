@@ -7,7 +7,9 @@ random instant inside its sample interval (`edges="inside"`), a whole sample ear
 on the sample (`"on"`). With the effect the response must still settle (a slew limit can drive the
 loop into a limit cycle: drawn again). Visibility is judged on a noise-free record with the edges on the samples,
 so that it measures the effect and not the edge timing. Several effects may be withheld at once
-(`effect="saturation+ceiling_limit"`).
+(`effect="saturation+ceiling_limit"`). With `one_regime`, an effect's evidence lies in one regime of
+the record (`independent_plant.draw_one_regime`: saturation seen on the plateau, a ceiling reached on
+the leading edge only).
 """
 from __future__ import annotations
 
@@ -34,8 +36,9 @@ def _settles(efd: np.ndarray, dt: float) -> bool:
 
 def independent_case(effect: str, seed: int, cfg: SuiteConfig = SuiteConfig(),  # noqa: B008 - frozen
                      edges: str = "inside",
-                     unit: Unit | None = None) -> Case:
+                     unit: Unit | None = None, one_regime: bool = False) -> Case:
     """One blind case from the independent plant; `effect` is a name, "a+b" or "none"."""
+    draw = ip.draw_one_regime if one_regime else ip.draw_effect
     unit = unit or load_unit(None)
     rng = np.random.default_rng([seed, 0x1DCA5E])
     dt = 1.0 / cfg.rate_hz
@@ -53,7 +56,7 @@ def independent_case(effect: str, seed: int, cfg: SuiteConfig = SuiteConfig(),  
             for _attempt in range(5):
                 params = {}
                 for name in names:
-                    params.update(ip.draw_effect(name, rng, free, dt))
+                    params.update(draw(name, rng, free, dt))
                 clean = ip.Plant({**avr, **params}).run(nominal, clean_cfg)
                 if not _settles(clean.efd, dt):   # e.g. a slew limit that drives the loop into a limit cycle
                     redraws += 1
@@ -69,7 +72,7 @@ def independent_case(effect: str, seed: int, cfg: SuiteConfig = SuiteConfig(),  
         t_main = ip.random_edges(rng, nominal, dt, edges)
         t_hold = ip.random_edges(rng, ip.Test(on_s=cfg.start_s, amplitude_pu=cfg.amplitude_pu, width_s=w_hold),
                                  dt, edges)
-        label = f"independent-{effect}-{seed}"
+        label = f"independent-{effect}{'-one-regime' if one_regime else ''}-{seed}"
         main = _capture(plant.run(t_main, rec_cfg, seed=seed * 2 + 1), label, t_main)
         hold = _capture(plant.run(t_hold, rec_cfg, seed=seed * 2 + 2), label + "-holdout", t_hold)
         return Case(f"{effect}-{seed}", effect, params, avr, main, hold, vis, redraws)
@@ -78,11 +81,12 @@ def independent_case(effect: str, seed: int, cfg: SuiteConfig = SuiteConfig(),  
 
 def independent_suite(cases_per_effect: int, none_cases: int, seed: int = 0, effects=None,
                       cfg: SuiteConfig = SuiteConfig(),  # noqa: B008 - frozen
-                      edges: str = "inside") -> list[Case]:
+                      edges: str = "inside", one_regime: bool = False) -> list[Case]:
     from bench_ctl.model.effects import EFFECT_NAMES
 
     cases = []
     for i, name in enumerate(list(effects or EFFECT_NAMES) + [NONE]):
         for j in range(none_cases if name == NONE else cases_per_effect):
-            cases.append(independent_case(name, seed * 100_003 + i * 1009 + j, cfg, edges))
+            cases.append(independent_case(name, seed * 100_003 + i * 1009 + j, cfg, edges,
+                                          one_regime=one_regime and name != NONE))
     return cases

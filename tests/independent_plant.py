@@ -277,6 +277,24 @@ def draw_effect(name: str, rng: np.random.Generator, free_efd: np.ndarray, dt: f
     raise ValueError(f"unknown effect {name!r}")
 
 
+#: the effects `draw_one_regime` draws
+ONE_REGIME = ("saturation", "ceiling_limit")
+
+
+def draw_one_regime(name: str, rng: np.random.Generator, free_efd: np.ndarray, dt: float) -> dict[str, float]:
+    """Effect parameters whose evidence lies in one regime of the pulse response `free_efd`:
+    saturation with its knee just below the pre-step Vt of 1.0 (S(1.0) 0.005-0.02, S(1.2) 0.3-0.8:
+    S(1.05) is 3-15 times S(1.0), so the plateau carries it); a ceiling reached on the leading edge
+    only (VRMAX cuts 15-40 % off the overshoot, VRMIN out of reach)."""
+    efd0 = float(free_efd[0])
+    if name == "saturation":
+        return {"S10": float(rng.uniform(0.005, 0.02)), "S12": float(rng.uniform(0.3, 0.8))}
+    if name == "ceiling_limit":
+        return {"VRMAX": efd0 + (1.0 - rng.uniform(0.15, 0.4)) * (float(free_efd.max()) - efd0),
+                "VRMIN": efd0 - 3.0 * (efd0 - float(free_efd.min())) - 1.0}
+    raise ValueError(f"{name!r} has no one-regime form: choose one of {', '.join(ONE_REGIME)}")
+
+
 def random_edges(rng: np.random.Generator, test: Test, dt: float, where: str = "inside") -> Test:
     """The test with each edge moved off the sample grid: `inside` to its own random instant inside
     the sample interval before the nominal sample, `early` a whole sample before it, `on` on it."""
