@@ -83,6 +83,10 @@ def summary(d: Diagnosis) -> str:
             params = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in s.params.items())
             lines.append(f"  + {s.name:<15} {_fmt(s.mse_over_floor, '.2f')}x   {params}"
                          + (f"   (dropped {', '.join(s.dropped)})" if s.dropped else ""))
+        last = d.explained_by[-1].avr_params
+        if last:
+            lines.append("  the model after the last step: "
+                         + ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in last.items()))
     if d.left:
         lines.append(f"left: {d.left['note']}")
     lines += ["", f"verdict: {d.verdict}   ({d.wall_s:.1f} s)"]

@@ -82,6 +82,9 @@ class Step(Record):
     edges: dict[str, float | None]
     fit_gain: float | None
     check: dict[str, Any]
+    avr_params: dict[str, float | None] | None = None   # the model's own parameters at this step
+
+    OMITTED_WHEN_NONE = ("avr_params",)
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,7 +19,7 @@ from .localize import Edges, localization
 from .models import Budget, ModelFit, Setup
 from .search import finish, fit_model, refine
 from .starts import effect_starts
-from .verdict import SIGNIFICANT, STRONG, check_entry, significance
+from .verdict import SIGNIFICANT, STRONG, check_entry, model_params, significance
 
 __all__ = ["sequence", "explained_by"]
 
@@ -155,7 +155,8 @@ def explained_by(st: Setup, base: ModelFit, steps: list[dict], final: ModelFit |
         params = m.effect_params()
         params.update({k: v for k, v in m.fixed.items()})
         out.append({"name": step["added"], "effects": list(m.effects), "dropped": step["dropped"],
-                    "params": params, "mse": m.mse, "mse_over_floor": m.mse / floor,
+                    "params": params, "avr_params": model_params(st.views.unit, m),
+                    "mse": m.mse, "mse_over_floor": m.mse / floor,
                     "gap_closed": (base.mse - m.mse) / span if span > 0 else None,
                     "edges": {k: v for k, v in m.params.items() if k in EDGE_PARAMS},
                     "fit_gain": step["fit_gain"] if step["fit_gain"] is not None else

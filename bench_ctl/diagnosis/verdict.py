@@ -116,10 +116,12 @@ def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, Model
             "check": check_entry(m),
             "score": score(m, n) - s_base if m.checks else math.inf,
             "aic": aic(n, m.mse, m.k), "bic": bic(n, m.mse, m.k),
-            "delta_bic": d_bic, "delta_check": d_check, "delta_blocks": block_deviance(base, m),
-            "significant": significant,
+            "delta_bic": d_bic, "delta_check": d_check, "significant": significant,
             "k": m.k, "evaluations": m.evaluations, "start": {p: m.start.get(p) for p in params},
         }
+        d_blocks = block_deviance(base, m)
+        if math.isfinite(d_blocks):    # optional: absent when not checked (or a simulation failed)
+            entry["delta_blocks"] = d_blocks
         if VOCABULARY[e].variants:
             entry["variant"] = variants[e]
         entries.append(entry)
@@ -144,5 +146,5 @@ def choose_verdict(entries: list[dict], *, at_floor: bool, has_check: bool) -> s
     if top is None:
         return "none"
     strong = top["delta_bic"] > STRONG and (not has_check or top["delta_check"] > SIGNIFICANT
-                                            or (top.get("delta_blocks") or -math.inf) > ONE_REGIME_GAIN)
+                                            or top.get("delta_blocks", -math.inf) > ONE_REGIME_GAIN)
     return top["name"] if (strong or not at_floor) else "none"

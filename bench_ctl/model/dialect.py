@@ -178,10 +178,13 @@ def diagnosis_to_std(st: Structure, d: Mapping[str, Any]) -> dict[str, Any]:
     out["base"] = {**base, "params": std_keys(st, base.get("params") or {})}
     out["effects"] = [{**e, "avr_params": std_keys(st, e.get("avr_params") or {})}
                       for e in d.get("effects") or []]
+    out["explained_by"] = [{**s, "avr_params": std_keys(st, s["avr_params"])} if s.get("avr_params") else s
+                           for s in d.get("explained_by") or []]
     if isinstance(d.get("unit"), Mapping):
         out["unit"] = unit_to_std(st, d["unit"])
     out["kernel"] = {"base_params": base.get("params"),
-                     "avr_params": {e.get("name"): e.get("avr_params") for e in d.get("effects") or []}}
+                     "avr_params": {e.get("name"): e.get("avr_params") for e in d.get("effects") or []},
+                     "explained_by_avr_params": [s.get("avr_params") for s in d.get("explained_by") or []]}
     return out
 
 

@@ -301,8 +301,11 @@ def test_diagnosis_finds_the_ceiling_and_reports_the_gap(diag, ceiling_case):
     assert top.gap_closed_holdout > 0.8
     assert diag.sequence[0]["added"] == "ceiling_limit"
     assert [s.name for s in diag.explained_by] == ["ceiling_limit"]
-    # the last step is the model `left` speaks of (polished as far as the sequence went)
+    # the last step is the model `left` speaks of (polished as far as the sequence went), with its
+    # own parameters: the model an engineer takes away
     assert diag.explained_by[-1].mse == diag.left["mse"]
+    last = diag.explained_by[-1].avr_params
+    assert set(last) == set(diag.base.params) and last != diag.base.params
     # the check: the holdout and the capture's windows, each window left out of a re-fit
     labels = [p["label"] for p in top.check["parts"]]
     assert labels == ["holdout", "leading_edge", "plateau", "trailing_edge", "vt"]  # vt: recorded, not fitted
