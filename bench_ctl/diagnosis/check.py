@@ -104,9 +104,9 @@ def _left_out(views: Views, p: Problem, x: np.ndarray, *, linear: bool = False) 
     reached and edges between samples, where the undamped prediction can be off by orders of
     magnitude) it is damped further (`DAMPING_STEPS`, Levenberg-Marquardt's trust region), and with
     no damping trusted the part is scored on x itself. `linear`: the undamped prediction always
-    (the structure selection's check: docs/decisions/0020). Two kernel calls serve every part."""
+    (the structure selection's check: docs/decisions/0020). A kernel call for the Jacobian, one for
+    the undamped steps and, where one broke its promise, one for the damped steps."""
     space = SearchSpace(p)
-    d = space.d
     z = space.to_z(np.asarray(x, float))
     span = space.zhi - space.zlo
     h = FD_STEP * span
@@ -136,23 +136,36 @@ def _left_out(views: Views, p: Problem, x: np.ndarray, *, linear: bool = False) 
         return [], []
     m = np.asarray((1.0,) if linear else DAMPING_STEPS, float)
     du = np.array([[_step(J, r0, out, k) for k in m] for _, out in parts])     # (parts, dampings, d)
-    Rc, failed_c = np.empty((len(parts), 0, r0.size)), np.empty((len(parts), 0), bool)
-    if m.size and not linear:
-        Zc = np.clip(z[None, None, :] + du * span[None, None, :], space.zlo, space.zhi)
-        Rc, failed_c = p.residuals(space.to_x(Zc.reshape(-1, d)))
-        Rc = Rc[:, rows].reshape(len(parts), m.size, -1)
-        failed_c = failed_c.reshape(len(parts), m.size)
+    before = [float(r0[~out] @ r0[~out]) for _, out in parts]
+    pred = [[r0 + J @ du[i, j] for j in range(m.size)] for i in range(len(parts))]
+    promised = [[before[i] - float(pred[i][j][~out] @ pred[i][j][~out]) for j in range(m.size)]
+                for i, (_, out) in enumerate(parts)]
+    sims: dict[tuple[int, int], np.ndarray | None] = {}   # a simulated step's residuals (None: failed)
+
+    def simulate(steps: list[tuple[int, int]]) -> None:
+        if steps:
+            Zc = np.clip(z[None, :] + np.array([du[i, j] for i, j in steps]) * span[None, :], space.zlo, space.zhi)
+            Rs, fs = p.residuals(space.to_x(Zc))
+            sims.update({ij: (None if f else r) for ij, r, f in zip(steps, Rs[:, rows], fs)})
+
+    def kept(i: int, j: int) -> bool:
+        """The step keeps its promise (or promises nothing); needs its simulation."""
+        if linear or promised[i][j] <= 1e-12 * max(before[i], 1e-300):
+            return True
+        r = sims.get((i, j))
+        out = parts[i][1]
+        return r is not None and before[i] - float(r[~out] @ r[~out]) >= TRUST * promised[i][j]
+
+    # the undamped steps first; the damped ones only for the parts whose undamped step broke its promise
+    if not linear and m.size:
+        simulate([(i, 0) for i in range(len(parts))])
+        simulate([(i, j) for i in range(len(parts)) if not kept(i, 0) for j in range(1, m.size)])
     out_parts = []
     for i, (label, out) in enumerate(parts):
         best = r0    # no damping trusted: the re-fit does not leave the fit (infinite damping)
-        before = float(r0[~out] @ r0[~out])
         for j in range(m.size):
-            pred = r0 + J @ du[i, j]
-            promised = before - float(pred[~out] @ pred[~out])
-            gained = before - float(Rc[i, j][~out] @ Rc[i, j][~out]) if Rc.shape[1] else -math.inf
-            if linear or promised <= 1e-12 * max(before, 1e-300) or (not failed_c[i, j]
-                                                                      and gained >= TRUST * promised):
-                best = pred
+            if kept(i, j):
+                best = pred[i][j]
                 break
         seconds = float(sec[out].sum())
         n = float(np.count_nonzero(sec[out]))
