@@ -30,6 +30,7 @@ from bench_ctl import outputs
 from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis
+from bench_ctl.diagnosis.localize import where_lines
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.result_file import RESULT_SCHEMA, IdentificationResult, read_result
@@ -89,6 +90,8 @@ def summary(d: Diagnosis) -> str:
                          + ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in last.items()))
     if d.left:
         lines.append(f"left: {d.left['note']}")
+        if d.left.get("localization") and d.left.get("mse_over_floor", 0.0) > 1.0:
+            lines += where_lines(d.left["localization"], d.noise_floor)
     lines += ["", f"verdict: {d.verdict}   ({d.wall_s:.1f} s)"]
     return "\n".join(lines)
 

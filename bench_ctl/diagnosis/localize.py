@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -126,3 +128,19 @@ def band_shares(residual: np.ndarray, dt: float) -> list[dict]:
 def localization(residual: np.ndarray, dt: float, edges: Edges) -> dict:
     segs = segments(residual.size, dt, edges)
     return {"segments": segment_shares(residual, dt, segs), "bands": band_shares(residual, dt)}
+
+
+def where_lines(loc: Mapping[str, Any], floor: float | None, *, indent: str = "  ") -> list[str]:
+    """A residual's `localization` in words: the segments holding at least 5 % of its energy, the
+    largest first (their interval, share and error over the noise floor), and its bands."""
+    segs = sorted(loc.get("segments") or [], key=lambda g: -g["share"])
+
+    def x_floor(g: Mapping[str, Any]) -> str:
+        return f"{g['mse'] / floor:.3g}" if floor else "-"
+    lines = [f"{indent}what is left, where: " + ", ".join(
+        f"{g['name'].replace('_', ' ')} {g['t0']:.2f}-{g['t1']:.2f} s {100 * g['share']:.0f} % ({x_floor(g)}x floor)"
+        for g in segs if g["share"] >= 0.05)]
+    if loc.get("bands"):
+        lines.append(f"{indent}by band: " + ", ".join(
+            f"{b['name']} ({b['f0_hz']:g}-{b['f1_hz']:g} Hz) {100 * b['share']:.0f} %" for b in loc["bands"]))
+    return lines

@@ -38,7 +38,7 @@ from bench_ctl.model.unit import Bound, Unit
 
 from .check import check_parts
 from .diagnose import prepare
-from .localize import DiagnosisError, localization
+from .localize import DiagnosisError, localization, where_lines
 from .models import Part, Setup
 
 __all__ = ["Candidate", "Selection", "select_structure", "free_limits", "where_left", "separation_text", "EQUAL_FIT",
@@ -323,13 +323,7 @@ def where_left(sel: dict[str, Any]) -> list[str]:
     where = (best.get("where") or [None])[0]
     if not where:
         return []
-    floor = sel.get("noise_floor") or 0.0
-    segs = sorted(where["segments"], key=lambda g: -g["share"])
-    lines = ["  what is left, where: " + ", ".join(
-        f"{g['name'].replace('_', ' ')} {g['t0']:.2f}-{g['t1']:.2f} s {100 * g['share']:.0f} % "
-        f"({_g(g['mse'] / floor if floor else None)}x floor)" for g in segs if g["share"] >= 0.05)]
-    lines.append("  by band: " + ", ".join(f"{b['name']} ({b['f0_hz']:g}-{b['f1_hz']:g} Hz) {100 * b['share']:.0f} %"
-                                          for b in where["bands"]))
+    lines = where_lines(where, sel.get("noise_floor") or 0.0)
     if best.get("at_bounds"):
         lines.append(f"  {best['model']} pressed on a bound: {', '.join(best['at_bounds'])} (it follows "
                      "something it does not have, or the bounds are too narrow for this unit)")

@@ -210,6 +210,22 @@ def test_an_effect_the_windows_cannot_judge_is_accepted_on_the_interleaved_block
     assert choose_verdict([e("saturation", 300.0, -19.0, 50.0)], at_floor=True, has_check=True) == "none"
 
 
+def test_what_is_left_is_said_where_it_lies():
+    """The residual's localization in words: segments holding >= 5 % of the energy, largest first,
+    each over the noise floor; then the bands."""
+    from bench_ctl.diagnosis.localize import where_lines
+
+    loc = {"segments": [{"name": "pre_trigger", "t0": 0.0, "t1": 1.0, "share": 0.03, "mse": 1e-4},
+                        {"name": "leading_edge", "t0": 1.0, "t1": 1.2, "share": 0.6, "mse": 5e-3},
+                        {"name": "trailing_edge", "t0": 2.0, "t1": 2.2, "share": 0.37, "mse": 2e-3}],
+           "bands": [{"name": "slow", "f0_hz": 0.0, "f1_hz": 1.0, "share": 0.1},
+                     {"name": "fast", "f0_hz": 10.0, "f1_hz": 100.0, "share": 0.9}]}
+    where, bands = where_lines(loc, 1e-4)
+    assert where == ("  what is left, where: leading edge 1.00-1.20 s 60 % (50x floor), "
+                     "trailing edge 2.00-2.20 s 37 % (20x floor)")
+    assert bands == "  by band: slow (0-1 Hz) 10 %, fast (10-100 Hz) 90 %"
+
+
 def test_ambiguity_is_judged_around_the_verdict_not_the_best_score():
     from bench_ctl.diagnosis.verdict import ambiguous_pairs
 
