@@ -135,7 +135,7 @@ def _left_out(views: Views, p: Problem, x: np.ndarray, *, linear: bool = False) 
     if not parts:
         return [], []
     m = np.asarray((1.0,) if linear else DAMPING_STEPS, float)
-    du = np.array([[_step(J, r0, out, k) for k in m] for _, out in parts])     # (parts, dampings, d)
+    du = np.array([_steps(J, r0, out, m) for _, out in parts])     # (parts, dampings, d)
     before = [float(r0[~out] @ r0[~out]) for _, out in parts]
     pred = [[r0 + J @ du[i, j] for j in range(m.size)] for i in range(len(parts))]
     promised = [[before[i] - float(pred[i][j][~out] @ pred[i][j][~out]) for j in range(m.size)]
@@ -173,17 +173,20 @@ def _left_out(views: Views, p: Problem, x: np.ndarray, *, linear: bool = False) 
     return out_parts[:n_windows], out_parts[n_windows:]
 
 
-def _step(J: np.ndarray, r0: np.ndarray, out: np.ndarray, damping: float = 1.0) -> np.ndarray:
-    """The Levenberg-damped Gauss-Newton step over the rows not in `out` (per unit of each
-    variable's range), `damping` times `LEAVE_OUT_DAMPING`."""
+def _steps(J: np.ndarray, r0: np.ndarray, out: np.ndarray, dampings: np.ndarray) -> np.ndarray:
+    """The Levenberg-damped Gauss-Newton steps over the rows not in `out` (per unit of each
+    variable's range), one for each multiple of `LEAVE_OUT_DAMPING` in `dampings`."""
     d = J.shape[1]
     Jr, rr = J[~out], r0[~out]
-    A = Jr.T @ Jr
-    lam = damping * LEAVE_OUT_DAMPING * max(float(np.trace(A)) / max(d, 1), 1e-300)
-    try:
-        return -np.linalg.solve(A + lam * np.eye(d), Jr.T @ rr)
-    except np.linalg.LinAlgError:
-        return np.zeros(d)
+    A, g = Jr.T @ Jr, Jr.T @ rr
+    curvature = max(float(np.trace(A)) / max(d, 1), 1e-300)
+    steps = np.zeros((len(dampings), d))
+    for k, damping in enumerate(dampings):
+        try:
+            steps[k] = -np.linalg.solve(A + damping * LEAVE_OUT_DAMPING * curvature * np.eye(d), g)
+        except np.linalg.LinAlgError:
+            pass    # no step: the re-fit stays at the fit
+    return steps
 
 
 def check_deviance(ref: ModelFit, m: ModelFit) -> float:

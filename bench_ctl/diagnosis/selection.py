@@ -251,7 +251,7 @@ def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals
         sum_nll += n_i * math.log(mse) if 0 < mse < math.inf else math.inf
         # the undamped linear prediction, as before decision 0020: on the ANDES records the damped
         # re-fit scored candidates whose step fails nearer their own fit, and put REFERENCE first on
-        # 4 of 15 records (11 / 15 against 15 / 15 true first or equivalent)
+        # 3 of 15 records, two of them missed (13 / 15 against 15 / 15 true first or equivalent)
         own = check_parts(setup.views, p, x, linear=True)
         parts += [Part(f"{part.label}" if len(captures) == 1 else f"{i}:{part.label}", part.n, part.mse)
                   for part in own]
