@@ -15,6 +15,11 @@ cross-checked with ANDES' andes/io/psse-dyr.yaml, the InterPSS reader and publis
 - ESST5B: TR KR T1 KC VRMAX VRMIN TC1 TB1 TC2 TB2 TOC1 TOB1 TOC2 TOB2 TUC1 TUB1 TUC2 TUB2
   (IEEE 421.5 lists the under-excitation channel first; PSS/E's record and the InterPSS reader
   put the over-excitation one first)
+- ESAC1A: TR TB TC KA TA VAMAX VAMIN TE KF TF KC KD KE E1 SE(E1) E2 SE(E2) VRMAX VRMIN
+  (ANDES 2.0's psse-dyr.yaml puts VAMAX VAMIN before KA and VRMAX VRMIN before TE: it misreads
+  ESAC1A records as PSS/E writes them)
+- ESAC8B: TR KPR KIR KDR TDR KA TA VRMAX VRMIN TE KE E1 SE(E1) E2 SE(E2) (15 fields: no KC, KD,
+  no PID limits; ANDES reads its own AC8B record instead, 21 fields)
 - IEEEST: ICONs MODE BUSR; A1 A2 A3 A4 A5 A6 T1 T2 T3 T4 T5 T6 KS LSMAX LSMIN VCU VCL (the IEEE ST
   stabiliser: MODE 1 the rotor speed deviation; filter (1 + A5 s + A6 s^2)/((1 + A1 s + A2 s^2)
   (1 + A3 s + A4 s^2)), two lead-lags, KS, washout T5 s/(1 + T6 s), output limits, cut-off by Vt)
@@ -48,6 +53,9 @@ FIELDS: dict[str, tuple[str, ...]] = {
                "TOB2", "TUC1", "TUB1", "TUC2", "TUB2"),
     "EXAC1": ("TR", "TB", "TC", "KA", "TA", "VRMAX", "VRMIN", "TE", "KF", "TF", "KC", "KD", "KE", "E1", "SE1", "E2",
               "SE2"),
+    "ESAC1A": ("TR", "TB", "TC", "KA", "TA", "VAMAX", "VAMIN", "TE", "KF", "TF", "KC", "KD", "KE", "E1", "SE1", "E2",
+               "SE2", "VRMAX", "VRMIN"),
+    "ESAC8B": ("TR", "KPR", "KIR", "KDR", "TDR", "KA", "TA", "VRMAX", "VRMIN", "TE", "KE", "E1", "SE1", "E2", "SE2"),
     "IEEEST": ("A1", "A2", "A3", "A4", "A5", "A6", "T1", "T2", "T3", "T4", "T5", "T6", "KS", "LSMAX", "LSMIN", "VCU",
                "VCL"),
 }
@@ -59,6 +67,8 @@ DESCRIPTION = {
     "ESST4B": "IEEE 421.5 ST4B potential-source static exciter",
     "ESST5B": "IEEE 421.5 ST5B static exciter",
     "EXAC1": "IEEE type AC1 rotating exciter",
+    "ESAC1A": "IEEE 421.5 AC1A rotating exciter",
+    "ESAC8B": "IEEE 421.5 AC8B exciter (PID regulator)",
     "IEEEST": "IEEE ST power system stabiliser",
 }
 

@@ -80,6 +80,8 @@ from .kernel.layout import (
     D_KAVR,
     D_KFT,
     D_KI1,
+    D_P1,
+    D_PID,
     D_LIMOUT,
     D_R2,
     D_RATE,
@@ -387,7 +389,7 @@ def exciter_ref(D, i, uref, xm, x1, x2, ef, vt, ifd):
     tron = D[D_TRON, i]
     vm = tron * xm + (1.0 - tron) * vt
     e = uref - vm
-    y1, _ys1 = lead_lag_or_pi(D, i, e, x1)
+    y1, _ys1 = lead_lag_or_pi(D, i, e, x1, x2)
     y2 = x2 + D[D_R2, i] * (y1 - x2)
     drive = regulator_input(D, i, D[D_KAVR, i] * y2, ifd)
     rate = D[D_RATE, i]
@@ -403,7 +405,8 @@ def reference_blocks(D, G, i):
     feedback, rotating exciter, output clamp, potential-source stage, PI or ST5B regulator input,
     and PSS_KS = 0. A chunk of such candidates steps with `rk4_chunk_ref`."""
     return (D[D_KFT, i] == 0.0 and D[D_DCON, i] == 0.0 and D[D_ACON, i] == 0.0 and D[D_LIMOUT, i] == 0.0
-            and D[D_ST4, i] == 0.0 and D[D_VRIN, i] == 0.0 and D[D_KI1, i] == 0.0 and G[G_PSS_KS, i] == 0.0)
+            and D[D_ST4, i] == 0.0 and D[D_VRIN, i] == 0.0 and D[D_KI1, i] == 0.0 and D[D_P1, i] == 0.0
+            and D[D_PID, i] == 0.0 and G[G_PSS_KS, i] == 0.0)
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)

@@ -45,7 +45,7 @@ def _interp(t0, dt, y, tt):
 def _open_loop(D, t0, dt, T, uref0, etimes, ejumps, vt, ifd, out):
     xm = D[K.D_VT0, 0]
     x1 = D[K.D_E0, 0]
-    x2 = D[K.D_E0, 0]
+    x2 = D[K.D_X20, 0]
     ef = D[K.D_EFD0, 0]
     xf = D[K.D_XF0, 0]
     xe = D[K.D_XE0, 0]

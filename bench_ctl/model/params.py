@@ -31,7 +31,7 @@ INF = math.inf
 
 _CATALOGUE = [
     # AVR (the paper's six)
-    ParamInfo("KAVR", "pu/pu", "AVR proportional gain", 1.0, 5000.0),
+    ParamInfo("KAVR", "pu/pu", "AVR proportional gain (AC8B's KA after a PID may be below 1)", 0.01, 5000.0),
     ParamInfo("TA1", "s", "AVR lead time constant 1", 0.0, 100.0),
     ParamInfo("TA2", "s", "AVR lag time constant 1", 0.0, 100.0),
     ParamInfo("TA3", "s", "AVR lead time constant 2", 0.0, 100.0),
@@ -50,7 +50,7 @@ _CATALOGUE = [
     ParamInfo("SATEQ", "1", "1: saturation on E'q even with KPP > 0 (a GENSAL: its saturation is a function of "
                             "E'q, a GENROU's of psi'' = Vt at no load); 0 otherwise", 0.0, 1.0, 0.0),
     # effects (neutral value = effect off)
-    ParamInfo("VRMAX", "pu", "exciter ceiling, upper (ceiling_limit)", 1.05, 20.0, INF),
+    ParamInfo("VRMAX", "pu", "exciter ceiling, upper (ceiling_limit)", 1.05, 50.0, INF),
     ParamInfo("VRMIN", "pu", "exciter ceiling, lower (ceiling_limit; a rotating exciter's regulator may stop above 0)",
               -20.0, 10.0, -INF),
     ParamInfo("VRVT", "1", "ceilings scale with terminal voltage, VRMAX*Vt and VRMIN*Vt (bus-fed static "
@@ -93,7 +93,7 @@ _CATALOGUE = [
                            "(ESST4B); 0 = no potential-source stage", 0.0, 20.0, 0.0),
     ParamInfo("VBMAX", "pu", "upper limit of VB (ESST4B)", 0.1, 100.0, INF),
     ParamInfo("KPI", "pu", "proportional gain of the PI regulator that replaces the first lead-lag "
-                           "when KPV > 0 (ESST4B KPR)", 0.0, 1000.0, 0.0),
+                           "when KPV > 0 (ESST4B KPR) or when it, KII or KDR is > 0 (AC8B KPR)", 0.0, 1000.0, 0.0),
     ParamInfo("KII", "pu/s", "integral gain of that PI regulator (ESST4B KIR)", 0.0, 1000.0, 0.0),
     ParamInfo("VPMAX", "pu", "upper limit of that PI regulator (ESST4B VRMAX)", -20.0, 20.0, INF),
     ParamInfo("VPMIN", "pu", "lower limit of that PI regulator (ESST4B VRMIN)", -20.0, 20.0, -INF),
@@ -103,6 +103,11 @@ _CATALOGUE = [
     ParamInfo("VMMAX", "pu", "upper limit of the inner PI (ESST4B)", -20.0, 20.0, INF),
     ParamInfo("VMMIN", "pu", "lower limit of the inner PI (ESST4B)", -20.0, 20.0, -INF),
     ParamInfo("KG", "pu", "feedback gain of the field voltage into the inner PI (ESST4B)", 0.0, 1.1, 0.0),
+    # the derivative of the PID regulator (AC8B): the PI above without the potential-source stage,
+    # plus KDR s/(1 + s TDR) of the error inside its limits
+    ParamInfo("KDR", "pu s", "derivative gain of the PID regulator, KDR s/(1 + s TDR) of the error added to the "
+                             "PI's sum (AC8B); 0 = no derivative", 0.0, 1000.0, 0.0),
+    ParamInfo("TDR", "s", "time constant of the PID regulator's derivative filter (AC8B)", 0.001, 10.0, 1.0),
     # record timing, not the model: fitted instant of setpoint edge N minus the sample where the
     # record first shows it (bench_ctl.model.edges); 0 = the kernel's zero-order hold
     *(ParamInfo(f"EDGE{i}", "s", f"setpoint edge {i}: fitted instant minus its nominal sample (record timing)",
@@ -122,7 +127,8 @@ GENERATOR_OPTIONAL = ("KPP", "KDA", "SATEQ")
 #: blocks of the standard structures beyond the reference one (neutral: the block is absent)
 STRUCTURE_PARAMS = ("KPP", "KDA", "SATEQ", "KF", "TF", "TEX", "KE", "E1", "SE1", "E2", "SE2", "ACEX", "KD",
                     "LIMOUT", "VRIN",
-                    "KPV", "VBMAX", "KPI", "KII", "VPMAX", "VPMIN", "KPM", "KIM", "VMMAX", "VMMIN", "KG")
+                    "KPV", "VBMAX", "KPI", "KII", "VPMAX", "VPMIN", "KPM", "KIM", "VMMAX", "VMMIN", "KG",
+                    "KDR", "TDR")
 #: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
 RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")
 

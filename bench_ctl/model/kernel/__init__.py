@@ -74,6 +74,7 @@ from .layout import (
     D_UREF0,
     D_VALID,
     D_VT0,
+    D_X20,
     D_XE0,
     D_XF0,
     EDGE_EPS,
@@ -90,7 +91,7 @@ __all__ = [
     "COLUMNS", "N_DERIVED", "CHUNK", "BLOWUP", "EDGE_EPS",
     "D_E0", "D_EDGE0", "D_EFD0", "D_GAIN", "D_ITD0P", "D_ITD0PP", "D_ITE", "D_ITR", "D_KDA", "D_KPP", "D_LIMOUT",
     "D_OUT0", "D_RAMP", "D_RATE", "D_SATA", "D_SATB", "D_SATVT", "D_SKEW", "D_TD", "D_UREF0", "D_VALID", "D_VT0",
-    "D_XE0", "D_XF0",
+    "D_X20", "D_XE0", "D_XF0",
     # its blocks, for the plant and the open loop
     "avr", "ceilings", "delayed_vr", "field_voltage", "hermite", "rate_feedback", "rhs", "rk4_step_ref",
     "steady_state", "terminal_voltage",

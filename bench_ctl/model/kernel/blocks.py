@@ -34,6 +34,7 @@ from .layout import (
     D_KD,
     D_KDA,
     D_KE,
+    D_KDT,
     D_KFT,
     D_KG,
     D_KI1,
@@ -43,6 +44,7 @@ from .layout import (
     D_KPV,
     D_LIMOUT,
     D_P1,
+    D_PID,
     D_R1,
     D_R2,
     D_SATA,
@@ -60,6 +62,7 @@ from .layout import (
     D_VRVT,
     D_VT0,
     D_XE0,
+    D_X20,
     D_XF0,
     D_Y1MAX,
     D_Y1MIN,
@@ -78,15 +81,26 @@ def safe(valid: np.ndarray, x: np.ndarray) -> np.ndarray:
 # ---- regulator: AVR lead-lags (or the ESST4B's PI), rate feedback ------------------------------
 
 
-def derive_regulator(D: np.ndarray, g: Params, valid: np.ndarray, st4: np.ndarray) -> None:
-    """The AVR: gain, lead-lags (the first replaced by the PI where the potential-source stage is
-    on), the regulator lag."""
+def derive_regulator(D: np.ndarray, g: Params, valid: np.ndarray, st4: np.ndarray) -> np.ndarray:
+    """The AVR: gain, lead-lags, the regulator lag. The first lead-lag is replaced by a PI where the
+    potential-source stage is on (ESST4B) or where the PI's gains or the derivative are set (AC8B's
+    PID: KPI, KII or KDR > 0); with the derivative (KDR > 0) the second lead-lag's state is the
+    derivative's filter and the lead-lag itself bypassed. Returns where the PI is on."""
+    pid = valid & ~st4 & (g["KDR"] > 0.0)
+    pi = st4 | (valid & ((g["KPI"] > 0.0) | (g["KII"] > 0.0))) | pid
     D[:, D_KAVR] = safe(valid, g["KAVR"])
-    D[:, D_R1] = np.where(st4, 0.0, safe(valid, g["TA1"] / g["TA2"]))
-    D[:, D_IT2] = np.where(st4, 0.0, safe(valid, 1.0 / g["TA2"]))
-    D[:, D_R2] = safe(valid, g["TA3"] / g["TA4"])
-    D[:, D_IT4] = safe(valid, 1.0 / g["TA4"])
+    D[:, D_R1] = np.where(pi, 0.0, safe(valid, g["TA1"] / g["TA2"]))
+    D[:, D_IT2] = np.where(pi, 0.0, safe(valid, 1.0 / g["TA2"]))
+    D[:, D_R2] = np.where(pid, 1.0, safe(valid, g["TA3"] / g["TA4"]))
+    D[:, D_IT4] = np.where(pid, 1.0 / np.where(pid, g["TDR"], 1.0), safe(valid, 1.0 / g["TA4"]))
     D[:, D_ITE] = safe(valid, 1.0 / g["TE"])
+    D[:, D_P1] = np.where(pi, g["KPI"], 0.0)
+    D[:, D_KI1] = np.where(pi, g["KII"], 0.0)
+    D[:, D_Y1MAX] = np.where(pi, g["VPMAX"], np.inf)
+    D[:, D_Y1MIN] = np.where(pi, g["VPMIN"], -np.inf)
+    D[:, D_PID] = pid.astype(np.float64)
+    D[:, D_KDT] = np.where(pid, g["KDR"] / np.where(pid, g["TDR"], 1.0), 0.0)
+    return pi
 
 
 def derive_rate_feedback(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
@@ -99,21 +113,31 @@ def derive_rate_feedback(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
 @njit()
 def avr(D, i, uref, vm, x1, x2, vf):
     """AVR lead-lags: returns (VR, e, y1) for error e = uref - Vm - Vf (Vf: rate feedback).
-    With the potential-source stage the first lead-lag is a PI (KPI e + x1) within its limits."""
+    With a PI regulator the first lead-lag is the PI (KPI e + x1, + the PID's derivative) within
+    its limits."""
     e = uref - vm - vf
-    y1 = lead_lag_or_pi(D, i, e, x1)[0]
+    y1 = lead_lag_or_pi(D, i, e, x1, x2)[0]
     y2 = x2 + D[D_R2, i] * (y1 - x2)
     return D[D_KAVR, i] * y2, e, y1
 
 
 @njit()
-def lead_lag_or_pi(D, i, e, x1):
-    """The first lead-lag, or the ESST4B's PI regulator in its place: (output, its unlimited sum).
-    Lead-lag: x1 + R1 (e - x1) (P1 = 0, no limits); PI: x1 + KPI e (R1 = 0), limited."""
-    ys = x1 + D[D_R1, i] * (e - x1) + D[D_P1, i] * e
+def lead_lag_or_pi(D, i, e, x1, x2):
+    """The first lead-lag, or the PI / PID regulator in its place: (output, its unlimited sum).
+    Lead-lag: x1 + R1 (e - x1) (P1 = KDT = 0, no limits); PI: x1 + KPI e (R1 = 0), limited; the
+    PID adds its derivative KDT (e - x2), x2 its filter of e (ANDES' PIDTrackAW: a washout
+    KDR s/(1 + s TDR) inside the limited sum)."""
+    ys = x1 + D[D_R1, i] * (e - x1) + D[D_P1, i] * e + D[D_KDT, i] * (e - x2)
     y = ys if ys < D[D_Y1MAX, i] else D[D_Y1MAX, i]
     y = y if y > D[D_Y1MIN, i] else D[D_Y1MIN, i]
     return y, ys
+
+
+@njit()
+def lead_lag_2_input(D, i, e, y1):
+    """What the second state follows: the first block's output (lead-lag 2), or the error (the PID's
+    derivative filter); selected, not branched."""
+    return y1 + D[D_PID, i] * (e - y1)
 
 
 @njit()
@@ -262,14 +286,11 @@ def bridge_voltage_np(ve: np.ndarray, kc_ifd: np.ndarray, vbmax: np.ndarray) -> 
 
 
 def derive_potential_source(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray) -> np.ndarray:
-    """The potential-source stage (ESST4B: KP > 0, no DC exciter): the PI regulator in place of
-    lead-lag 1, the bridge (KP, VBMAX), the inner PI and KG; neutral elsewhere. Returns where on."""
+    """The potential-source stage (ESST4B: KP > 0, no DC exciter): the bridge (KP, VBMAX), the
+    inner PI and KG (its PI regulator in place of lead-lag 1 is `derive_regulator`'s); neutral
+    elsewhere. Returns where on."""
     st4 = valid & ~dc & (g["KPV"] > 0.0)
     D[:, D_ST4] = st4.astype(np.float64)
-    D[:, D_P1] = np.where(st4, g["KPI"], 0.0)
-    D[:, D_KI1] = np.where(st4, g["KII"], 0.0)
-    D[:, D_Y1MAX] = np.where(st4, g["VPMAX"], np.inf)
-    D[:, D_Y1MIN] = np.where(st4, g["VPMIN"], -np.inf)
     D[:, D_KPV] = np.where(st4, g["KPV"], 1.0)
     D[:, D_VBMAX] = np.where(st4, g["VBMAX"], np.inf)
     D[:, D_KPM] = np.where(st4, g["KPM"], 0.0)
@@ -434,4 +455,4 @@ def steady_state(D, i):
     """The 8 states at the steady state at Vt0 (`derive`): where a run starts and where a failed
     candidate is parked so that its arithmetic stays finite."""
     vt0 = D[D_VT0, i]
-    return vt0, D[D_E0, i], D[D_E0, i], D[D_EFD0, i], vt0, vt0, D[D_XF0, i], D[D_XE0, i]
+    return vt0, D[D_E0, i], D[D_X20, i], D[D_EFD0, i], vt0, vt0, D[D_XF0, i], D[D_XE0, i]

@@ -21,9 +21,12 @@ from .layout import (
     D_ITR,
     D_KDA,
     D_KFT,
+    D_KI1,
     D_KPP,
     D_LIMOUT,
     D_OUT0,
+    D_P1,
+    D_PID,
     D_RAMP,
     D_SKEW,
     D_ST4,
@@ -154,7 +157,8 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
     st4_all = True
     for c in range(m):
         if (D[D_KFT, c] != 0.0 or D[D_DCON, c] != 0.0 or D[D_LIMOUT, c] != 0.0 or D[D_KPP, c] != 0.0
-                or D[D_KDA, c] != 0.0 or D[D_ST4, c] != 0.0 or D[D_VRIN, c] != 0.0 or D[D_ACON, c] != 0.0):
+                or D[D_KDA, c] != 0.0 or D[D_ST4, c] != 0.0 or D[D_VRIN, c] != 0.0 or D[D_ACON, c] != 0.0
+                or D[D_P1, c] != 0.0 or D[D_KI1, c] != 0.0 or D[D_PID, c] != 0.0):
             full = True
         if D[D_ST4, c] != 0.0:
             st4 = True

@@ -35,6 +35,7 @@ from .layout import (
     D_KE,
     D_OUT0,
     D_OUTK,
+    D_PID,
     D_RAMP,
     D_RATE,
     D_SEA,
@@ -47,6 +48,7 @@ from .layout import (
     D_VALID,
     D_VR0,
     D_VRVT,
+    D_X20,
     D_XE0,
     D_XF0,
     N_DERIVED,
@@ -70,11 +72,11 @@ def derive(P: np.ndarray, field0: np.ndarray | None = None) -> np.ndarray:
             fld0 = np.broadcast_to(np.asarray(field0, np.float64), fld0.shape)
         dc, ac = derive_dc_exciter(D, g, valid)
         st4 = derive_potential_source(D, g, valid, dc)
-        derive_regulator(D, g, valid, st4)
+        pi = derive_regulator(D, g, valid, st4)
         derive_rate_feedback(D, g, valid)
         vrin = derive_ceilings(D, g, valid, dc, st4, ac)
         _effects(D, g, valid)
-        _steady_state(D, g, valid, dc, ac, st4, vrin, vt0, fld0)
+        _steady_state(D, g, valid, dc, ac, st4, pi, vrin, vt0, fld0)
     return D
 
 
@@ -130,13 +132,14 @@ def _ac_exciter_ve(fld0: np.ndarray, kc_ifd: np.ndarray) -> np.ndarray:
 
 
 def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, ac: np.ndarray, st4: np.ndarray,
-                  vrin: np.ndarray, vt0: np.ndarray, fld0: np.ndarray) -> None:
+                  pi: np.ndarray, vrin: np.ndarray, vt0: np.ndarray, fld0: np.ndarray) -> None:
     """The steady state at Vt0 the run starts from (`blocks.steady_state`): the regulator lag's
     output, the lead-lags' states, the reference, the output, the rate feedback's state. A DC
     exciter needs VR = (KE + SE(Efd)) Efd from the regulator, an AC one VR = VFE = KE VE +
     SE(VE) + KD Ifd with VE FEX(KC Ifd / VE) = Efd, a static one Efd itself; the
     potential-source stage Efd = VB VM, its regulator's error 0 and its PI and lag at KG Efd, the
-    inner integrator at Efd / VB (as ANDES initialises it). The ST5B regulator's output is Efd + KC Ifd
+    inner integrator at Efd / VB (as ANDES initialises it). A PI regulator (ESST4B's, AC8B's PID)
+    has its error at 0 and its integrator at the output; the PID's derivative filter at 0. The ST5B regulator's output is Efd + KC Ifd
     (within [VRMIN, VRMAX])."""
     # the rotating exciter's state: its Efd (DC) or VE (AC: Efd = VE FEX(KC Ifd / VE)); the
     # bisection only for the AC exciter's rows (it took 40 % of a diagnosis of the reference
@@ -156,7 +159,8 @@ def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, a
     vr0 = np.where(vrin, np.clip(D[:, D_EFD0] + D[:, D_KCIN] * fld0, g["VRMIN"], g["VRMAX"]), D[:, D_EFD0])
     D[:, D_VR0] = vr0
     D[:, D_E0] = vr0 / D[:, D_KAVR]
-    D[:, D_UREF0] = vt0 + np.where(st4, 0.0, D[:, D_E0])
+    D[:, D_X20] = np.where(D[:, D_PID] > 0.0, 0.0, D[:, D_E0])
+    D[:, D_UREF0] = vt0 + np.where(pi, 0.0, D[:, D_E0])
     # the output: the DC exciter's Efd, VB VM of the potential source, else the regulator output
     D[:, D_OUT0] = np.where(st4, fld0, np.where(dc, fld0, D[:, D_EFD0]))
     D[:, D_XE0] = np.where(dc, xe0, D[:, D_OUT0])

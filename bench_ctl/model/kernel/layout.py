@@ -15,8 +15,8 @@ COLUMNS: tuple[tuple[str, int, str], ...] = (
     ("KAVR", 1, "AVR gain"),
     ("R1", 1, "lead-lag 1: TA1 / TA2 (0 where the PI regulator replaces it)"),
     ("IT2", 1, "lead-lag 1: 1 / TA2 (0 where the PI regulator replaces it)"),
-    ("R2", 1, "lead-lag 2: TA3 / TA4"),
-    ("IT4", 1, "lead-lag 2: 1 / TA4"),
+    ("R2", 1, "lead-lag 2: TA3 / TA4 (1 with the PID: bypassed)"),
+    ("IT4", 1, "lead-lag 2: 1 / TA4 (the PID's derivative filter: 1 / TDR)"),
     ("ITE", 1, "regulator lag: 1 / TE"),
     ("ITR", 1, "transducer lag: 1 / TR, 0 without one"),
     ("ITD0P", 1, "generator: 1 / T'd0"),
@@ -58,7 +58,8 @@ COLUMNS: tuple[tuple[str, int, str], ...] = (
     ("KDA", 1, "damper coupling in the field current"),
     # the potential-source stage (ESST4B)
     ("ST4", 1, "1 with the potential-source stage"),
-    ("P1", 1, "PI regulator in place of lead-lag 1: proportional gain KPI"),
+    ("P1", 1, "PI regulator in place of lead-lag 1 (the potential-source stage's, or the PID's): proportional "
+              "gain KPI"),
     ("KI1", 1, "PI regulator: integral gain KII"),
     ("Y1MAX", 1, "PI regulator: upper limit (+inf without)"),
     ("Y1MIN", 1, "PI regulator: lower limit (-inf without)"),
@@ -76,6 +77,11 @@ COLUMNS: tuple[tuple[str, int, str], ...] = (
     ("KCAC", 1, "AC exciter: KC of the rectifier's FEX (D_KC is then 0)"),
     ("XE0", 1, "state 7 at the steady state: the DC exciter's Efd or the AC exciter's VE"),
     ("OUTK", 1, "the output's slope per the exciter state's: 1 (DC), FEX at the steady state (AC)"),
+    # the PID regulator (AC8B): the PI in lead-lag 1's place with a derivative on lead-lag 2's state
+    ("PID", 1, "1: state 2 is the PID's derivative filter (it follows the error at 1 / TDR, lead-lag 2 "
+               "is bypassed), 0: lead-lag 2's state"),
+    ("KDT", 1, "PID regulator: KDR / TDR, the derivative's gain on (error - its filtered value)"),
+    ("X20", 1, "state 2 at the steady state: lead-lag 2's (E0), or the derivative filter's (0)"),
 )
 
 

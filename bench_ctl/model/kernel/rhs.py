@@ -10,6 +10,7 @@ from .blocks import (
     exciter_feedback,
     feedback_source,
     field_current,
+    lead_lag_2_input,
     lead_lag_or_pi,
     potential_source,
     rectifier,
@@ -68,13 +69,14 @@ def exciter(D, i, uref, vrd, xm, x1, x2, ef, xf, xe, vt, ifd, hi, lo, st4=ST4_SO
     vm = tron * xm + (1.0 - tron) * vt
     src = ef if st4 == ST4_ALL else feedback_source(D, i, ef, xe, ifd)
     e = uref - vm - D[D_KFT, i] * (src - xf)
-    y1, ys1 = lead_lag_or_pi(D, i, e, x1)
+    y1, ys1 = lead_lag_or_pi(D, i, e, x1, x2)
     y2 = x2 + D[D_R2, i] * (y1 - x2)
     vr = D[D_KAVR, i] * y2
     dxm = (vt - xm) * D[D_ITR, i]
     # lead-lag 1, or the PI's integrator with tracking anti-windup (ANDES' PITrackAW)
     dx1 = (e - x1) * D[D_IT2, i] + D[D_KI1, i] * (e - PI_TRACK * (ys1 - y1))
-    dx2 = (y1 - x2) * D[D_IT4, i]
+    # lead-lag 2, or the PID's derivative filter
+    dx2 = (lead_lag_2_input(D, i, e, y1) - x2) * D[D_IT4, i]
     tdon = D[D_TDON, i]
     drive = vr + tdon * (vrd - vr)
     if st4 != ST4_ALL:   # the ST5B regulator's limit and commutation drop at the lag's input

@@ -67,6 +67,9 @@ class Structure:
     #: polish from the exchanged point (`peers._swap_restarts`)
     swaps: tuple[tuple[str, tuple[str, str]], ...] = ()
     source: str = ""
+    #: another structure whose equations this one's are on a pulse test (its limits under other
+    #: names): `--model auto` fits one of the two and names the other with it
+    pulse_twin: str | None = None
     #: the blocks in diagram order the mapping, settings and diagram were generated from
     blocks: tuple[Block, ...] = ()
 
@@ -212,7 +215,8 @@ def declare(*, name: str, title: str, params: tuple[Param, ...], blocks: tuple[B
             remarks: tuple[str, ...] = (), constraints: tuple[str, ...] = (), dyr_model: str | None = None,
             dyr_special: Mapping[str, tuple[Callable[[Mapping[str, float]], float],
                                             Callable[[Mapping[str, float]], tuple[str, float]]]] | None = None,
-            swaps: tuple[tuple[str, tuple[str, str]], ...] = (), source: str = "") -> Structure:
+            swaps: tuple[tuple[str, tuple[str, str]], ...] = (), source: str = "",
+            pulse_twin: str | None = None) -> Structure:
     """A structure from its parameters and blocks: each parameter drives the kernel parameter its
     block wires it to (none: kept for the record, its `note` says why), the settings and the
     diagram (plus `remarks`) are the blocks'."""
@@ -228,10 +232,10 @@ def declare(*, name: str, title: str, params: tuple[Param, ...], blocks: tuple[B
             raise StructureError(f"model {name}: {p.name} drives no block; say why it is kept (note)")
     return Structure(name=name, title=title, diagram=lines + remarks, params=std, settings=settings,
                      constraints=constraints, dyr_model=dyr_model, dyr_special=dict(dyr_special or {}),
-                     lead_lags=lead_lags, swaps=swaps, source=source, blocks=placed)
+                     lead_lags=lead_lags, swaps=swaps, source=source, pulse_twin=pulse_twin, blocks=placed)
 
 
-_MODULES = ("reference", "sexs", "exst1", "esst1a", "ieeex1", "esst4b", "esst5b", "exac1")
+_MODULES = ("reference", "sexs", "exst1", "esst1a", "ieeex1", "esst4b", "esst5b", "exac1", "esac1a", "ac8b")
 DEFAULT = "REFERENCE"
 
 
@@ -245,11 +249,14 @@ def _load() -> dict[str, Structure]:
 
 
 STRUCTURES: dict[str, Structure] = _load()
+for _s in STRUCTURES.values():
+    if _s.pulse_twin is not None and _s.pulse_twin not in STRUCTURES:
+        raise StructureError(f"model {_s.name}: its pulse twin {_s.pulse_twin} is not in the library")
 
 
 def structure(name: str | None) -> Structure:
     key = (name or DEFAULT).strip().upper()
-    aliases = {"ESDC1A": "IEEEX1", "REF": "REFERENCE"}
+    aliases = {"ESDC1A": "IEEEX1", "REF": "REFERENCE", "ESAC8B": "AC8B"}
     key = aliases.get(key, key)
     try:
         return STRUCTURES[key]

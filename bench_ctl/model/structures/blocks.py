@@ -11,8 +11,8 @@ VRVT = 1; ...), the lead-lags a record may bypass (both time constants 0) and th
 The kernel's blocks (docs/model.md, "The standard structures"): a transducer, two lead-lags, a
 regulator lag whose ceilings clamp the lag (non-windup) or its output (scaled by Vt, less KC*Ifd),
 or (ESST5B) a regulator limited ahead of its lag with the commutation drop at the lag's input,
-rate feedback, a DC exciter with saturation, and ESST4B's potential-source stage with two PI
-regulators and the output VB VM.
+rate feedback, a DC exciter with saturation (or an AC exciter with its rectifier), ESST4B's
+potential-source stage with two PI regulators and the output VB VM, and AC8B's PID regulator.
 """
 from __future__ import annotations
 
@@ -255,6 +255,33 @@ class PIRegulator(Block):
 
 
 @dataclass(frozen=True, kw_only=True)
+class PIDRegulator(Block):
+    """The AC8B voltage regulator: a PID in the first lead-lag's place, its derivative filtered by
+    TD (the kernel's second state then holds that filter: a structure with a PID has no second
+    lead-lag)."""
+    KP: str
+    KI: str
+    KD: str
+    TD: str
+    upper: str | None = None
+    lower: str | None = None
+    kind = "PID regulator"
+
+    def wiring(self) -> dict[str, str]:
+        out = {self.KP: "KPI", self.KI: "KII", self.KD: "KDR", self.TD: "TDR"}
+        if self.upper:
+            out[self.upper] = "VPMAX"
+        if self.lower:
+            out[self.lower] = "VPMIN"
+        return out
+
+    def line(self) -> str:
+        lim = (f", limited to [{self.lower}, {self.upper}] (anti-windup by tracking)" if self.upper
+               else " (no limits of its own)")
+        return f"VPID = ({self.KP} + {self.KI}/s + s {self.KD}/(1 + s {self.TD}))(Vref - Vc){lim}"
+
+
+@dataclass(frozen=True, kw_only=True)
 class FieldVoltagePI(Block):
     KP: str
     KI: str
@@ -309,6 +336,8 @@ def generate(blocks: tuple[Block, ...]) -> tuple[tuple[Block, ...], dict[str, st
                 raise ValueError(f"{name} -> {kern}: a standard name or kernel parameter wired twice")
             wiring[name] = kern
         settings.update(b.settings())
+    if any(isinstance(b, PIDRegulator) for b in placed) and slot:
+        raise ValueError("a PID regulator takes both lead-lags' states: no lead-lag beside it")
     for pair in (("TA1", "TA2"), ("TA3", "TA4"))[slot:]:     # the lead-lags it lacks: 1, 1
         settings.update(dict.fromkeys(pair, 1.0))
     if not any(isinstance(b, Transducer) for b in placed):
