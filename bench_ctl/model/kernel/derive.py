@@ -139,8 +139,8 @@ def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, a
     SE(VE) + KD Ifd with VE FEX(KC Ifd / VE) = Efd, a static one Efd itself; the
     potential-source stage Efd = VB VM, its regulator's error 0 and its PI and lag at KG Efd, the
     inner integrator at Efd / VB (as ANDES initialises it). A PI regulator (ESST4B's, AC8B's PID)
-    has its error at 0 and its integrator at the output; the PID's derivative filter at 0. The ST5B regulator's output is Efd + KC Ifd
-    (within [VRMIN, VRMAX])."""
+    has its error at 0 and its integrator at the output; the PID's derivative filter at 0. The ST5B
+    regulator's output is Efd + KC Ifd (within [VRMIN, VRMAX])."""
     # the rotating exciter's state: its Efd (DC) or VE (AC: Efd = VE FEX(KC Ifd / VE)); the
     # bisection only for the AC exciter's rows (it took 40 % of a diagnosis of the reference
     # structure, run for every candidate and thrown away)
