@@ -430,7 +430,22 @@ def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
             raise
         except ValueError as exc:
             raise UnitError(str(exc)) from None
-    return check_unit(unit, f"{unit.source} with --set {' '.join(overrides)}") if overrides else unit
+    if not overrides:
+        return unit
+    return check_unit(_bypass_lead_lags(unit), f"{unit.source} with --set {' '.join(overrides)}")
+
+
+def _bypass_lead_lags(unit: Unit) -> Unit:
+    """A lead-lag of the structure set to both time constants 0 (`--set TB=0 --set TC=0`, a
+    record's way of saying "none") runs as 1, 1, as the structure's typical 0, 0 and a .dyr's do
+    (`Structure.kernel_values`); its standard values stay 0."""
+    if unit.model == DEFAULT_MODEL:
+        return unit
+    fixed = dict(unit.fixed)
+    for lead, lag in unit.structure.lead_lags:
+        if fixed.get(lead) == 0.0 and fixed.get(lag) == 0.0:
+            fixed[lead] = fixed[lag] = 1.0
+    return replace(unit, fixed=fixed) if fixed != unit.fixed else unit
 
 
 #: [grid] values an on-line record can determine (not the operating point, the frequency)

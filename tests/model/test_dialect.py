@@ -44,6 +44,14 @@ MAPPING = {
                "TE": "TEX", "KF": "KF", "TF": "TF", "KC": "KC", "KD": "KD", "KE": "KE", "E1": "E1", "SE1": "SE1",
                "E2": "E2", "SE2": "SE2"},
               {"TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "LIMOUT": 0.0, "ACEX": 1.0}),
+    "ESAC1A": ({"TR": "TR", "TB": "TA2", "TC": "TA1", "KA": "KAVR", "TA": "TE", "VAMAX": "VRMAX", "VAMIN": "VRMIN",
+                "TE": "TEX", "KF": "KF", "TF": "TF", "KC": "KC", "KD": "KD", "KE": "KE", "E1": "E1", "SE1": "SE1",
+                "E2": "E2", "SE2": "SE2"},
+               {"TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "LIMOUT": 0.0, "ACEX": 1.0}),
+    "AC8B": ({"TR": "TR", "KPR": "KPI", "KIR": "KII", "KDR": "KDR", "TDR": "TDR", "VPIDMAX": "VPMAX",
+              "VPIDMIN": "VPMIN", "KA": "KAVR", "TA": "TE", "VRMAX": "VRMAX", "VRMIN": "VRMIN", "TE": "TEX",
+              "KE": "KE", "E1": "E1", "SE1": "SE1", "E2": "E2", "SE2": "SE2", "KC": "KC", "KD": "KD"},
+             {"TA1": 1.0, "TA2": 1.0, "TA3": 1.0, "TA4": 1.0, "VRVT": 0.0, "LIMOUT": 0.0, "ACEX": 1.0}),
 }
 
 

@@ -1,7 +1,5 @@
 """AC8B, the IEEE 421.5 type AC8B exciter: a PID voltage regulator on a rotating AC exciter, the
 usual digital retrofit of an older unit (PSS/E ESAC8B; ANDES `AC8B`)."""
-import math
-
 from . import declare
 from .blocks import ACExciter, Param, PIDRegulator, RegulatorLag, Transducer
 
@@ -35,10 +33,10 @@ STRUCTURE = declare(
         Param(name="KC", unit="pu", info="rectifier loading factor (commutating reactance); " + _ESAC8B,
               typical=0.0),
         Param(name="KD", unit="pu", info="demagnetising factor (armature reaction); " + _ESAC8B, typical=0.0),
-        Param(name="VPIDMAX", unit="pu", info="maximum PID output (ANDES VPMAX; not in PSS/E's ESAC8B: none)",
-              typical=math.inf),
-        Param(name="VPIDMIN", unit="pu", info="minimum PID output (ANDES VPMIN; not in PSS/E's ESAC8B: none)",
-              typical=-math.inf),
+        Param(name="VPIDMAX", unit="pu", info="maximum PID output (not in PSS/E's ESAC8B, which has "
+                                              "none: typical the kernel's widest)", typical=20.0),
+        Param(name="VPIDMIN", unit="pu", info="minimum PID output (not in PSS/E's ESAC8B, which has "
+                                              "none: typical the kernel's widest)", typical=-20.0),
         Param(name="VFEMAX", unit="pu", info="exciter field current limit", typical=999.0, note=_NOT_SIM),
         Param(name="VEMIN", unit="pu", info="minimum exciter output voltage", typical=0.0, note=_NOT_SIM),
     ),
