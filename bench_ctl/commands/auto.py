@@ -35,7 +35,7 @@ def auto_units(unit_path: str | None, overrides: tuple[str, ...], model_kw: dict
     given = {item.split("=", 1)[0].split(".", 1)[0].strip() for item in overrides}
     units: dict[str, Unit] = {}
     skipped: dict[str, list[str]] = {}
-    for name in STRUCTURES:
+    for name in auto_models(base.model):
         u = with_model(base, name)
         taken = [item for item in overrides if _takes(u, item)]
         for item in overrides:
@@ -51,7 +51,37 @@ def auto_units(unit_path: str | None, overrides: tuple[str, ...], model_kw: dict
             apply_overrides(with_model(base, DEFAULT_MODEL), [item])
     notes = [f"--set {item} not applied to {', '.join(names)} (not a parameter of theirs)"
              for item, names in skipped.items()]
+    notes += twin_notes(list(units))
     return units, notes
+
+
+def auto_models(given: str | None = None) -> list[str]:
+    """The structures --model auto fits: the library, less one of each pair of pulse twins (the
+    same equations on a pulse test, `Structure.pulse_twin`): the one that names its twin is left
+    out, unless it is the unit's own (`given`)."""
+    out = []
+    for name, st in STRUCTURES.items():
+        twin = st.pulse_twin
+        if twin is not None and name != given:
+            continue
+        if any(o.pulse_twin == name and o.name == given for o in STRUCTURES.values()):
+            continue
+        out.append(name)
+    return out
+
+
+def twin_notes(fitted: Sequence[str]) -> list[str]:
+    """What each fitted structure stands for beside itself (its pulse twins left out)."""
+    out = []
+    for name in fitted:
+        st = STRUCTURES[name]
+        pairs = [o.name for o in STRUCTURES.values() if o.pulse_twin == name and o.name not in fitted]
+        if st.pulse_twin is not None and st.pulse_twin not in fitted:
+            pairs.append(st.pulse_twin)
+        for other in pairs:
+            out.append(f"{name} stands for {other} too: on a pulse test they are the same equations, "
+                       "their limits under other names (not fitted apart)")
+    return out
 
 
 def _takes(unit: Unit, item: str) -> bool:

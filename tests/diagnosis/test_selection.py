@@ -14,6 +14,7 @@ import pytest
 from andes_units import fixture_column, generator_values, manifest, read_fixture
 from bench_ctl.capture import Capture, write_capture
 from bench_ctl.cli import main
+from bench_ctl.commands.auto import auto_models, twin_notes
 from bench_ctl.diagnosis.models import Part
 from bench_ctl.diagnosis.selection import (
     Candidate,
@@ -23,6 +24,7 @@ from bench_ctl.diagnosis.selection import (
     separation_text,
     where_left,
 )
+from bench_ctl.model.structures import STRUCTURES
 from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
 
 
@@ -74,6 +76,17 @@ def test_free_limits_fits_the_typical_limits_but_keeps_the_given_ones():
     assert vrmax not in kept.identify and vrmin in kept.identify
     ref = reference_unit()
     assert free_limits(ref).identify == ref.identify      # the reference structure has no limits
+
+
+def test_model_auto_fits_one_of_two_pulse_twins_the_units_own_if_it_is_one():
+    assert STRUCTURES["ESAC1A"].pulse_twin == "EXAC1"
+    every = auto_models()
+    assert "EXAC1" in every and "ESAC1A" not in every and len(every) == len(STRUCTURES) - 1
+    own = auto_models("ESAC1A")
+    assert "ESAC1A" in own and "EXAC1" not in own
+    assert twin_notes(own) == ["ESAC1A stands for EXAC1 too: on a pulse test they are the same equations, "
+                               "their limits under other names (not fitted apart)"]
+    assert twin_notes(["EXAC1", "ESAC1A"]) == []
 
 
 def _noisy(name: str, seed: int = 0) -> Capture:
@@ -140,6 +153,10 @@ def test_cli_model_auto_writes_the_ranking_and_the_report_shows_it(tmp_path, cap
     sel = r["selection"]
     assert sel["chosen"] == r["model"]["name"] == sel["candidates"][0]["model"]
     assert len(sel["candidates"]) >= 6 and sel["verdict"] == "explains"
+    # one of a pair of pulse twins is fitted, and said to stand for the other
+    models = [c["model"] for c in sel["candidates"]]
+    assert "EXAC1" in models and "ESAC1A" not in models and "AC8B" in models
+    assert "EXAC1 stands for ESAC1A too" in said
     # SEXS, or a structure that contains it named with the others as fitting as well
     assert "SEXS" == sel["chosen"] or "SEXS" in sel["equivalent"]
     assert r["bounds"].get("K", [0, 0])[1] == 900 or sel["chosen"] != "SEXS"
