@@ -2,7 +2,8 @@
 
 A GENROU (T'd0 7.5 s, T''d0 0.05 s, saturation S(1.0) 0.05, S(1.2) 0.2) on its own bus, tied to an
 infinite bus by a line that a Toggle opens at t = 0.05 s: from then on the unit runs at no load.
-Its excitation system is, in turn, ESST1A, SEXS, EXST1, IEEEX1 and ESST4B with published-typical values
+Its excitation system is, in turn, ESST1A, SEXS, EXST1, IEEEX1, ESST4B, EXAC1, ESAC1A and AC8B with
+published-typical values
 (varied a little between captures so that nothing can memorise one set). The record starts at
 0.5 s (steady state after the trip); the AVR reference `vref0` is raised by 5, 10 or 20 % of the
 initial terminal voltage for 1 s, at instants off the 1 kHz grid (`EDGE_ON`, `EDGE_OFF` after the
@@ -64,9 +65,31 @@ EXCITERS = {
     # the ceiling VB VMMAX, which moves with Vt and Ifd
     "ESST4B": dict(TR=0.01, KPR=3.15, KIR=3.15, VRMAX=1.0, VRMIN=-0.87, TA=0.02, KPM=1.0, KIM=0.0, VMMAX=0.5,
                    VMMIN=-0.87, KG=0.1, KP=6.5, KI=0.0, VBMAX=8.41, KC=0.08, XL=0.0, THETAP=0.0, VGMAX=20.0),
+    # the rotating AC exciters (issue 26, item 4), added after the others so that their captures
+    # keep their scale. Their limits are never reached, at any of the three pulses (checked on the
+    # kernel: the same record with the limits open): ANDES' response while one is held changes with
+    # its step (a 5 % EXAC1 pulse with KA 100, no lead-lag and VRMIN 1, whose trailing edge holds
+    # VR at VRMIN: 0.5 s later its efd is 0.008 pu below the equations at 0.2 ms, 0.13 pu above at
+    # 0.02 ms), and with a negative VRMIN the trailing edge drives VE to 0, where FEX has no value
+    # and ANDES stops (decision 0009). The limits are checked against solve_ivp instead
+    # (tests/model/test_exac1.py, test_ac8b.py). ANDES 2.0's EXAC1 takes the bus voltage rather
+    # than its transducer's output: TR = 0. Its ESAC1A computes the rate feedback's washout and
+    # never feeds it back: KF = 0 there. Lead-lags of ESST1A's sample (TC 1, TB 10) and gains of
+    # 100 and 50 (AC1A's sample: 400) keep the trailing edges off the lower limits; AC8B has an
+    # eighth of its sample's KPR 80 and KIR 5, a twentieth of its KDR 10, TA 0.01 (the sample's 0
+    # is no lag; the kernel needs one), VRMIN -1 (the sample's 0) and, as PSS/E's ESAC8B record
+    # (which has no field for them), KC = KD = 0 (the sample's 0.55 and 1.1; EXAC1's and ESAC1A's
+    # fixtures carry both)
+    "EXAC1": dict(TR=0.0, TB=10.0, TC=1.0, KA=100.0, TA=0.02, VRMAX=6.03, VRMIN=0.0, TE=0.8, KF=0.03, TF=1.0,
+                  KC=0.2, KD=0.38, KE=1.0, E1=3.14, SE1=0.03, E2=4.18, SE2=0.1),
+    "ESAC1A": dict(TR=0.01, TB=10.0, TC=1.0, VAMAX=14.5, VAMIN=0.0, KA=50.0, TA=0.02, VRMAX=6.03, VRMIN=-5.43,
+                   TE=0.8, E1=3.14, SE1=0.03, E2=4.18, SE2=0.1, KC=0.2, KD=0.38, KE=1.0, KF=0.0, TF=1.0),
+    "AC8B": dict(TR=0.01, kP=10.0, kI=0.6, kD=0.5, Td=0.1, VPMAX=999.0, VPMIN=-999.0, VRMAX=35.0, VRMIN=-1.0,
+                 VFEMAX=999.0, VEMIN=-999.0, TA=0.01, KA=1.0, TE=1.2, E1=6.5, SE1=0.3, E2=9.0, SE2=3.0, KE=1.0,
+                 KD=0.0, KC=0.0),
 }
 AMPLITUDES = (0.05, 0.10, 0.20)
-SCALED = ("KA", "K", "TA", "TE", "TB", "TC", "TB1", "TC1", "KPR", "KIR")
+SCALED = ("KA", "K", "TA", "TE", "TB", "TC", "TB1", "TC1", "KPR", "KIR", "kP", "kI")
 
 
 def _network(andes):

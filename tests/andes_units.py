@@ -39,6 +39,13 @@ def standard_params(entry: dict) -> dict[str, float]:
         p["TA"] = p.pop("TATB") * p["TB"]
     if entry["exciter"] == "IEEEX1":
         p["KF"] = p.pop("KF1")
+    if entry["exciter"] == "AC8B":
+        for a, b in (("kP", "KPR"), ("kI", "KIR"), ("kD", "KDR"), ("Td", "TDR"), ("VPMAX", "VPIDMAX"),
+                     ("VPMIN", "VPIDMIN")):
+            p[b] = p.pop(a)
+        for k in ("VPIDMAX", "VPIDMIN"):    # ANDES' +-999: no limit (the structure's typical)
+            if abs(p[k]) >= 999.0:
+                del p[k]
     return p
 
 

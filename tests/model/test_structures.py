@@ -15,7 +15,8 @@ from bench_ctl.model.unit import UnitError, apply_overrides, load_unit, referenc
 
 
 def test_the_library_holds_the_standard_structures_each_coherent():
-    assert {"REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1", "ESST4B"} <= set(STRUCTURES)
+    assert {"REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1", "ESST4B", "ESST5B", "EXAC1", "ESAC1A",
+            "AC8B"} <= set(STRUCTURES)
     for st in STRUCTURES.values():
         st.check()
         assert st.default_identified(), st.name
@@ -23,7 +24,7 @@ def test_the_library_holds_the_standard_structures_each_coherent():
             assert p.unit and p.info, (st.name, p.name)
             if p.identify:  # an identified parameter drives a kernel block and has default bounds
                 assert p.kernel in PARAMS and p.bounds is not None
-    assert structure("esdc1a").name == "IEEEX1"
+    assert structure("esdc1a").name == "IEEEX1" and structure("esac8b").name == "AC8B"
     with pytest.raises(StructureError, match="unknown model 'ST9'.*ESST1A"):
         structure("ST9")
 
@@ -120,7 +121,8 @@ def test_each_structure_reproduces_andes_open_and_closed_loop(name):
         assert np.max(np.abs(err)) <= 0.01, (name, how, np.max(np.abs(err)))
         assert np.sqrt(np.mean(err ** 2)) <= 0.001, (name, how, np.sqrt(np.mean(err ** 2)))
     # the check can fail: 10 % off in the exciter's gain is seen open loop
-    gain = {"ESST1A": "KA", "SEXS": "K", "EXST1": "KA", "IEEEX1": "KA", "ESST4B": "KPR"}[entry["exciter"]]
+    gain = {"ESST1A": "KA", "SEXS": "K", "EXST1": "KA", "IEEEX1": "KA", "ESST4B": "KPR", "EXAC1": "KA",
+            "ESAC1A": "KA", "AC8B": "KPR"}[entry["exciter"]]
     worse = apply_overrides(unit, [f"{gain}={1.1 * unit.standard_values()[gain]}"])
     assert np.max(np.abs(open_loop_efd(name, worse, cap) - cap.efd)) > 0.01
 
