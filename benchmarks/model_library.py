@@ -1,5 +1,5 @@
 """The model library against another simulator: ANDES captures (tests/fixtures/andes) of a no-load
-GENROU with SEXS, EXST1, ESST1A, IEEEX1 and ESST4B exciters (issue 13).
+GENROU with SEXS, EXST1, ESST1A, IEEEX1, ESST4B, EXAC1, ESAC1A and AC8B exciters (issues 13, 26).
 
 1. Reproduction at the true values: each structure, with the values ANDES used, the setpoint
    edges at their true instants: open loop (the excitation system alone fed ANDES' Vt and Ifd,
@@ -134,7 +134,7 @@ def speed(out: dict) -> None:
     from bench_ctl.model.unit import with_model
     ref: dict[str, float] = {}
     print(f"  {'model':<10} {'in bounds':>10} {'ratio':>7} {'failed':>7}   {'near typical':>12} {'ratio':>7}")
-    for model in ("REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1", "ESST4B"):
+    for model in ("REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1", "ESST4B", "ESST5B", "EXAC1", "AC8B"):
         rng = np.random.default_rng(7)
         unit = with_model(reference_unit(), model)
         names = list(unit.identify)

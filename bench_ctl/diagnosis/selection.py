@@ -53,14 +53,17 @@ EQUAL_FIT = 6.0
 FLOOR_SIGMAS = 3.0
 #: the limits of a structure (standard names) `free_limits` identifies, and how far from the
 #: typical value their bounds reach (a factor each way)
-LIMITS = ("VRMAX", "VRMIN", "EMAX", "EMIN", "VMMAX", "VMMIN")
+LIMITS = ("VRMAX", "VRMIN", "EMAX", "EMIN", "VMMAX", "VMMIN", "VAMAX", "VAMIN")
 LIMIT_RANGE = 4.0
+#: each lower limit's upper one (a lower limit at 0 is freed as far below it as the upper is above)
+_UPPER = {"VRMIN": "VRMAX", "EMIN": "EMAX", "VMMIN": "VMMAX", "VAMIN": "VAMAX"}
 
 
 def free_limits(unit: Unit, keep: Sequence[str] = ()) -> Unit:
     """`unit` with its structure's limits (`LIMITS`, those it simulates and holds fixed, except
     `keep`) identified too, from their value: an upper one within LIMIT_RANGE of it each way, a
-    lower one from LIMIT_RANGE times it to 0 (and the kernel's range). An engineer who does not
+    lower one from LIMIT_RANGE times it to 0, a lower one at 0 from minus its upper one to 0 (and
+    the kernel's range). An engineer who does not
     know the exciter does not know its ceilings either, and a structure with a wrong ceiling can
     lose to a wrong structure whose ceiling is never reached."""
     st = unit.structure
@@ -69,11 +72,22 @@ def free_limits(unit: Unit, keep: Sequence[str] = ()) -> Unit:
         if name not in st.names or name in keep:
             continue
         k = st.param(name).kernel
-        if k is None or k in identify or k not in fixed or not math.isfinite(fixed[k]) or fixed[k] == 0.0:
+        if k is None or k in identify or k not in fixed or not math.isfinite(fixed[k]):
             continue
-        v, info = fixed.pop(k), PARAMS[k]
-        # a lower limit may be 0 (a one-quadrant bridge, a diode rectifier's exciter)
-        lo, hi = (v / LIMIT_RANGE, v * LIMIT_RANGE) if v > 0 else (v * LIMIT_RANGE, 0.0)
+        v, info = fixed[k], PARAMS[k]
+        if v > 0:
+            lo, hi = v / LIMIT_RANGE, v * LIMIT_RANGE
+        elif v < 0:   # a lower limit may be 0 (a one-quadrant bridge, a diode rectifier's exciter)
+            lo, hi = v * LIMIT_RANGE, 0.0
+        else:
+            # a lower limit typically at 0 (AC8B's one-quadrant exciter field) may be below it: as
+            # far below as the upper limit is above (the kernel's range at most)
+            up = _UPPER.get(name)
+            upper = unit.fixed.get(st.param(up).kernel or "", math.nan) if up in st.names else math.nan
+            if not (math.isfinite(upper) and upper > 0):
+                continue
+            lo, hi = -upper, 0.0
+        fixed.pop(k)
         identify[k] = Bound(v, max(lo, info.lo), min(hi, info.hi))
     return replace(unit, identify=identify, fixed=fixed)
 

@@ -11,8 +11,10 @@ STRUCTURE = declare(
           "saturation, demagnetisation and rectifier regulation, rate feedback from VFE",
     params=(
         Param(name="TR", unit="s", info="voltage transducer time constant", typical=0.0),
-        Param(name="TB", unit="s", info="lag time constant", typical=0.0),
-        Param(name="TC", unit="s", info="lead time constant", typical=0.0),
+        Param(name="TB", unit="s", info="lag time constant (typical 1 = TC: no lead-lag, as the sample's 0, 0)",
+              typical=1.0, bounds=(0.5, 50.0), identify=True),
+        Param(name="TC", unit="s", info="lead time constant (typical 1 = TB: no lead-lag, as the sample's 0, 0)",
+              typical=1.0, bounds=(0.05, 5.0), identify=True),
         Param(name="KA", unit="pu/pu", info="regulator gain", typical=400.0, bounds=(20.0, 1000.0), identify=True),
         Param(name="TA", unit="s", info="regulator time constant", typical=0.02, bounds=(0.002, 0.5), identify=True),
         Param(name="VAMAX", unit="pu", info="maximum regulator output VA", typical=14.5),
@@ -32,7 +34,7 @@ STRUCTURE = declare(
     ),
     blocks=(
         Transducer(T="TR"),
-        LeadLag(lead="TC", lag="TB"),     # TB = TC = 0: no lead-lag
+        LeadLag(lead="TC", lag="TB"),     # TB = TC = 0 (a record's "none") or TB = TC: no lead-lag
         RegulatorLag(gain="KA", T="TA", upper="VAMAX", lower="VAMIN", vt_scaled=False, output_clamp=False,
                      kc_elsewhere=True),
         ACExciter(T="TE", KE="KE", KD="KD", KC="KC", E1="E1", SE1="SE1", E2="E2", SE2="SE2"),

@@ -8,14 +8,16 @@ STRUCTURE = declare(
           "saturation, demagnetisation and rectifier regulation, rate feedback from VFE",
     params=(
         Param(name="TR", unit="s", info="voltage transducer time constant", typical=0.0),
-        Param(name="TB", unit="s", info="lag time constant", typical=0.0),
-        Param(name="TC", unit="s", info="lead time constant", typical=0.0),
+        Param(name="TB", unit="s", info="lag time constant (typical 1 = TC: no lead-lag, as the sample's 0, 0)",
+              typical=1.0, bounds=(0.5, 50.0), identify=True),
+        Param(name="TC", unit="s", info="lead time constant (typical 1 = TB: no lead-lag, as the sample's 0, 0)",
+              typical=1.0, bounds=(0.05, 5.0), identify=True),
         Param(name="KA", unit="pu/pu", info="regulator gain", typical=400.0, bounds=(20.0, 1000.0), identify=True),
         Param(name="TA", unit="s", info="regulator time constant", typical=0.02, bounds=(0.002, 0.5), identify=True),
         Param(name="VRMAX", unit="pu", info="maximum regulator output", typical=6.03),
         Param(name="VRMIN", unit="pu", info="minimum regulator output", typical=-5.43),
         Param(name="TE", unit="s", info="exciter time constant", typical=0.8, bounds=(0.05, 3.0), identify=True),
-        Param(name="KF", unit="pu", info="rate feedback gain", typical=0.03, bounds=(0.002, 0.3), identify=True),
+        Param(name="KF", unit="pu", info="rate feedback gain", typical=0.03, bounds=(0.0, 0.3), identify=True),
         Param(name="TF", unit="s", info="rate feedback time constant", typical=1.0),
         Param(name="KC", unit="pu", info="rectifier loading factor (commutating reactance)", typical=0.2),
         Param(name="KD", unit="pu", info="demagnetising factor (armature reaction)", typical=0.38),
@@ -27,7 +29,7 @@ STRUCTURE = declare(
     ),
     blocks=(
         Transducer(T="TR"),
-        LeadLag(lead="TC", lag="TB"),     # TB = TC = 0: no lead-lag
+        LeadLag(lead="TC", lag="TB"),     # TB = TC = 0 (a record's "none") or TB = TC: no lead-lag
         RegulatorLag(gain="KA", T="TA", upper="VRMAX", lower="VRMIN", vt_scaled=False, output_clamp=False,
                      kc_elsewhere=True),
         ACExciter(T="TE", KE="KE", KD="KD", KC="KC", E1="E1", SE1="SE1", E2="E2", SE2="SE2"),
