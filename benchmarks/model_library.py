@@ -92,13 +92,18 @@ def identification(args: argparse.Namespace, out: dict) -> None:
             ratio = float(r.mse) / var
             model = r.model
             errs = {}
+            absolute = set()   # a true 0 (ESAC1A's KF: ANDES never feeds it back): the error itself
             for p in model["identified"]:
-                errs[p] = (float(model["params"][p]) / float(truth[p]) - 1.0, bool(model["determined"].get(p)))
-            det = [abs(e) for e, d in errs.values() if d]
+                v, t = float(model["params"][p]), float(truth[p])
+                errs[p] = (v / t - 1.0 if t != 0.0 else v, bool(model["determined"].get(p)))
+                if t == 0.0:
+                    absolute.add(p)
+            det = [abs(e) for p, (e, d) in errs.items() if d and p not in absolute]
             row = {"capture": name, "seed": seed, "ratio": ratio, "wall_s": float(r.wall_s),
                    "worst_determined": max(det) if det else float("nan"), "errors": errs}
             by_model.setdefault(exc, []).append(row)
-            cells = "  ".join(f"{p} {100 * e:+.1f}%{'' if d else '(u)'}" for p, (e, d) in errs.items())
+            cells = "  ".join((f"{p} {e:+.3g} (true 0)" if p in absolute else f"{p} {100 * e:+.1f}%")
+                              + ("" if d else "(u)") for p, (e, d) in errs.items())
             print(f"  {name:<14} seed {seed}  mse/noise {ratio:.4f}  {r.wall_s:.2f} s  {cells}", flush=True)
     print()
     print(f"{'model':<8}{'median ratio':>13}{'worst':>8}{'<=1.05':>8}{'worst det. err':>15}{'<=10 %':>8}{'wall s':>8}")
@@ -141,7 +146,8 @@ def speed(out: dict) -> None:
         lo = np.array([b.min for b in unit.identify.values()])
         hi = np.array([b.max for b in unit.identify.values()])
         pos = lo > 0   # log-uniform inside positive bounds, uniform where a bound is 0 (ESST4B's KIR)
-        X = np.where(pos, np.exp(rng.uniform(np.log(np.where(pos, lo, 1.0)), np.log(hi), (1000, len(names)))),
+        llo, lhi = np.log(np.where(pos, lo, 1.0)), np.log(np.where(pos, hi, np.e))
+        X = np.where(pos, np.exp(rng.uniform(llo, lhi, (1000, len(names)))),
                      rng.uniform(lo, hi, (1000, len(names))))
         x0 = np.array([unit.values()[n] for n in names])
         pops = {"bounds": X, "typical": x0 * np.exp(rng.uniform(-0.2, 0.2, (1000, len(names))))}
