@@ -440,10 +440,25 @@ def _threads(size: int) -> Iterator[None]:
         numba.set_num_threads(old)
 
 
+#: the kernel's loops over candidates run in vectors of this many (8 doubles: AVX-512; two of
+#: AVX2's 4) and a scalar loop over the rest: a call of 6 or 7 candidates took 4.5 and 6.7 ms on
+#: the Mostar record, one of 8 took 1.7 ms (docs/benchmarks.md, "Diagnosis constants")
+LANES = 8
+
+
 def _kernel(P: np.ndarray, usetp: np.ndarray, *args: Any, **kwargs: Any) -> dict:
-    """`run_kernel`, on one thread when the call is small (`SMALL_CALL`)."""
+    """`run_kernel`, on one thread when the call is small (`SMALL_CALL`); a call of more than one
+    candidate padded with copies of its last to a multiple of LANES when two or more would run in
+    the scalar loop (the copies' results dropped)."""
+    n = P.shape[0]
+    short = n % LANES
+    if n > 1 and short >= 2:
+        P = np.vstack([P, np.repeat(P[-1:], LANES - short, axis=0)])
     with _threads(P.shape[0] * usetp.shape[0]):
-        return run_kernel(P, usetp, *args, **kwargs)
+        out = run_kernel(P, usetp, *args, **kwargs)
+    if P.shape[0] == n:
+        return out
+    return {k: v[:n] for k, v in out.items()}
 
 
 # ---------------------------------------------------------------------- construction

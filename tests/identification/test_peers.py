@@ -111,17 +111,18 @@ def test_unknown_optimizer_and_bad_budget_are_refused(problem):
 @pytest.mark.parametrize("name", ["mvmo", "de", "local"])
 def test_no_simulation_beyond_the_budget(problem, name, monkeypatch):
     """max_evals counts every candidate simulated, the final score included (one capture here:
-    one kernel row per candidate)."""
+    one kernel row per candidate; the copies that pad a call to the kernel's vector width are not
+    candidates, `problem.LANES`)."""
     import bench_ctl.identification.problem as problem_module
 
     rows = [0]
-    real = problem_module.run_kernel
+    real = problem_module._kernel
 
     def counting(P, *args, **kwargs):
         rows[0] += np.atleast_2d(P).shape[0]
         return real(P, *args, **kwargs)
 
-    monkeypatch.setattr(problem_module, "run_kernel", counting)
+    monkeypatch.setattr(problem_module, "_kernel", counting)
     r = run_optimizer(name, problem, max_evals=120, seed=0)
     assert r.nfev <= 120 and rows[0] == r.nfev, (r.nfev, rows[0])
     assert r.fun == pytest.approx(float(problem.objective(r.x[None])[0]), rel=1e-9)
@@ -167,3 +168,27 @@ def test_an_exchange_that_breaks_a_constraint_restarts_with_the_leads_exchanged_
     assert ta2["kept"] and res.fun < 0.5 * f and res.nfev <= 150
     truth_fit = float(problem.objective(np.array([[TRUTH[n] for n in problem.names]]))[0])
     assert res.fun <= 1.01 * truth_fit
+
+
+def test_a_call_padded_to_the_vector_width_gives_each_candidate_its_own_result(problem, monkeypatch):
+    """Six candidates run padded to LANES with copies of the last; each gets what it gets alone
+    (to rounding: the vector loop and the scalar one may round differently) and the copies are
+    dropped."""
+    import bench_ctl.identification.problem as problem_module
+
+    rows = []
+    real = problem_module.run_kernel
+
+    def seen(P, *args, **kwargs):
+        rows.append(P.shape[0])
+        return real(P, *args, **kwargs)
+
+    monkeypatch.setattr(problem_module, "run_kernel", seen)
+    x = problem.x_start()
+    X = x[None, :] * (1.0 + 0.05 * np.random.default_rng(3).normal(size=(6, problem.d)))
+    X = SearchSpace(problem).clip(X)
+    together = problem.objective(X)
+    alone = np.array([problem.objective(X[i:i + 1])[0] for i in range(6)])
+    assert together.shape == (6,) and rows[0] == problem_module.LANES and rows[1:] == [1] * 6
+    assert np.allclose(together, alone, rtol=1e-9, atol=0.0)
+    assert np.ptp(alone) > 1e-3 * np.max(alone)     # six different candidates, not one six times
