@@ -6,10 +6,11 @@ sum is `Problem.objective`: in the search space's coordinates (`SearchSpace`), i
 with one more residual row carrying the constraints' violation and one the penalty of a
 candidate that failed to simulate (`Problem.penalty`), so a step across a constraint or into an
 unstable region is refused like any step that does not lower the objective. The forward-difference
-Jacobian is one kernel call of d candidates. It takes at most budget / (d + 1) steps (a step: a
-Jacobian and a trial point), and every simulation counts toward `budget`, which is never
-exceeded; the result is the best feasible point evaluated (x0 itself when nothing better is
-found). docs/decisions/0015-one-fitting-stack.md.
+Jacobian is one kernel call of d candidates (with d + 1 <= SPECULATE, made with its trial point in
+one call). It takes at most budget / (d + 1) steps (a step: a Jacobian and a trial point), and
+every simulation counts toward `budget`, which is never exceeded; the result is the best
+feasible point evaluated (x0 itself when nothing better is found).
+docs/decisions/0015-one-fitting-stack.md.
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ from .space import FEASIBLE_TOL, SearchSpace
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["polish", "evaluate", "Tracker", "least_squares", "FD_STEP", "VIOLATION_WEIGHT"]
+__all__ = ["polish", "evaluate", "Tracker", "least_squares", "FD_STEP", "VIOLATION_WEIGHT", "SPECULATE"]
 
 Progress = Callable[[int, float], Any]
 
@@ -37,6 +38,11 @@ FD_STEP = 1e-5
 VIOLATION_WEIGHT = 10.0
 #: convergence tolerances of the polish (relative change of the cost / of x, scaled gradient)
 TOL = 1e-8
+#: with at most this many candidates in a point and its difference steps together (d + 1), a trial
+#: point is simulated with its steps in one kernel call: one call of up to 8 candidates costs
+#: about what one of a single candidate does (`problem.LANES`), and most trial points are accepted
+#: and need their Jacobian next (docs/benchmarks.md, "Diagnosis constants")
+SPECULATE = 8
 
 
 class Budget(Exception):
@@ -81,7 +87,9 @@ def least_squares(resid: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], 
     penalty would otherwise make it huge, and x_scale="jac" would freeze the variable for good).
     Returns (scipy's message, the last Jacobian computed (None: none))."""
     cache: dict[bytes, np.ndarray] = {}
+    differences: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     last_jac: list[np.ndarray | None] = [None]
+    together = z0.size + 1 <= SPECULATE
 
     def evaluate(Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if Z.shape[0] > tr.remaining:
@@ -92,13 +100,25 @@ def least_squares(resid: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], 
         key = z.tobytes()
         if key not in cache:
             cache.clear()
-            cache[key] = evaluate(z[None])[0][0]
+            differences.clear()
+            if together and z.size + 1 <= tr.remaining:
+                # the point and its difference steps in one kernel call (`SPECULATE`)
+                h = steps(z)
+                R, failed = evaluate(np.vstack([z[None, :], z[None, :] + np.diag(h)]))
+                cache[key] = R[0]
+                differences[key] = (R[1:], failed[1:], h)
+            else:
+                cache[key] = evaluate(z[None])[0][0]
         return cache[key]
 
     def jac(z: np.ndarray) -> np.ndarray:
         r0 = fun(z)
-        h = steps(z)
-        R, failed = evaluate(z[None, :] + np.diag(h))
+        key = z.tobytes()
+        if key in differences:
+            R, failed, h = differences[key]
+        else:
+            h = steps(z)
+            R, failed = evaluate(z[None, :] + np.diag(h))
         J = (R - r0[None, :]).T / h[None, :]
         J[:, failed] = 0.0
         last_jac[0] = J

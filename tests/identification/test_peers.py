@@ -192,3 +192,32 @@ def test_a_call_padded_to_the_vector_width_gives_each_candidate_its_own_result(p
     assert together.shape == (6,) and rows[0] == problem_module.LANES and rows[1:] == [1] * 6
     assert np.allclose(together, alone, rtol=1e-9, atol=0.0)
     assert np.ptp(alone) > 1e-3 * np.max(alone)     # six different candidates, not one six times
+
+
+def test_a_trial_point_and_its_differences_share_one_kernel_call(problem, monkeypatch):
+    """With d + 1 <= SPECULATE the polish simulates each trial point with its difference steps in
+    one call: fewer kernel calls for the same budget and the same optimum as one call each."""
+    import bench_ctl.identification.polish as polish_module
+    import bench_ctl.identification.problem as problem_module
+
+    assert problem.d + 1 <= polish_module.SPECULATE
+    calls = [0]
+    real = problem_module._kernel
+
+    def counting(P, *args, **kwargs):
+        calls[0] += 1
+        return real(P, *args, **kwargs)
+
+    monkeypatch.setattr(problem_module, "_kernel", counting)
+    x0 = problem.x_start()
+    together = polish_module.SPECULATE
+    out = {}
+    for spec in (together, 0):
+        monkeypatch.setattr(polish_module, "SPECULATE", spec)
+        calls[0] = 0
+        r = polish_module.polish(problem, x0, budget=300)
+        out[spec] = (r.fun, r.nfev, calls[0])
+    (f_s, n_s, c_s), (f_p, n_p, c_p) = out[together], out[0]
+    assert n_s <= 300 and n_p <= 300
+    assert c_s < 0.75 * c_p, (c_s, c_p)
+    assert f_s == pytest.approx(f_p, rel=1e-6)
