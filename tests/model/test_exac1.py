@@ -7,30 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ac_equations import fex as _fex
+from ac_equations import quad as _quad
 from bench_ctl.model.dyr import read_dyr
 from bench_ctl.model.dyr_unit import unit_from_dyr
 from bench_ctl.model.simulate import simulate
 from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
-
-
-def _fex(i_n: float) -> float:
-    if i_n <= 0.0:
-        return 1.0
-    if i_n <= 0.433:
-        return 1.0 - 0.577 * i_n
-    if i_n <= 0.75:
-        return float(np.sqrt(0.75 - i_n * i_n))
-    if i_n <= 1.0:
-        return 1.732 * (1.0 - i_n)
-    return 0.0
-
-
-def _quad(x1: float, y1: float, x2: float, y2: float):
-    """B (x - A)^2 through (x1, y1) and (x2, y2), 0 below A."""
-    r = np.sqrt(y2 / y1)
-    a = (r * x1 - x2) / (r - 1.0)
-    b = y1 / (x1 - a) ** 2
-    return lambda x: b * max(x - a, 0.0) ** 2
 
 
 def _reference(s: dict[str, float], amp: float, width: float, n: int, dt: float, kpp: float, kda: float,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ac_equations import fex as _fex
 from andes_units import fixture_unit, manifest, open_loop_efd, read_fixture, standard_params, true_edges
 from bench_ctl.cli import main
 from bench_ctl.model.params import PARAMS
@@ -125,17 +126,6 @@ def test_each_structure_reproduces_andes_open_and_closed_loop(name):
             "ESAC1A": "KA", "AC8B": "KPR"}[entry["exciter"]]
     worse = apply_overrides(unit, [f"{gain}={1.1 * unit.standard_values()[gain]}"])
     assert np.max(np.abs(open_loop_efd(name, worse, cap) - cap.efd)) > 0.01
-
-
-def _fex(x: float) -> float:
-    """IEEE 421.5 rectifier regulation, written here apart from the kernel's."""
-    if x <= 0.0:
-        return 1.0
-    if x <= 0.433:
-        return 1.0 - 0.577 * x
-    if x <= 0.75:
-        return float(np.sqrt(0.75 - x * x))
-    return 1.732 * (1.0 - x) if x <= 1.0 else 0.0
 
 
 @pytest.mark.parametrize("amp,kg,kim,limited", [(0.05, 0.0, 0.0, False), (0.2, 0.0, 0.0, True),
