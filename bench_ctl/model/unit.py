@@ -441,10 +441,7 @@ def _bypass_lead_lags(unit: Unit) -> Unit:
     (`Structure.kernel_values`); its standard values stay 0."""
     if unit.model == DEFAULT_MODEL:
         return unit
-    fixed = dict(unit.fixed)
-    for lead, lag in unit.structure.lead_lags:
-        if fixed.get(lead) == 0.0 and fixed.get(lag) == 0.0:
-            fixed[lead] = fixed[lag] = 1.0
+    fixed = unit.structure.bypass_lead_lags(unit.fixed)
     return replace(unit, fixed=fixed) if fixed != unit.fixed else unit
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ac_equations import S10, S12, ac_steady_state, kernel_pulse
 from ac_equations import fex as _fex
 from ac_equations import quad as _quad
 from bench_ctl.model.dyr import DyrRecord, dyr_text, read_dyr
@@ -31,13 +32,7 @@ def _ac8b(s: dict[str, float], amp: float, width: float, n: int, dt: float, s10:
     ka, ta, te, ke, kdd, kc = (s[k] for k in ("KA", "TA", "TE", "KE", "KD", "KC"))
     vpmax, vpmin, vrmax, vrmin, tr = s["VPIDMAX"], s["VPIDMIN"], s["VRMAX"], s["VRMIN"], s["TR"]
     td0p, td0pp = s["Td0p"], s["Td0pp"]
-    ifd0 = 1.0 + sat(1.0)
-    lo_, hi_ = ifd0, ifd0 + 2 * kc * ifd0 + 1.0
-    for _ in range(80):
-        mid = 0.5 * (lo_ + hi_)
-        lo_, hi_ = (mid, hi_) if mid * _fex(kc * ifd0 / mid) < ifd0 else (lo_, mid)
-    ve0 = 0.5 * (lo_ + hi_)
-    vfe0 = ke * ve0 + se(ve0) + kdd * ifd0
+    _ifd0, ve0, vfe0 = ac_steady_state(kc, ke, kdd, sat, se)
 
     def pid(e, xi, xd):
         ys = kp * e + xi + kd / tdr * (e - xd)
@@ -79,17 +74,10 @@ def _ac8b(s: dict[str, float], amp: float, width: float, n: int, dt: float, s10:
     (0.2, 0.6, ["VRMAX=8", "VRMIN=0.5", "KIR=20", "KDR=2", "TDR=0.05", "TA=0.05", "KA=2"]),   # VR at its limits
 ])
 def test_ac8b_matches_its_equations_solved_by_solve_ivp(amp, width, overrides):
-    unit = with_model(apply_overrides(reference_unit(), ["S10=0.05", "S12=0.24"]), "AC8B")
-    unit = apply_overrides(unit, overrides)
-    s = unit.structure.std_values(unit.values(), unit.model_values)
-    s.update({"Td0p": unit.values()["Td0p"], "Td0pp": unit.values()["Td0pp"]})
     dt, n = 5e-4, 6000
-    usetp = np.ones(n)
-    k0 = int(round(0.5 / dt))
-    usetp[k0:k0 + int(round(width / dt))] += amp
-    efd, _, fail = simulate(unit.values(), usetp, dt)
+    s, efd, fail = kernel_pulse("AC8B", overrides, amp, width, dt=dt, n=n)
     assert fail < 0
-    ref, y, vr = _ac8b(s, amp, width, n, dt, 0.05, 0.24)
+    ref, y, vr = _ac8b(s, amp, width, n, dt, S10, S12)
     err = np.abs(efd - ref)
     assert err.max() < 1e-3, f"max |efd error| {err.max():.2e} pu at t = {np.argmax(err) * dt:.3f} s"
     assert efd.max() - efd[0] > 0.2           # it moved
@@ -98,7 +86,7 @@ def test_ac8b_matches_its_equations_solved_by_solve_ivp(amp, width, overrides):
     if "VRMAX=8" in overrides:
         assert vr.max() >= 8.0 - 1e-6 and vr.min() <= 0.5 + 1e-6  # VR met both limits
     # the check can fail: the same equations without the derivative
-    other, _, _ = _ac8b({**s, "KDR": 1e-9}, amp, width, n, dt, 0.05, 0.24)
+    other, _, _ = _ac8b({**s, "KDR": 1e-9}, amp, width, n, dt, S10, S12)
     assert np.abs(efd - other).max() > 0.01
 
 
@@ -145,3 +133,17 @@ def test_ac8b_and_esac1a_records_read_into_a_unit_and_write_back(tmp_path):
     v = unit.values()
     assert (v["KAVR"], v["TE"], v["VRMAX"], v["TEX"], v["KF"], v["KC"], v["KD"]) == (280.463, 0.02, 16.5957,
                                                                                     1.0339, 0.0162, 0.2, 1.0)
+
+
+def test_a_derivative_without_its_filter_is_not_a_candidate_the_kernel_runs():
+    """KDR > 0 needs TDR > 0 (as rate feedback KF needs TF): the kernel marks such a row invalid
+    rather than dividing by 0; without the derivative TDR is not looked at."""
+    from bench_ctl.model.kernel import D_VALID, derive
+    from bench_ctl.model.params import COL
+    from bench_ctl.model.simulate import param_matrix
+
+    unit = with_model(reference_unit(), "AC8B")
+    P = np.repeat(param_matrix(unit.values()), 3, axis=0)
+    P[1, COL["TDR"]] = 0.0
+    P[2, [COL["TDR"], COL["KDR"]]] = 0.0
+    assert derive(P)[:, D_VALID].tolist() == [1.0, 0.0, 1.0]

@@ -91,6 +91,7 @@ def _valid(g: Params) -> np.ndarray:
     valid &= g["VRMAX"] > g["VRMIN"]
     valid &= (g["VRVT"] >= 0.0) & (g["VRVT"] <= 1.0) & (g["KC"] >= 0.0) & np.isfinite(g["KC"])
     valid &= np.isfinite(g["KF"]) & (g["KF"] >= 0.0) & ((g["KF"] == 0.0) | (g["TF"] > 0.0))
+    valid &= np.isfinite(g["KDR"]) & (g["KDR"] >= 0.0) & ((g["KDR"] == 0.0) | (g["TDR"] > 0.0))
     valid &= np.isfinite(g["TEX"]) & (g["TEX"] >= 0.0) & np.isfinite(g["KE"])
     valid &= np.isfinite(g["KD"]) & (g["KD"] >= 0.0) & np.isfinite(g["ACEX"])
     valid &= (g["KPP"] >= 0.0) & (g["KPP"] <= 1.0) & (g["KDA"] >= 0.0) & np.isfinite(g["KDA"])
