@@ -52,7 +52,6 @@ loop would keep it scalar.
 """
 from __future__ import annotations
 
-import cmath
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -104,7 +103,7 @@ from .params import COL, MACHINE_CATALOGUE, MACHINE_DATA, MACHINE_DEFAULTS, MACH
 
 #: the columns of the machine's derived matrix G (transposed as the kernel's: G[G_NAME, i])
 (G_GD1, G_GQ1, G_GD2, G_GQ2, G_GQD, G_XD, G_XQ, G_XDP, G_XQP, G_XDPP, G_XL, G_ITQ0P, G_ITQ0PP, G_IM,
- G_DAMP, G_W0, G_RA, G_RT, G_XT, G_VINF, G_TM, G_E1Q0, G_E2D0, G_E1D0, G_E2Q0, G_DELTA0, G_VALID,
+ G_DAMP, G_W0, G_RA, G_GT, G_BT, G_VINF, G_TM, G_E1Q0, G_E2D0, G_E1D0, G_E2Q0, G_DELTA0, G_VALID,
  G_SAL, G_KQ, G_PSS_KS, G_PSS_IT2, G_PSS_R1, G_PSS_IT4, G_PSS_R3, G_PSS_ITW, G_PSS_LIM) = range(36)
 N_G = 36
 #: the states of an on-line candidate: the kernel's eight (xm, x1, x2, VR lag, E'q, psikd, rate
@@ -112,6 +111,11 @@ N_G = 36
 #: sine and cosine: no sin / cos in the step, so the candidate loops vectorise), then the
 #: stabiliser's two lead-lags and its washout
 N_ONLINE = 16
+#: the rows of a chunk's readout R: the recorded signals (efd, Vt, P, Q, Ifd) at the current state,
+#: then the rest of the machine's algebra there (Id, Iq, Te, XaqI1q): with Vt and Ifd, what the next
+#: RK4 step's first stage reads instead of solving the machine again
+(R_EFD, R_VT, R_P, R_Q, R_IFD, R_ID, R_IQ, R_TE, R_XAQ) = range(9)
+N_R = 9
 
 
 def machine_matrix(values: Mapping[str, float] | Sequence[Mapping[str, float]]) -> np.ndarray:
@@ -173,7 +177,9 @@ def with_placeholders(grid: Mapping[str, float]) -> dict[str, float]:
 def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The machine's derived matrix G (n, N_G) and the field voltage XadIfd0 of the steady state at
     the operating point (P0, Q0, Vt0), as ANDES initialises a GENROU; a candidate whose
-    reactances are out of order (Xd > X'd > X''d > Xl, Xq >= X'q >= X''d) is marked invalid."""
+    reactances are out of order (Xd > X'd > X''d > Xl, Xq >= X'q >= X''d) is marked invalid (its
+    row 0, its field voltage 1). Array arithmetic over the candidates: one batched call derives
+    them all."""
     P = np.atleast_2d(np.asarray(P, float))
     M = np.atleast_2d(np.asarray(M, float))
     if M.shape != (P.shape[0], len(MACHINE_PARAMS)):
@@ -182,61 +188,67 @@ def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray
     G = np.zeros((n, N_G))
     fld0 = np.ones(n)
     sat_a, sat_b = K.saturation_ab(P[:, COL["S10"]], P[:, COL["S12"]])
-    for i in range(n):
-        m = {name: M[i, j] for name, j in MCOL.items()}
-        sal = P[i, COL["SATEQ"]] > 0.5   # a GENSAL: saturation on E'q, one q-axis circuit
-        xd, xq, x1d, x2, xl = m["XD"], m["XQ"], m["XDP"], m["XDPP"], m["XLS"]
-        x1q = xq if sal else m["XQP"]
-        ok = (xd > x1d > x2 > xl >= 0.0 and xq >= x1q >= x2 and xq > x2 and (sal or m["Tq0p"] > 0)
-              and m["Tq0pp"] > 0 and m["H"] > 0 and P[i, COL["Vt0"]] > 0)
-        if not ok:
-            continue
-        gd1 = (x2 - xl) / (x1d - xl)
-        gq1 = 0.0 if sal else (x2 - xl) / (x1q - xl)
-        gd2 = (x1d - x2) / (x1d - xl) ** 2
-        gq2 = 0.0 if sal else (x1q - x2) / (x1q - xl) ** 2
-        gqd = 0.0 if sal else (xq - xl) / (xd - xl)
-        ra, re, xe = m["RA"], m["RE"], m["XE"]
-        vt0, p0, q0 = P[i, COL["Vt0"]], m["P0"], m["Q0"]
-        # the operating point, the terminal voltage at angle 0 (ANDES' GENROU initialisation)
-        v = complex(vt0, 0.0)
-        it = complex(p0, -q0) / v.conjugate()
-        zs = complex(ra, x2)
-        psi20 = (it + v / zs) * zs
-        psi_abs = abs(psi20)
-        se0 = sat_b[i] * (psi_abs - sat_a[i]) ** 2 / psi_abs if psi_abs >= sat_a[i] and not sal else 0.0
-        a = psi_abs * (1.0 + se0 * gqd)
-        b = abs(it) * (x2 - xq)
-        th = cmath.phase(psi20) - cmath.phase(it) if abs(it) > 0 else 0.0
-        delta0 = math.atan(b * math.cos(th) / (b * math.sin(th) - a)) + cmath.phase(psi20)
-        rot = 1j * cmath.exp(-1j * delta0)        # X_dq = j X e^{-j delta}
-        psi_dq, i_dq = psi20 * rot, it * rot
-        psi2q0, psi2d0 = psi_dq.real, psi_dq.imag
-        id0, iq0 = i_dq.real, i_dq.imag
-        e1q0 = psi2d0 + (x1d - x2) * id0
-        sat_eq = sat_b[i] * max(e1q0 - sat_a[i], 0.0) ** 2 if sal else 0.0   # a GENSAL's Sat(E'q)
-        vf0 = (se0 + 1.0) * psi2d0 + (xd - x2) * id0 + sat_eq
-        vinf = v - complex(re, xe) * it
-        G[i] = 0.0
-        G[i, G_GD1], G[i, G_GQ1], G[i, G_GD2], G[i, G_GQ2], G[i, G_GQD] = gd1, gq1, gd2, gq2, gqd
-        G[i, G_XD], G[i, G_XQ], G[i, G_XDP], G[i, G_XQP], G[i, G_XDPP], G[i, G_XL] = xd, xq, x1d, x1q, x2, xl
-        G[i, G_ITQ0P], G[i, G_ITQ0PP] = (0.0 if sal else 1.0 / m["Tq0p"]), 1.0 / m["Tq0pp"]
-        G[i, G_SAL], G[i, G_KQ] = float(sal), (xq - x2) if sal else (x1q - xl)
-        G[i, G_IM], G[i, G_DAMP], G[i, G_W0] = 1.0 / (2.0 * m["H"]), m["DAMP"], 2.0 * math.pi * m["FN"]
-        G[i, G_RA], G[i, G_RT], G[i, G_XT] = ra, ra + re, x2 + xe
-        G[i, G_VINF] = abs(vinf)
-        G[i, G_TM] = p0 + ra * abs(it) ** 2
-        G[i, G_E1Q0] = e1q0
-        G[i, G_E2D0] = e1q0 - (x1d - xl) * id0
-        G[i, G_E1D0] = 0.0 if sal else iq0 * (xq - x1q) - se0 * gqd * psi2q0
-        G[i, G_E2Q0] = psi2q0 if sal else -iq0 * (xl - xq) - se0 * gqd * psi2q0
-        G[i, G_DELTA0] = delta0 - cmath.phase(vinf)   # the infinite bus at angle 0
-        G[i, G_PSS_KS], G[i, G_PSS_LIM] = m["PSS_KS"], m["PSS_LSMAX"]
-        G[i, G_PSS_IT2], G[i, G_PSS_R1] = 1.0 / m["PSS_T2"], m["PSS_T1"] / m["PSS_T2"]
-        G[i, G_PSS_IT4], G[i, G_PSS_R3] = 1.0 / m["PSS_T4"], m["PSS_T3"] / m["PSS_T4"]
-        G[i, G_PSS_ITW] = 1.0 / m["PSS_TW"]
-        G[i, G_VALID] = 1.0
-        fld0[i] = vf0
+    m = {name: M[:, j] for name, j in MCOL.items()}
+    sal = P[:, COL["SATEQ"]] > 0.5   # a GENSAL: saturation on E'q, one q-axis circuit
+    xd, xq, x1d, x2, xl = m["XD"], m["XQ"], m["XDP"], m["XDPP"], m["XLS"]
+    x1q = np.where(sal, xq, m["XQP"])
+    vt0, p0, q0 = P[:, COL["Vt0"]], m["P0"], m["Q0"]
+    ok = ((xd > x1d) & (x1d > x2) & (x2 > xl) & (xl >= 0.0) & (xq >= x1q) & (x1q >= x2) & (xq > x2)
+          & (sal | (m["Tq0p"] > 0)) & (m["Tq0pp"] > 0) & (m["H"] > 0) & (vt0 > 0))
+    if not ok.any():
+        return G, fld0
+    # the valid candidates only (an invalid one's reactances may divide by 0)
+    k = np.flatnonzero(ok)
+    sal, x1q, vt0, p0, q0, sat_a, sat_b = sal[k], x1q[k], vt0[k], p0[k], q0[k], sat_a[k], sat_b[k]
+    m = {name: v[k] for name, v in m.items()}
+    xd, xq, x1d, x2, xl = m["XD"], m["XQ"], m["XDP"], m["XDPP"], m["XLS"]
+    gd1 = (x2 - xl) / (x1d - xl)
+    gq1 = np.where(sal, 0.0, (x2 - xl) / (x1q - xl))
+    gd2 = (x1d - x2) / (x1d - xl) ** 2
+    gq2 = np.where(sal, 0.0, (x1q - x2) / (x1q - xl) ** 2)
+    gqd = np.where(sal, 0.0, (xq - xl) / (xd - xl))
+    ra, re, xe = m["RA"], m["RE"], m["XE"]
+    # the operating point, the terminal voltage at angle 0 (ANDES' GENROU initialisation)
+    v = vt0.astype(complex)
+    it = (p0 - 1j * q0) / np.conj(v)
+    zs = ra + 1j * x2
+    psi20 = (it + v / zs) * zs
+    psi_abs = np.abs(psi20)
+    se0 = np.where((psi_abs >= sat_a) & ~sal, sat_b * (psi_abs - sat_a) ** 2 / psi_abs, 0.0)
+    a = psi_abs * (1.0 + se0 * gqd)
+    b = np.abs(it) * (x2 - xq)
+    th = np.where(np.abs(it) > 0, np.angle(psi20) - np.angle(it), 0.0)
+    delta0 = np.arctan(b * np.cos(th) / (b * np.sin(th) - a)) + np.angle(psi20)
+    rot = 1j * np.exp(-1j * delta0)        # X_dq = j X e^{-j delta}
+    psi_dq, i_dq = psi20 * rot, it * rot
+    psi2q0, psi2d0 = psi_dq.real, psi_dq.imag
+    id0, iq0 = i_dq.real, i_dq.imag
+    e1q0 = psi2d0 + (x1d - x2) * id0
+    sat_eq = np.where(sal, sat_b * np.maximum(e1q0 - sat_a, 0.0) ** 2, 0.0)   # a GENSAL's Sat(E'q)
+    vinf = v - (re + 1j * xe) * it
+    rt, xt = ra + re, x2 + xe   # the path to the infinite bus as its admittance 1 / (rt + j xt)
+    Gk = G[k]
+    Gk[:, G_GD1], Gk[:, G_GQ1], Gk[:, G_GD2], Gk[:, G_GQ2], Gk[:, G_GQD] = gd1, gq1, gd2, gq2, gqd
+    Gk[:, G_XD], Gk[:, G_XQ], Gk[:, G_XDP], Gk[:, G_XQP], Gk[:, G_XDPP], Gk[:, G_XL] = xd, xq, x1d, x1q, x2, xl
+    Gk[:, G_ITQ0P] = np.where(sal, 0.0, 1.0 / np.where(sal, 1.0, m["Tq0p"]))
+    Gk[:, G_ITQ0PP] = 1.0 / m["Tq0pp"]
+    Gk[:, G_SAL], Gk[:, G_KQ] = sal, np.where(sal, xq - x2, x1q - xl)
+    Gk[:, G_IM], Gk[:, G_DAMP], Gk[:, G_W0] = 1.0 / (2.0 * m["H"]), m["DAMP"], 2.0 * math.pi * m["FN"]
+    Gk[:, G_RA], Gk[:, G_GT], Gk[:, G_BT] = ra, rt / (rt * rt + xt * xt), xt / (rt * rt + xt * xt)
+    Gk[:, G_VINF] = np.abs(vinf)
+    Gk[:, G_TM] = p0 + ra * np.abs(it) ** 2
+    Gk[:, G_E1Q0] = e1q0
+    Gk[:, G_E2D0] = e1q0 - (x1d - xl) * id0
+    Gk[:, G_E1D0] = np.where(sal, 0.0, iq0 * (xq - x1q) - se0 * gqd * psi2q0)
+    Gk[:, G_E2Q0] = np.where(sal, psi2q0, -iq0 * (xl - xq) - se0 * gqd * psi2q0)
+    Gk[:, G_DELTA0] = delta0 - np.angle(vinf)   # the infinite bus at angle 0
+    Gk[:, G_PSS_KS], Gk[:, G_PSS_LIM] = m["PSS_KS"], m["PSS_LSMAX"]
+    Gk[:, G_PSS_IT2], Gk[:, G_PSS_R1] = 1.0 / m["PSS_T2"], m["PSS_T1"] / m["PSS_T2"]
+    Gk[:, G_PSS_IT4], Gk[:, G_PSS_R3] = 1.0 / m["PSS_T4"], m["PSS_T3"] / m["PSS_T4"]
+    Gk[:, G_PSS_ITW] = 1.0 / m["PSS_TW"]
+    Gk[:, G_VALID] = 1.0
+    G[k] = Gk
+    fld0[k] = (se0 + 1.0) * psi2d0 + (xd - x2) * id0 + sat_eq
     return G, fld0
 
 # ---- the compiled machine, its right-hand side and RK4 step ------------------------------------
@@ -264,11 +276,10 @@ def machine(D, G, i, e1q, e2d, e1d, e2q, sd, cd):
     vinf = G[G_VINF, i]
     ar = psq - vinf * sd
     ai = psd - vinf * cd
-    rt = G[G_RT, i]
-    xt = G[G_XT, i]
-    den = rt * rt + xt * xt
-    cid = (ar * rt + ai * xt) / den
-    ciq = (ai * rt - ar * xt) / den
+    gt = G[G_GT, i]
+    bt = G[G_BT, i]
+    cid = ar * gt + ai * bt
+    ciq = ai * gt - ar * bt
     ra = G[G_RA, i]
     x2 = G[G_XDPP, i]
     vd = psq - ra * cid + x2 * ciq
@@ -316,17 +327,19 @@ def swing_and_flux(D, G, i, fld, ifd, cid, ciq, te, xaq, x4, x5, x8, x9, x10, x1
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
 def end_of_step(D, G, i, y3, y4, y5, y8, y9, s, co):
     """After an RK4 step: the rotor angle's sine and cosine put back on the unit circle, the
-    machine's algebra at the new state, the regulator lag clamped to the ceilings there unless
-    they clamp the output; (VR lag, sin, cos, Vt, Ifd, P, Q)."""
-    norm = math.sqrt(s * s + co * co)
-    s = s / norm
-    co = co / norm
+    machine's algebra at the new state (`machine`'s tuple), the regulator lag clamped to the
+    ceilings there unless they clamp the output; (VR lag, sin, cos, algebra, ceiling hi, lo)."""
+    # one Newton step of 1 / sqrt(s^2 + co^2) from 1: an RK4 step leaves the pair on the circle
+    # to far below the rounding (its error is the square of the drift), with no sqrt or division
+    f = 1.5 - 0.5 * (s * s + co * co)
+    s = s * f
+    co = co * f
     r = machine(D, G, i, y4, y5, y8, y9, s, co)
     hi, lo = ceilings_at(D, i, r[0], r[1])
     z = y3 if y3 > lo else lo
     z = z if z < hi else hi
     y3 = z + D[D_LIMOUT, i] * (y3 - z)   # (ESST4B's lag: LIMOUT = 1, not limited)
-    return y3, s, co, r[0], r[1], r[4], r[5]
+    return y3, s, co, r, hi, lo
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
@@ -334,6 +347,15 @@ def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, 
     """Derivatives of the 16 on-line states (see N_ONLINE); the rotor angle as its sine and cosine,
     turned at the slip speed; the stabiliser's output added to the reference."""
     vt, ifd, cid, ciq, _p, _q, te, xaq = machine(D, G, i, x4, x5, x8, x9, x10, x11)
+    return rhs_given(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15,
+                     vt, ifd, cid, ciq, te, xaq, st4)
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def rhs_given(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15,
+              vt, ifd, cid, ciq, te, xaq, st4):
+    """`rhs_online` with the machine's algebra at the state given (a step's first stage: the
+    previous step's end solved it)."""
     hi, lo = ceilings_at(D, i, vt, ifd)
     vs, d13, d14, d15 = stabiliser(G, i, x12, x13, x14, x15)
     dxm, dx1, dx2, de, fld, dxf, dxe = exciter(D, i, uref + vs, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo, st4)
@@ -344,12 +366,16 @@ def rhs_online(D, G, i, uref, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, 
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
-def rk4_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15, h, st4):
-    """One RK4 step of length h at the setpoint reference u: the 16 states at its end, the rotor
-    angle's sine and cosine put back on the unit circle, the regulator lag clamped to the ceilings
-    unless they clamp the output. Branch-free: candidate loops vectorise."""
+def rk4_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15, h, st4,
+               vt0, ifd0, id0, iq0, te0, xaq0):
+    """One RK4 step of length h at the setpoint reference u from the states x with the machine's
+    algebra there (vt0 .. xaq0: `machine`'s): the 16 states at its end, the rotor angle's sine and
+    cosine put back on the unit circle, the regulator lag clamped to the ceilings unless they clamp
+    the output; then the recorded signals and the algebra at the end (the R rows 0-8, the field
+    voltage at the reference u). Branch-free: candidate loops vectorise."""
     h2 = 0.5 * h
-    a = rhs_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15, st4)
+    a = rhs_given(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15,
+                  vt0, ifd0, id0, iq0, te0, xaq0, st4)
     b = rhs_online(D, G, i, u, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3], x4 + h2 * a[4],
                    x5 + h2 * a[5], x6 + h2 * a[6], x7 + h2 * a[7], x8 + h2 * a[8], x9 + h2 * a[9],
                    x10 + h2 * a[10], x11 + h2 * a[11], x12 + h2 * a[12], x13 + h2 * a[13], x14 + h2 * a[14],
@@ -370,14 +396,20 @@ def rk4_online(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12
     y9 = x9 + h6 * (a[9] + 2.0 * b[9] + 2.0 * c[9] + d[9])
     s = x10 + h6 * (a[10] + 2.0 * b[10] + 2.0 * c[10] + d[10])
     co = x11 + h6 * (a[11] + 2.0 * b[11] + 2.0 * c[11] + d[11])
-    y3, s, co, _vt, _ifd, _p, _q = end_of_step(D, G, i, y3, y4, y5, y8, y9, s, co)
-    return (x0 + h6 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0]), x1 + h6 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1]),
-            x2 + h6 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2]), y3, y4, y5,
-            x6 + h6 * (a[6] + 2.0 * b[6] + 2.0 * c[6] + d[6]), x7 + h6 * (a[7] + 2.0 * b[7] + 2.0 * c[7] + d[7]),
-            y8, y9, s, co, x12 + h6 * (a[12] + 2.0 * b[12] + 2.0 * c[12] + d[12]),
-            x13 + h6 * (a[13] + 2.0 * b[13] + 2.0 * c[13] + d[13]),
-            x14 + h6 * (a[14] + 2.0 * b[14] + 2.0 * c[14] + d[14]),
-            x15 + h6 * (a[15] + 2.0 * b[15] + 2.0 * c[15] + d[15]))
+    y3, s, co, r, hi, lo = end_of_step(D, G, i, y3, y4, y5, y8, y9, s, co)
+    y0 = x0 + h6 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0])
+    y1 = x1 + h6 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1])
+    y2 = x2 + h6 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2])
+    y6 = x6 + h6 * (a[6] + 2.0 * b[6] + 2.0 * c[6] + d[6])
+    y7 = x7 + h6 * (a[7] + 2.0 * b[7] + 2.0 * c[7] + d[7])
+    y12 = x12 + h6 * (a[12] + 2.0 * b[12] + 2.0 * c[12] + d[12])
+    y13 = x13 + h6 * (a[13] + 2.0 * b[13] + 2.0 * c[13] + d[13])
+    y14 = x14 + h6 * (a[14] + 2.0 * b[14] + 2.0 * c[14] + d[14])
+    y15 = x15 + h6 * (a[15] + 2.0 * b[15] + 2.0 * c[15] + d[15])
+    vs = stabiliser(G, i, y12, y13, y14, y15)[0]
+    fld = exciter(D, i, u + vs, 0.0, y0, y1, y2, y3, y6, y7, r[0], r[1], hi, lo, st4)[4]
+    return ((y0, y1, y2, y3, y4, y5, y6, y7, y8, y9, s, co, y12, y13, y14, y15),
+            (fld, r[0], r[4], r[5], r[1], r[2], r[3], r[6], r[7]))
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
@@ -414,6 +446,12 @@ def rhs_online_ref(D, G, i, uref, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12)
     """`rhs_online` on the reference blocks alone (`reference_blocks`): the derivatives of the 11
     states that move (the rate feedback's, the rotating exciter's and the stabiliser's do not)."""
     vt, ifd, cid, ciq, _p, _q, te, xaq = machine(D, G, i, x4, x5, x8, x9, x10, x11)
+    return rhs_given_ref(D, G, i, uref, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12, vt, ifd, cid, ciq, te, xaq)
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
+def rhs_given_ref(D, G, i, uref, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12, vt, ifd, cid, ciq, te, xaq):
+    """`rhs_online_ref` with the machine's algebra at the state given."""
     hi, lo = ceilings_at(D, i, vt, ifd)
     dxm, dx1, dx2, de = exciter_ref(D, i, uref, x0, x1, x2, x3, vt, ifd)
     de = non_windup(D, i, de, x3, hi, lo, 0.0, 0.0)
@@ -423,12 +461,11 @@ def rhs_online_ref(D, G, i, uref, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12)
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
-def rk4_online_ref(D, G, i, u, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12, h):
+def rk4_online_ref(D, G, i, u, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12, h, vt0, ifd0, id0, iq0, te0, xaq0):
     """`rk4_online` on the reference blocks alone: the 11 states that move at the step's end
-    (states 0-5, 8-12), then the recorded signals there (efd, Vt, P, Q, Ifd): the next sample's,
-    so that the chunk needs no readout of its own."""
+    (states 0-5, 8-12), then the R rows there (efd, the lag's state, does not depend on u)."""
     h2 = 0.5 * h
-    a = rhs_online_ref(D, G, i, u, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12)
+    a = rhs_given_ref(D, G, i, u, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12, vt0, ifd0, id0, iq0, te0, xaq0)
     b = rhs_online_ref(D, G, i, u, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3],
                        x4 + h2 * a[4], x5 + h2 * a[5], x8 + h2 * a[6], x9 + h2 * a[7], x10 + h2 * a[8],
                        x11 + h2 * a[9], x12 + h2 * a[10])
@@ -446,20 +483,21 @@ def rk4_online_ref(D, G, i, u, x0, x1, x2, x3, x4, x5, x8, x9, x10, x11, x12, h)
     y9 = x9 + h6 * (a[7] + 2.0 * b[7] + 2.0 * c[7] + d[7])
     s = x10 + h6 * (a[8] + 2.0 * b[8] + 2.0 * c[8] + d[8])
     co = x11 + h6 * (a[9] + 2.0 * b[9] + 2.0 * c[9] + d[9])
-    y3, s, co, vt, ifd, p, q = end_of_step(D, G, i, y3, y4, y5, y8, y9, s, co)
-    return (x0 + h6 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0]), x1 + h6 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1]),
-            x2 + h6 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2]), y3, y4, y5, y8, y9, s, co,
-            x12 + h6 * (a[10] + 2.0 * b[10] + 2.0 * c[10] + d[10]), vt, p, q, ifd)
+    y3, s, co, r, _hi, _lo = end_of_step(D, G, i, y3, y4, y5, y8, y9, s, co)
+    return ((x0 + h6 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0]), x1 + h6 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1]),
+             x2 + h6 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2]), y3, y4, y5, y8, y9, s, co,
+             x12 + h6 * (a[10] + 2.0 * b[10] + 2.0 * c[10] + d[10])),
+            (y3, r[0], r[4], r[5], r[1], r[2], r[3], r[6], r[7]))
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=_FM)
 def readout(D, G, i, u, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15, st4):
-    """The recorded signals at a state: (efd, Vt, P, Q, Ifd)."""
-    vt, ifd, _cid, _ciq, p, q, _te, _xaq = machine(D, G, i, x4, x5, x8, x9, x10, x11)
+    """The R rows at a state: the recorded signals (efd, Vt, P, Q, Ifd), then Id, Iq, Te, XaqI1q."""
+    vt, ifd, cid, ciq, p, q, te, xaq = machine(D, G, i, x4, x5, x8, x9, x10, x11)
     hi, lo = ceilings_at(D, i, vt, ifd)
     vs = stabiliser(G, i, x12, x13, x14, x15)[0]
     fld = exciter(D, i, u + vs, 0.0, x0, x1, x2, x3, x6, x7, vt, ifd, hi, lo, st4)[4]
-    return fld, vt, p, q, ifd
+    return fld, vt, p, q, ifd, cid, ciq, te, xaq
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
@@ -488,7 +526,7 @@ def initial_state(D, G, i, S, c):
 # theirs (`kernel.rk4.fixed_views`, docs/decisions/0003): each array is then one group for LLVM's
 # runtime overlap checks; with runtime row strides every written row is checked against every
 # row read, past the vectoriser's limit, and the loop stays scalar
-_view_g, _view_x, _view_r = (_fixed_view(rows) for rows in (N_G, N_ONLINE, 5))
+_view_g, _view_x, _view_r = (_fixed_view(rows) for rows in (N_G, N_ONLINE, N_R))
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -500,73 +538,91 @@ def chunk_views(D, G, S):
     return _view_d(D), _view_g(G), _view_x(S)
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
-def rk4_chunk(D, G, S, U, H, m):
-    """One RK4 step of every candidate c < m of a chunk (states S[:, c], reference U[c], length
-    H[c]; H[c] = 0 leaves it where it is): a branch-free loop LLVM vectorises across c. The one copy
-    of the step: the chunks, the sub-steps around a jump and the real-time plant all run it. The
-    arrays have CHUNK columns (`chunk_views`)."""
+@nb.njit(cache=True, error_model="numpy")
+def readout_views(D, G, S, R):
+    """D, G, S as `chunk_views`, and the readout R (N_R rows of CHUNK columns)."""
+    if R.shape[0] != N_R or R.shape[1] != CHUNK:
+        raise ValueError("on-line readout array of the wrong shape")
     D, G, S = chunk_views(D, G, S)
+    return D, G, S, _view_r(R)
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+def rk4_chunk(D, G, S, U, H, m, R):
+    """One RK4 step of every candidate c < m of a chunk (states S[:, c], reference U[c], length
+    H[c]; H[c] = 0 leaves it where it is) from the machine's algebra in R (as `readout_chunk` or
+    the previous step left it), leaving R at the step's end (the field voltage at U[c]): a
+    branch-free loop LLVM vectorises across c. The one copy of the step: the chunks, the sub-steps
+    around a jump and the real-time plant all run it. The arrays have CHUNK columns."""
+    D, G, S, R = readout_views(D, G, S, R)
     for c in range(m):
-        r = rk4_online(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[6, c], S[7, c],
-                       S[8, c], S[9, c], S[10, c], S[11, c], S[12, c], S[13, c], S[14, c], S[15, c], H[c], ST4_SOME)
-        S[0, c] = r[0]
-        S[1, c] = r[1]
-        S[2, c] = r[2]
-        S[3, c] = r[3]
-        S[4, c] = r[4]
-        S[5, c] = r[5]
-        S[6, c] = r[6]
-        S[7, c] = r[7]
-        S[8, c] = r[8]
-        S[9, c] = r[9]
-        S[10, c] = r[10]
-        S[11, c] = r[11]
-        S[12, c] = r[12]
-        S[13, c] = r[13]
-        S[14, c] = r[14]
-        S[15, c] = r[15]
+        x, r = rk4_online(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[6, c], S[7, c],
+                          S[8, c], S[9, c], S[10, c], S[11, c], S[12, c], S[13, c], S[14, c], S[15, c], H[c],
+                          ST4_SOME, R[R_VT, c], R[R_IFD, c], R[R_ID, c], R[R_IQ, c], R[R_TE, c], R[R_XAQ, c])
+        S[0, c] = x[0]
+        S[1, c] = x[1]
+        S[2, c] = x[2]
+        S[3, c] = x[3]
+        S[4, c] = x[4]
+        S[5, c] = x[5]
+        S[6, c] = x[6]
+        S[7, c] = x[7]
+        S[8, c] = x[8]
+        S[9, c] = x[9]
+        S[10, c] = x[10]
+        S[11, c] = x[11]
+        S[12, c] = x[12]
+        S[13, c] = x[13]
+        S[14, c] = x[14]
+        S[15, c] = x[15]
+        R[0, c] = r[0]
+        R[1, c] = r[1]
+        R[2, c] = r[2]
+        R[3, c] = r[3]
+        R[4, c] = r[4]
+        R[5, c] = r[5]
+        R[6, c] = r[6]
+        R[7, c] = r[7]
+        R[8, c] = r[8]
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
 def rk4_chunk_ref(D, G, S, U, H, m, R):
     """`rk4_chunk` of a chunk whose candidates all run on the reference blocks alone
     (`reference_blocks`; the reference structure's and SEXS's chunks without a stabiliser): the
-    11 states that move, and the recorded signals at the step's end into R (as `readout_chunk`
-    writes them). The fast path, a second copy of the step as the kernel's `rk4_all_ref`."""
-    D, G, S = chunk_views(D, G, S)
-    if R.shape[0] != 5 or R.shape[1] != CHUNK:
-        raise ValueError("on-line readout array of the wrong shape")
-    R = _view_r(R)
+    11 states that move. The fast path, a second copy of the step as the kernel's `rk4_all_ref`."""
+    D, G, S, R = readout_views(D, G, S, R)
     for c in range(m):
-        r = rk4_online_ref(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[8, c], S[9, c],
-                           S[10, c], S[11, c], S[12, c], H[c])
-        S[0, c] = r[0]
-        S[1, c] = r[1]
-        S[2, c] = r[2]
-        S[3, c] = r[3]
-        S[4, c] = r[4]
-        S[5, c] = r[5]
-        S[8, c] = r[6]
-        S[9, c] = r[7]
-        S[10, c] = r[8]
-        S[11, c] = r[9]
-        S[12, c] = r[10]
-        R[0, c] = r[3]
-        R[1, c] = r[11]
-        R[2, c] = r[12]
-        R[3, c] = r[13]
-        R[4, c] = r[14]
+        x, r = rk4_online_ref(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[8, c],
+                              S[9, c], S[10, c], S[11, c], S[12, c], H[c], R[R_VT, c], R[R_IFD, c], R[R_ID, c],
+                              R[R_IQ, c], R[R_TE, c], R[R_XAQ, c])
+        S[0, c] = x[0]
+        S[1, c] = x[1]
+        S[2, c] = x[2]
+        S[3, c] = x[3]
+        S[4, c] = x[4]
+        S[5, c] = x[5]
+        S[8, c] = x[6]
+        S[9, c] = x[7]
+        S[10, c] = x[8]
+        S[11, c] = x[9]
+        S[12, c] = x[10]
+        R[0, c] = r[0]
+        R[1, c] = r[1]
+        R[2, c] = r[2]
+        R[3, c] = r[3]
+        R[4, c] = r[4]
+        R[5, c] = r[5]
+        R[6, c] = r[6]
+        R[7, c] = r[7]
+        R[8, c] = r[8]
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
 def readout_chunk(D, G, S, U, m, R):
-    """The recorded signals of every candidate c < m into R (5 rows: efd, Vt, P, Q, Ifd; CHUNK
-    columns, as D, G, S)."""
-    D, G, S = chunk_views(D, G, S)
-    if R.shape[0] != 5 or R.shape[1] != CHUNK:
-        raise ValueError("on-line readout array of the wrong shape")
-    R = _view_r(R)
+    """The R rows of every candidate c < m at its state and reference U[c] (CHUNK columns, as D,
+    G, S): what is recorded, and the algebra the next RK4 step starts from."""
+    D, G, S, R = readout_views(D, G, S, R)
     for c in range(m):
         r = readout(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[6, c], S[7, c],
                     S[8, c], S[9, c], S[10, c], S[11, c], S[12, c], S[13, c], S[14, c], S[15, c], ST4_SOME)
@@ -575,6 +631,10 @@ def readout_chunk(D, G, S, U, m, R):
         R[2, c] = r[2]
         R[3, c] = r[3]
         R[4, c] = r[4]
+        R[5, c] = r[5]
+        R[6, c] = r[6]
+        R[7, c] = r[7]
+        R[8, c] = r[8]
 
 
 # ---- the chunk runner and the parallel loop over chunks ----
@@ -586,7 +646,10 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
     """Candidates lo..hi-1 over the record (time outer, candidates inner, as the kernel's chunks):
     the reference of each step with its edges at their fitted instants, the readout, the errors,
     one vectorised RK4 step for all; a step with a jump inside is redone from its start in
-    sub-steps between the jumps, in rounds of the same vectorised step (H = 0 for the others)."""
+    sub-steps between the jumps, in rounds of the same vectorised step (H = 0 for the others).
+    Each step leaves the readout R at its end; it is solved again (`readout_chunk`) only where a
+    candidate's reference differs from the one its last step used (the field voltage may follow
+    the reference at once) or a candidate was parked."""
     m = hi - lo
     T = usetp.shape[0]
     ne = eidx.shape[0]
@@ -601,16 +664,20 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
     Us = np.zeros(CHUNK)
     H = np.zeros(CHUNK)
     Hs = np.zeros(CHUNK)
-    R = np.zeros((5, CHUNK))
+    R = np.zeros((N_R, CHUNK))
+    R0 = np.zeros((N_R, m))         # the readout at t_k of a step redone in sub-steps
+    Ulast = np.zeros(CHUNK)         # the reference R's field voltage was computed with
+    stale = True                    # R must be solved again (the start, a candidate parked)
     held = np.zeros((5, m))
     failed = np.zeros(m, np.bool_)
     nbrk = np.zeros(m, np.int64)   # jumps inside the step, per candidate
     bs = np.zeros((m, ne + 1))      # their instants (fractions of the step, sorted) and sizes
     bj = np.zeros((m, ne + 1))
     ke = np.zeros((m, ne))          # each edge's fitted instant in steps, per candidate
+    mag = np.zeros(CHUNK)           # the size of each candidate's state (a blow-up test)
     # the reference blocks' fast path when every candidate of the chunk runs on them alone (an
     # invalid candidate, failed from the start, does not count: what it computes is not used);
-    # its step leaves the next sample's signals in R
+    # its field voltage is a state: R does not follow the reference
     ref = True
     for c in range(m):
         if Dc[D_VALID, c] != 0.0 and Gc[G_VALID, c] != 0.0 and not reference_blocks(Dc, Gc, c):
@@ -625,12 +692,32 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
         if Dc[D_VALID, c] == 0.0 or Gc[G_VALID, c] == 0.0:
             failed[c] = True
             fail_step[lo + c] = 0
+    # the steps where some candidate's reference may differ from the record's (an edge between its
+    # nominal sample and the fitted instants of the chunk): the edges are looked at there only
+    win_lo = np.zeros(ne)
+    win_hi = np.zeros(ne)
+    for j in range(ne):
+        kmin = eidx[j] * 1.0
+        kmax = eidx[j] * 1.0
+        for c in range(m):
+            kmin = min(kmin, ke[c, j])
+            kmax = max(kmax, ke[c, j])
+        win_lo[j] = math.floor(kmin) - 1.0
+        win_hi[j] = math.ceil(kmax) + 1.0
     for k in range(T):
         # the reference over [t_k, t_k+1): the zero-order hold of the record, each edge at its
         # fitted instant (the candidate's offset); the jumps inside the step noted
         u_k = usetp[k] - usetp_pre
         rounds = 0
-        for c in range(m):
+        inwin = False
+        for j in range(ne):
+            if win_lo[j] <= k <= win_hi[j]:
+                inwin = True
+        if not inwin:
+            for c in range(m):
+                U[c] = Dc[D_UREF0, c] + u_k
+                nbrk[c] = 0
+        for c in range(m if inwin else 0):
             u = Dc[D_UREF0, c] + u_k
             nb_ = 0
             for j in range(ne):
@@ -653,8 +740,13 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
             nbrk[c] = nb_
             if nb_ > 0:
                 rounds = max(rounds, nb_ + 1)
-        if k == 0 or not ref:
+        if not (stale or ref):
+            for c in range(m):
+                if U[c] != Ulast[c]:
+                    stale = True
+        if stale:
             readout_chunk(Dc, Gc, S, U, m, R)
+            stale = False
         for c in range(m):
             if not failed[c]:
                 held[0, c] = Dc[D_GAIN, c] * R[0, c]   # efd as recorded
@@ -679,15 +771,21 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
                 if nbrk[c]:
                     for q in range(N_ONLINE):
                         S0[q, c] = S[q, c]
+                    for q in range(N_R):
+                        R0[q, c] = R[q, c]
         if ref:
             rk4_chunk_ref(Dc, Gc, S, U, H, m, R)
         else:
-            rk4_chunk(Dc, Gc, S, U, H, m)
+            rk4_chunk(Dc, Gc, S, U, H, m, R)
+        for c in range(m):
+            Ulast[c] = U[c]
         if rounds:
             for c in range(m):
                 if nbrk[c]:
                     for q in range(N_ONLINE):
                         S[q, c] = S0[q, c]
+                    for q in range(N_R):
+                        R[q, c] = R0[q, c]
             for r in range(rounds):   # sub-step r of every candidate with a jump inside
                 for c in range(m):
                     Hs[c] = 0.0
@@ -702,17 +800,21 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
                 if ref:   # (H = 0 leaves a candidate, and its signals in R, where they are)
                     rk4_chunk_ref(Dc, Gc, S, Us, Hs, m, R)
                 else:
-                    rk4_chunk(Dc, Gc, S, Us, Hs, m)
+                    rk4_chunk(Dc, Gc, S, Us, Hs, m, R)
+                for c in range(m):
+                    Ulast[c] = Us[c]
+        for c in range(m):   # (written out: the loop vectorises)
+            mag[c] = (abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
+                      + abs(S[6, c]) + abs(S[7, c]) + abs(S[8, c]) + abs(S[9, c]) + abs(S[10, c]) + abs(S[11, c])
+                      + abs(S[12, c]) + abs(S[13, c]) + abs(S[14, c]) + abs(S[15, c]))
         for c in range(m):
-            mag = 0.0
-            for q in range(N_ONLINE):
-                mag += abs(S[q, c])
-            if not (mag < BLOWUP):
+            if not (mag[c] < BLOWUP):
                 if not failed[c]:
                     failed[c] = True
                     fail_step[lo + c] = k + 1
                 for q in range(N_ONLINE):
                     S[q, c] = X0[q, c]
+                stale = True
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM, parallel=True)
@@ -741,7 +843,7 @@ def advance(D, G, S, X0, u, usetp_pre, dt, out, last):
     U = np.zeros(CHUNK)
     H = np.zeros(CHUNK)
     H[0] = dt
-    R = np.zeros((5, CHUNK))
+    R = np.zeros((N_R, CHUNK))
     flags = 0.0
     for s in range(u.shape[0]):
         U[0] = D[D_UREF0, 0] + u[s] - usetp_pre
@@ -757,7 +859,7 @@ def advance(D, G, S, X0, u, usetp_pre, dt, out, last):
         out[s, A_IFD] = R[4, 0]
         hi, lo = ceilings_at(D, 0, R[1, 0], R[4, 0])
         flags = A_FLAG_CEILING if (S[3, 0] >= hi or S[3, 0] <= lo) else 0.0
-        rk4_chunk(D, G, S, U, H, 1)
+        rk4_chunk(D, G, S, U, H, 1, R)   # (from the readout's algebra; the next readout solves it again)
         mag = 0.0
         for q in range(N_ONLINE):
             mag += abs(S[q, 0])
@@ -773,9 +875,10 @@ def advance(D, G, S, X0, u, usetp_pre, dt, out, last):
     last[5] = flags
 
 
-K.drop_stale_cache((machine, stabiliser, swing_and_flux, end_of_step, rhs_online, rk4_online, exciter_ref,
-                    reference_blocks, rhs_online_ref, rk4_online_ref, readout, initial_state, rk4_chunk,
-                    rk4_chunk_ref, readout_chunk, _run_chunk, advance, _run), K.SOURCES + (__file__,), "online")
+K.drop_stale_cache((machine, stabiliser, swing_and_flux, end_of_step, rhs_online, rhs_given, rk4_online,
+                    exciter_ref, reference_blocks, rhs_online_ref, rhs_given_ref, rk4_online_ref, readout,
+                    initial_state, chunk_views, readout_views, rk4_chunk, rk4_chunk_ref, readout_chunk, _run_chunk,
+                    advance, _run), K.SOURCES + (__file__,), "online")
 
 #: the recorded signals of an on-line run, in the order of its traces and weights
 SIGNALS = ("efd", "vt", "p", "q", "ifd")

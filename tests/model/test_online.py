@@ -320,3 +320,32 @@ def test_the_reference_blocks_fast_path_runs_what_the_full_blocks_run():
             assert diff < 1e-9, f"{name}: {diff:.1e}"
     hi = 4.0 * a["vt"][3]
     assert np.any(a["efd"][3] >= hi - 1e-9) and np.any(a["efd"][:3] >= 4.5 - 1e-9)   # the limits acted
+
+
+@pytest.mark.parametrize("model, values", [("SEXS", SEXS), ("ESST1A", ESST1A)])
+def test_a_candidates_run_does_not_depend_on_where_its_chunk_mates_put_their_edges(model, values):
+    """The chunk looks at the edges only in the steps between an edge's nominal sample and its
+    chunk's fitted instants; elsewhere every candidate's reference is the record's. A candidate with
+    its edges inside a step runs the same next to a chunk-mate whose edges are 0.3 s late (the
+    window then spans 300 steps) as next to itself: a window cut too short would leave its jump
+    out."""
+    from bench_ctl.model.edges import EDGE_PARAMS, EdgeSpec
+    from bench_ctl.model.params import COL
+
+    dt, n = 1e-3, 2001
+    usetp = np.ones(n)
+    usetp[500:1500] += 0.05
+    spec = EdgeSpec(np.array([500, 1500]), np.array([0.05, -0.05]), np.array([0.4996, 1.4993]), np.array([0, 1]))
+    p = param_matrix(_unit(model, values, 1.0).values())
+    late = p.copy()
+    p[0, COL[EDGE_PARAMS[0]]], p[0, COL[EDGE_PARAMS[1]]] = 0.0003, -0.0002   # inside steps 499 and 1492
+    late[0, COL[EDGE_PARAMS[0]]], late[0, COL[EDGE_PARAMS[1]]] = 0.3, 0.3
+    M = machine_matrix([_machine(0.3, 0.8, 0.1)] * 2)
+    alone = run_online(np.vstack([p, p]), M, usetp, dt, 1.0, edges=spec)
+    beside = run_online(np.vstack([p, late]), M, usetp, dt, 1.0, edges=spec)
+    assert np.all(alone["fail_step"] < 0) and np.all(beside["fail_step"] < 0)
+    for name in ("efd", "vt", "q"):
+        assert np.abs(alone[name][0] - beside[name][0]).max() < 1e-12, name
+    # the edges acted where they were fitted: the late chunk-mate's efd leaves its steady state 0.3 s later
+    moved = [int(np.argmax(np.abs(beside["efd"][c] - beside["efd"][c][0]) > 1e-6)) for c in (0, 1)]
+    assert moved[0] in (499, 500) and moved[1] - moved[0] in range(299, 302), moved
