@@ -547,6 +547,20 @@ def readout_views(D, G, S, R):
     return D, G, S, _view_r(R)
 
 
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def put_readout(R, c, r):
+    """The R rows of candidate c (the N_R values of a step's end or a readout) into column c."""
+    R[0, c] = r[0]
+    R[1, c] = r[1]
+    R[2, c] = r[2]
+    R[3, c] = r[3]
+    R[4, c] = r[4]
+    R[5, c] = r[5]
+    R[6, c] = r[6]
+    R[7, c] = r[7]
+    R[8, c] = r[8]
+
+
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
 def rk4_chunk(D, G, S, U, H, m, R):
     """One RK4 step of every candidate c < m of a chunk (states S[:, c], reference U[c], length
@@ -575,15 +589,7 @@ def rk4_chunk(D, G, S, U, H, m, R):
         S[13, c] = x[13]
         S[14, c] = x[14]
         S[15, c] = x[15]
-        R[0, c] = r[0]
-        R[1, c] = r[1]
-        R[2, c] = r[2]
-        R[3, c] = r[3]
-        R[4, c] = r[4]
-        R[5, c] = r[5]
-        R[6, c] = r[6]
-        R[7, c] = r[7]
-        R[8, c] = r[8]
+        put_readout(R, c, r)
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
@@ -607,15 +613,7 @@ def rk4_chunk_ref(D, G, S, U, H, m, R):
         S[10, c] = x[8]
         S[11, c] = x[9]
         S[12, c] = x[10]
-        R[0, c] = r[0]
-        R[1, c] = r[1]
-        R[2, c] = r[2]
-        R[3, c] = r[3]
-        R[4, c] = r[4]
-        R[5, c] = r[5]
-        R[6, c] = r[6]
-        R[7, c] = r[7]
-        R[8, c] = r[8]
+        put_readout(R, c, r)
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)
@@ -626,15 +624,7 @@ def readout_chunk(D, G, S, U, m, R):
     for c in range(m):
         r = readout(D, G, c, U[c], S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], S[6, c], S[7, c],
                     S[8, c], S[9, c], S[10, c], S[11, c], S[12, c], S[13, c], S[14, c], S[15, c], ST4_SOME)
-        R[0, c] = r[0]
-        R[1, c] = r[1]
-        R[2, c] = r[2]
-        R[3, c] = r[3]
-        R[4, c] = r[4]
-        R[5, c] = r[5]
-        R[6, c] = r[6]
-        R[7, c] = r[7]
-        R[8, c] = r[8]
+        put_readout(R, c, r)
 
 
 # ---- the chunk runner and the parallel loop over chunks ----
@@ -877,8 +867,8 @@ def advance(D, G, S, X0, u, usetp_pre, dt, out, last):
 
 K.drop_stale_cache((machine, stabiliser, swing_and_flux, end_of_step, rhs_online, rhs_given, rk4_online,
                     exciter_ref, reference_blocks, rhs_online_ref, rhs_given_ref, rk4_online_ref, readout,
-                    initial_state, chunk_views, readout_views, rk4_chunk, rk4_chunk_ref, readout_chunk, _run_chunk,
-                    advance, _run), K.SOURCES + (__file__,), "online")
+                    initial_state, chunk_views, readout_views, put_readout, rk4_chunk, rk4_chunk_ref, readout_chunk,
+                    _run_chunk, advance, _run), K.SOURCES + (__file__,), "online")
 
 #: the recorded signals of an on-line run, in the order of its traces and weights
 SIGNALS = ("efd", "vt", "p", "q", "ifd")
