@@ -227,27 +227,25 @@ def derive_machine(P: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray
     sat_eq = np.where(sal, sat_b * np.maximum(e1q0 - sat_a, 0.0) ** 2, 0.0)   # a GENSAL's Sat(E'q)
     vinf = v - (re + 1j * xe) * it
     rt, xt = ra + re, x2 + xe   # the path to the infinite bus as its admittance 1 / (rt + j xt)
-    Gk = G[k]
-    Gk[:, G_GD1], Gk[:, G_GQ1], Gk[:, G_GD2], Gk[:, G_GQ2], Gk[:, G_GQD] = gd1, gq1, gd2, gq2, gqd
-    Gk[:, G_XD], Gk[:, G_XQ], Gk[:, G_XDP], Gk[:, G_XQP], Gk[:, G_XDPP], Gk[:, G_XL] = xd, xq, x1d, x1q, x2, xl
-    Gk[:, G_ITQ0P] = np.where(sal, 0.0, 1.0 / np.where(sal, 1.0, m["Tq0p"]))
-    Gk[:, G_ITQ0PP] = 1.0 / m["Tq0pp"]
-    Gk[:, G_SAL], Gk[:, G_KQ] = sal, np.where(sal, xq - x2, x1q - xl)
-    Gk[:, G_IM], Gk[:, G_DAMP], Gk[:, G_W0] = 1.0 / (2.0 * m["H"]), m["DAMP"], 2.0 * math.pi * m["FN"]
-    Gk[:, G_RA], Gk[:, G_GT], Gk[:, G_BT] = ra, rt / (rt * rt + xt * xt), xt / (rt * rt + xt * xt)
-    Gk[:, G_VINF] = np.abs(vinf)
-    Gk[:, G_TM] = p0 + ra * np.abs(it) ** 2
-    Gk[:, G_E1Q0] = e1q0
-    Gk[:, G_E2D0] = e1q0 - (x1d - xl) * id0
-    Gk[:, G_E1D0] = np.where(sal, 0.0, iq0 * (xq - x1q) - se0 * gqd * psi2q0)
-    Gk[:, G_E2Q0] = np.where(sal, psi2q0, -iq0 * (xl - xq) - se0 * gqd * psi2q0)
-    Gk[:, G_DELTA0] = delta0 - np.angle(vinf)   # the infinite bus at angle 0
-    Gk[:, G_PSS_KS], Gk[:, G_PSS_LIM] = m["PSS_KS"], m["PSS_LSMAX"]
-    Gk[:, G_PSS_IT2], Gk[:, G_PSS_R1] = 1.0 / m["PSS_T2"], m["PSS_T1"] / m["PSS_T2"]
-    Gk[:, G_PSS_IT4], Gk[:, G_PSS_R3] = 1.0 / m["PSS_T4"], m["PSS_T3"] / m["PSS_T4"]
-    Gk[:, G_PSS_ITW] = 1.0 / m["PSS_TW"]
-    Gk[:, G_VALID] = 1.0
-    G[k] = Gk
+    G[k, G_GD1], G[k, G_GQ1], G[k, G_GD2], G[k, G_GQ2], G[k, G_GQD] = gd1, gq1, gd2, gq2, gqd
+    G[k, G_XD], G[k, G_XQ], G[k, G_XDP], G[k, G_XQP], G[k, G_XDPP], G[k, G_XL] = xd, xq, x1d, x1q, x2, xl
+    G[k, G_ITQ0P] = np.where(sal, 0.0, 1.0 / np.where(sal, 1.0, m["Tq0p"]))
+    G[k, G_ITQ0PP] = 1.0 / m["Tq0pp"]
+    G[k, G_SAL], G[k, G_KQ] = sal, np.where(sal, xq - x2, x1q - xl)
+    G[k, G_IM], G[k, G_DAMP], G[k, G_W0] = 1.0 / (2.0 * m["H"]), m["DAMP"], 2.0 * math.pi * m["FN"]
+    G[k, G_RA], G[k, G_GT], G[k, G_BT] = ra, rt / (rt * rt + xt * xt), xt / (rt * rt + xt * xt)
+    G[k, G_VINF] = np.abs(vinf)
+    G[k, G_TM] = p0 + ra * np.abs(it) ** 2
+    G[k, G_E1Q0] = e1q0
+    G[k, G_E2D0] = e1q0 - (x1d - xl) * id0
+    G[k, G_E1D0] = np.where(sal, 0.0, iq0 * (xq - x1q) - se0 * gqd * psi2q0)
+    G[k, G_E2Q0] = np.where(sal, psi2q0, -iq0 * (xl - xq) - se0 * gqd * psi2q0)
+    G[k, G_DELTA0] = delta0 - np.angle(vinf)   # the infinite bus at angle 0
+    G[k, G_PSS_KS], G[k, G_PSS_LIM] = m["PSS_KS"], m["PSS_LSMAX"]
+    G[k, G_PSS_IT2], G[k, G_PSS_R1] = 1.0 / m["PSS_T2"], m["PSS_T1"] / m["PSS_T2"]
+    G[k, G_PSS_IT4], G[k, G_PSS_R3] = 1.0 / m["PSS_T4"], m["PSS_T3"] / m["PSS_T4"]
+    G[k, G_PSS_ITW] = 1.0 / m["PSS_TW"]
+    G[k, G_VALID] = 1.0
     fld0[k] = (se0 + 1.0) * psi2d0 + (xd - x2) * id0 + sat_eq
     return G, fld0
 
@@ -683,15 +681,18 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
             failed[c] = True
             fail_step[lo + c] = 0
     # the steps where some candidate's reference may differ from the record's (an edge between its
-    # nominal sample and the fitted instants of the chunk): the edges are looked at there only
+    # nominal sample and the fitted instants of the chunk): the edges are looked at there only (a
+    # failed candidate's instants, whose reference is not used, and one that is not a number do
+    # not move the window)
     win_lo = np.zeros(ne)
     win_hi = np.zeros(ne)
     for j in range(ne):
         kmin = eidx[j] * 1.0
         kmax = eidx[j] * 1.0
         for c in range(m):
-            kmin = min(kmin, ke[c, j])
-            kmax = max(kmax, ke[c, j])
+            if not (failed[c] or math.isnan(ke[c, j])):
+                kmin = min(kmin, ke[c, j])
+                kmax = max(kmax, ke[c, j])
         win_lo[j] = math.floor(kmin) - 1.0
         win_hi[j] = math.ceil(kmax) + 1.0
     for k in range(T):

@@ -346,6 +346,11 @@ def test_a_candidates_run_does_not_depend_on_where_its_chunk_mates_put_their_edg
     assert np.all(alone["fail_step"] < 0) and np.all(beside["fail_step"] < 0)
     for name in ("efd", "vt", "q"):
         assert np.abs(alone[name][0] - beside[name][0]).max() < 1e-12, name
+    # a chunk-mate's instant that is not a number does not move the chunk's window
+    lost = late.copy()
+    lost[0, COL[EDGE_PARAMS[0]]] = np.nan
+    beside_nan = run_online(np.vstack([p, lost]), M, usetp, dt, 1.0, edges=spec)
+    assert np.abs(alone["efd"][0] - beside_nan["efd"][0]).max() < 1e-12
     # the edges acted where they were fitted: the late chunk-mate's efd leaves its steady state 0.3 s later
     moved = [int(np.argmax(np.abs(beside["efd"][c] - beside["efd"][c][0]) > 1e-6)) for c in (0, 1)]
     assert moved[0] in (499, 500) and moved[1] - moved[0] in range(299, 302), moved
