@@ -107,12 +107,13 @@ def _advance(D, X, vr_r, vr_l, ef_h, der_r, der_l, k0, u, usetp_pre, dt, out):
             X[3] = e0
             X[1] = D[K.D_E0, 0]
             X[2] = D[K.D_E0, 0]
-        # ---- a dead time that is not a whole number of steps: split the step (as the kernel) ----
+        # ---- a delayed VR that jumps inside the step (a setpoint change seen through a dead time
+        # that is not a whole number of steps): split the step there, as the kernel does ----
         if td > 0.0 and X[8] == 0.0:
             base = k - td / dt
             j0 = math.floor(base)
             frac = base - j0
-            if frac >= 1e-9 and j0 + 1 < k:
+            if frac >= 1e-9 and j0 + 1 < k and vr_r[0, (j0 + 1) % L] != vr_l[0, (j0 + 1) % L]:
                 th = 1.0 - frac
                 uth = ua + th * (ub - ua)
                 va = K.delayed_vr(vr_r, vr_l, jz, jz, jz, 0, L, base, k, e0, False)

@@ -311,7 +311,13 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
                     j0 = int(math.floor(base))
                     frac = base - j0
                     if j0 + 1 < k:
-                        if frac >= EDGE_EPS:
+                        # the delayed sample boundary: a break only where VR jumps there (a
+                        # setpoint change on that sample). Elsewhere VR is continuous, only its
+                        # slope between the samples changes, and the step's three delayed reads
+                        # (`V`) carry it: a break there cost a scalar redo of every step of
+                        # every candidate with a dead time (docs/benchmarks.md, "The kernel")
+                        q1 = (j0 + 1) % L
+                        if frac >= EDGE_EPS and vr_r[c, q1] != vr_l[c, q1]:
                             bs[nbrk] = 1.0 - frac
                             bj[nbrk] = 0.0
                             nbrk += 1

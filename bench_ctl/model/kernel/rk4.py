@@ -213,10 +213,11 @@ def split_step(D, c, k, dt, S, S0, nbrk, bs, bj, target, uref, base, td_on, L, v
                 skew_on, Ls, kf, kef, kdl, kdr):
     """Step k of candidate c from the state S0 at t_k, in RK4 sub-steps between the break points
     bs[:nbrk] (sorted fractions of the step in (0, 1)): where the setpoint jumps inside the step
-    (a fitted edge instant, the target jumps by bj there) and where the delayed VR jumps (the
-    delayed sample boundary, a delayed setpoint jump). Writes the state at t_k+1 into S; returns
-    (setpoint reference at t_k+1, efd' at t_k, efd' at t_k+1). With `skew_on` the efd kink at
-    the (first) setpoint jump is kept for the recorder-skew readout (`kf`, `kef`, `kdl`, `kdr`)."""
+    (a fitted edge instant, the target jumps by bj there) and where the delayed VR jumps (a
+    setpoint change, on a sample or at a fitted instant, seen through the dead time). Writes the
+    state at t_k+1 into S; returns (setpoint reference at t_k+1, efd' at t_k, efd' at t_k+1).
+    With `skew_on` the efd kink at the (first) setpoint jump is kept for the recorder-skew
+    readout (`kf`, `kef`, `kdl`, `kdr`)."""
     x0, x1, x2, x3, x4, x5, x6, x7 = S0[0, c], S0[1, c], S0[2, c], S0[3, c], S0[4, c], S0[5, c], S0[6, c], S0[7, c]
     ramp = D[D_RAMP, c]
     ramp_on = ramp < 1.0e300
