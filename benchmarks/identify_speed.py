@@ -2,8 +2,9 @@
 
 The capture is synthetic (reference unit, 5 %/1 s pulse, recorder noise 0.01 pu). The kernel is
 warmed up first (compile or cache load, reported as compile_s); wall_s is the optimizer's time
-for the whole budget (the paper: 136.6 s for 1000 evaluations at a 1 ms step; target here
-<= 1 s). With --repeat N the run is repeated on the same capture and wall_s is the median.
+for the whole budget, with BLAS on one thread as `bench-ctl identify` runs it (the paper: 136.6 s
+for 1000 evaluations at a 1 ms step; target here <= 1 s). With --repeat N the run is repeated on
+the same capture and wall_s is the median.
 
 Beside it, the naive way to the same budget: SciPy's differential evolution (its defaults, no
 polish) calling the kernel once per candidate (`de_unbatched_s_per_1000`), and the ratio of the
@@ -29,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
 
 from bench_ctl.identification.identify import warm_up  # noqa: E402
 from bench_ctl.identification.peers import run_optimizer  # noqa: E402
@@ -76,7 +78,10 @@ def main(argv: list[str] | None = None) -> int:
     prob = make_problem([cap], unit)
     walls, results = [], []
     for _ in range(max(1, args.repeat)):
-        r = run_optimizer("mvmo", prob, max_evals=args.evals, seed=args.seed, options=options)
+        # BLAS on one thread, as `bench-ctl identify` runs a fit (identify.run_identification):
+        # with two, the polish's SVDs after a kernel call took up to 45 ms instead of about 1 ms
+        with threadpool_limits(limits=1, user_api="blas"):
+            r = run_optimizer("mvmo", prob, max_evals=args.evals, seed=args.seed, options=options)
         walls.append(r.wall_s)
         results.append(r)
     r = results[-1]
