@@ -62,16 +62,24 @@ class Identification:
 
 
 _warned = False
+#: set once this process has compiled or loaded the kernel: the variants do not depend on the unit
+#: (a unit is values in the same parameter matrix), and a second warm-up only read the cache's
+#: entries from disk again: 0.06 s a structure, 0.55 s of the 5.1 s `identify --model auto` took
+#: on a real record (docs/benchmarks.md, "identify_speed.py")
+_ready = False
 
 
 def warm_up(unit: Unit) -> float:
-    """Compile (or load from the cache) every kernel variant identification uses; seconds. Warns
-    (once a process) when numba runs without the optimisation the kernel needs."""
-    global _warned
+    """Compile (or load from the cache) every kernel variant identification uses, once a process;
+    seconds (0.0 when this process already has them). Warns (once a process) when numba runs
+    without the optimisation the kernel needs."""
+    global _warned, _ready
     note = optimisation_note()
     if note and not _warned:
         logger.warning(note)
         _warned = True
+    if _ready:
+        return 0.0
     t0 = time.perf_counter()
     compile_parts()  # the large parts the cache lacks, one process a core
     u = np.array([1.0, 1.0, 1.05, 1.05])
@@ -80,6 +88,7 @@ def warm_up(unit: Unit) -> float:
     for P in (param_matrix(unit.values()), np.repeat(param_matrix(unit.values()), 64, axis=0)):
         run_kernel(P, u, 1e-3, 1.0, efd_meas=m, vt_meas=m, w_vt=1.0, store=False)
         run_kernel(P, u, 1e-3, 1.0)
+    _ready = True
     return time.perf_counter() - t0
 
 
