@@ -64,8 +64,8 @@ class Identification:
 _warned = False
 #: set once this process has compiled or loaded the kernel: the variants do not depend on the unit
 #: (a unit is values in the same parameter matrix), and a second warm-up only read the cache's
-#: entries from disk again: 0.06 s a structure, 0.55 s of the 5.1 s `identify --model auto` took
-#: on a real record (docs/benchmarks.md, "identify_speed.py")
+#: entries from disk again, 0.06 s a structure: 9 warm-ups took 0.55 s of the 5.1 s `identify
+#: --model auto` took on a real record (docs/benchmarks.md, "real_unit.py")
 _ready = False
 
 
