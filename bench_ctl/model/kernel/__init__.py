@@ -28,6 +28,7 @@ over chunks), `precompile` (the large parts compiled side by side before a first
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 
@@ -101,6 +102,11 @@ __all__ = [
 
 # numba keys each function's cache on its own file: the loops inline the blocks of sibling files
 drop_stale_cache(tuple(DISPATCHERS), SOURCES, "kernel")
+
+
+#: one multi-chunk call at a time: numba's workqueue threading layer (its fallback where neither
+#: OpenMP nor TBB is installed) aborts when two threads enter a parallel loop at once
+_PARALLEL = threading.Lock()
 
 
 def edge_window(D: np.ndarray, edges: EdgeSpec, dt: float, T: int) -> np.ndarray:
@@ -187,7 +193,8 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
         if n <= chunk:  # one chunk: waking the thread pool costs more than it saves
             run_chunk(Dt, 0, n, record, switches, earr, outputs)
         else:
-            run_chunks(Dt, int(chunk), record, switches, earr, outputs)
+            with _PARALLEL:
+                run_chunks(Dt, int(chunk), record, switches, earr, outputs)
     out = {"fail_step": fail_step}
     if store:
         out["efd"] = efd_out

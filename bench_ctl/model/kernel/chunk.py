@@ -88,7 +88,7 @@ class Outputs(NamedTuple):
 
 
 
-@njit(inline=False)
+@njit(inline=False, nogil=True)
 def run_chunk(D, lo, hi, record, switches, edges, out):
     """Candidates lo..hi-1 (D: their columns of the transposed derived matrix) over the record:
     writes their columns of `out`. See `Record`, `Switches`, `Edges`, `Outputs`."""
@@ -382,7 +382,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
         obj[i] = dt * (w_efd * sse_efd[i] + w_vt * sse_vt[i] - 0.5 * (e_first[c] + e_last[c]))
 
 
-@njit(inline=False, fastmath=False, parallel=True)
+@njit(inline=False, fastmath=False, parallel=True, nogil=True)
 def run_chunks(D, chunk, record, switches, edges, out):
     """Every chunk of `chunk` candidates of D (transposed derived matrix), in parallel."""
     n = D.shape[1]

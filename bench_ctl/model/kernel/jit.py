@@ -36,10 +36,12 @@ SOURCES: tuple[str, ...] = tuple(sorted(str(p) for p in Path(__file__).parent.gl
 DISPATCHERS: list = []
 
 
-def njit(*, inline: bool = True, fastmath: bool = True, parallel: bool = False) -> Callable:
+def njit(*, inline: bool = True, fastmath: bool = True, parallel: bool = False, nogil: bool = False) -> Callable:
     """The kernel's numba decorator: cached, numpy's error model, FASTMATH; inlined into its
     caller (`inline`, numba IR level: the blocks and the RK4 step) or a function of its own (the
-    loops LLVM vectorises, the chunk runner). Registers the dispatcher in DISPATCHERS."""
+    loops LLVM vectorises, the chunk runner). `nogil`: the entry points Python calls release the
+    GIL, so that independent fits on two threads run their kernel calls side by side. Registers
+    the dispatcher in DISPATCHERS."""
     options: dict = {"cache": True, "error_model": "numpy"}
     if inline:
         options["inline"] = "always"
@@ -47,6 +49,8 @@ def njit(*, inline: bool = True, fastmath: bool = True, parallel: bool = False) 
         options["fastmath"] = FASTMATH
     if parallel:
         options["parallel"] = True
+    if nogil:
+        options["nogil"] = True
 
     def wrap(fn: Callable) -> Callable:
         dispatcher = nb.njit(**options)(fn)
