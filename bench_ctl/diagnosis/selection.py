@@ -32,6 +32,7 @@ from bench_ctl.capture import Capture
 from bench_ctl.identification.identify import Identification, run_identification
 from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.space import SearchSpace
+from bench_ctl.identification.threads import map_fits
 from bench_ctl.model.edges import EDGE_PARAMS
 from bench_ctl.model.params import PARAMS
 from bench_ctl.model.unit import Bound, Unit
@@ -300,13 +301,15 @@ def select_structure(captures: Sequence[Capture], units: Mapping[str, Unit], *, 
     n_all = sum(n for _, n in floors)
     floor = sum(f.variance * n for f, n in floors) / n_all
     rel_se = max(f.rel_se for f, _ in floors)
-    cands = []
-    for name, unit in units.items():
-        c = _candidate(name, unit, captures, max_evals=max_evals, seed=seed, command_line=command_line)
+
+    def fitted(name: str, c: Candidate) -> None:
         log.info("%s: mse %.4g (%.2f x floor), score %.1f, %.1f s", name, c.mse, c.mse / floor, c.score, c.wall_s)
-        cands.append(c)
         if progress is not None:
             progress(name, c)
+
+    # the candidates share nothing: side by side on the machine's cores (`threads`)
+    cands = map_fits(lambda name: _candidate(name, units[name], captures, max_evals=max_evals, seed=seed,
+                                             command_line=command_line), list(units), fitted)
     return replace(rank(cands, floor, rel_se), dt=float(captures[0].dt))
 
 

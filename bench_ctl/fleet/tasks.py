@@ -90,10 +90,13 @@ def run_step(step: str, entry: Entry, folder: str, evals: int, seed: int) -> dic
 
 
 def warm_worker() -> float:
-    """Load (or compile) the kernel in this worker once, before its first task; seconds."""
+    """Load (or compile) the kernel in this worker once, before its first task; seconds. The
+    worker's fits run one at a time: the cluster already runs one worker a core."""
     from bench_ctl.identification.identify import warm_up
+    from bench_ctl.identification.threads import set_fit_threads
     from bench_ctl.model.unit import reference_unit
 
+    set_fit_threads(1)
     return warm_up(reference_unit())
 
 

@@ -24,6 +24,7 @@ from bench_ctl.diagnosis.selection import (
     separation_text,
     where_left,
 )
+from bench_ctl.identification.threads import set_fit_threads
 from bench_ctl.model.structures import STRUCTURES
 from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
 
@@ -121,6 +122,20 @@ def test_the_true_structure_of_an_andes_record_ranks_first(fixture, truth, other
     assert "this record separates them" in separation_text(sel.to_json())
     shares = [g["share"] for g in sel.best.where[0]["segments"]]
     assert abs(sum(shares) - 1.0) < 1e-9
+
+
+def test_candidates_fitted_side_by_side_rank_as_on_one_thread():
+    cap, cands = _noisy("sexs_10pct"), _candidates(["SEXS", "ESST1A", "EXST1"])
+    runs = []
+    for n in (2, 1):
+        set_fit_threads(n)
+        try:
+            runs.append(select_structure([cap], cands, max_evals=300, seed=0).to_json())
+        finally:
+            set_fit_threads(None)
+    for c in (*runs[0]["candidates"], *runs[1]["candidates"]):
+        c.pop("wall_s", None)
+    assert runs[0] == runs[1]
 
 
 def test_what_is_left_is_said_where_and_in_the_structures_names():
