@@ -39,6 +39,7 @@ import bench_ctl
 from bench_ctl.capture import Capture
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.space import SearchSpace
+from bench_ctl.identification.threads import map_fits
 from bench_ctl.limits import InputError, sha256_file
 from bench_ctl.model.dialect import diagnosis_to_std
 from bench_ctl.model.effects import VOCABULARY
@@ -220,31 +221,40 @@ def _fit_effects(st: Setup, base: ModelFit, hints: Mapping[str, float], budget: 
     views, n = st.views, st.n
     avr = {**base.params}
     starts = all_starts(views, lag_variants(st.views.unit, avr), hints)
-    fits: dict[str, ModelFit] = {}
-    for i, e in enumerate(views.vocabulary):
+    # each stage's fits share nothing: side by side on the machine's cores (`threads`), each with
+    # the seed of its place
+    def local(item: tuple[int, str]) -> ModelFit:
+        i, e = item
         t0 = time.perf_counter()
-        fits[e] = fit_model(views, (e,), [{**avr, **s} for s in starts[e]], evals=0, seed=seed + 1 + i,
-                            polish_coarse=budget.polish_coarse, polish_fine=0, multi=budget.starts)
-        log.info("effect %s: mse %.4g (%d evaluations, %.1f s)", e, fits[e].mse, fits[e].evaluations,
-                 time.perf_counter() - t0)
+        m = fit_model(views, (e,), [{**avr, **s} for s in starts[e]], evals=0, seed=seed + 1 + i,
+                      polish_coarse=budget.polish_coarse, polish_fine=0, multi=budget.starts)
+        log.info("effect %s: mse %.4g (%d evaluations, %.1f s)", e, m.mse, m.evaluations, time.perf_counter() - t0)
+        return m
+
+    vocabulary = views.vocabulary
+    fits: dict[str, ModelFit] = dict(zip(vocabulary, map_fits(local, enumerate(vocabulary))))
+
     # global searches (MVMO) for the leaders that are not yet at the noise floor
-    ranked = sorted(fits, key=lambda e: bic(n, fits[e].mse, fits[e].k))
-    for i, e in enumerate(ranked[:budget.global_top]):
-        if fits[e].mse <= st.floor_tol:
-            continue
+    def search(item: tuple[int, str]) -> ModelFit:
+        i, e = item
         t0 = time.perf_counter()
-        fits[e] = global_search(views, fits[e], evals=budget.effect, profile_evals=budget.profile,
-                                seed=seed + 11 + i, polish_coarse=budget.polish_coarse, floor_tol=st.floor_tol)
-        log.info("effect %s global search: mse %.4g (%.1f s)", e, fits[e].mse, time.perf_counter() - t0)
+        m = global_search(views, fits[e], evals=budget.effect, profile_evals=budget.profile,
+                          seed=seed + 11 + i, polish_coarse=budget.polish_coarse, floor_tol=st.floor_tol)
+        log.info("effect %s global search: mse %.4g (%.1f s)", e, m.mse, time.perf_counter() - t0)
+        return m
+
+    ranked = sorted(fits, key=lambda e: bic(n, fits[e].mse, fits[e].k))
+    leaders = [(i, e) for i, e in enumerate(ranked[:budget.global_top]) if fits[e].mse > st.floor_tol]
+    fits.update(zip((e for _, e in leaders), map_fits(search, leaders)))
     # the leaders (and every effect close to the best) get the least-squares polish on the full
     # record, edge instants free; so does a nested model worse than the base model there: its
     # coarse-record solution did not carry over (e.g. a lag near the coarse step)
     ranked = sorted(fits, key=lambda e: bic(n, fits[e].mse, fits[e].k))
     best = bic(n, fits[ranked[0]].mse, fits[ranked[0]].k)
-    for j, e in enumerate(ranked):
-        if (j < budget.polish_top or bic(n, fits[e].mse, fits[e].k) - best < 2 * SIGNIFICANT
-                or fits[e].mse > base.mse):
-            fits[e] = refine(views, fits[e], polish_fine=budget.effect_polish)
+    polished = [e for j, e in enumerate(ranked)
+                if (j < budget.polish_top or bic(n, fits[e].mse, fits[e].k) - best < 2 * SIGNIFICANT
+                    or fits[e].mse > base.mse)]
+    fits.update(zip(polished, map_fits(lambda e: refine(views, fits[e], polish_fine=budget.effect_polish), polished)))
     return fits
 
 
@@ -254,11 +264,10 @@ def _variants(st: Setup, fits: dict[str, ModelFit], budget: Budget, seed: int) -
     the plain fit's values; the best by BIC is kept in `fits`. Returns each such effect's kept
     form by its label."""
     views, n = st.views, st.n
-    kept = {}
-    for e, first in list(fits.items()):
+
+    def tried(e: str) -> tuple[ModelFit, str]:
+        first = fits[e]
         eff = VOCABULARY[e]
-        if not eff.variants:
-            continue
         best, name = first, eff.plain
         for v in eff.variants:
             if v.needs is not None and v.needs not in views.capture.extra:
@@ -269,6 +278,12 @@ def _variants(st: Setup, fits: dict[str, ModelFit], budget: Budget, seed: int) -
             log.info("%s variant %s: mse %.4g (%s %.4g)", e, v.label, m.mse, eff.plain, first.mse)
             if m.feasible and bic(n, m.mse, m.k) < bic(n, best.mse, best.k) - 2.0:
                 best, name = m, v.label
+        return best, name
+
+    # each effect's variants apart from the others' (`threads`)
+    with_variants = [e for e in fits if VOCABULARY[e].variants]
+    kept = {}
+    for e, (best, name) in zip(with_variants, map_fits(tried, with_variants)):
         fits[e] = best
         kept[e] = name
     return kept
@@ -332,9 +347,8 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     # significant or could not lead)
     n = st.n
     gains = sorted(((bic(n, base.mse, 0) - bic(n, m.mse, m.k), e) for e, m in fits.items()), reverse=True)
-    for g, e in gains[:CHECKED]:
-        if g > SIGNIFICANT:
-            fits[e] = checked(views, fits[e])
+    to_check = [e for g, e in gains[:CHECKED] if g > SIGNIFICANT]
+    fits.update(zip(to_check, map_fits(lambda e: checked(views, fits[e]), to_check)))
 
     entries = rank_entries(unit, st, base, fits, variants)
     at_floor = base.mse <= st.floor_tol

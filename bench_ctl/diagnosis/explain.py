@@ -11,6 +11,7 @@ from collections.abc import Mapping
 
 from bench_ctl.capture import Capture
 from bench_ctl.identification.space import SearchSpace
+from bench_ctl.identification.threads import map_fits
 from bench_ctl.model.edges import EDGE_PARAMS
 from bench_ctl.model.effects import VOCABULARY
 
@@ -82,37 +83,23 @@ def sequence(st: Setup, fits: Mapping[str, ModelFit], verdict: str, hints: Mappi
         ref = refine(st.views, current, polish_fine=budget.combo_polish)
         if ref is not current:
             current = checked(st.views, ref)
-        screened = sorted((combine(st, current, c, fits[c], hints, budget, seed) for c in cands),
+        # each candidate, and then each of the two best, apart from the others (`threads`)
+        screened = sorted(map_fits(lambda c, now=current: combine(st, now, c, fits[c], hints, budget, seed), cands),
                           key=lambda m: bic(st.n, m.mse, m.k))
         for m in screened:
             log.info("explained_by after %s: + %s screened, fit gain %.1f", "+".join(current.effects), m.effects[-1],
                      bic(st.n, current.mse, current.k) - bic(st.n, m.mse, m.k))
         accepted, gains, best_score = None, (0.0, 0.0), math.inf
         better_current = None
-        for m in screened[:2]:   # the two best on the coarse screen are polished and checked
-            m = refine(st.views, m, polish_fine=budget.combo_polish)
-            c = m.effects[-1]
-            if bic(st.n, current.mse, current.k) - bic(st.n, m.mse, m.k) <= step_gain:
-                continue
-            # judged against the model without c re-fitted from m's own values as well: what the
-            # joint re-fit gained by moving the other parameters further is not c's
-            reduced = without(st, m, c, budget, check=False)
-            ref = reduced if bic(st.n, reduced.mse, reduced.k) < bic(st.n, current.mse, current.k) else current
-            if bic(st.n, ref.mse, ref.k) - bic(st.n, m.mse, m.k) <= step_gain:
-                log.info("explained_by after %s: + %s gains nothing over the model re-fitted without it",
-                         "+".join(current.effects), c)
-                if ref is reduced and (better_current is None or reduced.mse < better_current.mse):
-                    better_current = reduced
-                continue
-            m = checked(st.views, m)
-            ref = checked(st.views, ref)
-            g = significance(st, ref, m)
-            # of the significant ones, the best on the fit and the check together
-            sc = score(m, st.n) - score(ref, st.n)
-            log.info("explained_by after %s: + %s fit gain %.1f check gain %.1f score %.1f -> %s",
-                     "+".join(current.effects), c, g[0], g[1], sc, "significant" if g[2] else "refused")
-            if g[2] and g[0] > step_gain and sc < best_score:
-                accepted, gains, best_score = m, (g[0], g[1]), sc
+        # the two best on the coarse screen are polished and checked
+        for m, reduced, judged in map_fits(lambda m, now=current: _judged(st, now, m, budget, step_gain),
+                                           screened[:2]):
+            if reduced is not None and (better_current is None or reduced.mse < better_current.mse):
+                better_current = reduced
+            if judged is not None:
+                g, sc = judged
+                if g[2] and g[0] > step_gain and sc < best_score:
+                    accepted, gains, best_score = m, (g[0], g[1]), sc
         if accepted is None and better_current is not None:
             current = checked(st.views, better_current)   # the re-fit without the candidate is better
         if accepted is None:
@@ -134,6 +121,33 @@ def sequence(st: Setup, fits: Mapping[str, ModelFit], verdict: str, hints: Mappi
         # the last step as far as it was polished (the next round's refine): the figures `left` gives
         steps[-1]["model"] = current
     return steps, current
+
+
+def _judged(st: Setup, current: ModelFit, m: ModelFit, budget: Budget, step_gain: float
+            ) -> tuple[ModelFit, ModelFit | None, tuple[tuple[float, float, bool], float] | None]:
+    """One of `sequence`'s two best candidates: polished, and judged against the current model
+    and the model re-fitted without the candidate from m's own values (what the joint re-fit gained
+    by moving the other parameters further is not the candidate's). Returns m polished (and
+    checked when judged), that re-fit when it beats the current model but m gains nothing over it,
+    and the significance and score change when m was judged."""
+    m = refine(st.views, m, polish_fine=budget.combo_polish)
+    c = m.effects[-1]
+    if bic(st.n, current.mse, current.k) - bic(st.n, m.mse, m.k) <= step_gain:
+        return m, None, None
+    reduced = without(st, m, c, budget, check=False)
+    ref = reduced if bic(st.n, reduced.mse, reduced.k) < bic(st.n, current.mse, current.k) else current
+    if bic(st.n, ref.mse, ref.k) - bic(st.n, m.mse, m.k) <= step_gain:
+        log.info("explained_by after %s: + %s gains nothing over the model re-fitted without it",
+                 "+".join(current.effects), c)
+        return m, (reduced if ref is reduced else None), None
+    m = checked(st.views, m)
+    ref = checked(st.views, ref)
+    g = significance(st, ref, m)
+    # of the significant ones, the best on the fit and the check together
+    sc = score(m, st.n) - score(ref, st.n)
+    log.info("explained_by after %s: + %s fit gain %.1f check gain %.1f score %.1f -> %s",
+             "+".join(current.effects), c, g[0], g[1], sc, "significant" if g[2] else "refused")
+    return m, None, (g, sc)
 
 
 #: what is left after the explaining effects, over the noise floor, beyond which the rest is called

@@ -16,6 +16,7 @@ from bench_ctl.diagnosis.localize import BANDS_HZ, band_shares, find_edges, loca
 from bench_ctl.diagnosis.starts import lag_variants
 from bench_ctl.diagnosis.verdict import choose_verdict
 from bench_ctl.diagnosis.verdict import gap as _gap
+from bench_ctl.identification.threads import set_fit_threads
 from bench_ctl.model.simulate import pulse_usetp, simulate
 from bench_ctl.model.unit import load_unit
 
@@ -282,7 +283,26 @@ def ceiling_case():
 
 @pytest.fixture(scope="module")
 def diag(unit, ceiling_case):
-    return diagnose(ceiling_case.capture, unit, holdout=ceiling_case.holdout, budget=FAST, command_line="test")
+    set_fit_threads(2)   # the effects' fits side by side, whatever the machine
+    try:
+        return diagnose(ceiling_case.capture, unit, holdout=ceiling_case.holdout, budget=FAST, command_line="test")
+    finally:
+        set_fit_threads(None)
+
+
+def _figures(d) -> dict:
+    """The diagnosis' JSON without when it was made and how long it took."""
+    j = d.to_json()
+    return {k: v for k, v in j.items() if k not in ("created_utc", "wall_s")}
+
+
+def test_the_effects_fitted_side_by_side_give_the_answer_of_one_thread(unit, ceiling_case, diag):
+    set_fit_threads(1)
+    try:
+        alone = diagnose(ceiling_case.capture, unit, holdout=ceiling_case.holdout, budget=FAST, command_line="test")
+    finally:
+        set_fit_threads(None)
+    assert _figures(alone) == _figures(diag)
 
 
 def test_diagnosis_json_keys(diag):
