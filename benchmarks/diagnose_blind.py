@@ -45,6 +45,7 @@ sys.path.insert(0, str(ROOT / "tests"))  # the independent plant lives with the 
 
 from bench_ctl.diagnosis import diagnose  # noqa: E402
 from bench_ctl.diagnosis.blind import NONE, SuiteConfig, make_case, make_suite, run_suite, score  # noqa: E402
+from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.model.effects import EFFECT_NAMES  # noqa: E402
 from bench_ctl.model.unit import load_unit  # noqa: E402
 
@@ -148,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
                      "source": args.source, "edges": args.edges if args.source == "independent" else "on",
                      "rate_hz": args.rate, "duration_s": args.duration,
                      "holdout": not args.no_holdout and args.source != "andes", "one_regime": args.one_regime,
-                     "seconds_max": max(r.seconds for r in results)})
+                     "seconds_max": max(r.seconds for r in results), "fit_threads": fit_threads()})
         Path(args.json_out).write_text(json.dumps(flat, indent=1) + "\n", encoding="utf-8")
     if args.csv_out:
         with open(args.csv_out, "w", newline="", encoding="utf-8") as f:

@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_ctl.capture import read_capture  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
 from bench_ctl.identification.problem import make_problem  # noqa: E402
+from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.model.dyr_unit import unit_from_dyr  # noqa: E402
 from bench_ctl.model.structures import STRUCTURES  # noqa: E402
 from bench_ctl.model.unit import apply_overrides, reference_unit  # noqa: E402
@@ -138,6 +139,7 @@ def main_bench(argv: list[str] | None = None) -> int:
 
 
 def _save(args: argparse.Namespace, out: dict) -> None:
+    out["fit_threads"] = fit_threads()
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(out, indent=1, default=str))
         print(f"saved {args.json_out}")

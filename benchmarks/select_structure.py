@@ -34,6 +34,7 @@ from bench_ctl.capture import Capture  # noqa: E402
 from bench_ctl.commands.auto import auto_models  # noqa: E402
 from bench_ctl.diagnosis.selection import free_limits, select_structure  # noqa: E402
 from bench_ctl.identification.identify import warm_up  # noqa: E402
+from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.model.structures import STRUCTURES  # noqa: E402
 from bench_ctl.model.unit import apply_overrides, reference_unit, with_model  # noqa: E402
 
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append({"capture": name, "truth": truth, "first": first, "hit": bool(hit),
                      "equivalent": list(sel.equivalent), "wall_s": wall, "selection": j})
     out = {"benchmark": "select_structure", "source": "andes", "evals": args.evals, "seed": args.seed,
-           "limits": args.limits,
+           "limits": args.limits, "fit_threads": fit_threads(),
            "models": models, "captures": len(rows), "hits": hits,
            "hit_rate": hits / len(rows) if rows else None, "compile_s": compile_s,
            "mean_wall_s": float(np.mean([r["wall_s"] for r in rows])) if rows else None,
