@@ -1,9 +1,10 @@
 """Independent fits side by side, on threads.
 
-The kernel's entry points release the GIL (`kernel.jit.njit(nogil=True)`), so fits that share
-nothing run their kernel calls at once, one a core. Their numpy and SciPy steps (the derived
-matrix, MVMO's bookkeeping, SLSQP, the least squares) mostly hold the GIL and take turns. The
-structure selection fits its candidate structures this way and the diagnosis its effects.
+The kernel's entry points release the GIL (`kernel.jit.njit(nogil=True)`, and the on-line
+machine's), so fits that share nothing run their kernel calls at once, one a core. Their numpy
+and SciPy steps (the derived matrix, MVMO's bookkeeping, SLSQP, the least squares) mostly hold
+the GIL and take turns. The structure selection fits its candidate structures this way and the
+diagnosis its effects.
 
 Each fit keeps its own seed and its result keeps its place in the list, and the kernel splits a
 call into chunks of a fixed size whatever runs beside it, so the answer is the same bit for bit

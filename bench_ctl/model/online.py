@@ -628,7 +628,7 @@ def readout_chunk(D, G, S, U, m, R):
 # ---- the chunk runner and the parallel loop over chunks ----
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=_FM)
+@nb.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FM)
 def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, traces, sse, ends,
                fail_step):
     """Candidates lo..hi-1 over the record (time outer, candidates inner, as the kernel's chunks):
@@ -808,7 +808,7 @@ def _run_chunk(D, G, lo, hi, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas
                 stale = True
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=_FM, parallel=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FM, parallel=True)
 def _run(D, G, usetp, usetp_pre, dt, eidx, ejump, etn, eslot, meas, w, store, traces, sse, ends, fail_step):
     """Every chunk of CHUNK candidates, in parallel."""
     n = D.shape[1]
@@ -931,10 +931,15 @@ def run_online(P: np.ndarray, M: np.ndarray, usetp: np.ndarray, dt: float, usetp
     ends = np.zeros((4, n))
     fail_step = np.full(n, -1, dtype=np.int64)
     if n:
-        _run(D, G, usetp, float(usetp_pre), float(dt),
-             np.require(edges.index, np.int64, ("C", "W")), np.require(edges.jump, np.float64, ("C", "W")),
-             np.require(edges.nominal_s, np.float64, ("C", "W")), np.require(edges.slot, np.int64, ("C", "W")),
-             meas, w, bool(store), traces, sse, ends, fail_step)
+        args = (usetp, float(usetp_pre), float(dt),
+                np.require(edges.index, np.int64, ("C", "W")), np.require(edges.jump, np.float64, ("C", "W")),
+                np.require(edges.nominal_s, np.float64, ("C", "W")), np.require(edges.slot, np.int64, ("C", "W")),
+                meas, w, bool(store), traces, sse, ends, fail_step)
+        if n <= CHUNK:   # one chunk on this thread, beside a fit on another (`identification.threads`)
+            _run_chunk(D, G, 0, n, *args)
+        else:
+            with K.PARALLEL_LOCK:
+                _run(D, G, *args)
     out: dict[str, np.ndarray] = {"fail_step": fail_step}
     if store:
         out.update({name: traces[q] for q, name in enumerate(SIGNALS)})
@@ -951,5 +956,9 @@ def warm_up(P: np.ndarray) -> float:
     time, ramp or skew) on TYPICAL_MACHINE; seconds."""
     t0 = time.perf_counter()
     u = np.array([1.0, 1.0, 1.02, 1.02])
-    run_online(P, machine_matrix(TYPICAL_MACHINE), u, 1e-3, 1.0, measured={"efd": np.ones(4)})
+    # one chunk runs on the calling thread, more in parallel: compile both paths
+    P = np.atleast_2d(np.asarray(P, float))[:1]
+    M = machine_matrix(TYPICAL_MACHINE)
+    for n in (1, CHUNK + 1):
+        run_online(np.repeat(P, n, axis=0), np.repeat(M, n, axis=0), u, 1e-3, 1.0, measured={"efd": np.ones(4)})
     return time.perf_counter() - t0

@@ -354,3 +354,26 @@ def test_a_candidates_run_does_not_depend_on_where_its_chunk_mates_put_their_edg
     # the edges acted where they were fitted: the late chunk-mate's efd leaves its steady state 0.3 s later
     moved = [int(np.argmax(np.abs(beside["efd"][c] - beside["efd"][c][0]) > 1e-6)) for c in (0, 1)]
     assert moved[0] in (499, 500) and moved[1] - moved[0] in range(299, 302), moved
+
+
+def test_one_chunk_on_the_calling_thread_runs_as_the_parallel_loop_runs_it(monkeypatch):
+    """A call of up to CHUNK candidates runs its chunk on the calling thread (so that a fit on
+    another thread can run beside it) instead of through the parallel loop over chunks. Both give
+    the same numbers, bit for bit."""
+    from bench_ctl.model import online
+
+    for dispatcher in (online._run, online._run_chunk):   # both let a fit on another thread run meanwhile
+        assert dispatcher.targetoptions.get("nogil") is True
+    dt, n = 1e-3, 1501
+    usetp = np.ones(n)
+    usetp[300:1300] += 0.05
+    rows = np.repeat(param_matrix(_unit("ESST1A", ESST1A, 1.0).values()), 5, axis=0)
+    rows[:, 0] *= np.linspace(0.8, 1.2, rows.shape[0])   # every candidate its own gain
+    M = machine_matrix([_machine(0.3, 0.8, 0.1)] * rows.shape[0])
+    here = run_online(rows, M, usetp, dt, 1.0, measured={"efd": np.ones(n)})
+    # the compiled loops keep the CHUNK they were compiled with; run_online's test of the call's
+    # size reads the module's: 0 sends every call through the parallel loop
+    monkeypatch.setattr(online, "CHUNK", 0)
+    looped = run_online(rows, M, usetp, dt, 1.0, measured={"efd": np.ones(n)})
+    for name in ("efd", "vt", "p", "q", "ifd", "obj", "fail_step"):
+        assert np.array_equal(here[name], looped[name]), name

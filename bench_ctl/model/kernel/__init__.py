@@ -28,7 +28,6 @@ over chunks), `precompile` (the large parts compiled side by side before a first
 from __future__ import annotations
 
 import math
-import threading
 
 import numpy as np
 
@@ -48,7 +47,7 @@ from .blocks import (
 )
 from .chunk import Edges, Outputs, Record, Switches, run_chunk, run_chunks
 from .derive import derive
-from .jit import DISPATCHERS, SOURCES, drop_stale_cache, njit, optimisation_note
+from .jit import DISPATCHERS, PARALLEL_LOCK, SOURCES, drop_stale_cache, njit, optimisation_note
 from .layout import (
     BLOWUP,
     CHUNK,
@@ -97,16 +96,11 @@ __all__ = [
     "avr", "ceilings", "delayed_vr", "field_voltage", "hermite", "rate_feedback", "rhs", "rk4_step_ref",
     "steady_state", "terminal_voltage",
     # its compilation
-    "compile_parts", "njit", "SOURCES", "drop_stale_cache",
+    "compile_parts", "njit", "SOURCES", "drop_stale_cache", "PARALLEL_LOCK",
 ]
 
 # numba keys each function's cache on its own file: the loops inline the blocks of sibling files
 drop_stale_cache(tuple(DISPATCHERS), SOURCES, "kernel")
-
-
-#: one multi-chunk call at a time: numba's workqueue threading layer (its fallback where neither
-#: OpenMP nor TBB is installed) aborts when two threads enter a parallel loop at once
-_PARALLEL = threading.Lock()
 
 
 def edge_window(D: np.ndarray, edges: EdgeSpec, dt: float, T: int) -> np.ndarray:
@@ -193,7 +187,7 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
         if n <= chunk:  # one chunk: waking the thread pool costs more than it saves
             run_chunk(Dt, 0, n, record, switches, earr, outputs)
         else:
-            with _PARALLEL:
+            with PARALLEL_LOCK:
                 run_chunks(Dt, int(chunk), record, switches, earr, outputs)
     out = {"fail_step": fail_step}
     if store:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -34,6 +35,12 @@ SOURCES: tuple[str, ...] = tuple(sorted(str(p) for p in Path(__file__).parent.gl
 
 #: the package's compiled functions, registered by `njit` (guarded by `drop_stale_cache`)
 DISPATCHERS: list = []
+
+#: held by every call that enters a parallel loop (a kernel call of several chunks, the on-line
+#: machine's): numba's workqueue threading layer, its fallback where neither OpenMP nor TBB is
+#: installed, aborts when two threads enter one at once. Fits side by side
+#: (`identification.threads`) make single-chunk calls, which run on their own thread and skip it.
+PARALLEL_LOCK = threading.Lock()
 
 
 def njit(*, inline: bool = True, fastmath: bool = True, parallel: bool = False, nogil: bool = False) -> Callable:
