@@ -97,3 +97,17 @@ def test_exac1_record_reads_into_a_unit(tmp_path):
     assert (v["ACEX"], v["KD"], v["KC"], v["TEX"], v["KE"]) == (1.0, 0.38, 0.2, 0.8, 1.0)
     assert unit.std_name("TEX") == "TE" and unit.std_name("TE") == "TA"
     assert rec.values["KA"] == 400.0 and rec.values["VRMIN"] == -5.43
+
+
+@pytest.mark.parametrize("i_n", [0.0, 0.2, 0.43, 0.44, 0.6, 0.749, 0.76, 0.9, 0.99])
+def test_the_exciters_steady_state_ve_solves_ve_fex_on_every_piece(i_n):
+    """derive's VE for a field voltage efd and KC Ifd = c: VE FEX(c / VE) = efd (in closed form on
+    FEX's piece, `derive._ac_exciter_ve`), the same VE as the bisection it replaced."""
+    from bench_ctl.model.kernel.derive import _ac_exciter_ve, _bisect_ve
+
+    ve_true = np.array([1.3, 2.0, 4.5])
+    c = i_n * ve_true
+    efd = ve_true * _fex(i_n)
+    ve = _ac_exciter_ve(efd, c)
+    assert np.allclose(ve, ve_true, rtol=1e-12, atol=0), (ve, ve_true)
+    assert np.allclose(ve, _bisect_ve(efd, c), rtol=1e-12, atol=0)

@@ -121,7 +121,27 @@ def _effects(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
 
 def _ac_exciter_ve(fld0: np.ndarray, kc_ifd: np.ndarray) -> np.ndarray:
     """The AC exciter's VE at which VE FEX(KC Ifd / VE) gives the field voltage fld0 (Ifd = fld0
-    at no load): VE FEX is increasing in VE, so bisection between fld0 and fld0 + 2 KC Ifd + 1."""
+    at no load). On each piece of FEX the equation has a closed form in VE, with c = KC Ifd:
+    VE - 0.577 c (IN = c / VE <= 0.433), sqrt(0.75 VE^2 - c^2) (up to 0.75), 1.732 (VE - c) (up to
+    1). VE FEX is increasing in VE, so the answer is the piece's root whose IN lies in that piece.
+    Where rounding at a piece's end leaves none (or fld0 is not above 1e-6), the bisection (what
+    every row took before: 60 numpy steps, 0.48 s of a structure selection)."""
+    f = np.maximum(fld0, 1.0e-6)
+    c = np.maximum(kc_ifd, 0.0)
+    roots = (f + 0.577 * c, np.sqrt((f * f + c * c) / 0.75), f / 1.732 + c)
+    ends = ((-np.inf, 0.433), (0.433, 0.75), (0.75, 1.0))
+    ve = np.full(f.shape, np.nan)
+    for root, (lo, hi) in zip(roots, ends):
+        x = c / root
+        ve = np.where(np.isnan(ve) & (fld0 > 1.0e-6) & (x > lo) & (x <= hi), root, ve)
+    left = np.isnan(ve)
+    if np.any(left):
+        ve[left] = _bisect_ve(fld0[left], kc_ifd[left])
+    return ve
+
+
+def _bisect_ve(fld0: np.ndarray, kc_ifd: np.ndarray) -> np.ndarray:
+    """`_ac_exciter_ve` by bisection between fld0 and fld0 + 2 KC Ifd + 1."""
     lo = np.maximum(fld0, 1.0e-6)
     hi = lo + 2.0 * np.abs(kc_ifd) + 1.0
     for _ in range(60):
@@ -142,9 +162,8 @@ def _steady_state(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, a
     inner integrator at Efd / VB (as ANDES initialises it). A PI regulator (ESST4B's, AC8B's PID)
     has its error at 0 and its integrator at the output; the PID's derivative filter at 0. The ST5B
     regulator's output is Efd + KC Ifd (within [VRMIN, VRMAX])."""
-    # the rotating exciter's state: its Efd (DC) or VE (AC: Efd = VE FEX(KC Ifd / VE)); the
-    # bisection only for the AC exciter's rows (it took 40 % of a diagnosis of the reference
-    # structure, run for every candidate and thrown away)
+    # the rotating exciter's state: its Efd (DC) or VE (AC: Efd = VE FEX(KC Ifd / VE), solved for
+    # the AC exciter's rows only)
     xe0 = fld0.copy()
     if np.any(ac):
         xe0[ac] = _ac_exciter_ve(fld0[ac], D[ac, D_KCAC] * fld0[ac])
