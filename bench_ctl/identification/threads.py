@@ -70,13 +70,8 @@ def map_fits(fn: Callable[[T], R], items: Iterable[T], each: Callable[[T, R], ob
     have ended (those not started are dropped)."""
     todo = list(items)
     n = min(fit_threads(), len(todo))
-    out: list[R] = []
     if n <= 1:
-        for x in todo:
-            out.append(fn(x))
-            if each is not None:
-                each(x, out[-1])
-        return out
+        return _in_order(todo, map(fn, todo), each)
     # BLAS on one thread around the pool: each fit's own limit (run_identification, diagnose)
     # restores what it found when it ends, and it must find 1 there, not the machine's count
     # left behind by a fit that ended on the other thread
@@ -85,10 +80,16 @@ def map_fits(fn: Callable[[T], R], items: Iterable[T], each: Callable[[T, R], ob
     with threadpool_limits(limits=1, user_api="blas"):
         pool = ThreadPoolExecutor(n, thread_name_prefix="bench-ctl-fit")
         try:
-            for x, r in zip(todo, pool.map(fn, todo)):
-                out.append(r)
-                if each is not None:
-                    each(x, r)
+            return _in_order(todo, pool.map(fn, todo), each)
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _in_order(todo: list[T], results: Iterable[R], each: Callable[[T, R], object] | None) -> list[R]:
+    """The results as a list, `each` called on every one as it comes, in order."""
+    out: list[R] = []
+    for x, r in zip(todo, results):
+        out.append(r)
+        if each is not None:
+            each(x, r)
     return out
