@@ -126,11 +126,10 @@ def _ac_exciter_ve(fld0: np.ndarray, kc_ifd: np.ndarray) -> np.ndarray:
     1). VE FEX is increasing in VE, so the answer is the piece's root whose IN lies in that piece.
     Where rounding at a piece's end leaves none (or fld0 is not above 1e-6), the bisection (what
     every row took before: 60 numpy steps, 0.48 s of a structure selection)."""
-    f = np.maximum(fld0, 1.0e-6)
     c = np.maximum(kc_ifd, 0.0)
-    roots = (f + 0.577 * c, np.sqrt((f * f + c * c) / 0.75), f / 1.732 + c)
+    roots = (fld0 + 0.577 * c, np.sqrt((fld0 * fld0 + c * c) / 0.75), fld0 / 1.732 + c)
     ends = ((-np.inf, 0.433), (0.433, 0.75), (0.75, 1.0))
-    ve = np.full(f.shape, np.nan)
+    ve = np.full(np.shape(fld0), np.nan)
     for root, (lo, hi) in zip(roots, ends):
         x = c / root
         ve = np.where(np.isnan(ve) & (fld0 > 1.0e-6) & (x > lo) & (x <= hi), root, ve)
