@@ -56,6 +56,12 @@ FLOOR_SIGMAS = 3.0
 #: typical value their bounds reach (a factor each way)
 LIMITS = ("VRMAX", "VRMIN", "EMAX", "EMIN", "VMMAX", "VMMIN", "VAMAX", "VAMIN")
 LIMIT_RANGE = 4.0
+#: a parameter is inert on a record when a change of this share of its value or of its bounds'
+#: span (the larger), either way, moves its simulated efd by no more than INERT_TOL (relative to
+#: the trace's peak): it is then not counted in the score's k (a freed limit the record never
+#: reaches)
+INERT_STEP = 1e-3
+INERT_TOL = 1e-9
 #: each lower limit's upper one (a lower limit at 0 is freed as far below it as the upper is above)
 _UPPER = {"VRMIN": "VRMAX", "EMIN": "EMAX", "VMMIN": "VMMAX", "VAMIN": "VAMAX"}
 
@@ -98,7 +104,8 @@ class Candidate:
     """One structure identified on the captures and checked."""
     model: str
     ident: Identification | None     # None: it could not be set up or fitted (`error` says why)
-    k: int                           # identified model parameters (not the edge instants)
+    k: int                           # identified model parameters the record informs (not the edge
+    #                                  instants, not `inert`)
     n: int                           # samples scored
     mse: float                       # mean objective over the captures (inf: failed)
     checks: tuple[Part, ...]         # the check's parts over every capture (a Vt part: shown, not scored)
@@ -109,6 +116,9 @@ class Candidate:
     #: per capture, where its residual lies (`localize.localization`: share and mse per segment
     #: of the response, share per frequency band)
     where: tuple[dict[str, Any], ...] = ()
+    #: identified parameters (the structure's names) that move nothing on any capture at the fitted
+    #: values (`_inert`), not counted in k
+    inert: tuple[str, ...] = ()
 
     @property
     def at_bounds(self) -> list[str]:
@@ -183,7 +193,7 @@ class Selection:
         out = []
         for rank, c in enumerate(self.candidates, 1):
             entry: dict[str, Any] = {
-                "rank": rank, "model": c.model, "k": c.k, "n": c.n,
+                "rank": rank, "model": c.model, "k": c.k, "inert": list(c.inert), "n": c.n,
                 "mse": _finite(c.mse), "x_floor": _finite(c.mse / self.floor) if self.floor > 0 else None,
                 "check": {p.label: _finite(p.mse) for p in c.checks},
                 "check_mse": _finite(c.check_mse) if c.check_mse is not None else None,
@@ -253,11 +263,13 @@ def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals
     except ValueError as exc:   # a structure the captures cannot constrain (ProblemError, ...)
         return Candidate(model, None, 0, 0, math.inf, (), math.inf, math.inf, time.perf_counter() - t0,
                          error=str(exc))
-    k = sum(1 for n in ident.problem.names if n not in EDGE_PARAMS)
     n_total, sum_nll, parts, where = 0, 0.0, [], []
+    inert: set[str] | None = None
     for i, cap in enumerate(captures):
         edges, _, setup = prepare(cap, unit)
         p, x = _capture_x(ident, i, setup)
+        own_inert = _inert(p, x)
+        inert = own_inert if inert is None else inert & own_inert
         mse = float(p.mean_objective(x[None, :])[0])
         sim = p.simulate(x)[0]["efd"]
         where.append(localization(np.asarray(cap.efd, float) - sim, cap.dt, edges))
@@ -270,6 +282,9 @@ def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals
         own = check_parts(setup.views, p, x, linear=True)
         parts += [Part(f"{part.label}" if len(captures) == 1 else f"{i}:{part.label}", part.n, part.mse)
                   for part in own]
+    # the parameters the record informs: one that moves nothing on any capture (a limit never
+    # reached) is not freedom the structure used, and BIC does not charge it
+    k = sum(1 for n in ident.problem.names if n not in EDGE_PARAMS and n not in (inert or set()))
     mse_all = math.exp(sum_nll / n_total) if math.isfinite(sum_nll) else math.inf
     # the windows only: a recorded Vt follows efd through the generator every candidate shares, so
     # its prediction is the candidates' efd low-passed by T'd0, and its samples, counted as
@@ -280,7 +295,33 @@ def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals
     if ident.best.violated or math.isnan(score):   # an infeasible fit does not stand for the structure
         score = math.inf
     return Candidate(model, ident, k, n_total, mse_all, tuple(parts), score, check_nll, time.perf_counter() - t0,
-                     where=tuple(where))
+                     where=tuple(where),
+                     inert=tuple(unit.structure.std_name(n) or n for n in ident.problem.names if n in (inert or set())))
+
+
+def _inert(p: Any, x: np.ndarray) -> set[str]:
+    """The names of problem p (edge instants aside) whose change by INERT_STEP of the larger of
+    its value and its bounds' span, either way within its bounds, leaves the simulated efd at x as
+    it is (within INERT_TOL of the trace's peak): a limit the response never reaches, a block the
+    fitted values bypass. Their effect is nil there, not small."""
+    base = np.asarray(p.simulate(x)[0]["efd"], float)
+    tol = INERT_TOL * max(1.0, float(np.max(np.abs(base))))
+    out = set()
+    for j, name in enumerate(p.names):
+        if name in EDGE_PARAMS:
+            continue
+        lo, hi = float(p.lower[j]), float(p.upper[j])
+        step = INERT_STEP * max(abs(float(x[j])), hi - lo)
+        moved = []
+        for v in (min(float(x[j]) + step, hi), max(float(x[j]) - step, lo)):
+            if v == x[j]:
+                continue
+            xs = np.array(x, float)
+            xs[j] = v
+            moved.append(float(np.max(np.abs(np.asarray(p.simulate(xs)[0]["efd"], float) - base))))
+        if moved and max(moved) <= tol:
+            out.add(name)
+    return out
 
 
 def select_structure(captures: Sequence[Capture], units: Mapping[str, Unit], *, max_evals: int = 1000,

@@ -18,12 +18,14 @@ from bench_ctl.commands.auto import auto_models, twin_notes
 from bench_ctl.diagnosis.models import Part
 from bench_ctl.diagnosis.selection import (
     Candidate,
+    _inert,
     free_limits,
     rank,
     select_structure,
     separation_text,
     where_left,
 )
+from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.threads import set_fit_threads
 from bench_ctl.model.structures import STRUCTURES
 from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
@@ -208,3 +210,42 @@ def test_cli_diagnose_model_auto_refuses_a_result_to_start_from(tmp_path, capsys
     csv, _ = write_capture(tmp_path / "sexs.csv", _noisy("sexs_05pct"))
     rc = main(["diagnose", str(csv), "--model", "auto", "--result", str(tmp_path / "r.json")])
     assert rc == 2 and "--result" in capsys.readouterr().err
+
+
+def test_a_limit_the_record_never_reaches_is_inert_and_one_it_reaches_is_not():
+    # SEXS at its typical values on a 5 % step: efd stays far below EMAX = 4.5, and above EMIN on
+    # the way back; the gain and the lags move every sample
+    unit = _candidates(["SEXS"])["SEXS"]
+    st = unit.structure
+    p = make_problem([_noisy("sexs_05pct")], unit)
+    x = p.x_start()
+    names = list(p.names)
+    emax = st.kernel_name("EMAX")
+    inert = _inert(p, x)
+    assert emax in inert
+    assert not inert & {st.kernel_name(n) for n in ("K", "TA", "TB", "TE")}
+    # the same ceiling just above the field voltage before the step: the pulse reaches it
+    j = names.index(emax)
+    assert p.lower[j] < 1.3 < p.upper[j]
+    x[j] = 1.3
+    assert emax not in _inert(p, x)
+    # a gain on its bound at 0 (ESST4B's KG, where a fit left it at 7e-28) is moved by a share of
+    # its bounds' span, not of its value: it is not inert
+    unit = _candidates(["ESST4B"])["ESST4B"]
+    p = make_problem([_noisy("esst4b_05pct")], unit)
+    x = p.x_start()
+    kg = unit.structure.kernel_name("KG")
+    x[list(p.names).index(kg)] = 7e-28
+    assert kg not in _inert(p, x)
+
+
+def test_the_score_charges_only_the_parameters_the_record_informs():
+    cap = _noisy("sexs_05pct")
+    sel = select_structure([cap], _candidates(["SEXS", "ESST1A"]), max_evals=300, seed=0)
+    for c in sel.candidates:
+        fitted = [n for n in c.ident.result.params if n not in c.inert]
+        assert c.k == len(fitted) and c.inert
+        entry = next(e for e in sel.to_json()["candidates"] if e["model"] == c.model)
+        assert entry["inert"] == list(c.inert) and set(c.inert) <= set(entry["params"])
+    sexs = next(c for c in sel.candidates if c.model == "SEXS")
+    assert "EMAX" in sexs.inert
