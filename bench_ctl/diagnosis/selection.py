@@ -8,8 +8,10 @@ diagnosis checks a model (`check.check_parts`: the leading edge, the plateau and
 edge each left out of a re-fit and scored; a recorded Vt the fit did not use is scored and
 shown, not counted: every candidate shares the generator that makes Vt from efd). The score is
 the diagnosis' (`check.score`) over those windows: BIC on the captures, n ln(mse) + k ln(n) with
-k the structure's identified parameters, plus the windows' sum of n_i ln(mse_i). So a structure with more freedom
-earns it only by fitting better where it was fitted and predicting better where it was not.
+k the structure's identified parameters that the record informs (a limit it never reaches moves
+nothing and is not counted: `_inert`), plus the windows' sum of n_i ln(mse_i). So a structure with
+more freedom earns it only by fitting better where it was fitted and predicting better where it was
+not.
 
 Two candidates whose fits differ by less than the noise (`EQUAL_FIT`, in n ln(mse) units) are
 equivalent on this record: the simpler one ranks first and the other is named as fitting as well
@@ -228,7 +230,8 @@ class Selection:
             "noise_floor": self.floor,
             "candidates": out,
             "rule": "each structure identified on the whole record, then scored as the diagnosis scores a "
-                    "model: BIC on the record (n ln mse + k ln n, k its identified parameters) plus the "
+                    "model: BIC on the record (n ln mse + k ln n, k its identified parameters that move the fit: a "
+                    "limit the record never reaches is not counted) plus the "
                     "check's sum of n_i ln(mse_i) over the leading edge, plateau and trailing edge, each "
                     f"left out of a re-fit; lower is better. Fits within {EQUAL_FIT:g} (n ln mse) of the best "
                     "one are equivalent: the one with fewer parameters ranks first",
@@ -304,24 +307,24 @@ def _inert(p: Any, x: np.ndarray) -> set[str]:
     its value and its bounds' span, either way within its bounds, leaves the simulated efd at x as
     it is (within INERT_TOL of the trace's peak): a limit the response never reaches, a block the
     fitted values bypass. Their effect is nil there, not small."""
-    base = np.asarray(p.simulate(x)[0]["efd"], float)
-    tol = INERT_TOL * max(1.0, float(np.max(np.abs(base))))
-    out = set()
+    x = np.asarray(x, float)
+    rows, owner = [x], [-1]
     for j, name in enumerate(p.names):
         if name in EDGE_PARAMS:
             continue
         lo, hi = float(p.lower[j]), float(p.upper[j])
         step = INERT_STEP * max(abs(float(x[j])), hi - lo)
-        moved = []
         for v in (min(float(x[j]) + step, hi), max(float(x[j]) - step, lo)):
-            if v == x[j]:
-                continue
-            xs = np.array(x, float)
-            xs[j] = v
-            moved.append(float(np.max(np.abs(np.asarray(p.simulate(xs)[0]["efd"], float) - base))))
-        if moved and max(moved) <= tol:
-            out.add(name)
-    return out
+            if v != x[j]:
+                xs = x.copy()
+                xs[j] = v
+                rows.append(xs)
+                owner.append(j)
+    efd = p.efd_traces(np.array(rows))[0]     # every move in one kernel call
+    tol = INERT_TOL * max(1.0, float(np.max(np.abs(efd[0]))))
+    moved = np.max(np.abs(efd[1:] - efd[0]), axis=1) if len(rows) > 1 else np.zeros(0)
+    owners = np.array(owner[1:], int)
+    return {p.names[j] for j in set(owner[1:]) if float(np.max(moved[owners == j])) <= tol}
 
 
 def select_structure(captures: Sequence[Capture], units: Mapping[str, Unit], *, max_evals: int = 1000,

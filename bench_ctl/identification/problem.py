@@ -287,6 +287,12 @@ class Problem:
                         | {"fail_step": int(o["fail_step"][0])})
         return outs
 
+    def efd_traces(self, X: np.ndarray) -> list[np.ndarray]:
+        """Per capture, the efd (as recorded) of every row of X over the full record: (n, T),
+        in one kernel call a capture."""
+        P = self.matrix(np.atleast_2d(np.asarray(X, dtype=float)))
+        return [np.asarray(_simulate(P, r)["efd"]) for r in self.records]
+
     def steady_efd(self, x: Sequence[float]) -> float:
         """The model's steady-state field voltage at x (pu): at no load Vt0 + Sat(Vt0); for an
         on-line first record the machine's at that record's P, Q and Vt (`online.derive_machine`)."""

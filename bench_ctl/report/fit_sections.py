@@ -484,6 +484,9 @@ def selection(d: ReportData) -> Section | None:
         note = "fits as well, more parameters" if c.get("equivalent") else str(c.get("error") or "")
         if c.get("constraints_violated"):
             note = "constraint violated: " + ", ".join(map(str, c["constraints_violated"]))
+        if c.get("inert"):
+            note = "; ".join(filter(None, [note, "not counted (moves nothing on this record): "
+                                           + ", ".join(map(str, c["inert"]))]))
         rows.append((Num(num(c.get("rank"))), str(c.get("model")) + (" (this result)" if c.get("rank") == 1 else ""),
                      Num(num(c.get("k"))), Num(num(c.get("x_floor")), digits=4),
                      Num(num(c.get("check_x_floor")), digits=4), Num(num(c.get("score_difference")), digits=5),
@@ -500,7 +503,7 @@ def selection(d: ReportData) -> Section | None:
         if line:
             blocks.append(Para(line.strip(), "note"))
     blocks += [
-        table(("rank", "structure", "parameters identified", "fit × noise floor", "check × noise floor",
+        table(("rank", "structure", "parameters counted", "fit × noise floor", "check × noise floor",
                "score − best", "note"), rows, id="selection",
               caption="Every structure identified on the record and ranked: " + str(sel.get("rule", ""))),
     ]

@@ -177,10 +177,14 @@ def test_cli_model_auto_writes_the_ranking_and_the_report_shows_it(tmp_path, cap
     # SEXS, or a structure that contains it named with the others as fitting as well
     assert "SEXS" == sel["chosen"] or "SEXS" in sel["equivalent"]
     assert r["bounds"].get("K", [0, 0])[1] == 900 or sel["chosen"] != "SEXS"
+    # a 5 % step never reaches SEXS's EMAX: not counted, and said so
+    sexs = next(c for c in sel["candidates"] if c["model"] == "SEXS")
+    assert "EMAX" in sexs["inert"] and "not counted in k (moves nothing here): " in said
     html = tmp_path / "report" / "auto.html"
     assert main(["report", str(out), "-o", str(html)]) in (0, 1)
     page = html.read_text()
     assert "Structure selection" in page and 'id="selection"' in page
+    assert "not counted (moves nothing on this record): " in page
     assert (html.parent / "auto_selection-residual.png").stat().st_size > 10_000
 
 
