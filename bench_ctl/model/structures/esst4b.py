@@ -42,6 +42,8 @@ STRUCTURE = declare(
         FieldVoltagePI(KP="KPM", KI="KIM", upper="VMMAX", lower="VMMIN", KG="KG"),
         PotentialSource(KP="KP", VBMAX="VBMAX", KC="KC"),
     ),
+    swaps=(("regulator limit VRMAX <-> field-voltage regulator limit VMMAX (with KPM = 1, KIM = 0 and KG = 0 "
+            "VM = VR, and whichever is lower clips; KG Efd only shifts VM's)", ("VRMAX", "VMMAX")),),
     remarks=("the loop through KG is solved in closed form; KI, XL, THETAP: record only (no load)",),
     dyr_model="ESST4B",
     source="IEEE Std 421.5-2016 ST4B; PSS/E model library, ESST4B; ANDES andes/models/exciter/esst4b.py "
