@@ -107,6 +107,8 @@ def selection_summary(sel: dict[str, Any]) -> str:
             note = "constraint violated: " + ", ".join(c["constraints_violated"])
         if c.get("inert"):
             note = "; ".join(filter(None, [note, f"not counted in k (moves nothing here): {', '.join(c['inert'])}"]))
+        if c.get("searches", 1) > 1:
+            note = "; ".join(filter(None, [note, "searched twice (its first search ended on its bounds)"]))
         lines.append(f"{c['rank']:<5}{c['model']:<11}{c['k']:>3}{_fmt(c['x_floor'], '.3g'):>13}"
                      f"{_fmt(c['check_x_floor'], '.3g'):>15}{_fmt(c['score_difference'], '+.1f'):>11}  {note}")
     best = sel["candidates"][0]

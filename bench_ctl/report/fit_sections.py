@@ -487,6 +487,8 @@ def selection(d: ReportData) -> Section | None:
         if c.get("inert"):
             note = "; ".join(filter(None, [note, "not counted (moves nothing on this record): "
                                            + ", ".join(map(str, c["inert"]))]))
+        if num(c.get("searches")) == 2:
+            note = "; ".join(filter(None, [note, "searched twice (its first search ended on its bounds)"]))
         rows.append((Num(num(c.get("rank"))), str(c.get("model")) + (" (this result)" if c.get("rank") == 1 else ""),
                      Num(num(c.get("k"))), Num(num(c.get("x_floor")), digits=4),
                      Num(num(c.get("check_x_floor")), digits=4), Num(num(c.get("score_difference")), digits=5),

@@ -14,7 +14,8 @@ import pytest
 from andes_units import fixture_column, generator_values, manifest, read_fixture
 from bench_ctl.capture import Capture, write_capture
 from bench_ctl.cli import main
-from bench_ctl.commands.auto import auto_models, twin_notes
+from bench_ctl.commands.auto import auto_models, selection_summary, twin_notes
+from bench_ctl.diagnosis import selection
 from bench_ctl.diagnosis.models import Part
 from bench_ctl.diagnosis.selection import (
     Candidate,
@@ -253,3 +254,16 @@ def test_the_score_charges_only_the_parameters_the_record_informs():
         assert entry["inert"] == list(c.inert) and set(c.inert) <= set(entry["params"])
     sexs = next(c for c in sel.candidates if c.model == "SEXS")
     assert "EMAX" in sexs.inert
+
+
+def test_a_search_caught_in_a_corner_of_the_box_gets_a_second_one_and_the_better_is_kept(monkeypatch):
+    cap, cands = _noisy("sexs_05pct"), _candidates(["SEXS"])
+    monkeypatch.setattr(selection, "SUSPECT_AT_BOUNDS", 99)    # no fit suspect: one search each
+    first = select_structure([cap], cands, max_evals=300, seed=0).best
+    second = select_structure([cap], cands, max_evals=300, seed=1).best
+    assert first.searches == second.searches == 1
+    monkeypatch.setattr(selection, "SUSPECT_AT_BOUNDS", 0)     # every fit suspect
+    both = select_structure([cap], cands, max_evals=300, seed=0)
+    assert both.best.searches == 2 and both.to_json()["candidates"][0]["searches"] == 2
+    assert "searched twice" in selection_summary(both.to_json())
+    assert both.best.ident.best.fun == min(first.ident.best.fun, second.ident.best.fun)
