@@ -271,22 +271,35 @@ def _at_bounds(ident: Identification) -> list[str]:
 
 def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals: int, seed: int,
                command_line: str) -> Candidate:
+    """`model` identified on the captures (`_fit`), then checked and scored (`_scored`)."""
     t0 = time.perf_counter()
+    ident = _fit(unit, captures, max_evals=max_evals, seed=seed, command_line=command_line)
+    if isinstance(ident, str):
+        return Candidate(model, None, 0, 0, math.inf, (), math.inf, math.inf, time.perf_counter() - t0,
+                         error=ident)
+    return _scored(model, unit, captures, ident, t0)
+
+
+def _fit(unit: Unit, captures: Sequence[Capture], *, max_evals: int, seed: int,
+         command_line: str) -> Identification | str:
+    """The unit identified on the captures as `identify` fits it, or why it could not be."""
     try:
         problem = make_problem(captures, unit)
         # the unit's values (typical, or a planning record's) join the initial swarm
-        ident = run_identification(captures, unit, max_evals=max_evals, seed=seed, command_line=command_line,
-                                   problem=problem, x0=problem.x_start())
+        return run_identification(captures, unit, max_evals=max_evals, seed=seed, command_line=command_line,
+                                  problem=problem, x0=problem.x_start())
     except ValueError as exc:   # a structure the captures cannot constrain (ProblemError, ...)
-        return Candidate(model, None, 0, 0, math.inf, (), math.inf, math.inf, time.perf_counter() - t0,
-                         error=str(exc))
+        return str(exc)
+
+
+def _scored(model: str, unit: Unit, captures: Sequence[Capture], ident: Identification, t0: float) -> Candidate:
+    """The fit `ident` checked on every capture and scored (module docstring); wall time from t0."""
     n_total, sum_nll, parts, where = 0, 0.0, [], []
-    inert: set[str] | None = None
+    inert = {n for n in ident.problem.names if n not in EDGE_PARAMS}
     for i, cap in enumerate(captures):
         edges, _, setup = prepare(cap, unit)
         p, x = _capture_x(ident, i, setup)
-        own_inert = _inert(p, x)
-        inert = own_inert if inert is None else inert & own_inert
+        inert &= _inert(p, x)
         mse = float(p.mean_objective(x[None, :])[0])
         sim = p.simulate(x)[0]["efd"]
         where.append(localization(np.asarray(cap.efd, float) - sim, cap.dt, edges))
@@ -301,7 +314,7 @@ def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals
                   for part in own]
     # the parameters the record informs: one that moves nothing on any capture (a limit never
     # reached) is not freedom the structure used, and BIC does not charge it
-    k = sum(1 for n in ident.problem.names if n not in EDGE_PARAMS and n not in (inert or set()))
+    k = sum(1 for n in ident.problem.names if n not in EDGE_PARAMS and n not in inert)
     mse_all = math.exp(sum_nll / n_total) if math.isfinite(sum_nll) else math.inf
     # the windows only: a recorded Vt follows efd through the generator every candidate shares, so
     # its prediction is the candidates' efd low-passed by T'd0, and its samples, counted as
@@ -313,7 +326,7 @@ def _candidate(model: str, unit: Unit, captures: Sequence[Capture], *, max_evals
         score = math.inf
     return Candidate(model, ident, k, n_total, mse_all, tuple(parts), score, check_nll, time.perf_counter() - t0,
                      where=tuple(where),
-                     inert=tuple(unit.structure.std_name(n) or n for n in ident.problem.names if n in (inert or set())))
+                     inert=tuple(unit.structure.std_name(n) or n for n in ident.problem.names if n in inert))
 
 
 def _inert(p: Any, x: np.ndarray) -> set[str]:
@@ -384,16 +397,26 @@ def _searched_again(cands: list[Candidate], units: Mapping[str, Unit], captures:
     best = min(fits)
     suspects = [i for i, c in enumerate(cands) if c.ident is not None and math.isfinite(c.mse)
                 and len(c.at_bounds) >= SUSPECT_AT_BOUNDS and c.mse <= SUSPECT_RANGE * best]
-    again = map_fits(lambda i: _candidate(cands[i].model, units[cands[i].model], captures, max_evals=max_evals,
-                                          seed=seed + 1, command_line=command_line), suspects)
+
+    def fit(i: int) -> tuple[Identification | str, float]:
+        t0 = time.perf_counter()
+        return _fit(units[cands[i].model], captures, max_evals=max_evals, seed=seed + 1,
+                    command_line=command_line), time.perf_counter() - t0
+
     out = list(cands)
-    for i, c in zip(suspects, again):
+    better = []
+    for i, (ident, fit_s) in zip(suspects, map_fits(fit, suspects)):
         first = cands[i]
-        kept = c if c.ident is not None and c.ident.best.fun < first.ident.best.fun else first
         log.info("%s: %s on their bounds, searched again: objective %.4g then %.4g", first.model,
                  ", ".join(first.at_bounds), first.ident.best.fun,
-                 c.ident.best.fun if c.ident is not None else math.inf)
-        out[i] = replace(kept, searches=2, wall_s=first.wall_s + c.wall_s)
+                 math.inf if isinstance(ident, str) else ident.best.fun)
+        out[i] = replace(first, searches=2, wall_s=first.wall_s + fit_s)
+        if not isinstance(ident, str) and ident.best.fun < first.ident.best.fun:
+            better.append((i, ident))
+    # only the better fit of the two is checked and scored
+    for (i, _), c in zip(better, map_fits(lambda b: _scored(out[b[0]].model, units[out[b[0]].model], captures,
+                                                             b[1], time.perf_counter()), better)):
+        out[i] = replace(c, searches=2, wall_s=out[i].wall_s + c.wall_s)
     return out
 
 

@@ -279,19 +279,18 @@ class Problem:
     def simulate(self, x: Sequence[float]) -> list[dict[str, Any]]:
         """Full-record traces per capture: [{efd, vt, fail_step}] (efd as recorded; an on-line
         record's p, q, ifd too)."""
-        P = self.matrix(np.asarray(x, dtype=float).reshape(1, -1))
-        outs = []
-        for r in self.records:
-            o = _simulate(P, r)
-            outs.append({name: o[name][0] for name in ("efd", "vt", "p", "q", "ifd") if name in o}
-                        | {"fail_step": int(o["fail_step"][0])})
-        return outs
+        return [{name: o[name][0] for name in ("efd", "vt", "p", "q", "ifd") if name in o}
+                | {"fail_step": int(o["fail_step"][0])} for o in self._runs(np.reshape(x, (1, -1)))]
 
     def efd_traces(self, X: np.ndarray) -> list[np.ndarray]:
         """Per capture, the efd (as recorded) of every row of X over the full record: (n, T),
         in one kernel call a capture."""
+        return [np.asarray(o["efd"]) for o in self._runs(X)]
+
+    def _runs(self, X: np.ndarray) -> list[dict]:
+        """Per capture, the kernel's (or the on-line machine's) full-record run of the rows of X."""
         P = self.matrix(np.atleast_2d(np.asarray(X, dtype=float)))
-        return [np.asarray(_simulate(P, r)["efd"]) for r in self.records]
+        return [_simulate(P, r) for r in self.records]
 
     def steady_efd(self, x: Sequence[float]) -> float:
         """The model's steady-state field voltage at x (pu): at no load Vt0 + Sat(Vt0); for an
