@@ -164,6 +164,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
             st4 = True
         if D[D_VALID, c] != 0.0 and (D[D_ST4, c] == 0.0 or D[D_LIMOUT, c] == 0.0 or D[D_DCON, c] != 0.0):
             st4_all = False
+    ref = not full and not st4
     for k in range(T):
         # ---- record sample k (states at t_k); failed candidates hold their last output ----
         if any_skew:
@@ -191,6 +192,12 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
                                              der_l[c, (j + 1) % Ls], (s - f) / (1.0 - f), (1.0 - f) * dt)
                 if not failed[c]:
                     out_e[c] = D[D_GAIN, c] * y
+        elif ref:
+            # the reference blocks alone (no output clamp, DC or AC exciter, potential source):
+            # the output is the regulator lag's state
+            for c in range(m):
+                y = D[D_GAIN, c] * S[3, c]
+                out_e[c] = out_e[c] if failed[c] else y
         else:
             for c in range(m):
                 if not failed[c]:
@@ -355,7 +362,13 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
             for c in range(m):
                 der_r[c, k % Ls] = S[8, c]
                 der_l[c, (k + 1) % Ls] = S[9, c]
+        # a blow-up is rare: found by a loop without calls or branches, handled by one with them
+        blown = 0
         for c in range(m):
+            mag = (abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
+                   + abs(S[6, c]) + abs(S[7, c]))
+            blown += 0 if mag < BLOWUP else 1
+        for c in range(m if blown else 0):
             i = lo + c
             mag = (abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
                    + abs(S[6, c]) + abs(S[7, c]))

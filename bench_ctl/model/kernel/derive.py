@@ -65,7 +65,7 @@ def derive(P: np.ndarray, field0: np.ndarray | None = None) -> np.ndarray:
     g = {name: P[:, i] for i, name in enumerate(KERNEL_PARAMS)}
     D = np.zeros((P.shape[0], N_DERIVED))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        valid = _valid(g)
+        valid = _valid(P, g)
         D[:, D_VALID] = valid.astype(np.float64)
         vt0, fld0 = derive_generator(D, g, valid)
         if field0 is not None:
@@ -80,27 +80,28 @@ def derive(P: np.ndarray, field0: np.ndarray | None = None) -> np.ndarray:
     return D
 
 
-def _valid(g: Params) -> np.ndarray:
-    """The candidates the kernel can run: time constants, gains and limits in their domain."""
-    valid = np.ones(len(g["KAVR"]), bool)
-    for name in ("KAVR", "TA2", "TA4", "TE", "Td0p", "Td0pp"):
-        valid &= np.isfinite(g[name]) & (g[name] > 0.0)
-    for name in ("TA1", "TA3", "TR", "TD", "SKEW", "Vt0", "S10", "S12"):
-        valid &= np.isfinite(g[name]) & (g[name] >= 0.0)
-    valid &= (g["RATE"] > 0.0) & (g["RAMP"] > 0.0) & np.isfinite(g["GAIN"])
+#: parameters the kernel needs finite and positive, finite and not negative, finite (`_valid`)
+_POSITIVE = tuple(KERNEL_PARAMS.index(n) for n in ("KAVR", "TA2", "TA4", "TE", "Td0p", "Td0pp"))
+_NOT_NEGATIVE = tuple(KERNEL_PARAMS.index(n) for n in (
+    "TA1", "TA3", "TR", "TD", "SKEW", "Vt0", "S10", "S12", "KC", "KF", "KDR", "TEX", "KD", "KDA", "KPV",
+    "KPI", "KII", "KPM", "KIM", "KG"))
+_FINITE = tuple(KERNEL_PARAMS.index(n) for n in ("GAIN", "KE", "ACEX", *RECORD_PARAMS))
+
+
+def _valid(P: np.ndarray, g: Params) -> np.ndarray:
+    """The candidates the kernel can run: time constants, gains and limits in their domain. (The
+    domain checks run on column blocks of P: one by one they were a fifth of `derive`, which every
+    kernel call runs.)"""
+    pos, nonneg, fin = P[:, _POSITIVE], P[:, _NOT_NEGATIVE], P[:, _FINITE]
+    valid = np.all(np.isfinite(pos) & (pos > 0.0), axis=1)
+    valid &= np.all(np.isfinite(nonneg) & (nonneg >= 0.0), axis=1) & np.all(np.isfinite(fin), axis=1)
+    valid &= (g["RATE"] > 0.0) & (g["RAMP"] > 0.0)
     valid &= g["VRMAX"] > g["VRMIN"]
-    valid &= (g["VRVT"] >= 0.0) & (g["VRVT"] <= 1.0) & (g["KC"] >= 0.0) & np.isfinite(g["KC"])
-    valid &= np.isfinite(g["KF"]) & (g["KF"] >= 0.0) & ((g["KF"] == 0.0) | (g["TF"] > 0.0))
-    valid &= np.isfinite(g["KDR"]) & (g["KDR"] >= 0.0) & ((g["KDR"] == 0.0) | (g["TDR"] > 0.0))
-    valid &= np.isfinite(g["TEX"]) & (g["TEX"] >= 0.0) & np.isfinite(g["KE"])
-    valid &= np.isfinite(g["KD"]) & (g["KD"] >= 0.0) & np.isfinite(g["ACEX"])
-    valid &= (g["KPP"] >= 0.0) & (g["KPP"] <= 1.0) & (g["KDA"] >= 0.0) & np.isfinite(g["KDA"])
-    valid &= np.isfinite(g["KPV"]) & (g["KPV"] >= 0.0) & (g["VBMAX"] > 0.0)
-    for name in ("KPI", "KII", "KPM", "KIM", "KG"):
-        valid &= np.isfinite(g[name]) & (g[name] >= 0.0)
+    valid &= (g["VRVT"] >= 0.0) & (g["VRVT"] <= 1.0)
+    valid &= (g["KF"] == 0.0) | (g["TF"] > 0.0)
+    valid &= (g["KDR"] == 0.0) | (g["TDR"] > 0.0)
+    valid &= (g["KPP"] >= 0.0) & (g["KPP"] <= 1.0) & (g["VBMAX"] > 0.0)
     valid &= (g["VPMAX"] > g["VPMIN"]) & (g["VMMAX"] > g["VMMIN"])
-    for name in RECORD_PARAMS:
-        valid &= np.isfinite(g[name])
     return valid
 
 

@@ -171,17 +171,22 @@ def rhs_ref(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
     tron = D[D_TRON, i]
     vm = tron * xm + (1.0 - tron) * eqpp
     e = uref - vm
-    y1 = x1 + D[D_R1, i] * (e - x1)
-    y2 = x2 + D[D_R2, i] * (y1 - x2)
-    vr = D[D_KAVR, i] * y2
+    r1 = D[D_R1, i]
+    r2 = D[D_R2, i]
+    y1 = x1 + r1 * (e - x1)
     dxm = (eqpp - xm) * D[D_ITR, i]
     dx1 = (e - x1) * D[D_IT2, i]
     dx2 = (y1 - x2) * D[D_IT4, i]
     tdon = D[D_TDON, i]
-    drive = vr + tdon * (vrd - vr)
+    ite = D[D_ITE, i]
+    # the lag's input (VR - efd) / TE, VR = KAVR y2 (or the delayed VR), written out as a sum of
+    # terms that do not wait on each other: the lead-lags' chain e -> y1 -> y2 -> VR, one after
+    # the other, is what a step of a few candidates waits on (the loop is bound by that latency,
+    # not by its arithmetic; the coefficients come off the chain)
+    g = ite * (1.0 - tdon) * D[D_KAVR, i]
+    de = (g * r2 * r1) * e + (g * r2 * (1.0 - r1)) * x1 + (g * (1.0 - r2)) * x2 + (ite * tdon) * vrd - ite * ef
     # plain compare-and-select (numba's min/max carry NaN branches that stop the vectoriser)
     rate = D[D_RATE, i]
-    de = (drive - ef) * D[D_ITE, i]
     de = de if de < rate else rate
     de = de if de > -rate else -rate
     d = eqp - D[D_SATA, i]
