@@ -114,6 +114,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
     e_first = np.zeros(m)
     e_last = np.zeros(m)
     out_e = np.zeros(m)
+    mag = np.empty(m)               # the state's magnitude after a step (blow-up test)
     # VR right/left limits per step (dead time)
     vr_r = np.zeros((m, L))
     vr_l = np.zeros((m, L))
@@ -365,21 +366,19 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
         # a blow-up is rare: found by a loop without calls or branches, handled by one with them
         blown = 0
         for c in range(m):
-            mag = (abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
-                   + abs(S[6, c]) + abs(S[7, c]))
-            blown += 0 if mag < BLOWUP else 1
-        for c in range(m if blown else 0):
-            i = lo + c
-            mag = (abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
-                   + abs(S[6, c]) + abs(S[7, c]))
-            if not (mag < BLOWUP):
-                if not failed[c]:
-                    failed[c] = True
-                    fail_step[i] = k + 1
-                # park the state at the steady state so the arithmetic stays finite
-                x = steady_state(D, c)
-                for q in range(N_STATES):
-                    S[q, c] = x[q]
+            mag[c] = (abs(S[0, c]) + abs(S[1, c]) + abs(S[2, c]) + abs(S[3, c]) + abs(S[4, c]) + abs(S[5, c])
+                      + abs(S[6, c]) + abs(S[7, c]))
+            blown += 0 if mag[c] < BLOWUP else 1
+        if blown:
+            for c in range(m):
+                if not (mag[c] < BLOWUP):
+                    if not failed[c]:
+                        failed[c] = True
+                        fail_step[lo + c] = k + 1
+                    # park the state at the steady state so the arithmetic stays finite
+                    x = steady_state(D, c)
+                    for q in range(N_STATES):
+                        S[q, c] = x[q]
         if any_skew:
             for c in range(m):
                 ef_h[c, (k + 1) % Ls] = field_voltage(D, c, S[3, c], S[4, c], S[5, c], S[6, c], S[7, c])
