@@ -1,14 +1,14 @@
 """Independent fits side by side, on threads.
 
 The kernel's entry points release the GIL (`kernel.jit.njit(nogil=True)`, and the on-line
-machine's), so fits that share nothing run their kernel calls at once, one a core. Their numpy
-and SciPy steps (the derived matrix, MVMO's bookkeeping, SLSQP, the least squares) mostly hold
-the GIL and take turns. The structure selection fits its candidate structures this way and the
-diagnosis its effects.
+machine's, and the derivation of the candidates' matrix), so fits that share nothing run their
+kernel calls at once, one a core. Their numpy and SciPy steps (MVMO's bookkeeping, SLSQP, the
+least squares) mostly hold the GIL and take turns. The structure selection fits its candidate
+structures this way and the diagnosis its effects.
 
 Each fit keeps its own seed and its result keeps its place in the list, and the kernel splits a
-call into chunks of a fixed size whatever runs beside it, so the answer is the same bit for bit
-on one thread or two (docs/decisions/0022-fits-side-by-side.md).
+call into chunks that keep every candidate in the same kind of loop whatever runs beside it, so
+the answer is the same bit for bit on one thread or two (docs/decisions/0022-fits-side-by-side.md).
 
 How many at once: `BENCH_CTL_FIT_THREADS` when set, else what `set_fit_threads` set (a Dask
 worker of a fleet run sets 1: its cluster already runs one worker a core), else the cores this

@@ -1,4 +1,4 @@
-"""The blocks of the kernel's unit, each in one place: its derived factors (numpy, `derive_*`,
+"""The blocks of the kernel's unit, each in one place: its derived factors (array code, `derive_*`,
 called by `derive` once a call) and its compiled algebra for one candidate `i` of the transposed
 derived matrix D (`layout`), with its share of the output and the output's slope; the steady
 state a run starts from.
@@ -70,9 +70,11 @@ from .layout import (
     ST4_ALL,
 )
 
+#: the parameter matrix's columns by name (`derive`: a numba typed dict of float64 arrays)
 Params = dict[str, np.ndarray]
 
 
+@njit(fastmath=False)
 def safe(valid: np.ndarray, x: np.ndarray) -> np.ndarray:
     """x where the candidate is valid, else 1 (a harmless factor)."""
     return np.where(valid, x, 1.0)
@@ -81,6 +83,7 @@ def safe(valid: np.ndarray, x: np.ndarray) -> np.ndarray:
 # ---- regulator: AVR lead-lags (or the ESST4B's PI), rate feedback ------------------------------
 
 
+@njit(inline=False, fastmath=False)
 def derive_regulator(D: np.ndarray, g: Params, valid: np.ndarray, st4: np.ndarray) -> np.ndarray:
     """The AVR: gain, lead-lags, the regulator lag. The first lead-lag is replaced by a PI where the
     potential-source stage is on (ESST4B) or where the PI's gains or the derivative are set (AC8B's
@@ -103,6 +106,7 @@ def derive_regulator(D: np.ndarray, g: Params, valid: np.ndarray, st4: np.ndarra
     return pi
 
 
+@njit(inline=False, fastmath=False)
 def derive_rate_feedback(D: np.ndarray, g: Params, valid: np.ndarray) -> None:
     """Rate feedback KF s / (1 + s TF): KF / TF and 1 / TF, 0 without (KF = 0)."""
     fb = valid & (g["KF"] > 0.0)
@@ -167,10 +171,9 @@ def exciter_feedback(D, i, xe, ifd):
 # ---- generator at no load: terminal voltage, field current -------------------------------------
 
 
+@njit(inline=False, fastmath=False)
 def saturation_ab(s10: np.ndarray, s12: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Quadratic saturation Sat(x) = B (x - A)^2 for x > A through S(1.0) = S10, S(1.2) = S12."""
-    s10 = np.asarray(s10, float)
-    s12 = np.asarray(s12, float)
     on = (s10 > 0.0) & (s12 > s10)
     r = np.sqrt(np.where(on, s12, 1.0) / np.where(on, s10, 1.0))
     a = np.where(on, (r - 1.2) / np.where(on, r - 1.0, 1.0), 0.0)
@@ -178,6 +181,7 @@ def saturation_ab(s10: np.ndarray, s12: np.ndarray) -> tuple[np.ndarray, np.ndar
     return a, b
 
 
+@njit(inline=False, fastmath=False)
 def derive_generator(D: np.ndarray, g: Params, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The generator at no load (time constants, saturation, GENROU-like flux shares); returns Vt0
     and the field voltage it needs at the steady state."""
@@ -213,6 +217,7 @@ def field_current(D, i, eqp, eqpp, vt):
 # ---- exciter ceilings (ceiling_limit) ----------------------------------------------------------
 
 
+@njit(inline=False, fastmath=False)
 def derive_ceilings(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray, st4: np.ndarray,
                     ac: np.ndarray) -> np.ndarray:
     """The ceilings, their variants (bus-fed, commutation) and whether they clamp the output rather
@@ -276,6 +281,7 @@ def ceilings_ref(D, i, eqp, eqpp):
 # ---- potential-source stage (ESST4B) -----------------------------------------------------------
 
 
+@njit(inline=False, fastmath=False)
 def bridge_voltage_np(ve: np.ndarray, kc_ifd: np.ndarray, vbmax: np.ndarray) -> np.ndarray:
     """VB = VE FEX(KC Ifd / VE), at most VBMAX (numpy twin of `bridge_voltage`)."""
     ve = np.maximum(ve, 1.0e-6)
@@ -285,6 +291,7 @@ def bridge_voltage_np(ve: np.ndarray, kc_ifd: np.ndarray, vbmax: np.ndarray) -> 
     return np.minimum(ve * f, vbmax)
 
 
+@njit(inline=False, fastmath=False)
 def derive_potential_source(D: np.ndarray, g: Params, valid: np.ndarray, dc: np.ndarray) -> np.ndarray:
     """The potential-source stage (ESST4B: KP > 0, no DC exciter): the bridge (KP, VBMAX), the
     inner PI and KG (its PI regulator in place of lead-lag 1 is `derive_regulator`'s); neutral
@@ -364,11 +371,11 @@ def output_slope(D, i, ef, xf, eqp, eqpp, def_, dxf, other, st4):
 # ---- DC exciter; the field voltage, the kernel's output ----------------------------------------
 
 
+@njit(inline=False, fastmath=False)
 def exciter_saturation_ab(e1, se1, e2, se2) -> tuple[np.ndarray, np.ndarray]:
     """DC exciter saturation SE(Efd) Efd = B (Efd - A)^2 for Efd > A, through SE(E1) = SE1 and
     SE(E2) = SE2 (the quadratic form of IEEE 421.5 as PSS/E and ANDES' ExcQuadSat use it).
     Off (A = 0, B = 0) unless 0 < E1 < E2 and 0 < SE1 < SE2... with E2 SE2 > E1 SE1."""
-    e1, se1, e2, se2 = (np.asarray(x, float) for x in (e1, se1, e2, se2))
     on = (e1 > 0) & (e2 > e1) & (se1 > 0) & (se2 * e2 > se1 * e1)
     r = np.sqrt(np.where(on, (e2 * se2) / np.where(on, e1 * se1, 1.0), 4.0))
     a = np.where(on, (r * e1 - e2) / np.where(on, r - 1.0, 1.0), 0.0)
@@ -376,6 +383,7 @@ def exciter_saturation_ab(e1, se1, e2, se2) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
+@njit(inline=False, fastmath=False)
 def derive_dc_exciter(D: np.ndarray, g: Params, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The rotating exciter (TEX > 0): 1 / TEX, KE, its saturation, and for an AC exciter (ACEX)
     KD and the rectifier's KC. Returns where one is on and where it is an AC exciter."""
