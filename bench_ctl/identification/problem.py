@@ -37,6 +37,7 @@ import math
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numba
@@ -44,10 +45,10 @@ import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.model.effects import EFFECTS
-from bench_ctl.model.kernel import BLOWUP, run_kernel, saturation_ab
+from bench_ctl.model.kernel import BLOWUP, CHUNK, run_kernel, saturation_ab
 from bench_ctl.model.online import derive_machine, machine_data, machine_matrix, run_online, unit_machine
 from bench_ctl.model.params import COL, KERNEL_PARAMS, MCOL, PARAMS
-from bench_ctl.model.simulate import operating_point, param_matrix, pre_trigger_mean
+from bench_ctl.model.simulate import base_row, operating_point, param_matrix, pre_trigger_mean
 from bench_ctl.model.unit import Unit
 
 from .constraints import LinearConstraint, parse_constraints
@@ -158,9 +159,14 @@ class Problem:
         columns follow the kernel's (`_simulate` puts them into the machine)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         if not self.grid_names:
-            return param_matrix(self.base, self.names, X)
+            return param_matrix(self.base, self.names, X, row=self._base_row)
         k = len(self.names) - len(self.grid_names)
-        return np.hstack([param_matrix(self.base, self.names[:k], X[:, :k]), X[:, k:]])
+        return np.hstack([param_matrix(self.base, self.names[:k], X[:, :k], row=self._base_row), X[:, k:]])
+
+    @cached_property
+    def _base_row(self) -> np.ndarray:
+        """`base` as a kernel parameter row, built once (`matrix` runs on every evaluation)."""
+        return base_row(self.base)
 
     def held(self, values: dict[str, float]) -> Problem:
         """The same problem with the parameters in `values` no longer fitted but held there (they
@@ -390,6 +396,8 @@ class Problem:
 
 def _lost(fail_step: np.ndarray, r: Record) -> np.ndarray:
     """The share of the record each candidate lost to a failure (0 when it did not fail)."""
+    if fail_step.size == 0 or fail_step.max() < 0:  # (most calls: none failed)
+        return np.zeros(fail_step.shape)
     return np.where(fail_step >= 0, (r.i1 - np.minimum(fail_step, r.i1 - 1)) / max(1, r.i1), 0.0)
 
 
@@ -459,8 +467,13 @@ def _kernel(P: np.ndarray, usetp: np.ndarray, *args: Any, **kwargs: Any) -> dict
     short = n % LANES
     if n > 1 and short >= 2:
         P = np.vstack([P, np.repeat(P[-1:], LANES - short, axis=0)])
-    with _threads(P.shape[0] * usetp.shape[0]):
+    if P.shape[0] <= CHUNK // 2:
+        # one chunk, which runs on the calling thread however many numba has (`run_kernel`): no
+        # thread count to set and restore (microseconds, on every call of a local search)
         out = run_kernel(P, usetp, *args, **kwargs)
+    else:
+        with _threads(P.shape[0] * usetp.shape[0]):
+            out = run_kernel(P, usetp, *args, **kwargs)
     if P.shape[0] == n:
         return out
     return {k: v[:n] for k, v in out.items()}

@@ -18,10 +18,27 @@ from .params import COL, KERNEL_PARAMS, PARAMS, RECORD_PARAMS, STRUCTURE_PARAMS
 from .unit import Unit
 
 
-def param_matrix(base: Mapping[str, float], names: Sequence[str] = (), X: np.ndarray | None = None) -> np.ndarray:
+def param_matrix(base: Mapping[str, float], names: Sequence[str] = (), X: np.ndarray | None = None, *,
+                 row: np.ndarray | None = None) -> np.ndarray:
     """Kernel parameter matrix: every row starts from `base`; columns `names` take the rows of X.
     The record's edge offsets (EDGE1..) default to 0, the zero-order hold; the blocks of the
-    standard structures (KF, TEX, ...) to absent."""
+    standard structures (KF, TEX, ...) to absent. `row`: `base_row(base)`, when the caller keeps it
+    (an optimizer's every evaluation starts from the same base)."""
+    if row is None:
+        row = base_row(base)
+    if X is None:
+        return row[None, :].copy()
+    X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+    if X.shape[1] != len(names):
+        raise ValueError(f"candidate matrix has {X.shape[1]} columns for {len(names)} names")
+    P = np.repeat(row[None, :], X.shape[0], axis=0)
+    for j, name in enumerate(names):
+        P[:, COL[name]] = X[:, j]
+    return P
+
+
+def base_row(base: Mapping[str, float]) -> np.ndarray:
+    """The kernel parameter row of `base` (`param_matrix`)."""
     row = np.empty(len(KERNEL_PARAMS))
     for i, name in enumerate(KERNEL_PARAMS):
         if name in base:
@@ -32,15 +49,7 @@ def param_matrix(base: Mapping[str, float], names: Sequence[str] = (), X: np.nda
             row[i] = float(PARAMS[name].neutral)  # type: ignore[arg-type]
         else:
             raise KeyError(f"no value for model parameter {name!r}")
-    if X is None:
-        return row[None, :].copy()
-    X = np.atleast_2d(np.asarray(X, dtype=np.float64))
-    if X.shape[1] != len(names):
-        raise ValueError(f"candidate matrix has {X.shape[1]} columns for {len(names)} names")
-    P = np.repeat(row[None, :], X.shape[0], axis=0)
-    for j, name in enumerate(names):
-        P[:, COL[name]] = X[:, j]
-    return P
+    return row
 
 
 def pre_trigger_mean(usetp: np.ndarray, dt: float, start_s: float | None = None) -> float:
