@@ -29,7 +29,7 @@ def _rk4_step(D, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
     """The kernel's RK4 step (with the efd clamp) for candidate 0. Kept out of line: the
     kernel's stage functions are inlined, and three inlined copies would triple compile time.
     The plant is the reference structure (`rk4_step_ref`: no block of the standard structures)."""
-    return K.rk4_step_ref(D, 0, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h)
+    return K.rk4_step_ref(D, 0, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h, True)
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=_FM)

@@ -98,11 +98,12 @@ def test_what_the_model_modules_use_of_the_kernel_is_public():
 
 
 def test_the_parts_compiled_ahead_have_the_types_the_chunk_runner_calls_them_with():
-    """`precompile` compiles the RK4 loops and the split step ahead, from example arguments. After
+    """`precompile` compiles the RK4 loops, the split step and the derivation ahead, from example
+    arguments. After
     a run through every part (dead time and a fitted edge: split steps), numba's disk cache holds
     exactly that one signature of each part: the chunk runner asked for no other."""
     from bench_ctl.model.edges import EdgeSpec
-    from bench_ctl.model.kernel import precompile, rk4
+    from bench_ctl.model.kernel import precompile
     from bench_ctl.model.params import COL
     from bench_ctl.model.simulate import param_matrix
     from bench_ctl.model.unit import reference_unit
@@ -113,7 +114,7 @@ def test_the_parts_compiled_ahead_have_the_types_the_chunk_runner_calls_them_wit
     edges = EdgeSpec(np.array([50]), np.array([0.05]), np.array([0.0493]), np.array([0]))
     K.run_kernel(P, u, 1e-3, 1.0, edges=edges)
     for name in precompile.PARTS:
-        index = getattr(rk4, name)._cache._cache_file._load_index()  # numba's cache index (private)
+        index = precompile.dispatcher(name)._cache._cache_file._load_index()  # numba's cache index (private)
         assert [key[0] for key in index] == [precompile.signature(name)], name
     assert precompile.compile_parts() == {}  # all in the cache: nothing compiled, no child started
 

@@ -110,3 +110,71 @@ def test_chunks_of_any_size_give_the_same_simulation():
     assert np.max(np.abs(small["efd"] - whole["efd"])) < 1e-12
     with pytest.raises(ValueError, match=f"chunk={CHUNK + 1}"):
         run_kernel(P, u, 1e-3, 1.0, chunk=CHUNK + 1)
+
+
+def test_the_reference_steps_run_in_one_loop_as_step_by_step():
+    """Outside the edges' windows a reference-only chunk runs its steps in one compiled loop
+    (`rk4.run_span_ref`); scoring Vt as well keeps it on the step-by-step path, which must give the
+    same traces, efd errors and failure steps, for stable candidates, an unstable one and an
+    invalid one, with a fitted edge inside a step."""
+    from bench_ctl.model.edges import EdgeSpec
+
+    rng = np.random.default_rng(11)
+    X = np.array([200, 1, 0.2, 0.5, 10, 0.02]) * (1 + 0.3 * (rng.random((12, 6)) - 0.5))
+    X[3] = [5000.0, 5.0, 0.01, 5.0, 1.0, 0.2]   # diverges
+    X[5, 2] = 0.0                                # invalid: refused at step 0
+    unit = reference_unit()
+    t, u = pulse_usetp(duration=3.0)
+    P = param_matrix({**unit.values(), "EDGE1": 0.00037}, NAMES, X)
+    edges = EdgeSpec(np.array([np.argmax(u > u[0])]), np.array([0.05]), np.array([t[np.argmax(u > u[0])]]),
+                     np.array([0]))
+    ref = run_kernel(param_matrix(unit.values()), u, 1e-3, 1.0)["efd"][0]
+    meas = ref + 0.01 * rng.standard_normal(ref.size)
+    one_loop = run_kernel(P, u, 1e-3, 1.0, efd_meas=meas, edges=edges)
+    by_step = run_kernel(P, u, 1e-3, 1.0, efd_meas=meas, vt_meas=np.ones_like(meas), w_vt=1e-300, edges=edges)
+    assert one_loop["fail_step"][3] > 0 and one_loop["fail_step"][5] == 0
+    assert np.array_equal(one_loop["fail_step"], by_step["fail_step"])
+    assert np.max(np.abs(one_loop["efd"] - by_step["efd"])) < 1e-12
+    assert np.max(np.abs(one_loop["vt"] - by_step["vt"])) < 1e-12
+    assert np.allclose(one_loop["sse_efd"], by_step["sse_efd"], rtol=1e-12, atol=0.0)
+
+
+def test_a_call_of_one_chunk_split_over_two_threads_gives_the_one_chunk_results():
+    """A call of CHUNK/2 < n <= CHUNK candidates runs as two halves when numba has two threads: the
+    same numbers as one chunk, bit for bit."""
+    import numba
+
+    if numba.get_num_threads() < 2:
+        pytest.skip("one numba thread: no split to compare")
+    rng = np.random.default_rng(12)
+    unit = reference_unit()
+    t, u = pulse_usetp(duration=2.0)
+    for n in (CHUNK // 2 + 5, CHUNK):
+        X = np.array([200, 1, 0.2, 0.5, 10, 0.02]) * (1 + 0.3 * (rng.random((n, 6)) - 0.5))
+        P = param_matrix(unit.values(), NAMES, X)
+        meas = run_kernel(P[:1], u, 1e-3, 1.0)["efd"][0] * 1.01
+        split = run_kernel(P, u, 1e-3, 1.0, efd_meas=meas)
+        whole = run_kernel(P, u, 1e-3, 1.0, efd_meas=meas, chunk=CHUNK)
+        for key in ("efd", "vt", "obj", "fail_step"):
+            assert np.array_equal(split[key], whole[key]), (n, key)
+
+
+def test_a_chunk_without_limits_runs_without_their_arithmetic_with_the_same_numbers():
+    """The paper's unit has no slew limit and no ceilings: a chunk where no candidate has either
+    runs the reference loop without their arithmetic (`rk4.run_span_unlimited`). Beside one
+    candidate with a finite ceiling it never reaches, the same candidates run the limited loop:
+    the same traces and objectives."""
+    rng = np.random.default_rng(13)
+    unit = reference_unit()
+    assert unit.values()["VRMAX"] == math.inf and unit.values()["RATE"] == math.inf
+    X = np.array([200, 1, 0.2, 0.5, 10, 0.02]) * (1 + 0.3 * (rng.random((8, 6)) - 0.5))
+    t, u = pulse_usetp(duration=2.0)
+    P = param_matrix(unit.values(), NAMES, X)
+    meas = run_kernel(P[:1], u, 1e-3, 1.0)["efd"][0] * 1.01
+    free = run_kernel(P, u, 1e-3, 1.0, efd_meas=meas)
+    ceiling = param_matrix({**unit.values(), "VRMAX": 1e9}, NAMES, X[:1])
+    limited = run_kernel(np.vstack([P, ceiling]), u, 1e-3, 1.0, efd_meas=meas)
+    assert np.ptp(free["efd"], axis=1).min() > 0.05
+    assert np.max(np.abs(free["efd"] - limited["efd"][:8])) < 1e-12
+    assert np.allclose(free["obj"], limited["obj"][:8], rtol=1e-12, atol=0.0)
+    assert np.array_equal(free["fail_step"], limited["fail_step"][:8])

@@ -28,6 +28,7 @@ from .layout import (
     D_P1,
     D_PID,
     D_RAMP,
+    D_RATE,
     D_SKEW,
     D_ST4,
     D_TD,
@@ -35,10 +36,12 @@ from .layout import (
     D_VALID,
     D_VR0,
     D_VRIN,
+    D_VRMAX,
+    D_VRMIN,
     EDGE_EPS,
     N_STATES,
 )
-from .rk4 import rk4_all, rk4_all_ref, rk4_all_st4, rk4_all_st4_only, split_step
+from .rk4 import rk4_all, rk4_all_ref, rk4_all_st4, rk4_all_st4_only, run_span_ref, run_span_unlimited, split_step
 
 
 class Record(NamedTuple):
@@ -88,6 +91,21 @@ class Outputs(NamedTuple):
 
 
 
+@njit()
+def park_blown(D, S, mag, failed, fail_step, lo, m, k):
+    """Mark the candidates whose state's magnitude `mag` left the sane range failed at step k
+    (unless they were already) and park their state at the steady state, so that its arithmetic
+    stays finite."""
+    for c in range(m):
+        if not (mag[c] < BLOWUP):
+            if failed[c] == 0.0:
+                failed[c] = 1.0
+                fail_step[lo + c] = k
+            x = steady_state(D, c)
+            for q in range(N_STATES):
+                S[q, c] = x[q]
+
+
 @njit(inline=False, nogil=True)
 def run_chunk(D, lo, hi, record, switches, edges, out):
     """Candidates lo..hi-1 (D: their columns of the transposed derived matrix) over the record:
@@ -110,11 +128,13 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
     ua = U[0]
     ub = U[1]
     V = np.zeros((3, CHUNK))        # delayed VR at stage times 0, 1/2, 1
-    failed = np.zeros(m, np.bool_)
+    W = np.zeros((4, CHUNK))        # per candidate: the output, failed (1.0), the sum of squared
+    out_e = W[0]                    # efd errors, the state's magnitude after a step (blow-up test)
+    failed = W[1]
+    sse_e = W[2]
+    mag = W[3]
     e_first = np.zeros(m)
     e_last = np.zeros(m)
-    out_e = np.zeros(m)
-    mag = np.empty(m)               # the state's magnitude after a step (blow-up test)
     # VR right/left limits per step (dead time)
     vr_r = np.zeros((m, L))
     vr_l = np.zeros((m, L))
@@ -143,7 +163,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
         uref[c] = D[D_UREF0, c]
         out_e[c] = D[D_GAIN, c] * D[D_OUT0, c]
         if D[D_VALID, c] == 0.0:
-            failed[c] = True
+            failed[c] = 1.0
             fail_step[i] = 0
         for q in range(L):
             vr_r[c, q] = D[D_VR0, c]
@@ -166,7 +186,30 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
         if D[D_VALID, c] != 0.0 and (D[D_ST4, c] == 0.0 or D[D_LIMOUT, c] == 0.0 or D[D_DCON, c] != 0.0):
             st4_all = False
     ref = not full and not st4
+    # the steps of a reference-only chunk where nothing else acts run in one compiled loop
+    # (`run_span_ref`): outside the edges' windows, when no candidate has a dead time, skew or
+    # ramp and Vt is not scored
+    span = ref and not any_skew and not any_delay and not any_ramp and w_vt == 0.0
+    unlimited = True   # no candidate has a slew limit or a finite ceiling
+    for c in range(m):
+        if D[D_RATE, c] < math.inf or D[D_VRMAX, c] < math.inf or D[D_VRMIN, c] > -math.inf:
+            unlimited = False
+    resume = 0   # the first step this loop runs itself (the ones before ran in a span)
     for k in range(T):
+        if k < resume:
+            continue
+        if span and 0 < k < T - 1 and not (ne > 0 and ewin[k] != 0):
+            k1 = k + 1
+            while k1 < T - 1 and not (ne > 0 and ewin[k1] != 0):
+                k1 += 1
+            if unlimited:
+                resume = run_span_unlimited(D, S, W, usetp, efd_meas, k, k1, usetp_pre, dt, m, store, efd_out,
+                                            vt_out, lo)
+            else:
+                resume = run_span_ref(D, S, W, usetp, efd_meas, k, k1, usetp_pre, dt, m, store, efd_out, vt_out, lo)
+            if resume < k1:
+                park_blown(D, S, mag, failed, fail_step, lo, m, resume)
+            continue
         # ---- record sample k (states at t_k); failed candidates hold their last output ----
         if any_skew:
             for c in range(m):
@@ -191,17 +234,17 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
                             else:
                                 y = hermite(kef[c, q], kdr[c, q], ef_h[c, (j + 1) % Ls],
                                              der_l[c, (j + 1) % Ls], (s - f) / (1.0 - f), (1.0 - f) * dt)
-                if not failed[c]:
+                if failed[c] == 0.0:
                     out_e[c] = D[D_GAIN, c] * y
         elif ref:
             # the reference blocks alone (no output clamp, DC or AC exciter, potential source):
             # the output is the regulator lag's state
             for c in range(m):
                 y = D[D_GAIN, c] * S[3, c]
-                out_e[c] = out_e[c] if failed[c] else y
+                out_e[c] = out_e[c] if failed[c] != 0.0 else y
         else:
             for c in range(m):
-                if not failed[c]:
+                if failed[c] == 0.0:
                     out_e[c] = D[D_GAIN, c] * field_voltage(D, c, S[3, c], S[4, c], S[5, c], S[6, c], S[7, c])
         if store:
             for c in range(m):
@@ -211,7 +254,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
             em = efd_meas[k]
             for c in range(m):
                 d = out_e[c] - em
-                sse_efd[lo + c] += d * d
+                sse_e[c] += d * d
             if k == 0 or k == T - 1:
                 for c in range(m):
                     d = out_e[c] - em
@@ -301,7 +344,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
         # sub-steps between the jumps ----
         if any_delay or inwin:
             for c in range(m):
-                if failed[c]:
+                if failed[c] != 0.0:
                     continue
                 nbrk = 0
                 if inwin and cross[c]:
@@ -370,15 +413,7 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
                       + abs(S[6, c]) + abs(S[7, c]))
             blown += 0 if mag[c] < BLOWUP else 1
         if blown:
-            for c in range(m):
-                if not (mag[c] < BLOWUP):
-                    if not failed[c]:
-                        failed[c] = True
-                        fail_step[lo + c] = k + 1
-                    # park the state at the steady state so the arithmetic stays finite
-                    x = steady_state(D, c)
-                    for q in range(N_STATES):
-                        S[q, c] = x[q]
+            park_blown(D, S, mag, failed, fail_step, lo, m, k + 1)
         if any_skew:
             for c in range(m):
                 ef_h[c, (k + 1) % Ls] = field_voltage(D, c, S[3, c], S[4, c], S[5, c], S[6, c], S[7, c])
@@ -391,6 +426,8 @@ def run_chunk(D, lo, hi, record, switches, edges, out):
                     vr_l[c, (k + 1) % L] = avr(D, c, ub[c], vm, S[1, c], S[2, c], vf)[0]
     for c in range(m):
         i = lo + c
+        if w_efd > 0.0:  # (a span sums the efd errors whatever the weight)
+            sse_efd[i] = sse_e[c]
         obj[i] = dt * (w_efd * sse_efd[i] + w_vt * sse_vt[i] - 0.5 * (e_first[c] + e_last[c]))
 
 

@@ -1,8 +1,9 @@
 """Compiling the kernel before its first run, its large parts side by side.
 
-A fresh compilation takes minutes, and most of it goes to five functions LLVM optimises one
-after the other: the four vectorised RK4 loops and the split step (docs/decisions/0003). None
-calls another, so `compile_parts` compiles the ones numba's disk cache lacks side by side, each
+A fresh compilation takes minutes, and most of it goes to seven functions LLVM optimises one
+after the other: the four vectorised RK4 loops, the reference structure's two loops over time and
+the split step (docs/decisions/0003); the derivation of the candidates' matrix adds most of a minute
+of numba's typing. None calls another, so `compile_parts` compiles the ones numba's disk cache lacks side by side, each
 in a child process that writes the cache; the chunk runners that call them then load them from
 the cache instead of compiling them one by one. With a warm cache it starts nothing. (Child
 processes, not multiprocessing: a spawned worker re-imports the caller's main script, which need
@@ -21,19 +22,33 @@ from concurrent.futures import ThreadPoolExecutor
 import numba as nb
 import numpy as np
 
+from ..params import KERNEL_PARAMS
 from . import rk4
+from .derive import _derive
 from .layout import CHUNK, N_DERIVED, N_STATES
 
 log = logging.getLogger(__name__)
 
 #: the parts, the longest to compile first (so that the workers end about together)
-PARTS: tuple[str, ...] = ("rk4_all_st4_only", "rk4_all_st4", "split_step", "rk4_all_ref", "rk4_all")
+PARTS: tuple[str, ...] = ("rk4_all_st4_only", "rk4_all_st4", "split_step", "rk4_all_ref", "rk4_all",
+                          "run_span_ref", "run_span_unlimited", "_derive")
+
+
+def dispatcher(name: str):
+    """The compiled function of part `name` (`derive._derive`, else the RK4 loops')."""
+    return _derive if name == "_derive" else getattr(rk4, name)
 
 
 def _arguments(name: str) -> tuple:
     """Arguments of the types `chunk.run_chunk` calls part `name` with (their values unused)."""
     cols = np.zeros
+    if name == "_derive":  # the transposed parameter matrix, field0, whether it is given
+        return (cols((len(KERNEL_PARAMS), 1)), cols(1), False)
     loop = (cols((N_DERIVED, CHUNK)), cols((10, CHUNK)), cols((2, CHUNK)), cols((3, CHUNK)), 1e-3, 0)
+    if name in ("run_span_ref", "run_span_unlimited"):
+        # D, S, W, usetp, efd_meas, k0, k1, usetp_pre, dt, m, store, efd_out, vt_out, lo
+        return (loop[0], loop[1], cols((4, CHUNK)), cols(2), cols(2), 0, 0, 0.0, 1e-3, 0, False, cols((1, 1)),
+                cols((1, 1)), 0)
     if name != "split_step":
         return loop
     D, S = loop[0], loop[1]
@@ -51,13 +66,13 @@ def signature(name: str) -> tuple:
 
 def cached(name: str) -> bool:
     """Whether numba's disk cache holds part `name` for this machine (reads the entry)."""
-    dispatcher = getattr(rk4, name)
+    function = dispatcher(name)
     sig = signature(name)
-    if sig in dispatcher.overloads:
+    if sig in function.overloads:
         return True
-    cache = getattr(dispatcher, "_cache", None)  # numba's per-function disk cache (no public API)
+    cache = getattr(function, "_cache", None)  # numba's per-function disk cache (no public API)
     try:
-        return cache is not None and cache.load_overload(sig, dispatcher.targetctx) is not None
+        return cache is not None and cache.load_overload(sig, function.targetctx) is not None
     except Exception:  # pragma: no cover - an unreadable cache entry: compile it afresh
         return False
 
@@ -65,7 +80,7 @@ def cached(name: str) -> bool:
 def compile_part(name: str) -> float:
     """Compile (or load) part `name` for its signature; seconds."""
     t0 = time.perf_counter()
-    getattr(rk4, name).compile(signature(name))
+    dispatcher(name).compile(signature(name))
     return time.perf_counter() - t0
 
 

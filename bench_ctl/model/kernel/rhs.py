@@ -4,6 +4,8 @@ diagram order: the excitation system (`exciter`, `non_windup`) on the generator 
 """
 from __future__ import annotations
 
+import math
+
 from .blocks import (
     ceilings,
     ceilings_ref,
@@ -162,12 +164,14 @@ def rhs(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, xf, xe, st4=ST4_SOME):
 
 
 @njit()
-def rhs_ref(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
+def rhs_ref(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, limited):
     """`rhs` of the reference blocks only (6 states): the fast path of a chunk none of whose
     candidates uses a block of the standard structures (`run_chunk`). Derivatives of (xm, x1, x2,
     efd, E'q, E''q); branch-free so candidate loops vectorise.
 
-    `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1)."""
+    `vrd` is the delayed VR (used when the candidate has a dead time, D_TDON = 1). `limited`, a
+    constant of the caller's code: False leaves out the slew limit and the ceilings, for
+    candidates that have neither (RATE, VRMAX infinite, VRMIN minus infinite: the same numbers)."""
     tron = D[D_TRON, i]
     vm = tron * xm + (1.0 - tron) * eqpp
     e = uref - vm
@@ -185,22 +189,32 @@ def rhs_ref(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp):
     # not by its arithmetic; the coefficients come off the chain)
     g = ite * (1.0 - tdon) * D[D_KAVR, i]
     de = (g * r2 * r1) * e + (g * r2 * (1.0 - r1)) * x1 + (g * (1.0 - r2)) * x2 + (ite * tdon) * vrd - ite * ef
-    # plain compare-and-select (numba's min/max carry NaN branches that stop the vectoriser)
-    rate = D[D_RATE, i]
-    de = de if de < rate else rate
-    de = de if de > -rate else -rate
     d = eqp - D[D_SATA, i]
     d = d if d > 0.0 else 0.0
     deqp = (ef - eqp - D[D_SATB, i] * d * d) * D[D_ITD0P, i]
     deqpp = (eqp - eqpp) * D[D_ITD0PP, i]
-    # non-windup ceiling: at a limit efd may not pass it, and follows it where it moves (with Vt
-    # for a bus-fed exciter, with Ifd through the commutation drop); fixed limits do not move
+    if not limited:
+        return dxm, dx1, dx2, de, deqp, deqpp
+    # the slew limit +-RATE, then the non-windup ceiling: at a limit efd may not pass it, and
+    # follows it where it moves (with Vt for a bus-fed exciter, with Ifd through the commutation
+    # drop); fixed limits do not move
     hi, lo = ceilings_ref(D, i, eqp, eqpp)
     dsc = D[D_VRVT, i] * deqpp
     dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (1.0 + 2.0 * D[D_SATB, i] * d) * deqp
     dlo = D[D_VRMIN, i] * dsc
     dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
     dlo = dlo if dlo == dlo else 0.0
-    de = (de if de < dhi else dhi) if ef >= hi else de
-    de = (de if de > dlo else dlo) if ef <= lo else de
+    # min(de, RATE), max(., -RATE), min(., dhi) at the upper ceiling, max(., dlo) at the lower one
+    # is max(min(de, up), down) with up = min(RATE, dhi) and down = max(min(-RATE, dhi), dlo) (dhi
+    # +inf off the upper ceiling, dlo -inf off the lower): the same value, with two selects on
+    # the chain from de to the next stage instead of four. Plain compare-and-select (numba's
+    # min/max carry NaN branches that stop the vectoriser)
+    rate = D[D_RATE, i]
+    dhi = dhi if ef >= hi else math.inf
+    dlo = dlo if ef <= lo else -math.inf
+    up = rate if rate < dhi else dhi
+    down = -rate if -rate < dhi else dhi
+    down = down if down > dlo else dlo
+    de = de if de < up else up
+    de = de if de > down else down
     return dxm, dx1, dx2, de, deqp, deqpp

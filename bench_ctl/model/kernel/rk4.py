@@ -19,7 +19,22 @@ from .blocks import (
     terminal_voltage,
 )
 from .jit import njit
-from .layout import CHUNK, D_DCON, D_ITR, D_LIMOUT, D_OUTK, D_RAMP, D_VR0, N_DERIVED, ST4_ALL, ST4_NONE, ST4_SOME
+from .layout import (
+    BLOWUP,
+    CHUNK,
+    D_DCON,
+    D_GAIN,
+    D_ITR,
+    D_LIMOUT,
+    D_OUTK,
+    D_RAMP,
+    D_UREF0,
+    D_VR0,
+    N_DERIVED,
+    ST4_ALL,
+    ST4_NONE,
+    ST4_SOME,
+)
 from .rhs import rhs, rhs_ref
 
 # ---- the RK4 step of one candidate -------------------------------------------------------------
@@ -64,23 +79,25 @@ def rk4_step(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, x6, x7, h, st4=ST
 
 
 @njit()
-def rk4_step_ref(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h):
-    """`rk4_step` on the reference blocks only (see `rhs_ref`)."""
+def rk4_step_ref(D, i, u0, u1, v0, vm, v1, x0, x1, x2, x3, x4, x5, h, limited):
+    """`rk4_step` on the reference blocks only (see `rhs_ref`, and its `limited`)."""
     um = 0.5 * (u0 + u1)
     h2 = 0.5 * h
-    a = rhs_ref(D, i, u0, v0, x0, x1, x2, x3, x4, x5)
+    a = rhs_ref(D, i, u0, v0, x0, x1, x2, x3, x4, x5, limited)
     b = rhs_ref(D, i, um, vm, x0 + h2 * a[0], x1 + h2 * a[1], x2 + h2 * a[2], x3 + h2 * a[3],
-                x4 + h2 * a[4], x5 + h2 * a[5])
+                x4 + h2 * a[4], x5 + h2 * a[5], limited)
     c = rhs_ref(D, i, um, vm, x0 + h2 * b[0], x1 + h2 * b[1], x2 + h2 * b[2], x3 + h2 * b[3],
-                x4 + h2 * b[4], x5 + h2 * b[5])
-    d = rhs_ref(D, i, u1, v1, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3], x4 + h * c[4], x5 + h * c[5])
+                x4 + h2 * b[4], x5 + h2 * b[5], limited)
+    d = rhs_ref(D, i, u1, v1, x0 + h * c[0], x1 + h * c[1], x2 + h * c[2], x3 + h * c[3], x4 + h * c[4],
+                x5 + h * c[5], limited)
     h6 = h / 6.0
     y3 = x3 + h6 * (a[3] + 2 * b[3] + 2 * c[3] + d[3])
     y4 = x4 + h6 * (a[4] + 2 * b[4] + 2 * c[4] + d[4])
     y5 = x5 + h6 * (a[5] + 2 * b[5] + 2 * c[5] + d[5])
-    hi, lo = ceilings_ref(D, i, y4, y5)
-    y3 = y3 if y3 > lo else lo
-    y3 = y3 if y3 < hi else hi
+    if limited:
+        hi, lo = ceilings_ref(D, i, y4, y5)
+        y3 = y3 if y3 > lo else lo
+        y3 = y3 if y3 < hi else hi
     return (x0 + h6 * (a[0] + 2 * b[0] + 2 * c[0] + d[0]), x1 + h6 * (a[1] + 2 * b[1] + 2 * c[1] + d[1]),
             x2 + h6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2]), y3, y4, y5, a[3], d[3])
 
@@ -109,7 +126,7 @@ def _fixed_view(rows: int):
     return view
 
 
-_view_d, _view_s, _view_u, _view_v = (_fixed_view(r) for r in (N_DERIVED, 10, 2, 3))
+_view_d, _view_s, _view_u, _view_v, _view_w = (_fixed_view(r) for r in (N_DERIVED, 10, 2, 3, 4))
 
 
 @njit(fastmath=False)
@@ -195,7 +212,7 @@ def rk4_all_ref(D, S, U, V, dt, m):
     D, S, U, V = fixed_views(D, S, U, V)
     for c in range(m):
         r = rk4_step_ref(D, c, U[0, c], U[1, c], V[0, c], V[1, c], V[2, c], S[0, c], S[1, c], S[2, c], S[3, c],
-                     S[4, c], S[5, c], dt)
+                     S[4, c], S[5, c], dt, True)
         S[0, c] = r[0]
         S[1, c] = r[1]
         S[2, c] = r[2]
@@ -204,6 +221,74 @@ def rk4_all_ref(D, S, U, V, dt, m):
         S[5, c] = r[5]
         S[8, c] = r[6]
         S[9, c] = r[7]
+
+
+@njit(inline=False)
+def run_span_ref(D, S, W, usetp, efd_meas, k0, k1, usetp_pre, dt, m, store, efd_out, vt_out, lo):
+    """Samples and steps k0..k1-1 of a chunk on the reference blocks alone where nothing else acts
+    (no dead time, skew, setpoint ramp or fitted edge; efd scored, Vt not): each sample's output
+    into the squared error (and with `store` into the traces, rows lo.. of `efd_out`, `vt_out`),
+    then the step, in one loop over time with a vectorised loop over the candidates inside: what
+    `run_chunk` does step by step, without its per-step calls and small loops, which cost about as
+    much as a step of one candidate.
+
+    W: the output (row 0, held where failed), failed (row 1, 1.0), the sum of squared efd errors
+    (row 2), the state's magnitude after the step (row 3, the blow-up test). Returns the step
+    count done: k1, or the step after which some candidate blew up (its state is at t_k+1; the
+    caller parks it). The output's slopes (S rows 8, 9, for the skew) are not written."""
+    return _span_ref(D, S, W, usetp, efd_meas, k0, k1, usetp_pre, dt, m, store, efd_out, vt_out, lo, True)
+
+
+@njit(inline=False)
+def run_span_unlimited(D, S, W, usetp, efd_meas, k0, k1, usetp_pre, dt, m, store, efd_out, vt_out, lo):
+    """`run_span_ref` of a chunk none of whose candidates has a slew limit or a finite ceiling
+    (`rhs_ref`'s `limited` False): the paper's unit. The same numbers without the limits'
+    arithmetic, a third of a step's, which is also most of the chain a step of one candidate
+    waits on."""
+    return _span_ref(D, S, W, usetp, efd_meas, k0, k1, usetp_pre, dt, m, store, efd_out, vt_out, lo, False)
+
+
+@njit()
+def _span_ref(D, S, W, usetp, efd_meas, k0, k1, usetp_pre, dt, m, store, efd_out, vt_out, lo, limited):
+    """`run_span_ref`'s body, `limited` a constant of its callers' code."""
+    if (D.shape[0] != N_DERIVED or S.shape[0] != 10 or W.shape[0] != 4
+            or D.shape[1] != CHUNK or S.shape[1] != CHUNK or W.shape[1] != CHUNK):
+        raise ValueError("kernel chunk arrays of the wrong shape")
+    D = _view_d(D)
+    S = _view_s(S)
+    W = _view_w(W)
+    for k in range(k0, k1):
+        em = efd_meas[k]
+        base_u = usetp[k] - usetp_pre
+        if store:  # a loop of its own: a trace's stores in the loop below stop its vectoriser
+            for c in range(m):
+                y = D[D_GAIN, c] * S[3, c]
+                efd_out[lo + c, k] = W[0, c] if W[1, c] != 0.0 else y
+                vt_out[lo + c, k] = terminal_voltage(D, c, S[4, c], S[5, c])
+        blown = 0
+        for c in range(m):
+            y = D[D_GAIN, c] * S[3, c]
+            y = W[0, c] if W[1, c] != 0.0 else y
+            W[0, c] = y
+            d = y - em
+            W[2, c] += d * d
+            u = D[D_UREF0, c] + base_u
+            r = rk4_step_ref(D, c, u, u, 0.0, 0.0, 0.0, S[0, c], S[1, c], S[2, c], S[3, c], S[4, c], S[5, c], dt,
+                             limited)
+            S[0, c] = r[0]
+            S[1, c] = r[1]
+            S[2, c] = r[2]
+            S[3, c] = r[3]
+            S[4, c] = r[4]
+            S[5, c] = r[5]
+            mag = (abs(r[0]) + abs(r[1]) + abs(r[2]) + abs(r[3]) + abs(r[4]) + abs(r[5]) + abs(S[6, c])
+                   + abs(S[7, c]))
+            W[3, c] = mag
+            blown += 0 if mag < BLOWUP else 1
+        if blown:
+            return k + 1
+    return k1
+
 
 # ---- a step with jumps inside ------------------------------------------------------------------
 
