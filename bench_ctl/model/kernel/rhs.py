@@ -202,13 +202,13 @@ def rhs_ref(D, i, uref, vrd, xm, x1, x2, ef, eqp, eqpp, limited):
     dsc = D[D_VRVT, i] * deqpp
     dhi = D[D_VRMAX, i] * dsc - D[D_KC, i] * (1.0 + 2.0 * D[D_SATB, i] * d) * deqp
     dlo = D[D_VRMIN, i] * dsc
-    dhi = dhi if dhi == dhi else 0.0  # inf * 0 (no ceiling, fixed limits) is no movement
-    dlo = dlo if dlo == dlo else 0.0
     # min(de, RATE), max(., -RATE), min(., dhi) at the upper ceiling, max(., dlo) at the lower one
     # is max(min(de, up), down) with up = min(RATE, dhi) and down = max(min(-RATE, dhi), dlo) (dhi
     # +inf off the upper ceiling, dlo -inf off the lower): the same value, with two selects on
     # the chain from de to the next stage instead of four. Plain compare-and-select (numba's
-    # min/max carry NaN branches that stop the vectoriser)
+    # min/max carry NaN branches that stop the vectoriser). dhi, dlo are NaN only for an infinite
+    # ceiling that does not move (inf * 0), which efd never reaches: the selection replaces them,
+    # so they need no guard on the chain (`non_windup` keeps its guard)
     rate = D[D_RATE, i]
     dhi = dhi if ef >= hi else math.inf
     dlo = dlo if ef <= lo else -math.inf
