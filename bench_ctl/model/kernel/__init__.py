@@ -180,7 +180,7 @@ def run_kernel(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *,
             # record: 2.1 ms against 2.9 ms; the only split that depends on the threads). A half
             # is a whole number of the loops' vectors (`problem.LANES`), so every candidate runs
             # in the same kind of loop as in one chunk and the results are the same
-            # (tests/model/test_kernel_package.py compares them)
+            # (tests/model/test_kernel_robust.py compares them)
             chunk = CHUNK // 2
     if not 1 <= int(chunk) <= CHUNK:
         raise ValueError(f"chunk={chunk!r}: the kernel runs 1 to {CHUNK} candidates a chunk")

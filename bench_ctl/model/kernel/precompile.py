@@ -2,12 +2,12 @@
 
 A fresh compilation takes minutes, and most of it goes to seven functions LLVM optimises one
 after the other: the four vectorised RK4 loops, the reference structure's two loops over time and
-the split step (docs/decisions/0003); the derivation of the candidates' matrix adds most of a minute
-of numba's typing. None calls another, so `compile_parts` compiles the ones numba's disk cache lacks side by side, each
-in a child process that writes the cache; the chunk runners that call them then load them from
-the cache instead of compiling them one by one. With a warm cache it starts nothing. (Child
-processes, not multiprocessing: a spawned worker re-imports the caller's main script, which need
-not guard itself.)
+the split step (docs/decisions/0003); the derivation of the candidates' matrix adds most of a
+minute of numba's typing. None calls another, so `compile_parts` compiles the ones numba's disk
+cache lacks side by side, each in a child process that writes the cache; the chunk runners that
+call them then load them from the cache instead of compiling them one by one. With a warm cache
+it starts nothing. (Child processes, not multiprocessing: a spawned worker re-imports the
+caller's main script, which need not guard itself.)
 """
 from __future__ import annotations
 
