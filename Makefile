@@ -17,17 +17,14 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/bench-ctl demo
 
-# the kernel is compiled (or loaded from numba's cache) before the tests: a fresh compilation takes
-# minutes, and inside a test it would count against that test's time limit. `make test` leaves
-# out the slow tier (long end-to-end and statistical checks, marked `slow`); `make test-slow`
-# runs it, and CI runs both. One pytest worker a core (pytest-xdist), a test file to one worker
-# (its module fixtures are built once)
+# the engine is compiled (or loaded from numba's cache) before the tests, every variant the suite
+# runs, side by side in child processes (`bench-ctl warm-up --all`): a compilation inside a test
+# would count against that test's time limit, and two pytest workers would compile the same
+# variant twice. `make test` leaves out the slow tier (long end-to-end and statistical checks,
+# marked `slow`); `make test-slow` runs it, and CI runs both. One pytest worker a core
+# (pytest-xdist), a test file to one worker (its module fixtures are built once)
 PYTEST = $(BIN)/python -m pytest -q -n auto --dist loadfile --durations=25
-WARM_UP = $(BIN)/python -c 'from bench_ctl.identification.identify import warm_up; \
-	  from bench_ctl.model import online, simulate; from bench_ctl.model.unit import reference_unit; \
-	  print(f"kernel compiled or loaded from its cache in {warm_up(reference_unit()):.0f} s"); \
-	  print(f"on-line machine in {online.warm_up(simulate.param_matrix(reference_unit().values())):.0f} s"); \
-	  from bench_ctl.model import online_plant; print(f"on-line plant in {online_plant.warm_up():.0f} s")'
+WARM_UP = $(BIN)/bench-ctl warm-up --all
 
 test: $(STAMP)
 	$(WARM_UP)

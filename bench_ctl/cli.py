@@ -12,6 +12,7 @@ import sys
 
 import click
 
+from bench_ctl import compile_notice
 from bench_ctl.exitcodes import ExitCode
 
 # name -> "module:attribute" of a click.Command
@@ -27,6 +28,7 @@ COMMANDS = {
     "batch": "bench_ctl.commands.batch:batch",
     "models": "bench_ctl.commands.models:models",
     "export": "bench_ctl.commands.export:export",
+    "warm-up": "bench_ctl.commands.warm_up:warm_up",
 }
 
 
@@ -55,6 +57,7 @@ def cli(verbose: int) -> None:
     """bench-ctl: pulse test, AVR identification (MVMO), validation report, gap diagnosis."""
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    compile_notice.install(compile_notice.console)   # a first run says what it compiles
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 from andes_units import manifest, read_fixture  # noqa: E402
 from bench_ctl.capture import Capture  # noqa: E402
 from bench_ctl.capture.capture import write_capture  # noqa: E402
-from bench_ctl.model.dyr import read_dyr  # noqa: E402
+from bench_ctl.units.dyr import read_dyr  # noqa: E402
 
 #: read back by ANDES under its own names (andes/io/psse-dyr.yaml)
 ANDES_NAMES = {"SEXS": {"TA/TB": "TATB"}, "IEEEX1": {"KF": "KF1"}}

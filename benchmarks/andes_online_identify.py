@@ -3,7 +3,7 @@ benchmarks/andes_online.py; issue 27's targets).
 
 1. Reproduction at the true values: each capture run on the machine with the exciter, generator
    and XE ANDES used, the edges at their true instants: max |error| of efd, Vt, P and Q, and the
-   electromechanical mode in P (`bench_ctl.model.mode`) simulated against ANDES'.
+   electromechanical mode in P (`bench_ctl.signals.mode`) simulated against ANDES'.
 2. Identification: 0.01 pu Gaussian noise on efd (seeded), the structure's identified parameters
    fitted from their typical values by MVMO (`--evals`, default 1000; edges fitted), the machine and
    XE known: the efd MSE over the noise actually added (target <= 1.05), the fitted values against
@@ -27,9 +27,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 import numpy as np  # noqa: E402
 
 from andes_units import online_capture, online_manifest, online_true_edges, online_unit  # noqa: E402
+from bench_ctl.engine.simulate import operating_point, simulate_on_line  # noqa: E402
 from bench_ctl.identification.identify import run_identification  # noqa: E402
-from bench_ctl.model.mode import electromechanical_mode  # noqa: E402
-from bench_ctl.model.simulate import operating_point, simulate_on_line  # noqa: E402
+from bench_ctl.signals.mode import electromechanical_mode  # noqa: E402
 
 NOISE = 0.01
 

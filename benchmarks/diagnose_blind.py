@@ -47,7 +47,7 @@ from bench_ctl.diagnosis import diagnose  # noqa: E402
 from bench_ctl.diagnosis.blind import NONE, SuiteConfig, make_case, make_suite, run_suite, score  # noqa: E402
 from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.model.effects import EFFECT_NAMES  # noqa: E402
-from bench_ctl.model.unit import load_unit  # noqa: E402
+from bench_ctl.units.unit import load_unit  # noqa: E402
 
 
 def confusion_table(conf: dict[str, dict[str, int]]) -> str:

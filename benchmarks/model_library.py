@@ -3,7 +3,7 @@ GENROU with SEXS, EXST1, ESST1A, IEEEX1, ESST4B, EXAC1, ESAC1A and AC8B exciters
 
 1. Reproduction at the true values: each structure, with the values ANDES used, the setpoint
    edges at their true instants: open loop (the excitation system alone fed ANDES' Vt and Ifd,
-   bench_ctl.model.open_loop) and closed loop (with the kernel's generator from the GENROU data,
+   bench_ctl.engine.open_loop) and closed loop (with the kernel's generator from the GENROU data,
    tests/andes_units.py): max and RMS |efd error| over every capture (5, 10, 20 %).
 2. Identification: each structure's default identified parameters (gain, time constants) fitted
    by MVMO (1000 evaluations, edge instants fitted) to the 5 % captures with 0.01 pu noise added
@@ -33,10 +33,10 @@ import numpy as np  # noqa: E402
 
 from andes_units import fixture_unit, manifest, open_loop_efd, read_fixture, standard_params, true_edges  # noqa: E402
 from bench_ctl.capture import Capture  # noqa: E402
+from bench_ctl.engine import run  # noqa: E402
+from bench_ctl.engine.simulate import param_matrix, pre_trigger_mean, simulate  # noqa: E402
 from bench_ctl.identification.identify import run_identification, warm_up  # noqa: E402
-from bench_ctl.model.kernel import run_kernel  # noqa: E402
-from bench_ctl.model.simulate import param_matrix, pre_trigger_mean, simulate  # noqa: E402
-from bench_ctl.model.unit import apply_overrides, reference_unit  # noqa: E402
+from bench_ctl.units.unit import apply_overrides, reference_unit  # noqa: E402
 
 #: ANDES 2.0's EXST1 limits its washout output (HardLimiter(u=WF_y)), not VA: with KF = 0 its
 #: ceilings never act (its 20 % capture reaches 5.1 pu, VRMAX 4.0). Compared with limits wide.
@@ -136,7 +136,7 @@ def speed(out: dict) -> None:
     t = np.arange(5001) * 1e-3
     usetp = 1.0 + 0.05 * ((t >= 1.0) & (t < 2.0))
     efd = np.ones_like(t)
-    from bench_ctl.model.unit import with_model
+    from bench_ctl.units.unit import with_model
     ref: dict[str, float] = {}
     print(f"  {'model':<10} {'in bounds':>10} {'ratio':>7} {'failed':>7}   {'near typical':>12} {'ratio':>7}")
     for model in ("REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1", "ESST4B", "ESST5B", "EXAC1", "AC8B"):
@@ -154,12 +154,12 @@ def speed(out: dict) -> None:
         row = {}
         for kind, pop in pops.items():
             P = param_matrix(unit.values(), names, pop)
-            run_kernel(P[:8], usetp, 1e-3, 1.0, efd_meas=efd, store=False)  # compile / load the cache
-            run_kernel(P, usetp, 1e-3, 1.0, efd_meas=efd, store=False)      # ... both the serial and parallel paths
+            run(P[:8], usetp, 1e-3, 1.0, measured={"efd": efd}, store=False)  # compile / load the cache
+            run(P, usetp, 1e-3, 1.0, measured={"efd": efd}, store=False)      # ... both the serial and parallel paths
             times = []
             for _ in range(5):
                 t0 = time.perf_counter()
-                res = run_kernel(P, usetp, 1e-3, pre_trigger_mean(usetp, 1e-3), efd_meas=efd, store=False)
+                res = run(P, usetp, 1e-3, pre_trigger_mean(usetp, 1e-3), measured={"efd": efd}, store=False)
                 times.append(time.perf_counter() - t0)
             med = statistics.median(times)
             ref.setdefault(kind, med)

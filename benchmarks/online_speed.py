@@ -4,7 +4,7 @@ on-line 10 s record at 1 ms <= 2x the no-load figure).
 For each structure (default SEXS, ESST1A): one batched call of N candidates (default 1000, the
 structure's identified parameters drawn uniformly within +-20 % of its typical values, seeded)
 over a 10 s, 1 kHz record with a 2 % reference step held from 1 s: the no-load kernel
-(`run_kernel`) and the machine on the grid (`online.run_online`, the typical GENROU through
+(`engine.run`) and the machine on the grid (`engine.run` with a machine, the typical GENROU through
 XE = 0.2 at P = 0.8), both with a measured efd (the identification's fast path, no traces),
 median of --repeat runs taken in turn (no load, on line, no load, ...), in each of --processes
 fresh processes; the ratio quoted is the median over the processes, with its range. Compile or
@@ -30,10 +30,10 @@ sys.path.insert(0, str(ROOT))
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bench_ctl.model import online  # noqa: E402
-from bench_ctl.model.kernel import run_kernel  # noqa: E402
-from bench_ctl.model.simulate import param_matrix  # noqa: E402
-from bench_ctl.model.unit import reference_unit, with_model  # noqa: E402
+from bench_ctl.engine import run  # noqa: E402
+from bench_ctl.engine.machines import grid  # noqa: E402
+from bench_ctl.engine.simulate import param_matrix  # noqa: E402
+from bench_ctl.units.unit import reference_unit, with_model  # noqa: E402
 
 
 def _population(model: str, n: int, seed: int) -> np.ndarray:
@@ -63,14 +63,14 @@ def _measure(models: list[str], candidates: int, seed: int, repeat: int) -> dict
     usetp = np.ones(n)
     usetp[1000:] += 0.02
     meas = np.ones(n)
-    M = online.machine_matrix(online.TYPICAL_MACHINE)
+    M = grid.machine_matrix(grid.TYPICAL_MACHINE)
     out = {}
     for model in models:
         P = _population(model, candidates, seed)
         Mn = np.repeat(M, P.shape[0], axis=0)
         out[model] = _interleaved(
-            lambda P=P: run_kernel(P, usetp, dt, 1.0, efd_meas=meas, store=False),
-            lambda P=P, Mn=Mn: online.run_online(P, Mn, usetp, dt, 1.0, measured={"efd": meas}, store=False),
+            lambda P=P: run(P, usetp, dt, 1.0, measured={"efd": meas}, store=False),
+            lambda P=P, Mn=Mn: run(P, usetp, dt, 1.0, machine=Mn, measured={"efd": meas}, store=False),
             repeat)
     return out
 
@@ -92,8 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     P1 = _population("SEXS", 1, args.seed)
     u = np.array([1.0, 1.0, 1.02, 1.02])
-    run_kernel(P1, u, 1e-3, 1.0, efd_meas=np.ones(4), store=False)
-    online.warm_up(P1)
+    run(P1, u, 1e-3, 1.0, measured={"efd": np.ones(4)}, store=False)
+    run(P1, u, 1e-3, 1.0, machine=grid.machine_matrix(grid.TYPICAL_MACHINE), measured={"efd": np.ones(4)}, store=False)
     compile_s = time.perf_counter() - t0
     out: dict = {"candidates": args.candidates, "record_s": 10.0, "threads": numba.get_num_threads(),
                  "compile_or_load_s": compile_s, "load_average": os.getloadavg()[0], "processes": args.processes}

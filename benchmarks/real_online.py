@@ -12,7 +12,7 @@ no-load step (AVR_PH_Step10: factor 2.9526, i.e. 0.33869 rf = 1 pu), given with 
 Printed and saved (--json): the efd MSE against the record's own pre-step disturbance (variance
 of the pre-step efd about a straight line, as benchmarks/import_real.py), the fitted XE and
 exciter values, the RMS error of Vt and Q over the test, and the electromechanical mode in P after
-the step, measured and simulated (the report's estimate, `bench_ctl.model.mode`).
+the step, measured and simulated (the report's estimate, `bench_ctl.signals.mode`).
 
 `--diagnose`: then `bench-ctl diagnose` on the same capture and unit, from the identification's
 values (`--result`): the verdict, the effects that explain the record together and what is left
@@ -46,9 +46,9 @@ from bench_ctl.capture import read_capture  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
 from bench_ctl.identification.timing import edge_spec_of  # noqa: E402
 from bench_ctl.model.dialect import kernel_sections  # noqa: E402
-from bench_ctl.model.mode import electromechanical_mode  # noqa: E402
 from bench_ctl.report.analysis import simulate_record  # noqa: E402
 from bench_ctl.report.inputs import model_values  # noqa: E402
+from bench_ctl.signals.mode import electromechanical_mode  # noqa: E402
 from import_real import MOSTAR_CLOCK, pre_step_disturbance  # noqa: E402
 
 MAPS = ["efd=SFS_Meas_UfRel", "vt=SFS_Meas_UgRel", "p=SFS_Meas_PRel", "q=SFS_Meas_QRel", "ifd=SFS_Meas_IfRel",

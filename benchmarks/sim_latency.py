@@ -12,7 +12,7 @@ framer, the drivers' rtu+tcp:// endpoint). The timing run keeps a procedure-like
 the exciter with heartbeats, and a 10 s recording downloaded over the pseudo-terminal (its
 download time is reported too). Before the bench starts, `machine_timer_*` is the host's own
 wake-up lateness for a bare 1 kHz sleeper with the plant's clock calls and priority
-(`bench_ctl.model.realtime.timer_jitter`): on a virtual machine that floor, not the plant, is what
+(`bench_ctl.plants.realtime.timer_jitter`): on a virtual machine that floor, not the plant, is what
 sets the plant's late steps. `--online`: the same on the bench on line (the unit on the grid, stepped
 by a Python-timed loop, docs/decisions/0018). Exits 0 when it ran; it reports, it does not judge.
 """
@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient  # noqa: E402
 from pymodbus.framer import FramerRTU, FramerType  # noqa: E402
 
-from bench_ctl.model.realtime import timer_jitter  # noqa: E402
+from bench_ctl.plants.realtime import timer_jitter  # noqa: E402
 from simulators.bench import SimBench  # noqa: E402
 
 

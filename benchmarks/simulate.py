@@ -17,9 +17,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from bench_ctl.model.kernel import run_kernel
-from bench_ctl.model.simulate import param_matrix, pulse_usetp
-from bench_ctl.model.unit import reference_unit
+from bench_ctl.engine import run
+from bench_ctl.engine.simulate import param_matrix, pulse_usetp
+from bench_ctl.units.unit import reference_unit
 
 
 def main() -> int:
@@ -38,7 +38,7 @@ def main() -> int:
     base = param_matrix(unit.values())
 
     t0 = time.perf_counter()
-    meas = run_kernel(base, usetp, dt, 1.0)["efd"][0]  # first call: compile or load the cache
+    meas = run(base, usetp, dt, 1.0)["efd"][0]  # first call: compile or load the cache
     compile_s = time.perf_counter() - t0
 
     all_threads = numba.config.NUMBA_NUM_THREADS
@@ -53,10 +53,10 @@ def main() -> int:
             X = np.array([200, 1, 0.2, 0.5, 10, 0.02]) * (1 + 0.2 * (rng.random((n, 6)) - 0.5))
             X = np.clip(X, lo, hi)
             P = param_matrix(unit.values(), names, X)
-            run_kernel(P, usetp, dt, 1.0, efd_meas=meas, store=False)  # warm
+            run(P, usetp, dt, 1.0, measured={"efd": meas}, store=False)  # warm
             calls, start = 0, time.perf_counter()
             while True:
-                run_kernel(P, usetp, dt, 1.0, efd_meas=meas, store=False)
+                run(P, usetp, dt, 1.0, measured={"efd": meas}, store=False)
                 calls += 1
                 elapsed = time.perf_counter() - start
                 if elapsed >= args.min_seconds:

@@ -6,7 +6,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from bench_ctl.model.edges import SETPOINT, find_edges
+from bench_ctl.signals.edges import SETPOINT, find_edges
 
 __all__ = ["RecordedPulse", "measure_pulse", "signed"]
 
@@ -23,7 +23,7 @@ class RecordedPulse:
 
 def measure_pulse(time_s: np.ndarray, usetp: np.ndarray, expected_pu: float,
                   pre_samples: int = 1) -> RecordedPulse:
-    """The pulse in the recorded setpoint, by the shared edge finder (`bench_ctl.model.edges`, a
+    """The pulse in the recorded setpoint, by the shared edge finder (`bench_ctl.signals.edges`, a
     setpoint channel): the first edge departing from its level by more than half the expected
     amplitude, either way, and the first later edge back. Its start is the leading edge's first
     sample, its width the samples from there to the trailing edge's first sample (to the end of

@@ -43,9 +43,8 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench_ctl.model.online_plant import OnlinePlant
-from bench_ctl.model.plant import Plant
-from bench_ctl.model.unit import Unit, load_unit
+from bench_ctl.plants import OnlinePlant, Plant
+from bench_ctl.units.unit import Unit, load_unit
 from drivers.profile import Profile, load_profile
 
 from .control import start_control

@@ -34,8 +34,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from pymodbus.constants import ExcCodes
 
-from bench_ctl.model.online_plant import TURBINE_PU
-from bench_ctl.model.plant import FLAG_CEILING, FLAG_RAMP, FLAG_RATE, Plant
+from bench_ctl.plants import FLAG_CEILING, FLAG_RAMP, FLAG_RATE, TURBINE_PU, Plant
 from drivers.exciter import OTHER_MASTER_BIT, watchdog_register
 from drivers.profile import Profile, Register
 

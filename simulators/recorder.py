@@ -26,7 +26,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from pymodbus.constants import ExcCodes
 
-from bench_ctl.model.plant import O_USETP, Plant
+from bench_ctl.plants import O_USETP, Plant
 from drivers.profile import Profile, Register
 
 log = logging.getLogger(__name__)

@@ -13,8 +13,8 @@ import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.capture.capture import read_capture
-from bench_ctl.model.edges import EdgeSpec, find_setpoint_edges
-from bench_ctl.model.unit import Unit, apply_overrides, reference_unit, with_model
+from bench_ctl.signals.edges import EdgeSpec, find_setpoint_edges
+from bench_ctl.units.unit import Unit, apply_overrides, reference_unit, with_model
 
 FOLDER = Path(__file__).resolve().parent / "fixtures" / "andes"
 
@@ -84,8 +84,8 @@ def fixture_column(name: str, column: str) -> np.ndarray:
 
 def open_loop_efd(name: str, unit, cap: Capture) -> np.ndarray:
     """The unit's excitation system alone fed the fixture's Vt and Ifd, setpoint edges at their
-    true instants (bench_ctl.model.open_loop)."""
-    from bench_ctl.model.open_loop import run_open_loop
+    true instants (bench_ctl.engine.open_loop)."""
+    from bench_ctl.engine.open_loop import run_open_loop
     spec, off = true_edges(name, cap)
     times = [spec.nominal_s[i] + off[f"EDGE{i + 1}"] for i in range(spec.n)]
     return run_open_loop(unit.values(), cap.time, cap.vt, fixture_column(name, "ifd"), times, spec.jump)

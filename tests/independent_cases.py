@@ -18,7 +18,7 @@ import numpy as np
 import independent_plant as ip
 from bench_ctl.capture import Capture
 from bench_ctl.diagnosis.blind import NONE, VISIBLE, Case, SuiteConfig, record_visibility
-from bench_ctl.model.unit import Unit, load_unit
+from bench_ctl.units.unit import Unit, load_unit
 
 
 def _capture(rec: ip.Record, label: str, test: ip.Test) -> Capture:

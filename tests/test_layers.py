@@ -5,14 +5,13 @@
   `LAYERS` (the longest matching name), and imports only its own layer, `SHARED` and the layers
   its entry lists (third-party packages are free). A module in no layer fails: a new package
   states its place here and in docs/architecture.md.
-- The kernel (`bench_ctl.model.kernel`, any module of the package) is imported only from
-  bench_ctl.model and bench_ctl.identification; identification never imports diagnosis.
+- Identification never imports diagnosis.
 - A procedure never reaches a device's insides: no `.link`, `.profile`, `.heartbeat` and no
   private name of anything it was given (it is typed against `bench_ctl.runner.protocols`).
 - No import cycles between modules.
 
 `from P import name` counts as importing P.name when that is a module of the tree (`from
-bench_ctl.model import kernel` imports the kernel); imports inside functions count. tests/ and
+bench_ctl.engine import runner` imports the runner); imports inside functions count. tests/ and
 benchmarks/ are outside the rules (they build simulators and call everything).
 """
 from __future__ import annotations
@@ -27,12 +26,14 @@ TOPS = ("bench_ctl", "drivers", "simulators", "procedures")
 #: import nothing of the tree (checked below): exit codes, input files, output files, typed JSON
 #: records, timestamps
 SHARED = ("bench_ctl", "bench_ctl.exitcodes", "bench_ctl.limits", "bench_ctl.outputs", "bench_ctl.records",
-          "bench_ctl.timestamps")
-ANALYSIS = ("bench_ctl.model", "bench_ctl.capture", "bench_ctl.identification", "bench_ctl.diagnosis",
-            "bench_ctl.report")
-#: the pure analysis helpers of bench_ctl.model a procedure may use on what it recorded: numpy
-#: on arrays, no kernel, no plant, no files, no device (the shared edge finder)
-PURE_ANALYSIS = ("bench_ctl.model.edges",)
+          "bench_ctl.timestamps", "bench_ctl.compile_notice")
+#: the model's rooms, bottom up: the catalogue, the analysis of recorded signals, unit files and
+#: .dyr, the simulation engine
+MODELLING = ("bench_ctl.model", "bench_ctl.signals", "bench_ctl.units", "bench_ctl.engine")
+ANALYSIS = (*MODELLING, "bench_ctl.capture", "bench_ctl.identification", "bench_ctl.diagnosis", "bench_ctl.report")
+#: the pure analysis helpers a procedure may use on what it recorded: numpy on arrays, no engine,
+#: no plant, no files, no device (the shared edge finder)
+PURE_ANALYSIS = ("bench_ctl.signals.edges",)
 
 #: layer -> what it may import besides itself and SHARED (a name stands for its sub-modules)
 LAYERS: dict[str, tuple[str, ...]] = {
@@ -42,29 +43,30 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "bench_ctl.timestamps": (),
     "bench_ctl.outputs": (),
     "bench_ctl.records": (),
+    "bench_ctl.compile_notice": (),
     "drivers": (),
-    "simulators": ("drivers", "bench_ctl.model"),
+    "simulators": ("drivers", "bench_ctl.plants", "bench_ctl.model", "bench_ctl.units"),
     "procedures": ("bench_ctl.runner", *PURE_ANALYSIS),
     "bench_ctl.runner": ("drivers", "bench_ctl.capture"),
     "bench_ctl.model": (),
-    "bench_ctl.capture": ("bench_ctl.model",),
-    "bench_ctl.identification": ("bench_ctl.model", "bench_ctl.capture"),
-    "bench_ctl.diagnosis": ("bench_ctl.model", "bench_ctl.capture", "bench_ctl.identification"),
-    "bench_ctl.report": ("bench_ctl.model", "bench_ctl.capture", "bench_ctl.identification",
-                         "bench_ctl.diagnosis"),
+    "bench_ctl.signals": ("bench_ctl.model",),
+    "bench_ctl.units": ("bench_ctl.model", "bench_ctl.signals"),
+    "bench_ctl.engine": ("bench_ctl.model", "bench_ctl.signals", "bench_ctl.units"),
+    "bench_ctl.plants": MODELLING,
+    "bench_ctl.capture": MODELLING,
+    "bench_ctl.identification": (*MODELLING, "bench_ctl.capture"),
+    "bench_ctl.diagnosis": (*MODELLING, "bench_ctl.capture", "bench_ctl.identification"),
+    "bench_ctl.report": (*MODELLING, "bench_ctl.capture", "bench_ctl.identification", "bench_ctl.diagnosis"),
     "bench_ctl.fleet": ("bench_ctl.cli", *ANALYSIS),
     "bench_ctl.cli": (),                   # sub-commands are imported by name, when used
-    "bench_ctl.commands": ("bench_ctl.cli", *ANALYSIS, "bench_ctl.runner", "bench_ctl.fleet", "drivers",
-                           "simulators"),
+    "bench_ctl.commands": ("bench_ctl.cli", *ANALYSIS, "bench_ctl.plants", "bench_ctl.runner", "bench_ctl.fleet",
+                           "drivers", "simulators"),
 }
 #: module -> what it may import beyond its layer
 MODULE_EXTRA: dict[str, tuple[str, ...]] = {
     # a dry run starts the simulated bench in a child process (docs/decisions/0005)
     "bench_ctl.runner.dryrun": ("simulators",),
 }
-
-KERNEL = "bench_ctl.model.kernel"
-KERNEL_USERS = ("bench_ctl.model", "bench_ctl.identification")
 
 #: (importer, imported, why): imports the rules refuse that are allowed for now; each must still
 #: occur (the test says when one can go)
@@ -132,8 +134,6 @@ def _refusal(mod: str, name: str) -> str | None:
     layer = layer_of(mod)
     if layer is None:
         return f"{mod} is in no layer (place it in tests/test_layers.py LAYERS and docs/architecture.md)"
-    if _under(name, KERNEL) and not any(_under(mod, u) for u in KERNEL_USERS):
-        return f"the kernel is imported only from {' and '.join(KERNEL_USERS)}"
     if _under(mod, "bench_ctl.identification") and _under(name, "bench_ctl.diagnosis"):
         return "identification never imports diagnosis"
     if name in SHARED or _under(name, layer) or layer_of(name) == layer:
@@ -204,19 +204,20 @@ def test_the_checker_catches_each_rule(tmp_path):
         "bench_ctl/__init__.py": "",
         "bench_ctl/limits.py": "",
         "bench_ctl/model/__init__.py": "",
-        "bench_ctl/model/kernel/__init__.py": "from .rk4 import step\n",          # fine: inside
-        "bench_ctl/model/kernel/layout.py": "",
-        "bench_ctl/model/kernel/rk4.py": "from .layout import CHUNK\nfrom ..unit import U\n",  # fine
-        "bench_ctl/model/edges.py": "from . import kernel as K\n",                 # fine: model
-        "bench_ctl/model/unit.py": "from bench_ctl.limits import read_text\n",     # fine: shared
+        "bench_ctl/model/params.py": "from bench_ctl.units import unit\n",          # refused
+        "bench_ctl/engine/__init__.py": "from .step import rk4\n",               # fine: inside
+        "bench_ctl/engine/layout.py": "",
+        "bench_ctl/engine/step.py": "from .layout import CHUNK\nfrom ..units.unit import U\n",  # fine
+        "bench_ctl/signals/edges.py": "from ..engine import step\n",               # refused
+        "bench_ctl/units/unit.py": "from bench_ctl.limits import read_text\n",     # fine: shared
         "bench_ctl/identification/__init__.py": "",
-        "bench_ctl/identification/i.py": "from bench_ctl.model import kernel\n"     # fine
+        "bench_ctl/identification/i.py": "from bench_ctl.engine import step\n"     # fine
                                          "from bench_ctl.diagnosis import d\n",     # refused
         "bench_ctl/diagnosis/__init__.py": "",
-        "bench_ctl/diagnosis/d.py": "from bench_ctl.model.kernel import run\n"   # refused
-                                    "from bench_ctl.model.kernel.rk4 import f\n",  # refused: a submodule
+        "bench_ctl/diagnosis/d.py": "from bench_ctl.plants import Plant\n"       # refused
+                                    "from bench_ctl.plants.realtime import f\n",   # refused: a submodule
         "bench_ctl/commands/__init__.py": "",
-        "bench_ctl/commands/c.py": "from bench_ctl.model import kernel\n",        # refused
+        "bench_ctl/commands/c.py": "from bench_ctl.plants import plant\n",       # fine
         "bench_ctl/report/__init__.py": "",
         "bench_ctl/report/r.py": "from ..runner import bench\n",                  # refused
         "bench_ctl/runner/__init__.py": "",
@@ -226,8 +227,8 @@ def test_the_checker_catches_each_rule(tmp_path):
         "bench_ctl/fleet/f.py": "from drivers.link import ModbusLink\n",          # refused
         "bench_ctl/newpkg/__init__.py": "",                                       # in no layer
         "procedures/p.py": "from drivers.errors import DeviceError\n"             # refused
-                           "from bench_ctl.model.edges import find_edges\n"       # fine
-                           "from bench_ctl.model.unit import load_unit\n"         # refused
+                           "from bench_ctl.signals.edges import find_edges\n"       # fine
+                           "from bench_ctl.units.unit import load_unit\n"         # refused
                            "def f(bench):\n    return bench.exciter.link, bench.recorder._x\n",
         "drivers/d.py": "import simulators.bench\n",                              # refused
         "drivers/ok.py": "from bench_ctl.limits import read_text\n",              # fine
@@ -242,15 +243,16 @@ def test_the_checker_catches_each_rule(tmp_path):
     found = violations(tmp_path, temporary=(("bench_ctl.report.r", "drivers", "a stale one"),))
     expected = [
         "bench_ctl.identification.i imports bench_ctl.diagnosis.d (identification never imports diagnosis)",
-        "bench_ctl.diagnosis.d imports bench_ctl.model.kernel (the kernel is imported only from",
-        "bench_ctl.diagnosis.d imports bench_ctl.model.kernel.rk4 (the kernel is imported only from",
-        "bench_ctl.commands.c imports bench_ctl.model.kernel (the kernel",
+        "bench_ctl.model.params imports bench_ctl.units.unit (bench_ctl.model imports only",
+        "bench_ctl.signals.edges imports bench_ctl.engine.step (bench_ctl.signals imports only",
+        "bench_ctl.diagnosis.d imports bench_ctl.plants (bench_ctl.diagnosis imports only",
+        "bench_ctl.diagnosis.d imports bench_ctl.plants.realtime (bench_ctl.diagnosis imports only",
         "bench_ctl.report.r imports bench_ctl.runner.bench (bench_ctl.report imports only",
         "bench_ctl.runner.bench imports simulators.bench",
         "bench_ctl.fleet.f imports drivers.link",
         "bench_ctl.newpkg is in no layer",
         "procedures.p imports drivers.errors",
-        "procedures.p imports bench_ctl.model.unit",
+        "procedures.p imports bench_ctl.units.unit",
         "drivers.d imports simulators.bench",
         "drivers.r imports bench_ctl.runner",
         "drivers.r imports bench_ctl.capture",

@@ -60,8 +60,8 @@ def test_every_loader_refuses_a_device_with_the_same_words(tmp_path):
     """A bench config, a unit file, a profile and a manifest: each loader's own error type, the
     reader's words."""
     from bench_ctl.fleet.manifest import ManifestError, read_manifest
-    from bench_ctl.model.unit import UnitError, load_unit
     from bench_ctl.runner.config import ConfigError, load_bench_config
+    from bench_ctl.units.unit import UnitError, load_unit
     from drivers.profile import load_profile
 
     for load, error, kind in ((load_bench_config, ConfigError, "a bench config"),

@@ -12,8 +12,8 @@ import pytest
 from bench_ctl.capture import write_capture
 from bench_ctl.cli import main
 from bench_ctl.identification.synthetic import synthetic_capture
-from bench_ctl.model.unit import reference_unit
 from bench_ctl.outputs import OutputRefused, guard_outputs, write_json
+from bench_ctl.units.unit import reference_unit
 
 
 def _sha(p: Path) -> str:

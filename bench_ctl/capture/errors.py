@@ -41,7 +41,7 @@ class CaptureError(ValueError):
 
 
 #: what a refusal may quote of a file's content: a column name or a number, short
-_SHOWABLE = re.compile(r"[\w .,()\[\]/%+#°µ-]{0,40}")
+SHOWABLE = re.compile(r"[\w .,()\[\]/%+#°µ-]{0,40}")
 
 
 def shown(text: object) -> str:
@@ -49,13 +49,13 @@ def shown(text: object) -> str:
     that is not a capture (a row of a manifest pointing at /etc/shadow) is refused without its
     content reaching the console, a summary or a report (issue 24 item 9)."""
     s = str(text)
-    if _SHOWABLE.fullmatch(s):
+    if SHOWABLE.fullmatch(s):
         return repr(s)
     return f"<{len(s)} characters, not shown>"
 
 
 def shown_names(names: list[str] | tuple[str, ...]) -> str:
     """The header's column names, or only how many when one of them does not look like a name."""
-    if all(_SHOWABLE.fullmatch(n) for n in names):
+    if all(SHOWABLE.fullmatch(n) for n in names):
         return ", ".join(names)
     return f"{len(names)} column(s), not shown: they do not look like column names (is this a capture at all?)"

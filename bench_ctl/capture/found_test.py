@@ -3,7 +3,7 @@ step:amplitude=0.1` without a start; docs/formats.md, "Edges found in the record
 
 The record's channels are searched in the order they respond to a setpoint change: the regulator
 output `vr` (mapped with `--map vr=...`), then `efd`, then `vt`, each with the one edge finder
-(`bench_ctl.model.edges.find_edges`, on the source's own time stamps, before any resampling). The
+(`bench_ctl.signals.edges.find_edges`, on the source's own time stamps, before any resampling). The
 first channel that shows an edge of the stated sign (and, for a pulse, its return) locates the
 test; the others are said and why they did not. When the record has `vt`, it checks the amplitude:
 vt's settled change over the edge must lie within AMPLITUDE_RANGE times the stated amplitude
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.capture.errors import CaptureError
-from bench_ctl.model.edges import EXCITER, VOLTAGE, EdgeSearch, FoundEdge, find_edges
+from bench_ctl.signals.edges import EXCITER, VOLTAGE, EdgeSearch, FoundEdge, find_edges
 
 #: channels searched, in the order a setpoint change reaches them
 SEARCH_ORDER: tuple[tuple[str, str], ...] = (("vr", EXCITER), ("efd", EXCITER), ("vt", VOLTAGE))

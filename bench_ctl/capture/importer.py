@@ -33,7 +33,7 @@ from bench_ctl.capture.plausible import implausible
 from bench_ctl.capture.timebase import check_time, resample_linear, step_stats
 from bench_ctl.capture.vendor_csv import RawRecord, read_vendor_csv
 from bench_ctl.limits import sha256_file
-from bench_ctl.model.edges import SETPOINT, find_edges
+from bench_ctl.signals.edges import SETPOINT, find_edges
 
 log = logging.getLogger(__name__)
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from bench_ctl.capture.capture import Capture
 from bench_ctl.capture.errors import CaptureError
-from bench_ctl.model.edges import SETPOINT, find_edges
+from bench_ctl.signals.edges import SETPOINT, find_edges
 
 MIN_STEP_S = 1.0e-5
 MAX_STEP_S = 0.1
@@ -63,7 +63,7 @@ def _first_bad(values: np.ndarray, ok: np.ndarray) -> int | None:
 
 def setpoint_edges(usetp: np.ndarray) -> np.ndarray:
     """Indices of the first sample showing each setpoint edge (the shared finder,
-    `bench_ctl.model.edges.find_edges`: a change spread over adjacent samples is one edge)."""
+    `bench_ctl.signals.edges.find_edges`: a change spread over adjacent samples is one edge)."""
     u = np.asarray(usetp, float)
     found = find_edges(np.arange(u.size, dtype=float), u, kind=SETPOINT)
     return np.array([e.index for e in found.edges], dtype=np.int64)

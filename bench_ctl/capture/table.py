@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench_ctl.capture.errors import _SHOWABLE, CaptureError, shown
+from bench_ctl.capture.errors import SHOWABLE, CaptureError, shown
 from bench_ctl.limits import LIMITS, InputError, read_bounded
 
 log = logging.getLogger(__name__)
@@ -116,7 +116,7 @@ def read_text_table(
                 raise CaptureError(file, "empty column name in the header", row=reader.line_num)
             if name in seen:
                 raise CaptureError(file, "column name repeated in the header",
-                                   row=reader.line_num, column=name if _SHOWABLE.fullmatch(name) else None)
+                                   row=reader.line_num, column=name if SHOWABLE.fullmatch(name) else None)
             seen.add(name)
         actual_header_line = reader.line_num
         lines: list[int] = []

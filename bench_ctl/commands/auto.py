@@ -11,7 +11,7 @@ from bench_ctl.model.dialect import shared_names
 from bench_ctl.model.params import PARAMS
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
 from bench_ctl.model.structures import STRUCTURES
-from bench_ctl.model.unit import Unit, apply_overrides, with_model
+from bench_ctl.units.unit import Unit, apply_overrides, with_model
 
 from .options import fmt_value as _fmt
 from .options import resolve_unit

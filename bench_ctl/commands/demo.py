@@ -94,8 +94,8 @@ def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, 
     """Steps 2-4 of the demo on the saved capture (on line: no peers)."""
     from bench_ctl.diagnosis.diagnose import diagnose
     from bench_ctl.identification.identify import identify, result_for_file
-    from bench_ctl.model.unit import reference_unit
     from bench_ctl.report import analyse, write_report
+    from bench_ctl.units.unit import reference_unit
 
     capture = read_capture(outcome.capture_path)
     unit = reference_unit()

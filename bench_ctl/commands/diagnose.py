@@ -31,6 +31,7 @@ from bench_ctl.capture import Capture, CaptureError, read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis
 from bench_ctl.diagnosis.localize import where_lines
+from bench_ctl.engine.simulate import simulate
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.identification.constraints import ConstraintError, parse_constraints
 from bench_ctl.identification.result_file import RESULT_SCHEMA, IdentificationResult, read_result
@@ -38,9 +39,8 @@ from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.limits import InputError
 from bench_ctl.model.dialect import kernel_keys, kernel_sections, result_to_std, std_name
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
-from bench_ctl.model.simulate import simulate
-from bench_ctl.model.unit import Unit, UnitError
 from bench_ctl.records import FormatError, plain
+from bench_ctl.units.unit import Unit, UnitError
 
 from .auto import auto_units, is_auto, rank_structures, selection_summary
 from .options import fmt_value as _fmt

@@ -37,10 +37,10 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
     from bench_ctl import outputs
     from bench_ctl.identification.result_file import read_result
     from bench_ctl.limits import InputError
-    from bench_ctl.model.dyr import DyrError, DyrRecord, dyr_text
-    from bench_ctl.model.dyr_unit import dyr_fields, dyr_values_of, not_carried, pss_record
     from bench_ctl.model.structures import StructureError
     from bench_ctl.records import FormatError
+    from bench_ctl.units.dyr import DyrError, DyrRecord, dyr_text
+    from bench_ctl.units.dyr_unit import dyr_fields, dyr_values_of, not_carried, pss_record
 
     try:
         out = outputs.guard_outputs({"--dyr": dyr_out}, [result_path], force=force)

@@ -33,7 +33,7 @@ from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.identification.result_file import IdentificationResult  # noqa: F401 (the summary's input)
 from bench_ctl.model.dialect import std_text
-from bench_ctl.model.unit import UnitError
+from bench_ctl.units.unit import UnitError
 
 from .auto import NoStructureFitted, auto_units, is_auto, rank_structures, selection_summary
 from .options import fmt_value as _fmt

@@ -39,7 +39,7 @@ from bench_ctl.capture.field_base import NoLoad, parse_efd_base
 from bench_ctl.capture.importer import ImportSpec, TestDescription
 from bench_ctl.capture.importer import import_export as run_import
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.model.unit import Unit, UnitError
+from bench_ctl.units.unit import Unit, UnitError
 
 from .options import resolve_unit, unit_options
 
@@ -105,7 +105,7 @@ def _scales(values: tuple[str, ...]) -> tuple[dict[str, float], bool]:
 
 def _no_load(unit: Unit) -> NoLoad:
     """The unit's no-load field for an auto base: Vt0 and the model's saturation Sat(x)."""
-    from bench_ctl.model.simulate import generator_saturation  # numba: loaded only for an auto base
+    from bench_ctl.engine.simulate import generator_saturation  # numba: loaded only for an auto base
 
     values = unit.values()
     s10, s12 = float(values["S10"]), float(values["S12"])

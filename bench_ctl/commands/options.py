@@ -10,7 +10,7 @@ import click
 
 from bench_ctl.model.effects import effect
 from bench_ctl.model.structures import STRUCTURES
-from bench_ctl.model.unit import Unit, UnitError, apply_overrides, load_unit, with_model
+from bench_ctl.units.unit import Unit, UnitError, apply_overrides, load_unit, with_model
 
 
 def model_options(f):
@@ -52,7 +52,7 @@ def resolve_unit(unit_path: str | None, overrides: Sequence[str], *, model: str 
         except ValueError as exc:
             raise UnitError(f"--model {model}: {exc}") from None
     if from_dyr:
-        from bench_ctl.model.dyr_unit import unit_from_dyr
+        from bench_ctl.units.dyr_unit import unit_from_dyr
         unit = unit_from_dyr(unit, from_dyr, bus=dyr_bus, ident=dyr_id)
         if model and unit.model != with_model(unit, model).model:
             raise UnitError(f"--model {model} differs from the record's model {unit.model} in {from_dyr}")

@@ -18,7 +18,7 @@ import threading
 import click
 
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.model.unit import UnitError
+from bench_ctl.units.unit import UnitError
 
 from .options import build_unit, unit_options
 

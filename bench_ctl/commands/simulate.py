@@ -10,10 +10,10 @@ import click
 
 from bench_ctl import __version__, outputs
 from bench_ctl.capture import write_capture
+from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, synthetic_record
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.model.dialect import unit_to_std
-from bench_ctl.model.simulate import RecorderModel, pulse_usetp, synthetic_record
-from bench_ctl.model.unit import UnitError
+from bench_ctl.units.unit import UnitError
 
 from .options import build_unit, unit_options
 

@@ -43,9 +43,9 @@ from bench_ctl.identification.threads import map_fits
 from bench_ctl.limits import InputError, sha256_file
 from bench_ctl.model.dialect import diagnosis_to_std
 from bench_ctl.model.effects import VOCABULARY
-from bench_ctl.model.unit import Unit
 from bench_ctl.records import plain
 from bench_ctl.timestamps import utc_now_text
+from bench_ctl.units.unit import Unit
 
 from . import features as F
 from .check import bic, checked, describe_check, fit_holdout

@@ -12,8 +12,8 @@ from collections.abc import Mapping
 from bench_ctl.capture import Capture
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
-from bench_ctl.model.edges import EDGE_PARAMS
 from bench_ctl.model.effects import VOCABULARY
+from bench_ctl.signals.edges import EDGE_PARAMS
 
 from .check import bic, check_deviance, checked, score
 from .localize import Edges, localization

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.model import edges as model_edges
+from bench_ctl.signals import edges as model_edges
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +51,7 @@ class Edges:
 
 def find_edges(usetp: np.ndarray, source: str = "capture") -> Edges:
     """The test's leading and trailing setpoint edges, by the one edge finder
-    (`bench_ctl.model.edges.find_edges`, a setpoint channel on a sample-index axis)."""
+    (`bench_ctl.signals.edges.find_edges`, a setpoint channel on a sample-index axis)."""
     u = np.asarray(usetp, float)
     lead, trail = model_edges.find_edges(np.arange(u.size, dtype=float), u, kind=model_edges.SETPOINT).pulse()
     if lead is None:

@@ -15,9 +15,9 @@ from dataclasses import dataclass, field, replace
 from bench_ctl.capture import Capture
 from bench_ctl.identification.problem import Problem, make_problem
 from bench_ctl.identification.result import Result
-from bench_ctl.model.edges import EDGE_PARAMS
 from bench_ctl.model.effects import VOCABULARY, vocabulary
-from bench_ctl.model.unit import Bound, Unit
+from bench_ctl.signals.edges import EDGE_PARAMS
+from bench_ctl.units.unit import Bound, Unit
 
 from .localize import NoiseFloor
 

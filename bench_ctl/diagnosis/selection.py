@@ -35,9 +35,9 @@ from bench_ctl.identification.identify import Identification, run_identification
 from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
-from bench_ctl.model.edges import EDGE_PARAMS
 from bench_ctl.model.params import PARAMS
-from bench_ctl.model.unit import Bound, Unit
+from bench_ctl.signals.edges import EDGE_PARAMS
+from bench_ctl.units.unit import Bound, Unit
 
 from .check import check_parts
 from .diagnose import prepare

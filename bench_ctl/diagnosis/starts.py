@@ -10,7 +10,7 @@ import numpy as np
 
 from bench_ctl.identification.constraints import parse_constraints
 from bench_ctl.model.effects import EFFECTS, VOCABULARY
-from bench_ctl.model.unit import Unit
+from bench_ctl.units.unit import Unit
 
 from .models import Views
 

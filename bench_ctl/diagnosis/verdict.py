@@ -15,7 +15,7 @@ from typing import Any
 
 from bench_ctl.model.effects import VOCABULARY
 from bench_ctl.model.effects import separating_test as effect_separating_test
-from bench_ctl.model.unit import Unit
+from bench_ctl.units.unit import Unit
 
 from .check import aic, bic, block_deviance, check_deviance, score
 from .models import ModelFit, Setup

@@ -94,7 +94,7 @@ def warm_worker() -> float:
     worker's fits run one at a time: the cluster already runs one worker a core."""
     from bench_ctl.identification.identify import warm_up
     from bench_ctl.identification.threads import set_fit_threads
-    from bench_ctl.model.unit import reference_unit
+    from bench_ctl.units.unit import reference_unit
 
     set_fit_threads(1)
     return warm_up(reference_unit())

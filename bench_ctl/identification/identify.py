@@ -11,7 +11,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -21,16 +20,17 @@ from typing import Any
 import numpy as np
 
 import bench_ctl
+from bench_ctl import engine
 from bench_ctl.capture import Capture
+from bench_ctl.engine import optimisation_note
+from bench_ctl.engine.simulate import param_matrix
 from bench_ctl.limits import sha256_file
 from bench_ctl.model.dialect import result_to_std
-from bench_ctl.model.kernel import compile_parts, optimisation_note, run_kernel
 from bench_ctl.model.params import GENERATOR_OPTIONAL, RECORD_PARAMS
-from bench_ctl.model.simulate import param_matrix
-from bench_ctl.model.unit import Unit
-from bench_ctl.model.unit import outside_bounds as values_outside_bounds
 from bench_ctl.records import plain
 from bench_ctl.timestamps import utc_now_text
+from bench_ctl.units.unit import Unit
+from bench_ctl.units.unit import outside_bounds as values_outside_bounds
 
 from .identifiability import analyse
 from .peers import OPTIMIZERS, Progress, run_optimizer
@@ -63,38 +63,24 @@ class Identification:
 
 
 _warned = False
-#: set once this process has compiled or loaded the kernel: the variants do not depend on the unit
-#: (a unit is values in the same parameter matrix), and a second warm-up only read the cache's
-#: entries from disk again, 0.06 s a structure: 9 warm-ups took 0.55 s of the 5.1 s `identify
-#: --model auto` took on a real record (docs/benchmarks.md, "real_unit.py")
-_ready = False
-_warming = threading.Lock()
 
 
-def warm_up(unit: Unit) -> float:
-    """Compile (or load from the cache) every kernel variant identification uses, once a process;
-    seconds (0.0 when this process already has them). Warns (once a process) when numba runs
-    without the optimisation the kernel needs."""
-    global _warned, _ready
+def warm_up(unit: Unit, problem: Problem | None = None) -> float:
+    """Compile (or load from the cache) the engine's variant `problem`'s records run (or the
+    unit's at no load), before a fit is timed; seconds (microseconds once this process has it).
+    Warns (once a process) when numba runs without the optimisation the engine needs."""
+    global _warned
     note = optimisation_note()
     if note and not _warned:
         logger.warning(note)
         _warned = True
-    if _ready:
-        return 0.0
-    with _warming:   # fits side by side (`threads`) wait for the first one's warm-up
-        if _ready:
-            return 0.0
-        t0 = time.perf_counter()
-        compile_parts()  # the large parts the cache lacks, one process a core
-        u = np.array([1.0, 1.0, 1.05, 1.05])
-        m = np.ones(4)
-        # one candidate runs serially, a population in parallel chunks: compile both paths
-        for P in (param_matrix(unit.values()), np.repeat(param_matrix(unit.values()), 64, axis=0)):
-            run_kernel(P, u, 1e-3, 1.0, efd_meas=m, vt_meas=m, w_vt=1.0, store=False)
-            run_kernel(P, u, 1e-3, 1.0)
-        _ready = True
-        return time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if problem is not None:
+        problem.objective(problem.x_start()[None])
+    else:
+        engine.run(param_matrix(unit.values()), np.array([1.0, 1.0, 1.05, 1.05]), 1e-3, 1.0,
+                   measured={"efd": np.ones(4)}, store=False)
+    return time.perf_counter() - t0
 
 
 def _none_if_inf(v: float) -> float | None:
@@ -207,7 +193,7 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
         if name not in OPTIMIZERS:
             raise ValueError(f"unknown optimizer {name!r}; choose one of {', '.join(OPTIMIZERS)}")
     prob = problem if problem is not None else make_problem(captures, unit)
-    compile_s = warm_up(prob.unit)
+    compile_s = warm_up(prob.unit, prob)
     names = [optimizer] + [n for n in dict.fromkeys(compare) if n != optimizer]
     runs = []
     for name in names:

@@ -34,22 +34,22 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
-import numba
 import numpy as np
 
+from bench_ctl import engine
 from bench_ctl.capture import Capture
+from bench_ctl.engine.derived import saturation_ab
+from bench_ctl.engine.layout import BLOWUP
+from bench_ctl.engine.machines.grid import machine_data, machine_matrix, steady_field, unit_machine
+from bench_ctl.engine.simulate import base_row, operating_point, param_matrix, pre_trigger_mean
 from bench_ctl.model.effects import EFFECTS
-from bench_ctl.model.kernel import BLOWUP, CHUNK, run_kernel, saturation_ab
-from bench_ctl.model.online import derive_machine, machine_data, machine_matrix, run_online, unit_machine
 from bench_ctl.model.params import COL, KERNEL_PARAMS, MCOL, PARAMS
-from bench_ctl.model.simulate import base_row, operating_point, param_matrix, pre_trigger_mean
-from bench_ctl.model.unit import Unit
+from bench_ctl.units.unit import Unit
 
 from .constraints import LinearConstraint, parse_constraints
 from .records import ProblemError, Record, apply_window, decimated, segment_window
@@ -304,11 +304,11 @@ class Problem:
         r = self.records[0]
         if r.machine is not None:
             P, M = _on_line_inputs(self.matrix(np.asarray(x, float)[None]), r)
-            return float(derive_machine(P, M)[1][0])
+            return float(steady_field(P, M)[0])
         v = self.values(x)
-        a, b = saturation_ab(np.array([v["S10"]]), np.array([v["S12"]]))
+        a, b = saturation_ab(v["S10"], v["S12"])
         vt0 = v["Vt0"]
-        return vt0 + (float(b[0] * (vt0 - a[0]) ** 2) if vt0 > a[0] else 0.0)
+        return vt0 + (b * (vt0 - a) ** 2 if vt0 > a else 0.0)
 
     def mse(self, x: Sequence[float], signal: str = "efd") -> list[float]:
         """Per capture, mean squared sample error of `signal` (efd or vt, whatever its weight)
@@ -401,30 +401,20 @@ def _lost(fail_step: np.ndarray, r: Record) -> np.ndarray:
     return np.where(fail_step >= 0, (r.i1 - np.minimum(fail_step, r.i1 - 1)) / max(1, r.i1), 0.0)
 
 
-#: below this many candidate-steps a kernel call runs on one thread: waking the worker threads
-#: costs more than it saves for the small batches of a polish, several times more when the
-#: machine is busy (docs/benchmarks.md, "Diagnosis constants")
-SMALL_CALL = 300_000
-
-
 def _simulate(P: np.ndarray, r: Record, n: int | None = None, *, measured: bool = False, w_efd: float = 1.0,
               w_vt: float = 0.0, w_q: float = 0.0) -> dict:
     """The candidates P over record r (its first n samples; all: without traces when `measured`,
-    with the weighted errors of the signals it has): the no-load kernel, or for an on-line record
-    the machine on the grid from the record's operating point."""
+    with the weighted errors of the signals it has): the engine at no load, or for an on-line
+    record on the grid from the record's operating point."""
     n = r.usetp.size if n is None else int(n)
-    store = not measured
-    if r.machine is None:
-        kw = {"efd_meas": r.efd, "vt_meas": r.vt, "w_efd": w_efd, "w_vt": w_vt if r.vt is not None else 0.0} \
-            if measured else {}
-        return _kernel(P[:, :len(KERNEL_PARAMS)], r.usetp[:n], r.dt, r.usetp_pre, store=store,
-                       edges=r.edges_upto(n), **kw)
-    P, M = _on_line_inputs(P, r)
+    machine = None
+    if r.machine is not None:
+        P, machine = _on_line_inputs(P, r)
+    else:
+        P = P[:, :len(KERNEL_PARAMS)]
     meas = {"efd": r.efd, "vt": r.vt, "q": r.q} if measured else None
-    weights = {"efd": w_efd, "vt": w_vt, "q": w_q}
-    with _threads(P.shape[0] * n):
-        return run_online(P, M, r.usetp[:n], r.dt, r.usetp_pre, measured=meas, weights=weights, store=store,
-                          edges=r.edges_upto(n))
+    return engine.run(P, r.usetp[:n], r.dt, r.usetp_pre, machine=machine, measured=meas,
+                      weights={"efd": w_efd, "vt": w_vt, "q": w_q}, store=not measured, edges=r.edges_upto(n))
 
 
 def _on_line_inputs(P: np.ndarray, r: Record) -> tuple[np.ndarray, np.ndarray]:
@@ -437,46 +427,6 @@ def _on_line_inputs(P: np.ndarray, r: Record) -> tuple[np.ndarray, np.ndarray]:
     if grid.shape[1]:
         M[:, list(r.grid_cols)] = grid
     return P, M
-
-
-@contextmanager
-def _threads(size: int) -> Iterator[None]:
-    """One thread for a call of `size` candidate-steps below SMALL_CALL, else numba's."""
-    old = numba.get_num_threads()
-    if size >= SMALL_CALL or old == 1:
-        yield
-        return
-    numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(old)
-
-
-#: the kernel's loops over candidates run in vectors of this many (8 doubles: AVX-512; two of
-#: AVX2's 4) and a scalar loop over the rest: a call of 6 or 7 candidates took 4.5 and 6.7 ms on
-#: the Mostar record, one of 8 took 1.7 ms (docs/benchmarks.md, "Diagnosis constants")
-LANES = 8
-
-
-def _kernel(P: np.ndarray, usetp: np.ndarray, *args: Any, **kwargs: Any) -> dict:
-    """`run_kernel`, on one thread when the call is small (`SMALL_CALL`); a call of more than one
-    candidate padded with copies of its last to a multiple of LANES when two or more would run in
-    the scalar loop (the copies' results dropped)."""
-    n = P.shape[0]
-    short = n % LANES
-    if n > 1 and short >= 2:
-        P = np.vstack([P, np.repeat(P[-1:], LANES - short, axis=0)])
-    if P.shape[0] <= CHUNK // 2:
-        # one chunk, which runs on the calling thread however many numba has (`run_kernel`): no
-        # thread count to set and restore (microseconds, on every call of a local search)
-        out = run_kernel(P, usetp, *args, **kwargs)
-    else:
-        with _threads(P.shape[0] * usetp.shape[0]):
-            out = run_kernel(P, usetp, *args, **kwargs)
-    if P.shape[0] == n:
-        return out
-    return {k: v[:n] for k, v in out.items()}
 
 
 # ---------------------------------------------------------------------- construction

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench_ctl.capture import Capture
-from bench_ctl.model.edges import EdgeSpec
+from bench_ctl.signals.edges import EdgeSpec
 
 from .timing import Edge
 

@@ -13,8 +13,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from bench_ctl.capture import Capture
-from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
-from bench_ctl.model.unit import Unit, apply_overrides
+from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
+from bench_ctl.units.unit import Unit, apply_overrides
 
 from .problem import make_problem
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.capture import Capture
-from bench_ctl.model.edges import EDGE_PARAMS, EdgeSpec, find_setpoint_edges
+from bench_ctl.signals.edges import EDGE_PARAMS, EdgeSpec, find_setpoint_edges
 
 __all__ = ["Edge", "record_edges", "edge_spec", "edges_entry", "edge_spec_of", "EDGE_PARAMS"]
 

@@ -10,7 +10,7 @@ This module is the one place that translates, in each direction:
   own view goes under a `kernel` key, for debugging);
 - standard -> kernel, at input: `kernel_text`, `kernel_sections` (the values a result gives,
   for the report's re-simulation, `export --dyr` and `diagnose --result`). Unit files and `--set`
-  go through `bench_ctl.model.unit`, which refuses a kernel name with the standard one
+  go through `bench_ctl.units.unit`, which refuses a kernel name with the standard one
   (`refusal`).
 
 The REFERENCE structure's names are the kernel's (it is the paper's model): there both views are

@@ -109,7 +109,7 @@ _CATALOGUE = [
                              "PI's sum (AC8B); 0 = no derivative", 0.0, 1000.0, 0.0),
     ParamInfo("TDR", "s", "time constant of the PID regulator's derivative filter (AC8B)", 0.001, 10.0, 1.0),
     # record timing, not the model: fitted instant of setpoint edge N minus the sample where the
-    # record first shows it (bench_ctl.model.edges); 0 = the kernel's zero-order hold
+    # record first shows it (bench_ctl.signals.edges); 0 = the kernel's zero-order hold
     *(ParamInfo(f"EDGE{i}", "s", f"setpoint edge {i}: fitted instant minus its nominal sample (record timing)",
                 -1.0, 1.0, 0.0) for i in range(1, 5)),
 ]

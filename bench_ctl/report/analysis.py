@@ -1,7 +1,7 @@
 """Re-simulating the identified model on its captures and computing what the report shows.
 
 `analyse` takes a result (`IdentificationResult`, schema bench-ctl/result/1), verifies its captures, simulates the
-model from `params` + `fixed` with `bench_ctl.model.simulate.simulate` (it does not call the
+model from `params` + `fixed` with `bench_ctl.engine.simulate.simulate` (it does not call the
 identification code, so the report is an independent check of the figures it prints), computes
 the error figures, re-evaluates the constraints and sets up the pass / fail checks.
 """
@@ -17,11 +17,9 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis
+from bench_ctl.engine.simulate import operating_point, simulate, simulate_on_line
 from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.identification.timing import edge_spec_of
-from bench_ctl.model.acceptance import Acceptance, AcceptanceError, acceptance_limits, evaluate
-from bench_ctl.model.simulate import operating_point, simulate, simulate_on_line
-from bench_ctl.model.unit import outside_bounds
 from bench_ctl.report import checks as chk
 from bench_ctl.report.inputs import (
     LoadedCapture,
@@ -40,7 +38,9 @@ from bench_ctl.report.metrics import (
     trapezoid_sq,
     window_slice,
 )
+from bench_ctl.signals.acceptance import Acceptance, AcceptanceError, acceptance_limits, evaluate
 from bench_ctl.timestamps import utc_now_text
+from bench_ctl.units.unit import outside_bounds
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +56,7 @@ class CaptureAnalysis:
     suffix: str  # "" for a single capture, else "_<1-based index>"
     fit_mse: float        # MSE over the fit window (= figures.mse without a window)
     fit_objective: float  # objective over the fit window (unweighted by the capture weight)
-    acceptance: Acceptance  # IEC 61400-27-2 windows (bench_ctl.model.acceptance)
+    acceptance: Acceptance  # IEC 61400-27-2 windows (bench_ctl.signals.acceptance)
     online: dict[str, np.ndarray] | None = None   # an on-line record's simulated p, q, ifd
 
     @property

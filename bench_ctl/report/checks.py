@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from bench_ctl.model.unit import bounded_values
+from bench_ctl.units.unit import bounded_values
 
 MSE_REL_TOL = 1e-3
 DEFAULT_NOISE_RATIO_LIMIT = 2.0

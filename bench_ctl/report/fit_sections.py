@@ -11,12 +11,10 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.diagnosis.selection import separation_text, where_left
+from bench_ctl.engine.simulate import simulate
 from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.identification.timing import edge_spec_of
-from bench_ctl.model.acceptance import SOURCE
 from bench_ctl.model.dialect import describe
-from bench_ctl.model.mode import electromechanical_mode
-from bench_ctl.model.simulate import simulate
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
@@ -36,6 +34,8 @@ from bench_ctl.report.blocks import (
     table,
 )
 from bench_ctl.report.inputs import ReportError, model_values
+from bench_ctl.signals.acceptance import SOURCE
+from bench_ctl.signals.mode import electromechanical_mode
 
 STRONG_CORRELATION = 0.9
 

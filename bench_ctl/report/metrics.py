@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench_ctl.model import edges as edge_finder
-from bench_ctl.model.simulate import pre_trigger_mean
+from bench_ctl.engine.simulate import pre_trigger_mean
+from bench_ctl.signals import edges as edge_finder
 
 DEFAULT_EDGE_WINDOW_S = 0.2
 MIN_NOISE_SAMPLES = 20
@@ -25,7 +25,7 @@ MIN_NOISE_SAMPLES = 20
 
 @dataclass(frozen=True)
 class PulseEdges:
-    """Setpoint edges found in usetp by the shared finder (`bench_ctl.model.edges.find_edges`):
+    """Setpoint edges found in usetp by the shared finder (`bench_ctl.signals.edges.find_edges`):
     the first sample showing the first change (leading), the first showing the change back
     (trailing; None for a step); `amplitude` the settled change at the leading edge."""
     usetp_pre: float

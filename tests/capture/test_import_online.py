@@ -12,8 +12,8 @@ import pytest
 from andes_units import online_capture, online_unit
 from bench_ctl.capture import read_capture
 from bench_ctl.cli import main
+from bench_ctl.engine.simulate import operating_point
 from bench_ctl.identification.problem import make_problem
-from bench_ctl.model.simulate import operating_point
 
 MVA = 250.0
 

@@ -11,7 +11,7 @@ from bench_ctl.capture import Capture, write_capture
 from bench_ctl.capture.plausible import implausible
 from bench_ctl.cli import main
 from bench_ctl.identification.synthetic import synthetic_capture
-from bench_ctl.model.unit import reference_unit
+from bench_ctl.units.unit import reference_unit
 from records import diagnosis_json
 
 

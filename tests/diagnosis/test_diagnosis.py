@@ -16,9 +16,9 @@ from bench_ctl.diagnosis.localize import BANDS_HZ, band_shares, find_edges, loca
 from bench_ctl.diagnosis.starts import lag_variants
 from bench_ctl.diagnosis.verdict import choose_verdict
 from bench_ctl.diagnosis.verdict import gap as _gap
+from bench_ctl.engine.simulate import pulse_usetp, simulate
 from bench_ctl.identification.threads import set_fit_threads
-from bench_ctl.model.simulate import pulse_usetp, simulate
-from bench_ctl.model.unit import load_unit
+from bench_ctl.units.unit import load_unit
 
 DT = 0.001
 
@@ -412,8 +412,8 @@ def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling
     assert gain["leading_edge"] > 2.0 and gain["trailing_edge"] > 2.0, gain
     # the report re-simulates the base fit over the whole record with the fitted edge instants
     from bench_ctl.commands.diagnose import base_result
+    from bench_ctl.engine.simulate import simulate
     from bench_ctl.identification.timing import edge_spec_of
-    from bench_ctl.model.simulate import simulate
 
     res = base_result(d, cap, unit)
     assert res.fit_window is None

@@ -29,7 +29,7 @@ from bench_ctl.diagnosis.selection import (
 from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.threads import set_fit_threads
 from bench_ctl.model.structures import STRUCTURES
-from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
 
 
 def _cand(model: str, k: int, mse: float, check: float, n: int = 5000, n_check: int = 1000) -> Candidate:

@@ -31,7 +31,7 @@ def cluster():
     # compiling it twice at once beside this process (on a fresh checkout that took the test past
     # its timeout on this 2-core machine with another job running)
     from bench_ctl.identification.identify import warm_up
-    from bench_ctl.model.unit import reference_unit
+    from bench_ctl.units.unit import reference_unit
     warm_up(reference_unit())
     with local_cluster(2) as c:    # what `batch` starts: on loopback only
         yield c

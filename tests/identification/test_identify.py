@@ -14,9 +14,9 @@ import pytest
 
 from bench_ctl.capture import write_capture
 from bench_ctl.cli import main
+from bench_ctl.engine.simulate import RecorderModel
 from bench_ctl.identification.identify import identify, run_identification
 from bench_ctl.identification.synthetic import noise_variance, synthetic_capture
-from bench_ctl.model.simulate import RecorderModel
 from truth import TRUTH
 
 SCHEMA_KEYS = {"schema", "software_version", "command_line", "created_utc", "unit", "captures",

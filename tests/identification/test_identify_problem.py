@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from bench_ctl.capture import Capture
+from bench_ctl.engine.simulate import simulate
 from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.identification.synthetic import synthetic_capture
-from bench_ctl.model.simulate import simulate
-from bench_ctl.model.unit import apply_overrides
+from bench_ctl.units.unit import apply_overrides
 
 
 @pytest.fixture(scope="module")

@@ -111,18 +111,18 @@ def test_unknown_optimizer_and_bad_budget_are_refused(problem):
 @pytest.mark.parametrize("name", ["mvmo", "de", "local"])
 def test_no_simulation_beyond_the_budget(problem, name, monkeypatch):
     """max_evals counts every candidate simulated, the final score included (one capture here:
-    one kernel row per candidate; the copies that pad a call to the kernel's vector width are not
-    candidates, `problem.LANES`)."""
-    import bench_ctl.identification.problem as problem_module
+    one engine row per candidate; the copies that pad a call to the engine's vector width are not
+    candidates, `engine.layout.LANES`)."""
+    from bench_ctl import engine
 
     rows = [0]
-    real = problem_module._kernel
+    real = engine.run
 
     def counting(P, *args, **kwargs):
         rows[0] += np.atleast_2d(P).shape[0]
         return real(P, *args, **kwargs)
 
-    monkeypatch.setattr(problem_module, "_kernel", counting)
+    monkeypatch.setattr(engine, "run", counting)
     r = run_optimizer(name, problem, max_evals=120, seed=0)
     assert r.nfev <= 120 and rows[0] == r.nfev, (r.nfev, rows[0])
     assert r.fun == pytest.approx(float(problem.objective(r.x[None])[0]), rel=1e-9)
@@ -174,41 +174,41 @@ def test_a_call_padded_to_the_vector_width_gives_each_candidate_its_own_result(p
     """Six candidates run padded to LANES with copies of the last; each gets what it gets alone
     (to rounding: the vector loop and the scalar one may round differently) and the copies are
     dropped."""
-    import bench_ctl.identification.problem as problem_module
+    from bench_ctl import engine
 
     rows = []
-    real = problem_module.run_kernel
+    real = engine._run
 
-    def seen(P, *args, **kwargs):
-        rows.append(P.shape[0])
-        return real(P, *args, **kwargs)
+    def seen(D, *args, **kwargs):
+        rows.append(D.shape[0])
+        return real(D, *args, **kwargs)
 
-    monkeypatch.setattr(problem_module, "run_kernel", seen)
+    monkeypatch.setattr(engine, "_run", seen)
     x = problem.x_start()
     X = x[None, :] * (1.0 + 0.05 * np.random.default_rng(3).normal(size=(6, problem.d)))
     X = SearchSpace(problem).clip(X)
     together = problem.objective(X)
     alone = np.array([problem.objective(X[i:i + 1])[0] for i in range(6)])
-    assert together.shape == (6,) and rows[0] == problem_module.LANES and rows[1:] == [1] * 6
+    assert together.shape == (6,) and rows[0] == engine.layout.LANES and rows[1:] == [1] * 6
     assert np.allclose(together, alone, rtol=1e-9, atol=0.0)
     assert np.ptp(alone) > 1e-3 * np.max(alone)     # six different candidates, not one six times
 
 
-def test_a_trial_point_and_its_differences_share_one_kernel_call(problem, monkeypatch):
+def test_a_trial_point_and_its_differences_share_one_engine_call(problem, monkeypatch):
     """With d + 1 <= SPECULATE the polish simulates each trial point with its difference steps in
-    one call: fewer kernel calls for the same budget and the same optimum as one call each."""
+    one call: fewer engine calls for the same budget and the same optimum as one call each."""
     import bench_ctl.identification.polish as polish_module
-    import bench_ctl.identification.problem as problem_module
+    from bench_ctl import engine
 
     assert problem.d + 1 <= polish_module.SPECULATE
     calls = [0]
-    real = problem_module._kernel
+    real = engine.run
 
     def counting(P, *args, **kwargs):
         calls[0] += 1
         return real(P, *args, **kwargs)
 
-    monkeypatch.setattr(problem_module, "_kernel", counting)
+    monkeypatch.setattr(engine, "run", counting)
     x0 = problem.x_start()
     together = polish_module.SPECULATE
     out = {}

@@ -11,13 +11,13 @@ import math
 import numpy as np
 import pytest
 
+from bench_ctl.engine.simulate import simulate
 from bench_ctl.identification.polish import polish
 from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.result import Result
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.synthetic import synthetic_capture
-from bench_ctl.model.simulate import simulate
-from bench_ctl.model.unit import apply_overrides
+from bench_ctl.units.unit import apply_overrides
 
 
 @pytest.fixture(scope="module")

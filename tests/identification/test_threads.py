@@ -1,14 +1,14 @@
 """Fits side by side (`bench_ctl.identification.threads`): the order of the results, errors, the
-thread count, and the kernel entry points that let two fits overlap."""
+thread count, and the engine's entry points that let two fits overlap."""
 from __future__ import annotations
 
 import threading
 
 import pytest
 
+from bench_ctl.engine import runner
 from bench_ctl.identification import threads
 from bench_ctl.identification.threads import ENV, fit_threads, map_fits, set_fit_threads
-from bench_ctl.model.kernel import chunk
 
 
 @pytest.fixture
@@ -68,7 +68,8 @@ def test_thread_count_from_the_environment_the_setting_or_the_cores(monkeypatch)
             set_fit_threads(bad)
 
 
-def test_the_kernel_entry_points_release_the_gil():
-    # without it two fits' kernel calls would take turns like the rest of their Python
-    for dispatcher in (chunk.run_chunk, chunk.run_chunks):
+def test_the_engine_entry_points_release_the_gil():
+    # without it two fits' engine calls (and a call's chunks, which run on threads) would take
+    # turns like the rest of their Python
+    for dispatcher in (runner.new_work, runner.advance):
         assert dispatcher.targetoptions.get("nogil") is True, dispatcher

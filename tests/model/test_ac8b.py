@@ -10,10 +10,10 @@ import pytest
 from ac_equations import S10, S12, ac_steady_state, kernel_pulse
 from ac_equations import fex as _fex
 from ac_equations import quad as _quad
-from bench_ctl.model.dyr import DyrRecord, dyr_text, read_dyr
-from bench_ctl.model.dyr_unit import unit_from_dyr
-from bench_ctl.model.simulate import simulate
-from bench_ctl.model.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.engine.simulate import simulate
+from bench_ctl.units.dyr import DyrRecord, dyr_text, read_dyr
+from bench_ctl.units.dyr_unit import unit_from_dyr
+from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
 
 TRACK = 2.0   # ANDES' PITrackAW tracking gain ks (its AC8B's default)
 
@@ -135,12 +135,13 @@ def test_ac8b_and_esac1a_records_read_into_a_unit_and_write_back(tmp_path):
                                                                                     1.0339, 0.0162, 0.2, 1.0)
 
 
-def test_a_derivative_without_its_filter_is_not_a_candidate_the_kernel_runs():
-    """KDR > 0 needs TDR > 0 (as rate feedback KF needs TF): the kernel marks such a row invalid
+def test_a_derivative_without_its_filter_is_not_a_candidate_the_engine_runs():
+    """KDR > 0 needs TDR > 0 (as rate feedback KF needs TF): the engine marks such a row invalid
     rather than dividing by 0; without the derivative TDR is not looked at."""
-    from bench_ctl.model.kernel import D_VALID, derive
+    from bench_ctl.engine import derive
+    from bench_ctl.engine.layout import D_VALID
+    from bench_ctl.engine.simulate import param_matrix
     from bench_ctl.model.params import COL
-    from bench_ctl.model.simulate import param_matrix
 
     unit = with_model(reference_unit(), "AC8B")
     P = np.repeat(param_matrix(unit.values()), 3, axis=0)

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench_ctl.model.acceptance import DEFAULT_LIMITS, AcceptanceError, acceptance_limits, evaluate
-from bench_ctl.model.unit import UnitError, load_unit
+from bench_ctl.signals.acceptance import DEFAULT_LIMITS, AcceptanceError, acceptance_limits, evaluate
+from bench_ctl.units.unit import UnitError, load_unit
 
 RATE = 1000.0
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from andes_units import ONLINE, online_capture, online_entry, online_manifest, online_true_edges, online_unit
-from bench_ctl.model.mode import electromechanical_mode
-from bench_ctl.model.simulate import operating_point, simulate_on_line
+from bench_ctl.engine.simulate import operating_point, simulate_on_line
+from bench_ctl.signals.mode import electromechanical_mode
 
 pytestmark = pytest.mark.skipif(not (ONLINE / "manifest.json").is_file(), reason="no on-line ANDES fixtures")
 MANIFEST = online_manifest() if (ONLINE / "manifest.json").is_file() else {}

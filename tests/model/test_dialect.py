@@ -11,7 +11,7 @@ from bench_ctl.cli import main
 from bench_ctl.model.dialect import hidden_kernel_names, kernel_sections, result_to_std, std_text
 from bench_ctl.model.effects import EFFECTS, separating_test
 from bench_ctl.model.structures import STRUCTURES, structure
-from bench_ctl.model.unit import UnitError, apply_overrides, reference_unit, unit_from_dict, with_model
+from bench_ctl.units.unit import UnitError, apply_overrides, reference_unit, unit_from_dict, with_model
 
 STANDARD = [n for n in STRUCTURES if n != "REFERENCE"]
 

@@ -7,9 +7,9 @@ import json
 import pytest
 
 from bench_ctl.cli import main
-from bench_ctl.model.dyr import FIELDS, ICONS, DyrError, DyrRecord, find, format_record, parse_dyr, read_dyr, write_dyr
-from bench_ctl.model.dyr_unit import pss_from_record, pss_record, unit_from_dyr
-from bench_ctl.model.unit import UnitError, reference_unit
+from bench_ctl.units.dyr import FIELDS, ICONS, DyrError, DyrRecord, find, format_record, parse_dyr, read_dyr, write_dyr
+from bench_ctl.units.dyr_unit import pss_from_record, pss_record, unit_from_dyr
+from bench_ctl.units.unit import UnitError, reference_unit
 
 FILE = """// a plant: generator, exciter, and a stabiliser bench-ctl does not model
 @! comment line
@@ -231,8 +231,8 @@ def test_each_structures_export_reads_back_and_simulates_the_same(model, tmp_pat
     import numpy as np
 
     from bench_ctl.capture import read_capture
+    from bench_ctl.engine.simulate import simulate
     from bench_ctl.model.dialect import kernel_sections
-    from bench_ctl.model.simulate import simulate
     from bench_ctl.report.inputs import model_values
 
     cap, res, dyr, back = (tmp_path / n for n in ("cap.csv", "r.json", "r.dyr", "back.csv"))
@@ -293,7 +293,7 @@ def test_a_bypassed_lead_lag_is_simulated_bypassed_and_zeros_stay_zero(tmp_path)
     under TB > 0 is a lag alone, KIR = 0 no integral; none is replaced by a typical value."""
     import numpy as np
 
-    from bench_ctl.model.simulate import simulate
+    from bench_ctl.engine.simulate import simulate
     u = unit_from_dyr(reference_unit(), _file(tmp_path, "ESST1A", _esst1a(TC=0.0, TB=0.0, TC1=0.0, TB1=0.0)))
     v = u.values()
     assert v["TA1"] == v["TA2"] and v["TA3"] == v["TA4"]            # (1 + s T)/(1 + s T) = 1

@@ -1,4 +1,4 @@
-"""The one edge finder (bench_ctl.model.edges.find_edges): a recorded setpoint's edges, and a
+"""The one edge finder (bench_ctl.signals.edges.find_edges): a recorded setpoint's edges, and a
 test's edges in the channels that respond to it (regulator output, efd, Vt) on records the
 independent plant made, sampled with jitter and noise, the edges at known sub-sample instants.
 The found interval must contain the true instant, over seeds; the views built on it (the report's
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from bench_ctl.capture.plausible import setpoint_edges
-from bench_ctl.model.edges import EXCITER, SETPOINT, VOLTAGE, find_edges, find_setpoint_edges
-from bench_ctl.model.simulate import pulse_usetp
+from bench_ctl.engine.simulate import pulse_usetp
 from bench_ctl.report.metrics import find_edges as report_edges
+from bench_ctl.signals.edges import EXCITER, SETPOINT, VOLTAGE, find_edges, find_setpoint_edges
 from edge_exports import fine_response, sampled
 
 SEEDS = range(12)

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from bench_ctl.capture import Capture
+from bench_ctl.engine import run as run_engine
+from bench_ctl.engine.simulate import param_matrix
 from bench_ctl.identification.identify import identify
 from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.timing import edge_spec_of, record_edges
-from bench_ctl.model.edges import EdgeSpec, find_setpoint_edges
-from bench_ctl.model.kernel import run_kernel
-from bench_ctl.model.simulate import param_matrix
-from bench_ctl.model.unit import reference_unit
+from bench_ctl.signals.edges import EdgeSpec, find_setpoint_edges
+from bench_ctl.units.unit import reference_unit
 from truth import TRUTH
 
 FINE = 20  # fine steps per recorder sample
@@ -36,7 +36,7 @@ def _fine_record(on_s: float, off_s: float, rate: float, duration: float, seed: 
     spec = EdgeSpec(kf, np.diff(uf)[kf - 1], tf[kf], np.arange(kf.size))
     # the fine grid holds the instants only to within dtf: put them there exactly with the offsets
     vals = {**unit.values(), **TRUTH, "EDGE1": on_s - tf[kf[0]], "EDGE2": off_s - tf[kf[1]]}
-    efd = run_kernel(param_matrix(vals), uf, dtf, 1.0, edges=spec)["efd"][0][::FINE]
+    efd = run_engine(param_matrix(vals), uf, dtf, 1.0, edges=spec)["efd"][0][::FINE]
     rng = np.random.default_rng(seed)
     u = 1.0 + 0.05 * ((t >= on_s) & (t < off_s))  # what a recorder samples
     return t, u, efd + rng.normal(0.0, noise, n)
@@ -70,7 +70,7 @@ def test_identify_finds_edges_between_samples_and_reaches_the_noise_floor(seed, 
     assert nominal.mse(x)[0] > 1.15 * r["mse"]  # 1.2x and more here; the floor is known to ~2 %
     # the result's edges re-simulate what the fit found
     spec, offsets = edge_spec_of(r["captures"][0]["edges"], cap.n)
-    sim = run_kernel(param_matrix({**unit.values(), **r["params"], **offsets}), u, cap.dt, 1.0,
+    sim = run_engine(param_matrix({**unit.values(), **r["params"], **offsets}), u, cap.dt, 1.0,
                      edges=spec)["efd"][0]
     assert np.mean((sim - efd) ** 2) == pytest.approx(r["mse"], rel=1e-9)
 

@@ -10,9 +10,9 @@ import pytest
 from ac_equations import S10, S12, ac_steady_state, kernel_pulse
 from ac_equations import fex as _fex
 from ac_equations import quad as _quad
-from bench_ctl.model.dyr import read_dyr
-from bench_ctl.model.dyr_unit import unit_from_dyr
-from bench_ctl.model.unit import reference_unit
+from bench_ctl.units.dyr import read_dyr
+from bench_ctl.units.dyr_unit import unit_from_dyr
+from bench_ctl.units.unit import reference_unit
 
 
 def _reference(s: dict[str, float], amp: float, width: float, n: int, dt: float, kpp: float, kda: float,
@@ -102,12 +102,12 @@ def test_exac1_record_reads_into_a_unit(tmp_path):
 @pytest.mark.parametrize("i_n", [0.0, 0.2, 0.43, 0.44, 0.6, 0.749, 0.76, 0.9, 0.99])
 def test_the_exciters_steady_state_ve_solves_ve_fex_on_every_piece(i_n):
     """derive's VE for a field voltage efd and KC Ifd = c: VE FEX(c / VE) = efd (in closed form on
-    FEX's piece, `derive._ac_exciter_ve`), the same VE as the bisection it replaced."""
-    from bench_ctl.model.kernel.derive import _ac_exciter_ve, _bisect_ve
+    FEX's piece, `derived.ac_exciter_ve`), the same VE as the bisection it replaced."""
+    from bench_ctl.engine.derived import ac_exciter_ve, bisect_ve
 
-    ve_true = np.array([1.3, 2.0, 4.5])
-    c = i_n * ve_true
-    efd = ve_true * _fex(i_n)
-    ve = _ac_exciter_ve(efd, c)
-    assert np.allclose(ve, ve_true, rtol=1e-12, atol=0), (ve, ve_true)
-    assert np.allclose(ve, _bisect_ve(efd, c), rtol=1e-12, atol=0)
+    for ve_true in (1.3, 2.0, 4.5):
+        c = i_n * ve_true
+        efd = ve_true * _fex(i_n)
+        ve = ac_exciter_ve(efd, c)
+        assert ve == pytest.approx(ve_true, rel=1e-12, abs=0), (ve, ve_true)
+        assert ve == pytest.approx(bisect_ve(efd, c), rel=1e-12, abs=0)

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_reference import AMP, CASES, DURATION, REF, reference_efd, tiered
 
 from independent_plant import NO_EFFECT, Plant, Recorder, Test, draw_avr, draw_effect, random_edges
-from test_kernel_reference import AMP, CASES, DURATION, REF, reference_efd, tiered
 
 ON, OFF = 0.99963, 1.99918  # between the 1 kHz samples
 

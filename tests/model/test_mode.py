@@ -1,4 +1,4 @@
-"""The electromechanical mode estimator (`bench_ctl.model.mode`): a damped sinusoid beside a slow
+"""The electromechanical mode estimator (`bench_ctl.signals.mode`): a damped sinusoid beside a slow
 exponential after an edge, with noise, recovered; noise alone is no mode."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bench_ctl.model.mode import electromechanical_mode
+from bench_ctl.signals.mode import electromechanical_mode
 
 
 @pytest.mark.parametrize("f,zeta", [(1.2, 0.08), (0.7, 0.2), (2.0, 0.03)])

@@ -9,10 +9,10 @@ import pytest
 from ac_equations import fex as _fex
 from andes_units import fixture_unit, manifest, open_loop_efd, read_fixture, standard_params, true_edges
 from bench_ctl.cli import main
+from bench_ctl.engine.simulate import simulate
 from bench_ctl.model.params import PARAMS
-from bench_ctl.model.simulate import simulate
 from bench_ctl.model.structures import STRUCTURES, StructureError, structure
-from bench_ctl.model.unit import UnitError, apply_overrides, load_unit, reference_unit, with_model
+from bench_ctl.units.unit import UnitError, apply_overrides, load_unit, reference_unit, with_model
 
 
 def test_the_library_holds_the_standard_structures_each_coherent():
@@ -190,7 +190,7 @@ def test_esst4b_blocks_match_solve_ivp(amp, kg, kim, limited):
 
 
 def test_open_loop_refuses_what_it_cannot_run():
-    from bench_ctl.model.open_loop import run_open_loop
+    from bench_ctl.engine.open_loop import run_open_loop
     t = np.arange(0, 1.0, 0.001)
     vals = reference_unit().values()
     with pytest.raises(ValueError, match="TD = 0.01"):
@@ -203,8 +203,8 @@ def test_open_loop_refuses_what_it_cannot_run():
 
 def test_generator_conversion_from_a_dyr_record_matches_the_fixture_helper():
     from andes_units import generator_values
-    from bench_ctl.model.dyr import parse_dyr
-    from bench_ctl.model.dyr_unit import generator_from_record
+    from bench_ctl.units.dyr import parse_dyr
+    from bench_ctl.units.dyr_unit import generator_from_record
     g = manifest()["generator_params"]
     rec = parse_dyr(f"1 'GENROU' 1 {g['Td10']} {g['Td20']} {g['Tq10']} {g['Tq20']} 3 0 {g['xd']} {g['xq']} "
                     f"{g['xd1']} {g['xq1']} {g['xd2']} {g['xl']} {g['S10']} {g['S12']} /\n")[0]
@@ -298,12 +298,13 @@ def test_ceiling_limit_bounds_esst4bs_field_voltage_not_its_lag():
 
 
 def test_esst4b_chunks_alone_and_mixed_agree():
-    """A chunk whose valid candidates are all ESST4B runs the kernel without the DC exciter and the
-    non-windup ceiling; a chunk that mixes structures selects the potential-source stage per
-    candidate. Both give the same ESST4B response (free, and riding the diagnosis' ceiling fixed
+    """A call whose valid candidates are all ESST4B runs the engine's ESST4B variant (no rotating
+    exciter, no non-windup ceiling); a call that mixes structures selects the potential-source
+    stage per candidate. Both give the same ESST4B response (free, and riding the diagnosis' ceiling fixed
     and bus-fed), and an invalid candidate does not take a chunk off the ESST4B-only path."""
-    from bench_ctl.model.kernel import column, run_kernel
-    from bench_ctl.model.simulate import param_matrix
+    from bench_ctl.engine import run as run_engine
+    from bench_ctl.engine.simulate import param_matrix
+    from bench_ctl.model.params import COL
     name = "esst4b_20pct"
     unit = fixture_unit(name, true_values=True)
     cap = read_fixture(name)
@@ -317,8 +318,8 @@ def test_esst4b_chunks_alone_and_mixed_agree():
     P4 = np.vstack([param_matrix(r) for r in rows])
     exst1 = param_matrix({**with_model(reference_unit(), "EXST1").values(), **off})
     invalid = P4[:1].copy()
-    invalid[0, column("KPM")] = -1.0
-    run = lambda P: run_kernel(P, cap.usetp, dt, float(cap.usetp[0]), edges=spec)  # noqa: E731
+    invalid[0, COL["KPM"]] = -1.0
+    run = lambda P: run_engine(P, cap.usetp, dt, float(cap.usetp[0]), edges=spec)  # noqa: E731
     alone = run(P4)
     mixed = run(np.vstack([P4, exst1]))
     with_invalid = run(np.vstack([P4, invalid]))

@@ -8,7 +8,7 @@ import pytest
 
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.params import PARAMS
-from bench_ctl.model.unit import UnitError, apply_overrides, load_unit, reference_unit
+from bench_ctl.units.unit import UnitError, apply_overrides, load_unit, reference_unit
 
 
 def test_reference_unit_matches_design():
@@ -125,7 +125,7 @@ def test_bad_overrides(bad, msg):
 def test_grid_table_set_and_dyr_give_the_machine_on_the_grid(tmp_path):
     """[grid] (issue 27): the machine's on-line data and the grid, from the unit file, --set (kept
     across --model) and a GENROU record; a key outside the machine's names, or out of range, is named."""
-    from bench_ctl.model.unit import with_model
+    from bench_ctl.units.unit import with_model
 
     ref = tmp_path / "ref.toml"
     text = resources_reference_text()
@@ -145,8 +145,8 @@ def test_grid_table_set_and_dyr_give_the_machine_on_the_grid(tmp_path):
 
 
 def test_genrou_record_gives_the_machine_data(tmp_path):
-    from bench_ctl.model.dyr import read_dyr
-    from bench_ctl.model.dyr_unit import machine_from_record
+    from bench_ctl.units.dyr import read_dyr
+    from bench_ctl.units.dyr_unit import machine_from_record
 
     dyr = tmp_path / "u.dyr"
     dyr.write_text("1 'GENROU' 1 7.5 0.05 0.4 0.05 3.0 0.0 1.8 1.7 0.3 0.55 0.25 0.15 0.05 0.2 /\n")

@@ -26,11 +26,11 @@ from PIL import Image
 
 from bench_ctl.capture import write_capture
 from bench_ctl.cli import main
+from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
 from bench_ctl.limits import sha256_file
 from bench_ctl.model.params import AVR_PARAMS, PARAMS, REFERENCE_BOUNDS, REFERENCE_VALUES
-from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
-from bench_ctl.model.unit import load_unit
 from bench_ctl.report import figures as F
+from bench_ctl.units.unit import load_unit
 from records import diagnosis_json, effect_json, step_json
 
 START_S, WIDTH_S, RATE_HZ, EDGE_WINDOW_S = 1.0, 1.0, 1000.0, 0.2

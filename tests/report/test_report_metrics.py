@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 
 from bench_ctl.capture import write_capture
+from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
 from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.model.params import AVR_PARAMS, REFERENCE_VALUES, neutral_values
-from bench_ctl.model.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
-from bench_ctl.model.unit import load_unit
 from bench_ctl.report import ReportError, analyse
 from bench_ctl.report.blocks import Fig
 from bench_ctl.report.checks import constraint_margin
 from bench_ctl.report.inputs import model_values
 from bench_ctl.report.metrics import error_figures, find_edges, segment_bounds
 from bench_ctl.report.outline import sections
+from bench_ctl.units.unit import load_unit
 from records import capture_entry, result_json, result_of
 
 
@@ -160,8 +160,8 @@ def test_fit_window_failed_flag_and_null_history(tmp_path: Path) -> None:
 
 def test_a_value_outside_its_bounds_fails_the_report() -> None:
     """The `local` peer ignores bounds by design: such a result must not pass as validated."""
-    from bench_ctl.model.unit import outside_bounds
     from bench_ctl.report import checks as chk
+    from bench_ctl.units.unit import outside_bounds
 
     bounds = {"KAVR": [50, 100], "TE": [0.002, 0.2]}
     assert outside_bounds({"KAVR": 100.0, "TE": 0.2}, bounds) == []   # on a bound: inside

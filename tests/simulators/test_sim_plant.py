@@ -1,4 +1,4 @@
-"""The stepping plant reproduces the batch kernel offline, applies setpoints from the next step,
+"""The stepping plant reproduces the batch engine offline, applies setpoints from the next step,
 and keeps real time with catch-up."""
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import time
 import numpy as np
 import pytest
 
-from bench_ctl.model import realtime as RT
-from bench_ctl.model.plant import FLAG_CEILING, O_EFD, O_EFD_REC, O_USETP, O_VT, Plant
-from bench_ctl.model.simulate import pulse_usetp, simulate
-from bench_ctl.model.unit import load_unit
+from bench_ctl.engine.simulate import pulse_usetp, simulate
+from bench_ctl.plants import FLAG_CEILING, O_EFD, O_EFD_REC, O_USETP, O_VT, Plant
+from bench_ctl.plants import realtime as RT
+from bench_ctl.units.unit import load_unit
 
 EFFECTS = {
     "none": {},
@@ -109,10 +109,9 @@ def test_loop_catches_up_a_stall_in_one_burst():
     plant = Plant(rt_priority=None)
     plant._warm()
     start_ns = time.monotonic_ns() - 50_000_000
-    args = (plant._D, plant._X, *plant._hist, plant._ctrl, plant._sp_step, plant._sp_val,
-            plant._fst, plant._ring, plant._lag, plant._behind, start_ns, plant._dt_ns,
-            plant.usetp_pre, plant.dt, RT.MAX_BURST)
-    th = threading.Thread(target=RT._rt_loop, args=args)
+    plant._t0_ns = start_ns
+    clock = (plant._ctrl, plant._sp_step, plant._sp_val, plant._fst, plant._ring, plant._lag, plant._behind)
+    th = threading.Thread(target=plant._loop(), args=plant._rt_args(plant._work, clock))
     th.start()
     time.sleep(0.1)
     plant._ctrl[RT.C_STOP] = 1
@@ -121,36 +120,6 @@ def test_loop_catches_up_a_stall_in_one_burst():
     assert plant._ctrl[RT.C_MAXBURST] >= 50
     assert plant._behind[0] >= 0.050                       # reported how late it was
     assert 0 <= (stop_ns - start_ns) * 1e-9 - plant.step * plant.dt < 0.03
-
-
-def test_plant_cache_is_flushed_when_the_kernel_source_changes(tmp_path):
-    """numba keys a module's cache on its own file alone; an edit of the kernel must still reach
-    the plant code that inlines it."""
-    from bench_ctl.model.kernel import drop_stale_cache
-
-    class FakeCache:
-        cache_path = str(tmp_path / "cache")
-        flushes = 0
-
-        def flush(self):
-            FakeCache.flushes += 1
-
-    class FakeDispatcher:
-        _cache = FakeCache()
-
-    kernel, step = tmp_path / "kernel.py", tmp_path / "plant_step.py"
-    kernel.write_text("X = 1\n")
-    step.write_text("Y = 1\n")
-    sources = (str(kernel), str(step))
-    assert drop_stale_cache((FakeDispatcher(),), sources, "m") is True  # no stamp yet
-    assert drop_stale_cache((FakeDispatcher(),), sources, "m") is False  # stamp matches
-    assert FakeCache.flushes == 1
-    kernel.write_text("X = 2\n")
-    assert drop_stale_cache((FakeDispatcher(),), sources, "m") is True
-    step.write_text("Y = 2\n")  # any of the sources
-    assert drop_stale_cache((FakeDispatcher(),), sources, "m") is True
-    assert FakeCache.flushes == 3
-    assert drop_stale_cache((object(),), sources, "m") is False  # not cached: nothing to do
 
 
 def test_timer_probe_never_wakes_before_its_deadline():

@@ -1,0 +1,61 @@
+"""`bench-ctl warm-up`: compile the engine ahead of its first use (a newcomer's machine, CI, an
+offline laptop before a site visit, a Dask worker): the variants a unit's records run (no load, and
+on the grid when the unit has the machine's data) and its plant's real-time loop, or `--all` of
+them, side by side in child processes, into numba's disk cache."""
+from __future__ import annotations
+
+import time
+
+import click
+
+from bench_ctl.exitcodes import ExitCode
+from bench_ctl.units.unit import Unit, UnitError
+
+from .options import build_unit, unit_options
+
+
+def unit_keys(unit: Unit) -> list:
+    """The engine variants `unit`'s records run: at no load, and on the grid when the unit has the
+    machine's data."""
+    from bench_ctl.engine import Key, classify, derive
+    from bench_ctl.engine.machines import grid
+    from bench_ctl.engine.simulate import param_matrix
+    from bench_ctl.engine.stabilisers import ieeest
+
+    P = param_matrix(unit.values())
+    keys = [Key("noload", classify(derive(P)))]
+    try:
+        M = grid.machine_matrix(grid.unit_machine(unit))
+    except ValueError:   # no machine data: the unit runs at no load only
+        return keys
+    D = grid.derive_grid(P, M)
+    return keys + [Key("grid", classify(D), "ieeest" if ieeest.present(D) else "none")]
+
+
+@click.command("warm-up")
+@click.option("--all", "everything", is_flag=True,
+              help="Every variant of the engine (each machine under each class of blocks, with and without a "
+                   "stabiliser): what the test suite and `identify --model auto` run.")
+@unit_options
+def warm_up(everything: bool, unit_path: str | None, overrides: tuple[str, ...], effects: tuple[str, ...],
+            **model: str | None) -> int:
+    """Compile the engine's variants (and the plant's real-time loop) a unit needs, or --all of them;
+    nothing when numba's cache holds them already."""
+    from bench_ctl.engine import warm
+    from bench_ctl.plants import warm_up as plant_warm_up
+
+    try:
+        unit = build_unit(unit_path, overrides, effects, **model)
+    except UnitError as exc:
+        click.secho(f"refused: {exc}", fg="red", err=True)
+        return ExitCode.ABORTED
+    t0 = time.perf_counter()
+    keys = tuple(warm.ALL) if everything else tuple(unit_keys(unit))
+    todo = warm.missing(keys)
+    click.echo(f"{len(keys)} engine variant(s): {len(keys) - len(todo)} in the cache, {len(todo)} to compile")
+    warm.warm(todo, report=lambda key, s: click.echo(f"  compiled the {key.words()} in {s:.0f} s"))
+    plant_warm_up(unit)
+    if len(keys) > 1 and keys[1].machine == "grid" and not everything:
+        plant_warm_up(unit, online=True)
+    click.echo(f"the engine is ready ({time.perf_counter() - t0:.0f} s)")
+    return ExitCode.OK

@@ -1,0 +1,233 @@
+"""The simulation engine: one compiled, batched simulation of every machine and block.
+
+`run` simulates a population of parameter sets driven by one recorded setpoint series: the unit
+at no load, on the grid (a machine matrix given), or its excitation system alone fed a record's
+Vt and Ifd (`ext`). Time runs in the outer loop and candidates in the inner loop (states are
+arrays over candidates), chunks of candidates run in parallel (docs/decisions/0003); each call
+runs the variant its candidates need (`variants`), compiled on first use.
+
+The package, bottom up: `jit` (the one numba decorator, variants by constants, cache names),
+`layout` (the derived columns `D_*`, rows, constants), `derived` (the derived matrix), `exciter`,
+`machines`, `stabilisers` (the plug-ins of the seam), `history` (dead time and skew), `step` (the
+RK4 step and its loop over candidates), `span` (the no-load reference structure's fast path),
+`substep` (a step with jumps inside), `runner` (a chunk over the record, the parallel loop),
+`variants`, and here `run`.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
+
+import numba as nb
+import numpy as np
+
+from bench_ctl.compile_notice import compiling
+from bench_ctl.signals.edges import EdgeSpec
+
+from . import layout
+from .derived import derive
+from .jit import optimisation_note
+from .layout import (
+    B_DELAY,
+    B_FLUX,
+    B_FULL,
+    B_LIMITED,
+    B_RAMP,
+    B_SKEW,
+    B_ST4,
+    B_ST4_ONLY,
+    CHUNK,
+    D_BITS,
+    D_EDGE0,
+    D_SKEW,
+    D_TD,
+    D_VALID,
+    LANES,
+    N_SCORED,
+    SIGNALS,
+    X_FULL,
+    X_REF,
+    X_ST4,
+    X_ST4_ONLY,
+)
+from .machines import grid
+from .runner import N_KEEP, Drive, Edges, Out, Switches
+from .span import W_FAILED, W_SSE
+from .stabilisers import ieeest
+from .variants import Key, variant
+
+__all__ = ["run", "derive", "layout", "Key", "variant", "compiling", "optimisation_note", "CHUNK",
+           "SIGNALS", "classify", "edge_window"]
+
+#: below this many candidate-steps a call runs on one thread: waking the worker threads costs more
+#: than it saves for the small batches of a polish, several times more when the machine is busy
+SMALL_CALL = 300_000
+
+
+def classify(D: np.ndarray) -> int:
+    """The excitation system's class (`layout.X_*`) the candidates of the derived matrix D need:
+    the reference blocks, the standard structures' without the potential-source stage, with it
+    for some, with it alone for every valid candidate (an invalid one does not count)."""
+    bits = D[:, D_BITS].astype(np.int64)
+    if not np.any(bits & B_ST4):
+        return X_FULL if np.any(bits & B_FULL) else X_REF
+    valid = D[:, D_VALID] != 0.0
+    return X_ST4_ONLY if np.all(bits[valid] & B_ST4_ONLY) else X_ST4
+
+
+def edge_window(D: np.ndarray, edges: EdgeSpec, dt: float, T: int) -> np.ndarray:
+    """1 for every step where some candidate's setpoint differs from the zero-order hold of the
+    record (between an edge's nominal and fitted instants) or jumps inside the step."""
+    win = np.zeros(T, dtype=np.uint8)
+    for j in range(edges.n):
+        ke = (edges.nominal_s[j] + D[:, D_EDGE0 + edges.slot[j]]) / dt
+        lo = int(math.floor(min(float(ke.min()), float(edges.index[j])))) - 1
+        hi = int(math.ceil(max(float(ke.max()), float(edges.index[j])))) + 1
+        win[max(0, lo): max(0, min(T, hi + 1))] = 1
+    return win
+
+
+def _array(a: np.ndarray, dtype: type) -> np.ndarray:
+    """`a` as the compiled code takes it: contiguous, of `dtype`, writable (numba types a read-only
+    array apart from a writable one and would compile again for each mix)."""
+    if type(a) is np.ndarray and a.dtype == dtype and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.require(a, dtype, ("C", "W"))
+
+
+def _chunk(v, Dt: np.ndarray, lo: int, hi: int, drive: Drive, edges: Edges, out: Out, sw: Switches) -> None:
+    """Candidates lo..hi-1 of the transposed derived matrix Dt over the whole record: their columns
+    of `out` (two calls that release the GIL: chunks run side by side on threads)."""
+    T = drive.usetp.shape[0]
+    w = v.call("new_work", Dt, lo, hi, sw.ring, sw.ring_skew, edges.index.shape[0], drive.ext)
+    out.fail_step[lo:hi][w.W[W_FAILED, :hi - lo] != 0.0] = 0
+    v.call("advance", w, drive, edges, out, 0, T, T - 1, sw)
+    if drive.w[0] > 0.0:
+        out.sse[0, lo:hi] = w.W[W_SSE, :hi - lo]
+
+
+_POOL: dict[int, ThreadPoolExecutor] = {}
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """The threads chunks of one call run on (one pool a thread count, kept)."""
+    pool = _POOL.get(threads)
+    if pool is None:
+        pool = _POOL[threads] = ThreadPoolExecutor(threads, thread_name_prefix="bench-ctl-engine")
+    return pool
+
+
+def run(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *, machine: np.ndarray | None = None,
+        ext: np.ndarray | None = None, measured: Mapping[str, np.ndarray | None] | None = None,
+        weights: Mapping[str, float] | None = None, store: bool = True, edges: EdgeSpec | None = None,
+        keep: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+    """Simulate the candidates P (n, len(KERNEL_PARAMS)) over the setpoint series `usetp` (step dt;
+    `usetp_pre` before the test): at no load; on the grid M (`machine`, n rows of
+    `params.MACHINE_PARAMS`); or the excitation system alone fed `ext` = (Vt, Ifd) recorded on
+    the same samples.
+
+    `edges`: the record's setpoint edges; each moves to its nominal instant plus the candidate's
+    offset (EDGE1..); None: every change of usetp acts at the sample that shows it. `measured`:
+    the recorded efd, vt, p, q to score (None entries skipped), `weights` theirs (default efd 1).
+
+    Returns `fail_step` (-1: ran to the end; 0: invalid parameters) and, when `store`, the traces
+    (n, T) of the `keep` signals (default efd and vt, on the grid p, q and ifd too); with
+    measurements `obj` (the trapezoidal integral of the weighted squared errors) and
+    `sse_<signal>` for each measured signal with a weight."""
+    P = np.atleast_2d(np.asarray(P, dtype=np.float64))
+    n_asked = P.shape[0]
+    short = n_asked % LANES
+    if n_asked > 1 and short >= 2:   # two or more would run in the loops' scalar remainder
+        P = np.vstack([P, np.repeat(P[-1:], LANES - short, axis=0)])
+    if machine is not None:
+        M = np.atleast_2d(np.asarray(machine, dtype=np.float64))
+        if M.shape[0] != n_asked:
+            raise ValueError(f"machine matrix has {M.shape[0]} rows for {n_asked} candidates")
+        if P.shape[0] != n_asked:
+            M = np.vstack([M, np.repeat(M[-1:], P.shape[0] - n_asked, axis=0)])
+        D = grid.derive_grid(P, M)
+        key = Key("grid", classify(D), "ieeest" if ieeest.present(D) else "none")
+    else:
+        D = derive(P)
+        key = Key("recorded" if ext is not None else "noload", classify(D))
+    out = _run(D, key, _array(usetp, np.float64), float(dt), float(usetp_pre), ext, measured, weights, store,
+               edges, keep)
+    if P.shape[0] == n_asked:
+        return out
+    return {k: v[:n_asked] for k, v in out.items()}
+
+
+def _run(D, key, usetp, dt, usetp_pre, ext, measured, weights, store, edges, keep) -> dict[str, np.ndarray]:
+    n = D.shape[0]
+    T = usetp.shape[0]
+    if T < 2:
+        raise ValueError("a simulation needs at least two samples")
+    if not (dt > 0 and math.isfinite(dt)):
+        raise ValueError(f"time step {dt!r} must be positive")
+    edges = EdgeSpec.none() if edges is None else edges
+    if edges.n and int(edges.index.max()) >= T:
+        raise ValueError(f"edge at sample {int(edges.index.max())} lies beyond the record ({T} samples)")
+    meas = np.zeros((N_SCORED, T))
+    w = np.zeros(N_SCORED)
+    weights = {"efd": 1.0, **dict(weights or {})}
+    scored = []
+    for q, name in enumerate(SIGNALS[:N_SCORED]):
+        series = (measured or {}).get(name)
+        if series is not None:
+            series = np.asarray(series, dtype=np.float64)
+            if series.shape != (T,):
+                raise ValueError(f"measured {name} has {series.shape} samples, the setpoint {T}")
+            meas[q] = series
+            w[q] = float(weights.get(name, 0.0))
+            if w[q] > 0.0:
+                scored.append(q)
+    unknown = set(measured or {}) - set(SIGNALS[:N_SCORED])
+    if unknown:
+        raise ValueError(f"measured signal(s) {', '.join(sorted(unknown))}: a fit reads efd, vt, p, q")
+    if keep is None:
+        keep = SIGNALS if key.machine == "grid" else ("efd", "vt")
+    rows = np.full(N_KEEP, -1, dtype=np.int64)
+    if store:
+        for r, name in enumerate(keep):
+            rows[SIGNALS.index(name)] = r
+    traces = np.zeros((len(keep), n, T) if store else (1, 1, 1))
+    sse = np.zeros((N_SCORED, n))
+    ends = np.zeros((N_SCORED, n))
+    fail_step = np.full(n, -1, dtype=np.int64)
+    if n:
+        bits = int(np.bitwise_or.reduce(D[:, D_BITS].astype(np.int64)))
+        td_max = float(np.max(D[:, D_TD]))
+        sk_max = float(np.max(D[:, D_SKEW]))
+        delay, skew, ramp = bool(bits & B_DELAY), bool(bits & B_SKEW), bool(bits & B_RAMP)
+        sw = Switches(delay, skew, ramp, not (delay or skew or ramp or bits & B_FLUX or np.any(w[1:] > 0.0)),
+                      not bits & B_LIMITED, int(math.ceil(td_max / dt)) + 3 if td_max > 0 else 1,
+                      int(math.ceil(sk_max / dt)) + 3 if sk_max > 0 else 1)
+        xt = _array(ext, np.float64) if ext is not None else np.zeros((2, 1))
+        drive = Drive(usetp, usetp_pre, dt, meas, w, xt)
+        window = edge_window(D, edges, dt, T) if edges.n else np.zeros(T, dtype=np.uint8)
+        e = Edges(_array(edges.index, np.int64), _array(edges.jump, np.float64),
+                  _array(edges.nominal_s, np.float64), _array(edges.slot, np.int64), window)
+        o = Out(traces, rows, sse, ends, fail_step)
+        Dt = np.ascontiguousarray(D.T)
+        v = variant(key)
+        # chunks of a fixed size, not from the thread count: a candidate then sits at the same
+        # place of its chunk (vectorised body or remainder, which fast-math may round apart)
+        # however many threads run; a call of 17-32 candidates runs as two halves on two threads
+        # (a whole number of the loops' vectors each: the same results)
+        threads = nb.get_num_threads() if n * T >= SMALL_CALL else 1
+        chunk = CHUNK // 2 if CHUNK // 2 < n <= CHUNK and threads > 1 else CHUNK
+        spans = [(lo, min(n, lo + chunk)) for lo in range(0, n, chunk)]
+        if len(spans) == 1 or threads == 1:   # on this thread (waking a pool costs more than it saves)
+            for lo, hi in spans:
+                _chunk(v, Dt, lo, hi, drive, e, o, sw)
+        else:
+            list(_pool(threads).map(lambda s: _chunk(v, Dt, s[0], s[1], drive, e, o, sw), spans))
+    result = {"fail_step": fail_step}
+    if store:
+        result.update({name: traces[r] for r, name in enumerate(keep)})
+    if scored or measured:
+        result["obj"] = dt * (w @ (sse - ends))
+        for q in scored:
+            result[f"sse_{SIGNALS[q]}"] = sse[q]
+    return result

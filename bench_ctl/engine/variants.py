@@ -1,0 +1,150 @@
+"""The engine's variants: one machine, one class of the excitation system's blocks and one
+stabiliser, bound into the seam's slots of the generic step and runner (`step`, `substep`,
+`runner`), each compiled on first use into numba's disk cache (docs/decisions/0023).
+
+A variant's functions are copies of the generic ones whose slot globals (ST4, SPAN, exc_*, gen_*,
+pss_*) name its plug-ins; numba prunes what those constants rule out before typing, so a variant
+compiles its own blocks only. A command compiles the variants its records need, and says so while
+it does (`compiling`): a fresh machine pays that once.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from dataclasses import dataclass
+from types import FunctionType
+
+import numba as nb
+from numba.core.registry import CPUDispatcher
+
+from bench_ctl.compile_notice import compiling
+
+from . import exciter, runner, step, substep
+from .exciter import ST4_ALL, ST4_NONE, ST4_SOME
+from .jit import prune_stale, specialise
+from .layout import X_FULL, X_REF, X_ST4, X_ST4_ONLY
+from .machines import grid, noload, recorded
+from .stabilisers import ieeest, none
+
+log = logging.getLogger(__name__)
+
+MACHINES = {"noload": noload, "grid": grid, "recorded": recorded}
+STABILISERS = {"none": none, "ieeest": ieeest}
+EXCITERS = {X_REF: "ref", X_FULL: "full", X_ST4: "st4", X_ST4_ONLY: "st4only"}
+#: in words, for what a command says while it compiles
+_WORDS = {"noload": "no-load", "grid": "on-line", "recorded": "open-loop",
+          "ref": "reference blocks", "full": "standard-structure blocks", "st4": "standard-structure blocks with "
+          "ESST4B's stage", "st4only": "ESST4B", "none": "", "ieeest": "with an IEEEST stabiliser"}
+#: seconds a variant's first compilation took on a 2-core machine of this project's CI (measured:
+#: docs/benchmarks.md, "Compile"), what a command says before it waits
+ESTIMATE_S = {"ref": 20.0, "full": 30.0, "st4": 35.0, "st4only": 30.0}
+
+_SLOT = ("ST4", "SPAN")
+_SLOT_PREFIX = ("exc_", "gen_", "pss_")
+
+
+@dataclass(frozen=True)
+class Key:
+    """A variant: the machine, the excitation system's class (`layout.X_*`), the stabiliser."""
+    machine: str
+    exciter: int
+    stabiliser: str = "none"
+
+    @property
+    def name(self) -> str:
+        return f"{self.machine}_{EXCITERS[self.exciter]}_{self.stabiliser}"
+
+    def words(self) -> str:
+        parts = [_WORDS[self.machine], "engine,", _WORDS[EXCITERS[self.exciter]], _WORDS[self.stabiliser]]
+        return " ".join(p for p in parts if p)
+
+
+def _bindings(key: Key) -> dict[str, object]:
+    """The slot globals of variant `key`."""
+    machine = MACHINES[key.machine]
+    pss = STABILISERS[key.stabiliser]
+    ref = key.exciter == X_REF
+    st4 = {X_REF: ST4_NONE, X_FULL: ST4_NONE, X_ST4: ST4_SOME, X_ST4_ONLY: ST4_ALL}[key.exciter]
+    out: dict[str, object] = {"ST4": st4, "SPAN": key.machine == "noload" and ref and key.stabiliser == "none"}
+    for slot in ("load", "store", "axpy", "combine", "rhs", "limit", "output", "clamp", "slope", "vr", "park"):
+        out[f"exc_{slot}"] = getattr(exciter, f"{'ref' if ref else 'full'}_{slot}")
+    for slot in ("load", "store", "axpy", "combine", "algebra", "alg_load", "alg_store", "signals", "speed", "power",
+                 "rhs", "end", "park", "valid", "flux"):
+        out[f"gen_{slot}"] = getattr(machine, slot)
+    for slot in ("load", "store", "axpy", "combine", "rhs", "output", "park"):
+        out[f"pss_{slot}"] = getattr(pss, slot)
+    return out
+
+
+def _generic() -> list[tuple[str, CPUDispatcher]]:
+    """The generic functions a variant copies: those of `step`, `substep` and `runner` that read a
+    slot, directly or through another such function (found from their code's names)."""
+    fns = [(name, obj) for mod in (step, substep, runner) for name, obj in vars(mod).items()
+           if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == mod.__name__]
+    code = {name: set(_names(obj.py_func.__wrapped__)) for name, obj in fns}
+    slotted = {name for name, names in code.items()
+               if any(n in _SLOT or n.startswith(_SLOT_PREFIX) for n in names)}
+    grew = True
+    while grew:
+        grew = False
+        for name, names in code.items():
+            if name not in slotted and names & slotted:
+                slotted.add(name)
+                grew = True
+    return [(name, obj) for name, obj in fns if name in slotted]
+
+
+def _names(fn: FunctionType) -> Iterator[str]:
+    """The global names `fn`'s code reads (nested code objects included)."""
+    stack = [fn.__code__]
+    while stack:
+        code = stack.pop()
+        yield from code.co_names
+        stack.extend(c for c in code.co_consts if hasattr(c, "co_names"))
+
+
+class Variant:
+    """The compiled functions of one variant (`Key`), by the generic function's name; `call` runs
+    one (`new_work`, `advance`: a chunk's start and its samples)."""
+
+    def __init__(self, key: Key) -> None:
+        self.key = key
+        constants = _bindings(key)
+        copies = {name: specialise(dispatcher, key.name, constants) for name, dispatcher in _generic()}
+        for copy in copies.values():   # each copy calls the variant's copies of the others
+            copy.py_func.__globals__.update(copies)
+        self.functions = copies
+        self._ready: set[str] = set()
+
+    def call(self, name: str, *args):
+        """Function `name` of the variant called with `args`, compiled first (and said) when numba's
+        disk cache does not hold it for these argument types."""
+        dispatcher = self.functions[name]
+        if name not in self._ready:
+            sig = tuple(nb.typeof(a) for a in args)
+            if sig not in dispatcher.overloads and not cached(dispatcher, sig):
+                with compiling(self.key.words(), ESTIMATE_S[EXCITERS[self.key.exciter]]):
+                    dispatcher.compile(sig)
+                prune_stale()
+            self._ready.add(name)
+        return dispatcher(*args)
+
+
+def cached(dispatcher: CPUDispatcher, sig: tuple) -> bool:
+    """Whether numba's disk cache holds `dispatcher` for `sig` on this machine (loads it)."""
+    cache = getattr(dispatcher, "_cache", None)  # numba's per-function disk cache (no public API)
+    try:
+        return cache is not None and cache.load_overload(sig, dispatcher.targetctx) is not None
+    except Exception:  # pragma: no cover - an unreadable cache entry: compile it afresh
+        return False
+
+
+_VARIANTS: dict[Key, Variant] = {}
+
+
+def variant(key: Key) -> Variant:
+    """The variant `key` (its functions made on first use; compiled when first called)."""
+    v = _VARIANTS.get(key)
+    if v is None:
+        v = _VARIANTS[key] = Variant(key)
+    return v

@@ -1,0 +1,125 @@
+"""Compiling the engine ahead of its first use: a unit's variants, or all of them (`bench-ctl
+warm-up`, CI before the tests, a Dask worker before its first task), side by side in child
+processes that write numba's disk cache; with a warm cache nothing is started.
+
+(Child processes, not multiprocessing: a spawned worker re-imports the caller's main script, which
+need not guard itself.)
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numba as nb
+import numpy as np
+
+from bench_ctl.model.params import KERNEL_PARAMS, REFERENCE_VALUES, neutral_values
+
+from .derived import derive
+from .layout import N_SCORED, X_FULL, X_REF, X_ST4, X_ST4_ONLY
+from .machines import grid
+from .runner import N_KEEP, Drive, Edges, Out, Switches
+from .variants import EXCITERS, Key, cached, variant
+
+log = logging.getLogger(__name__)
+
+#: every variant: each machine under each class of blocks, on the grid with and without a stabiliser
+ALL: tuple[Key, ...] = tuple(
+    [Key("noload", x) for x in (X_REF, X_FULL, X_ST4, X_ST4_ONLY)]
+    + [Key("grid", x, s) for s in ("none", "ieeest") for x in (X_REF, X_FULL, X_ST4, X_ST4_ONLY)]
+    + [Key("recorded", x) for x in (X_REF, X_FULL, X_ST4, X_ST4_ONLY)])
+_BY_NAME = {k.name: k for k in ALL}
+
+
+def key_named(name: str) -> Key:
+    """The variant of a name (`Key.name`)."""
+    try:
+        return _BY_NAME[name]
+    except KeyError:
+        raise ValueError(f"unknown engine variant {name!r}; known: {', '.join(_BY_NAME)}") from None
+
+
+def _arguments(key: Key):
+    """Arguments of the types a run passes `new_work` and `advance` (a 4-sample record)."""
+    values = {**{n: 0.0 for n in KERNEL_PARAMS}, **neutral_values(), **REFERENCE_VALUES}
+    P = np.array([[values[n] for n in KERNEL_PARAMS]])
+    D = grid.derive_grid(P, grid.machine_matrix(grid.TYPICAL_MACHINE)) if key.machine == "grid" else derive(P)
+    T = 4
+    ext = np.ones((2, T)) if key.machine == "recorded" else np.zeros((2, 1))
+    drive = Drive(np.array([1.0, 1.0, 1.05, 1.05]), 1.0, 1e-3, np.zeros((N_SCORED, T)), np.ones(N_SCORED), ext)
+    edges = Edges(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0, np.int64), np.zeros(T, np.uint8))
+    out = Out(np.zeros((2, 1, T)), np.full(N_KEEP, -1, np.int64), np.zeros((N_SCORED, 1)), np.zeros((N_SCORED, 1)),
+              np.full(1, -1, np.int64))
+    return np.ascontiguousarray(D.T), drive, edges, out, Switches(False, False, False, False, True, 1, 1)
+
+
+def compile_key(key: Key) -> float:
+    """Compile (or load) variant `key` in this process; seconds."""
+    t0 = time.perf_counter()
+    Dt, drive, edges, out, sw = _arguments(key)
+    v = variant(key)
+    w = v.call("new_work", Dt, 0, 1, 1, 1, 0, drive.ext)
+    v.call("advance", w, drive, edges, out, 0, 4, 3, sw)
+    return time.perf_counter() - t0
+
+
+def missing(keys: tuple[Key, ...]) -> list[Key]:
+    """The variants among `keys` numba's disk cache lacks."""
+    out = []
+    for key in keys:
+        Dt, drive, edges, out_, sw = _arguments(key)
+        v = variant(key)
+        sig = tuple(nb.typeof(a) for a in (Dt, 0, 1, 1, 1, 0, drive.ext))
+        if not cached(v.functions["new_work"], sig):
+            out.append(key)
+            continue
+        w = v.functions["new_work"](Dt, 0, 1, 1, 1, 0, drive.ext)
+        sig = tuple(nb.typeof(a) for a in (w, drive, edges, out_, 0, 4, 3, sw))
+        if not cached(v.functions["advance"], sig):
+            out.append(key)
+    return out
+
+
+def warm(keys: tuple[Key, ...], workers: int | None = None, report=None) -> dict[str, float]:
+    """Compile the variants among `keys` the cache lacks, up to `workers` at once (default one a
+    core), each in a child process that writes the cache; `report(name, seconds)` after each.
+    Returns the seconds each took (empty when the cache held them all)."""
+    todo = missing(tuple(keys))
+    workers = max(1, min(len(todo), workers or os.cpu_count() or 1))
+    seconds: dict[str, float] = {}
+
+    def child(key: Key) -> None:
+        done = subprocess.run([sys.executable, "-c", CHILD, key.name], stdout=subprocess.PIPE, text=True)
+        if done.returncode == 0:
+            seconds.update(json.loads(done.stdout.strip().splitlines()[-1]))
+        else:
+            log.warning("compiling %s in a child process failed (exit %s)", key.name, done.returncode)
+            seconds[key.name] = compile_key(key)
+        if report:
+            report(key, seconds[key.name])
+
+    if workers > 1:
+        with ThreadPoolExecutor(workers) as pool:  # threads that wait on the children
+            list(pool.map(child, todo))
+    else:
+        for key in todo:
+            seconds[key.name] = compile_key(key)
+            if report:
+                report(key, seconds[key.name])
+    return seconds
+
+
+def child_main(names: list[str]) -> None:
+    """A child process of `warm`: compile `names`, print their seconds as JSON."""
+    print(json.dumps({name: compile_key(key_named(name)) for name in names}))
+
+
+#: what a child process runs (not `-m` on this module: the package imports it first)
+CHILD = "import sys; from bench_ctl.engine.warm import child_main; child_main(sys.argv[1:])"
+
+__all__ = ["ALL", "EXCITERS", "Key", "compile_key", "key_named", "missing", "warm"]

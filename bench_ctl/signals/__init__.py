@@ -1,0 +1,1 @@
+"""Analysis of recorded signals: setpoint edges, the electromechanical mode, acceptance windows."""

@@ -1,0 +1,384 @@
+"""Units from and to PSS/E dynamic data records (issue 13): `--from-dyr` and `export --dyr`.
+
+`unit_from_dyr` starts a unit from an existing record: the exciter record picks the structure and
+gives its values (the starting point of identification; bounds widened to hold them), the
+generator record (GENROU / GENSAL) gives T'd0, T''d0, the saturation S(1.0), S(1.2) and the
+no-load flux shares of the kernel's generator (KPP, KDA, see `generator_from_record`).
+`dyr_record_of` turns an identified result back into a record.
+
+What a record's values mean, read and written the same way (issue 24 items 6 and 7):
+
+- no limit: a limit bench-ctl leaves open (+-inf, null in a result) is written as +-999 with the
+  sign of its side (PSS/E has no infinity; ANDES' own "no limit" defaults are +-999, e.g. ESST1A
+  VAMAX/VAMIN, and +-99, SEXS EMAX/EMIN), and a limit read beyond the kernel's physical range on
+  its open side (99, 999, 9999: never reached in a no-load test) is read back as no limit;
+- a NaN or infinite value, or a negative time constant, in the exciter or generator record is
+  refused naming the record (file:line), the field and the value;
+- TC = TB = 0 is PSS/E's bypassed lead-lag: simulated bypassed (the kernel's 1/1) and not
+  identified; a zero lag under a non-zero lead (TB = 0, TC > 0) is refused, not guessed;
+- a zero lead (TC = 0), a zero transducer lag (TR = 0), no rate feedback (KF = 0), no integral
+  (KIR = 0) are those values, never a typical one; a zero regulator lag (TA, SEXS TE) or a zero
+  DC exciter time constant with KE != 1 or saturation is refused: the kernel has no bypass for
+  them yet (it needs them > 0).
+
+A stabiliser record (IEEEST, at the exciter's bus and ID) gives the machine on the grid its PSS
+(`[grid]` PSS_*, `pss_from_record`), and `export --dyr` writes one when the result's unit has a
+PSS (`pss_record`). bench-ctl's stabiliser is the IEEEST on the rotor speed without its filter: a
+record with another input (MODE), a filter (A1..A6 not 0), limits that are not symmetric or a
+cut-off that switches it off at 1 pu is refused, naming the field. The washout T5 s/(1 + T6 s)
+is KS T5/T6 times the unity washout of TW = T6; VCU, VCL (the cut-off by the terminal voltage
+outside a band around 1 pu) are not simulated.
+
+Saturation convention: PSS/E's S(1.2) is relative (the field current's excess over the air-gap
+line at 1.2 pu, divided by the air-gap current there, Sat(1.2) = 1.2 S(1.2)); the kernel's S12 is
+the absolute excess Sat(1.2). The conversion is here, in both directions.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from bench_ctl.model.dialect import describe, kernel_sections, std_name
+from bench_ctl.model.params import GENERATOR_OPTIONAL, MACHINE_DEFAULTS, PARAMS
+from bench_ctl.model.structures import STRUCTURES, Structure, structure
+
+from .dyr import FIELDS, DyrError, DyrRecord, find, read_dyr
+from .unit import Bound, Unit, UnitError, grid_values, with_model
+
+GENERATORS = ("GENROU", "GENSAL")
+STABILISERS = ("IEEEST",)
+
+
+#: the record written for "no limit" (see the module docstring)
+NO_LIMIT = 999.0
+#: generator record fields that are time constants (s)
+_GEN_TIMES = ("T'do", "T''do", "T'qo", "T''qo")
+
+
+def _where(rec: DyrRecord) -> str:
+    return f"{rec.source}: {rec.model}" if rec.source else rec.model
+
+
+def check_record(rec: DyrRecord, times: set[str]) -> None:
+    """Refuse (UnitError naming record, field and value) a non-finite value anywhere in `rec`
+    and a negative value of a time-constant field in `times`."""
+    for k, x in rec.values.items():
+        if not math.isfinite(x):
+            raise UnitError(f"{_where(rec)} {k} = {x}: not a number a record can hold (a value is "
+                            "never guessed: give the record's value)")
+        if k in times and x < 0.0:
+            raise UnitError(f"{_where(rec)} {k} = {x:g} s: a time constant cannot be negative")
+
+
+def generator_from_record(rec: DyrRecord) -> dict[str, float]:
+    """Kernel generator values from a GENROU / GENSAL record: Td0p, Td0pp; KPP = (X''d - Xl)/(X'd
+    - Xl), the share of E'q in psi''d; KDA = (Xd - X'd)(X'd - X''d)/(X'd - Xl)^2, the damper's
+    part in the field current at no load; SATEQ = 1 for a GENSAL (its saturation acts on E'q, a
+    GENROU's on psi''); S10 = S(1.0), S12 = 1.2 S(1.2) (absolute)."""
+    check_record(rec, set(_GEN_TIMES) & set(rec.values))
+    v = _values(rec)
+    xd, xdp, xdpp, xl = v["Xd"], v["X'd"], v["X''d"], v["Xl"]
+    where = _where(rec)
+    for k in ("T'do", "T''do"):
+        if v[k] <= 0.0:
+            raise UnitError(f"{where} {k} = {v[k]:g} s: the no-load generator needs {k} > 0")
+    if not (xd > xdp > xdpp > xl >= 0.0):
+        raise UnitError(f"{where}: needs Xd > X'd > X''d > Xl >= 0, got {xd}, {xdp}, {xdpp}, {xl}")
+    out = {"Td0p": v["T'do"], "Td0pp": v["T''do"],
+           "KPP": (xdpp - xl) / (xdp - xl), "KDA": (xd - xdp) * (xdp - xdpp) / (xdp - xl) ** 2,
+           "SATEQ": 1.0 if rec.model == "GENSAL" else 0.0}
+    s10, s12 = v.get("S(1.0)", 0.0), v.get("S(1.2)", 0.0)
+    if s10 > 0.0 and s12 > 0.0:
+        out["S10"], out["S12"] = s10, 1.2 * s12
+    return out
+
+
+def _values(rec: DyrRecord) -> dict[str, float]:
+    """A record's values by the names used here (the dyr module's names, normalised)."""
+    out = {}
+    for k, x in rec.values.items():
+        key = k.replace("’", "'").replace("′", "'")
+        out[key] = float(x)
+        alias = {"Tdo'": "T'do", "Tdo''": "T''do", "Xd'": "X'd", "Xd''": "X''d", "S10": "S(1.0)",
+                 "S12": "S(1.2)", "SE1": "SE(E1)", "SE2": "SE(E2)"}.get(key)
+        if alias:
+            out[alias] = float(x)
+    return out
+
+
+def _exciter_std(st: Structure, rec: DyrRecord) -> tuple[dict[str, float], set[str]]:
+    """The structure's standard values from the exciter record, checked (see the module
+    docstring), limits beyond the kernel's range read as open; and the names of its bypassed
+    lead-lags (both time constants 0)."""
+    times = {p.name for p in st.params if p.unit == "s"} | {f for f in rec.values if "/" in f}
+    check_record(rec, times & set(rec.values))
+    std = st.from_dyr(_values(rec))
+    where = _where(rec)
+    for name, v in list(std.items()):
+        p = st.param(name)
+        info = PARAMS.get(p.kernel) if p.kernel else None
+        if info is not None and info.neutral is not None and math.isinf(info.neutral):
+            if (info.neutral > 0 and v > info.hi) or (info.neutral < 0 and v < info.lo):
+                std[name] = info.neutral      # 99, 999, 9999: no limit
+    bypassed: set[str] = set()
+    for lead, lag in st.lead_lags:
+        nl, ng = st.std_name(lead), st.std_name(lag)
+        if nl is None or ng is None:
+            continue
+        if std.get(nl) == 0.0 and std.get(ng) == 0.0:
+            bypassed |= {nl, ng}
+        elif std.get(ng) == 0.0:
+            raise UnitError(f"{where} {ng} = 0 with {nl} = {std[nl]:g} s: a lead without a lag cannot "
+                            f"be simulated (ANDES bypasses such a block, PSS/E's meaning is not "
+                            f"documented for it); give {ng} > 0, or {nl} = {ng} = 0 for no lead-lag")
+    for name, v in std.items():
+        p = st.param(name)
+        if v != 0.0 or p.kernel is None or name in bypassed:
+            continue
+        if p.kernel == "TE":
+            raise UnitError(f"{where} {name} = 0 (no regulator lag): bench-ctl's simulation kernel has "
+                            f"no bypass for a zero regulator lag yet (it needs {name} > 0), and a zero "
+                            "is never replaced by a typical value")
+        if p.kernel in ("TA2", "TA4"):
+            raise UnitError(f"{where} {name} = 0: a lag of zero needs its lead at zero too (bypassed)")
+        if p.kernel == "TEX" and (std.get("KE", 1.0) != 1.0
+                                  or (std.get("SE1", 0.0) > 0.0 and std.get("SE2", 0.0) > 0.0)):
+            raise UnitError(f"{where} {name} = 0 with KE = {std.get('KE', 1.0):g} or saturation: bench-ctl's "
+                            "kernel drops a DC exciter of zero time constant entirely (Efd = VR), which is "
+                            f"only right for KE = 1 without saturation; it needs {name} > 0")
+        if p.kernel == "TF" and std.get(_kf_name(st), 0.0) > 0.0:
+            raise UnitError(f"{where} {name} = 0 with rate feedback {_kf_name(st)} = "
+                            f"{std[_kf_name(st)]:g}: a derivative without a lag cannot be simulated; "
+                            f"give {name} > 0, or {_kf_name(st)} = 0 for no rate feedback")
+    for name, v in std.items():
+        p = st.param(name)
+        info = PARAMS.get(p.kernel) if p.kernel else None
+        if info is None or name in bypassed or v == info.neutral or _unused(st, std, name):
+            continue
+        if not info.lo <= v <= info.hi:
+            raise UnitError(f"{where} {name} = {v:g} {p.unit}: outside what bench-ctl's kernel simulates "
+                            f"for it, [{info.lo:g}, {info.hi:g}] ({info.info})")
+    return std, bypassed
+
+
+def _unused(st: Structure, std: Mapping[str, float], name: str) -> bool:
+    """A value the simulation does not use: the rate feedback's lag without rate feedback."""
+    return st.param(name).kernel == "TF" and std.get(_kf_name(st), 0.0) == 0.0
+
+
+def _kf_name(st: Structure) -> str:
+    return st.std_name("KF") or "KF"
+
+
+def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident: str | None = None) -> Unit:
+    """`unit` (its generator constants, weights, effects) started from the records in `path`."""
+    try:
+        records = read_dyr(path)
+    except (DyrError, OSError) as exc_:
+        raise UnitError(f"--from-dyr {path}: {exc_}") from None
+    exciters = {s.dyr_model for s in STRUCTURES.values() if s.name != "REFERENCE"}
+    if not any(r.model in exciters for r in records):   # a generator record only: the unit's structure
+        try:
+            gen = find(records, set(GENERATORS), bus=bus, id=ident)
+        except DyrError as exc_:
+            raise UnitError(f"--from-dyr {path}: neither an exciter record ({', '.join(sorted(exciters))}) "
+                            f"nor a usable generator record: {exc_}") from None
+        new = _with_generator(replace(unit, source=f"{unit.source} with --from-dyr {path}"), gen)
+        return _with_stabiliser(new, records, gen.bus, gen.id)
+    try:
+        exc = find(records, exciters, bus=bus, id=ident)
+    except DyrError as exc_:
+        raise UnitError(f"--from-dyr {path}: {exc_}") from None
+    st = structure(exc.model)
+    new = with_model(unit, st.name)
+    std, bypassed = _exciter_std(st, exc)
+    identify = dict(new.identify)
+    fixed_std = {}
+    for name, value in std.items():
+        p = st.param(name)
+        if p.kernel is not None and p.kernel in identify and name not in bypassed:
+            b = identify[p.kernel]   # the record's value is the start; bounds widened to hold it
+            identify[p.kernel] = Bound(value, min(b.min, value), max(b.max, value))
+        else:
+            fixed_std[name] = value
+            identify.pop(p.kernel or "", None)   # a bypassed lead-lag is not identified
+    fixed = dict(new.fixed)
+    fixed.update(st.kernel_values({k: v for k, v in fixed_std.items()}))
+    for name in fixed_std:
+        if _unused(st, std, name):   # held at its neutral value, the record keeps its own
+            kernel = st.param(name).kernel or ""
+            fixed[kernel] = float(PARAMS[kernel].neutral)  # type: ignore[arg-type]
+    for k in identify:
+        fixed.pop(k, None)
+    for k in [k for k, v in fixed.items() if math.isinf(v) and v == PARAMS[k].neutral]:
+        del fixed[k]   # an open limit: the parameter's neutral value (JSON holds no infinity)
+    new = replace(new, identify=identify, fixed=fixed, model_values={**new.model_values, **std},
+                  source=f"{unit.source} with --from-dyr {path}")
+    try:
+        gen = find(records, set(GENERATORS), bus=exc.bus, id=exc.id)
+    except DyrError:
+        gen = None
+    new = _with_generator(new, gen) if gen is not None else new
+    return _with_stabiliser(new, records, exc.bus, exc.id)
+
+
+def machine_from_record(rec: DyrRecord) -> dict[str, float]:
+    """The machine's on-line data (a unit's [grid], `params.MACHINE_PARAMS`) from a GENROU or
+    GENSAL record: reactances, q-axis time constants, H and D (a GENSAL has no X'q, T'q0)."""
+    v = _values(rec)
+    names = {"XD": "Xd", "XQ": "Xq", "XDP": "X'd", "XQP": "X'q", "XDPP": "X''d", "XLS": "Xl",
+             "Tq0p": "T'qo", "Tq0pp": "T''qo", "H": "H", "DAMP": "D"}
+    return {k: v[src] for k, src in names.items() if src in v}
+
+
+def pss_from_record(rec: DyrRecord) -> dict[str, float]:
+    """The unit's [grid] PSS_* from an IEEEST record (see the module docstring); what bench-ctl's
+    stabiliser cannot run is refused naming the record, the field and the value."""
+    where = _where(rec)
+    check_record(rec, {"A1", "A2", "A3", "A4", "A5", "A6", "T1", "T2", "T3", "T4", "T5", "T6"})
+    v = rec.values
+    mode = rec.icons.get("MODE", 1)
+    if mode != 1:
+        raise UnitError(f"{where} MODE = {mode}: bench-ctl's stabiliser reads the rotor speed deviation "
+                        "(MODE 1) only")
+    filt = [f"{k} = {v[k]:g}" for k in ("A1", "A2", "A3", "A4", "A5", "A6") if v[k] != 0.0]
+    if filt:
+        raise UnitError(f"{where} {', '.join(filt)}: the stabiliser's filter is not simulated (bench-ctl runs "
+                        "the IEEEST without it; A1..A6 = 0 is no filter)")
+    if v["LSMIN"] != -v["LSMAX"]:
+        raise UnitError(f"{where} LSMAX = {v['LSMAX']:g}, LSMIN = {v['LSMIN']:g}: bench-ctl's stabiliser "
+                        "limit is symmetric (LSMIN = -LSMAX)")
+    vcu, vcl = v["VCU"], v["VCL"]
+    if (vcu != 0.0 and vcu <= 1.0) or (vcl != 0.0 and vcl >= 1.0):
+        raise UnitError(f"{where} VCU = {vcu:g}, VCL = {vcl:g}: the cut-off switches the stabiliser off at "
+                        "1 pu terminal voltage; bench-ctl does not simulate the cut-off")
+    out = {"PSS_LSMAX": v["LSMAX"]}
+    for lead, lag, a, b in (("T1", "T2", "PSS_T1", "PSS_T2"), ("T3", "T4", "PSS_T3", "PSS_T4")):
+        if v[lead] == 0.0 and v[lag] == 0.0:     # bypassed: the kernel's 1/1
+            out[a] = out[b] = 1.0
+        elif v[lag] == 0.0:
+            raise UnitError(f"{where} {lag} = 0 with {lead} = {v[lead]:g} s: a lead without a lag cannot be "
+                            f"simulated; give {lag} > 0, or {lead} = {lag} = 0 for no lead-lag")
+        else:
+            out[a], out[b] = v[lead], v[lag]
+    if v["T6"] <= 0.0:
+        raise UnitError(f"{where} T6 = {v['T6']:g} s: the washout needs its pole T6 > 0")
+    out["PSS_TW"] = v["T6"]
+    out["PSS_KS"] = v["KS"] * v["T5"] / v["T6"]
+    return grid_values(out, where)
+
+
+def pss_record(grid: Mapping[str, Any], bus: int, ident: str) -> DyrRecord | None:
+    """The IEEEST record of the stabiliser in a unit's [grid] (None without one: PSS_KS 0 or
+    absent): speed input, no filter, T5 = T6 = TW, no cut-off."""
+    g = {**MACHINE_DEFAULTS, **{k: float(x) for k, x in grid.items() if k.startswith("PSS_")}}
+    if g["PSS_KS"] == 0.0:
+        return None
+    values = dict.fromkeys(("A1", "A2", "A3", "A4", "A5", "A6"), 0.0)
+    values.update(T1=g["PSS_T1"], T2=g["PSS_T2"], T3=g["PSS_T3"], T4=g["PSS_T4"], T5=g["PSS_TW"], T6=g["PSS_TW"],
+                  KS=g["PSS_KS"], LSMAX=g["PSS_LSMAX"], LSMIN=-g["PSS_LSMAX"], VCU=NO_LIMIT, VCL=-NO_LIMIT)
+    return DyrRecord(bus, "IEEEST", str(ident), values, {"MODE": 1, "BUSR": 0})
+
+
+def _with_stabiliser(unit: Unit, records: list[DyrRecord], bus: int, ident: str) -> Unit:
+    """`unit` with the PSS of the IEEEST record at `bus`, machine `ident` (unchanged without one)."""
+    hits = [r for r in records if r.model in STABILISERS and r.bus == bus and r.id == ident]
+    if not hits:
+        return unit
+    if len(hits) > 1:
+        raise UnitError(f"several stabiliser records at bus {bus} ID {ident}: "
+                        f"{', '.join(r.source for r in hits)}")
+    return replace(unit, grid={**unit.grid, **pss_from_record(hits[0])})
+
+
+def _with_generator(unit: Unit, gen: DyrRecord) -> Unit:
+    g = generator_from_record(gen)
+    generator = dict(unit.generator)
+    generator.update({k: g[k] for k in ("Td0p", "Td0pp", *GENERATOR_OPTIONAL)})
+    unit = replace(unit, generator=generator, grid={**unit.grid, **machine_from_record(gen)})
+    if "S10" in g:
+        unit = unit.with_effects({"saturation": {"S10": g["S10"], "S12": g["S12"]}})
+    return unit
+
+
+def _open_side(st: Structure, name: str) -> float:
+    """The infinite value that means "no limit" for `name` (its kernel parameter's neutral; a
+    record-only field by its name: ...MIN below, else above)."""
+    p = st.param(name)
+    info = PARAMS.get(p.kernel) if p.kernel else None
+    if info is not None and info.neutral is not None and math.isinf(info.neutral):
+        return info.neutral
+    return -math.inf if name.upper().endswith("MIN") else math.inf
+
+
+def _kernel_value(name: str, v: Any) -> float:
+    """A result's kernel value; null is the parameter's neutral (an open limit: +-inf)."""
+    if v is None:
+        neutral = PARAMS[name].neutral if name in PARAMS else None
+        if neutral is None:
+            raise ValueError(f"{name} = null: only an open limit may be null")
+        return float(neutral)
+    return float(v)
+
+
+def dyr_values_of(result: Mapping[str, Any]) -> tuple[Structure, dict[str, float]]:
+    """(structure, its record's fields -> values) from an identification result; an open limit
+    (null, +-inf) becomes +-NO_LIMIT on its own side."""
+    model = result.get("model") or {}
+    st = structure(model.get("name"))
+    if st.name == "REFERENCE":      # the reference blocks under ESST1A's names, limits open
+        st = structure("ESST1A")
+        kern = {**(result.get("fixed") or {}), **(result.get("params") or {})}   # REFERENCE: kernel names
+        base = {k: _kernel_value(k, v) for k, v in kern.items()}
+        params = st.std_values(base, {"VRMAX": math.inf, "VRMIN": -math.inf, "KC": 0.0})
+    else:
+        params = {k: (_open_side(st, k) if v is None else float(v))
+                  for k, v in (model.get("params") or {}).items()}
+    for k, v in params.items():
+        if math.isinf(v):
+            params[k] = math.copysign(NO_LIMIT, v)
+    return st, params
+
+
+def dyr_fields(st: Structure) -> tuple[str, ...]:
+    return FIELDS[st.dyr_model]  # type: ignore[index]
+
+
+#: kernel parameters that are not the exciter's (the generator, the record's timing, the
+#: recorder): a difference there is not the exciter record's to carry
+_NOT_EXCITER = ("Td0p", "Td0pp", "Vt0", "KPP", "KDA", "SATEQ", "S10", "S12", "GAIN", "SKEW", "EDGE1", "EDGE2",
+                "EDGE3", "EDGE4")
+
+
+def not_carried(result: Mapping[str, Any], st: Structure, std: Mapping[str, float]) -> list[str]:
+    """What the result's model has that the record `std` (of structure `st`, as `dyr_values_of`
+    gives it) does not give back when read with `--from-dyr`: 'NAME = value (read back: value;
+    what it is)'."""
+    from bench_ctl.model.params import neutral_values
+
+    have = dict(neutral_values())
+    sections = kernel_sections(result)
+    for section in ("fixed", "params"):
+        for k, v in sections[section].items():
+            if k in PARAMS:
+                have[k] = _kernel_value(k, v)
+    read = {k: (_open_side(st, k) if abs(v) == NO_LIMIT and st.param(k).kernel else v)
+            for k, v in std.items()}
+    back = {**neutral_values(), **st.kernel_values({k: v for k, v in read.items() if st.param(k).kernel})}
+    open_limits = all(math.isinf(d.get(k, math.inf)) for d in (have, back) for k in ("VRMAX", "VRMIN"))
+    skip = set(_NOT_EXCITER) | ({"VRVT", "LIMOUT", "KC"} if open_limits and not have.get("KPV") else set())
+    out = []
+    for k, a in have.items():
+        if k in skip or k not in back:
+            continue
+        b = back[k]
+        if a == b or (math.isfinite(a) and math.isfinite(b) and math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-15)):
+            continue
+        name = std_name(st, k)
+        what = describe(st, name) or (PARAMS[k].unit, PARAMS[k].info, None)
+        unit = "" if what[0] in ("", "1") else f" {what[0]}"
+        out.append(f"{name} = {a:g}{unit} (read back: {b:g}; {what[1]})")
+    return out
