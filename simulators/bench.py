@@ -134,6 +134,16 @@ async def _drain_tasks(rounds: int = 3) -> None:
     await asyncio.gather(*pending, return_exceptions=True)
 
 
+def warm_plant(unit: Unit | str | Path | None = None, *, online: bool = False, mva: float = 100.0,
+               **_options: object) -> None:
+    """Compile (or load from numba's cache) the plant a `SimBench` of these options steps: its
+    engine variant and real-time loop. A dry run calls it before it starts the bench in a child
+    process, so that a first run compiles in the process whose console says so."""
+    unit = unit if isinstance(unit, Unit) else load_unit(unit)
+    plant = OnlinePlant(unit, rt_priority=None, mva=mva) if online else Plant(unit, rt_priority=None)
+    plant.warm()
+
+
 class SimBench:
     """Both simulated devices around one real-time plant (see the module docstring)."""
 

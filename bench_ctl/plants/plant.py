@@ -321,7 +321,7 @@ class Plant:
         """Start real-time stepping; returns t0 (monotonic time of plant time 0)."""
         if self._threads:
             raise RuntimeError("plant already started")
-        self._warm()
+        self.warm()
         with self._lock:
             self._t0_ns = time.monotonic_ns() - self.step * self._dt_ns
             self.t0 = self._t0_ns * 1e-9
@@ -342,7 +342,7 @@ class Plant:
 
     def _rt_args(self, work, clock) -> tuple:
         drive, out = self._run(np.full(1, self.usetp_pre))
-        return (work, (drive, self._edges, out, self._sw), clock, self._t0_ns, self._dt_ns, self.usetp_pre,
+        return (work, (drive, self._edges, out, self._sw, (1, -1)), clock, self._t0_ns, self._dt_ns, self.usetp_pre,
                 self.dt, MAX_BURST)
 
     def _loop(self):
@@ -351,7 +351,7 @@ class Plant:
             loop = _RT_LOOPS[self._variant.key] = RT.loop_for(self._variant)
         return loop
 
-    def _warm(self) -> None:
+    def warm(self) -> None:
         """Compile (or load from cache) the real-time loop before the clock starts (on copies)."""
         work = type(self._work)(*(a.copy() for a in self._work))
         ctrl = np.zeros(N_CTRL, np.int64)
@@ -482,6 +482,6 @@ def warm_up(unit: Unit | None = None, *, online: bool = False) -> float:
     """Compile (or load from the cache) a plant's stepping and real-time loop; seconds."""
     t0 = time.perf_counter()
     plant = OnlinePlant(unit, rt_priority=None) if online else Plant(unit, rt_priority=None)
-    plant._warm()
+    plant.warm()
     plant.advance(plant.usetp_pre, 2)
     return time.perf_counter() - t0

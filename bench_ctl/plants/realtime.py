@@ -76,10 +76,11 @@ advance = None
 @njit(nogil=True)
 def rt_loop(w, run, clock, t0_ns, dt_ns, usetp_pre, dt, max_burst):
     """Step the plant's Work `w` in real time until ctrl[C_STOP]: `run` = (Drive, Edges, Out,
-    Switches) of one sample (the Drive's setpoint array of length 1 is rewritten each sample, the
-    Out's traces hold that sample's columns 1..), `clock` = (ctrl, sp_step, sp_val, fst, ring,
-    lag, behind)."""
-    drive, edges, out, sw = run
+    Switches, (1, -1)) of one sample (the Drive's setpoint array of length 1 is rewritten each
+    sample, the Out's traces hold that sample's columns 1..; the pair is `advance`'s sample count
+    and last sample, passed in: a literal here would compile `advance` again for literal types),
+    `clock` = (ctrl, sp_step, sp_val, fst, ring, lag, behind)."""
+    drive, edges, out, sw, (one, last) = run
     ctrl, sp_step, sp_val, fst, ring, lag, behind = clock
     R = ring.shape[0]
     RS = sp_step.shape[0]
@@ -110,7 +111,7 @@ def rt_loop(w, run, clock, t0_ns, dt_ns, usetp_pre, dt, max_burst):
                 usetp = sp_val[spr % RS]
                 spr += 1
             u1[0] = usetp
-            advance(w, drive, edges, out, kk, 1, -1, sw)
+            advance(w, drive, edges, out, kk, one, last, sw)
             row = kk % R
             ring[row, 0] = usetp
             for q in range(1, ring.shape[1]):

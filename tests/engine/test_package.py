@@ -146,6 +146,20 @@ def test_a_read_only_record_runs_on_the_same_compiled_code():
     assert {n: len(v.functions[n].signatures) for n in ("new_work", "advance")} == {"new_work": 1, "advance": 1}
 
 
+def _object_code(dispatcher) -> bytes:
+    """The machine code numba made for the dispatcher's one overload: kept by the library when
+    compiled in this process; when loaded from the on-disk cache the JIT consumes it, so it is read
+    back from the cache's data file (numba's own index key and payload layout)."""
+    (cres,) = dispatcher.overloads.values()
+    try:
+        return cres.library._get_compiled_object()
+    except RuntimeError:
+        cache = dispatcher._cache
+        key = cache._index_key(tuple(cres.signature.args), dispatcher.targetctx.codegen())
+        libdata = cache._cache_file.load(key)[0]     # (name, "object", (object code, bitcode))
+        return libdata[2][0]
+
+
 @pytest.mark.skipif(shutil.which("objdump") is None, reason="no objdump")
 @pytest.mark.parametrize("key", [variants.Key("noload", layout.X_REF), variants.Key("noload", layout.X_FULL),
                                  variants.Key("grid", layout.X_FULL, "ieeest")], ids=lambda k: k.name)
@@ -160,9 +174,8 @@ def test_the_rk4_loops_are_vectorised(key, tmp_path):
     v = variants.variant(key)
     w = v.call("new_work", *warm._arguments(key)[:1], 0, 1, 1, 1, 0, np.zeros((2, 1)))
     v.call("step_all", w.D, w.S, w.R, w.U, w.M, 0, 1e-3, 1, np.zeros((2, 1)))   # (loaded from the cache)
-    (cres,) = v.functions["step_all"].overloads.values()
     obj = tmp_path / "step_all.o"
-    obj.write_bytes(cres.library._get_compiled_object())   # numba's object code (compiled or from its cache)
+    obj.write_bytes(_object_code(v.functions["step_all"]))
     asm = subprocess.run(["objdump", "-d", "--no-show-raw-insn", str(obj)], capture_output=True, text=True,
                          check=True).stdout
     packed = re.findall(r"\bv?(?:mul|add|sub|div|fmadd\w*|fmsub\w*|fnmadd\w*)pd\s+.*%[xyz]mm", asm)

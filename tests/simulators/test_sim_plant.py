@@ -107,7 +107,7 @@ def test_loop_catches_up_a_stall_in_one_burst():
     """Started 50 ms 'late', the compiled loop computes the missing steps at once, then keeps
     time (what happens after the thread was not scheduled for 50 ms)."""
     plant = Plant(rt_priority=None)
-    plant._warm()
+    plant.warm()
     start_ns = time.monotonic_ns() - 50_000_000
     plant._t0_ns = start_ns
     clock = (plant._ctrl, plant._sp_step, plant._sp_val, plant._fst, plant._ring, plant._lag, plant._behind)
