@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 from drivers.device import TIMED_WRITE_GUARD_S, RegisterDevice, SafeStateReport, WriteGuard, WriteListener, WriteRecord
 from drivers.errors import CommError, DeviceError, ExceptionReply, WriteUncertain
+from drivers.link import HEARTBEAT as HEARTBEAT_PRIORITY
 from drivers.link import ModbusLink
 from drivers.profile import Profile
 
@@ -92,6 +93,11 @@ class Heartbeat:
         return HeartbeatStats(self.beats, self.failures, self.max_gap_s)
 
     def _run(self) -> None:
+        # the beats get the link before the procedure's reads (never after a burst of them)
+        with self.device.link.priority(HEARTBEAT_PRIORITY):
+            self._beat()
+
+    def _beat(self) -> None:
         try:
             counter = int(self.device.read_words(HEARTBEAT)[0])
         except DeviceError:

@@ -7,8 +7,12 @@
   raises `WriteUncertain`);
 - every frame on the wire goes through `FrameLog` (pymodbus' `trace_packet` hook), so each
   error carries the last frames and a write knows the monotonic time its request left;
-- a lock serialises requests from the procedure and the heartbeat thread; `hold()` lets a timed
-  write take the link before its deadline so no other request delays it;
+- a lock serialises requests from the procedure and the heartbeat thread, and serves its waiters
+  by priority, then in order of arrival (`LinkLock`): a timed write first (`hold()` takes the
+  link before its deadline, so no other request delays it), then the heartbeat (a thread that
+  runs `with link.priority(HEARTBEAT)`: no burst of other reads starves it), then the rest;
+- every answered request's response time is kept (`response_times()`): the runner measures the
+  link with it before the first write (docs/decisions/0023);
 - `connect()` raises instead of returning False; `reconnect(deadline)` retries until a deadline.
 
 Endpoint URLs: `tcp://HOST:PORT` (Modbus TCP); `rtu+tcp://HOST:PORT` (Modbus RTU frames over a
@@ -20,6 +24,8 @@ pyserial's `in_waiting`, which a socket reports as 0 or 1 byte, ~50 ms a request
 from __future__ import annotations
 
 import contextlib
+import heapq
+import itertools
 import logging
 import threading
 import time
@@ -38,6 +44,68 @@ log = logging.getLogger(__name__)
 
 FRAMES_KEPT = 32       # frames kept per link
 FRAMES_IN_ERRORS = 8   # frames appended to an error message
+RESPONSES_KEPT = 256   # response times kept per link
+
+#: who waits for the link first (`LinkLock`): a timed write, then the heartbeat, then the rest
+TIMED, HEARTBEAT, ROUTINE = 0, 1, 2
+
+
+class LinkLock:
+    """A re-entrant lock whose waiters get it by priority (lowest first: TIMED, HEARTBEAT,
+    ROUTINE), then in order of arrival. A plain lock lets the thread that releases it take it
+    again at once: a procedure reading in a loop could then hold off the heartbeat, or a timed
+    write, for several requests of a slow device. A wait interrupted (Ctrl-C raises in the main
+    thread) leaves the queue as it found it."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition(threading.Lock())
+        self._owner: int | None = None
+        self._depth = 0
+        self._queue: list[tuple[int, int, int]] = []
+        self._tickets = itertools.count()
+
+    def acquire(self, priority: int = ROUTINE) -> None:
+        me = threading.get_ident()
+        with self._cond:
+            if self._owner == me:
+                self._depth += 1
+                return
+            entry = (priority, next(self._tickets), me)
+            heapq.heappush(self._queue, entry)
+            try:
+                while self._owner is not None or self._queue[0] is not entry:
+                    self._cond.wait()
+            except BaseException:
+                self._queue.remove(entry)
+                heapq.heapify(self._queue)
+                self._cond.notify_all()
+                raise
+            heapq.heappop(self._queue)
+            self._owner, self._depth = me, 1
+
+    def release(self) -> None:
+        with self._cond:
+            if self._owner != threading.get_ident():
+                raise RuntimeError("release of a link lock this thread does not hold")
+            self._depth -= 1
+            if self._depth == 0:
+                self._owner = None
+                self._cond.notify_all()
+
+    @contextlib.contextmanager
+    def held(self, priority: int = ROUTINE) -> Iterator[None]:
+        self.acquire(priority)
+        try:
+            yield
+        finally:
+            self.release()
+
+    def __enter__(self) -> LinkLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
 
 
 @dataclass(frozen=True)
@@ -143,7 +211,9 @@ class ModbusLink:
         self.read_attempts = read_attempts
         self.frames = FrameLog()
         self._client = _make_client(endpoint, self.frames)
-        self._lock = threading.RLock()
+        self._lock = LinkLock()
+        self._priority = threading.local()
+        self._responses: deque[tuple[float, float]] = deque(maxlen=RESPONSES_KEPT)
 
     # -- connection --------------------------------------------------------------------------
     def connect(self) -> None:
@@ -187,15 +257,37 @@ class ModbusLink:
 
     @contextlib.contextmanager
     def hold(self) -> Iterator[None]:
-        """Keep the link for a timed sequence (other threads' requests wait)."""
-        with self._lock:
+        """Keep the link for a timed sequence (other threads' requests wait); it is given before
+        anything else that waits (the request in flight ends first)."""
+        with self._lock.held(TIMED):
             yield
+
+    @contextlib.contextmanager
+    def priority(self, level: int) -> Iterator[None]:
+        """This thread's requests wait for the link at `level` (HEARTBEAT for the heartbeat
+        thread) inside the block."""
+        old = getattr(self._priority, "level", ROUTINE)
+        self._priority.level = level
+        try:
+            yield
+        finally:
+            self._priority.level = old
+
+    def _request(self) -> contextlib.AbstractContextManager[None]:
+        return self._lock.held(getattr(self._priority, "level", ROUTINE))
+
+    def response_times(self, since_mono: float | None = None) -> list[float]:
+        """The response times (s) of the answered requests kept (the last RESPONSES_KEPT), those
+        sent at or after `since_mono` when given: request sent to reply read."""
+        return [d for t, d in list(self._responses) if since_mono is None or t >= since_mono]
 
     # -- requests ----------------------------------------------------------------------------
     def _call(self, what: str, register: str | None, value: Any, fn: Any, *,
               write: bool, **kwargs: Any) -> Any:
+        t0 = time.monotonic()
         try:
             reply = fn(**kwargs, device_id=self.endpoint.unit_id)
+            self._responses.append((t0, time.monotonic() - t0))
         except (ConnectionException, ModbusException, OSError) as exc:
             cls = WriteUncertain if write and self.frames.last_tx_mono is not None else CommError
             text = f"{what} failed: {exc}"
@@ -218,7 +310,7 @@ class ModbusLink:
         what = f"reading {count} {table} register(s) at {address}"
         attempts = self.read_attempts if attempts is None else attempts
         for attempt in range(1, attempts + 1):
-            with self._lock:
+            with self._request():
                 fn = getattr(self._client, fn_name)
                 try:
                     reply = self._call(what, register, None, fn, write=False,
@@ -243,7 +335,7 @@ class ModbusLink:
         # the words are in the frames (audit, -vv log), not in the operator's message
         what = f"writing {len(words)} holding register(s) at {address}"
         log.debug("%s: writing %s to holding register(s) at %d", self.device, words, address)
-        with self._lock:
+        with self._request():
             self.frames.last_tx_mono = None
             self._call(what, register, value, self._client.write_registers, write=True,
                        address=address, values=list(words))
@@ -277,5 +369,5 @@ def wait_until(deadline_mono: float) -> None:
         time.sleep(left)
 
 
-__all__ = ["DeviceError", "Endpoint", "Frame", "FrameLog", "ModbusLink", "gc_paused",
-           "wait_until"]
+__all__ = ["HEARTBEAT", "ROUTINE", "TIMED", "DeviceError", "Endpoint", "Frame", "FrameLog", "LinkLock",
+           "ModbusLink", "gc_paused", "wait_until"]
