@@ -40,7 +40,7 @@ from pymodbus.constants import ExcCodes
 from bench_ctl.model.online_plant import TURBINE_PU
 from bench_ctl.model.plant import FLAG_CEILING, FLAG_RAMP, FLAG_RATE, Plant
 from drivers.exciter import OTHER_MASTER_BIT, watchdog_register
-from drivers.profile import Profile, Register
+from drivers.profile import Profile, Register, a_device
 
 from .faults import Fault
 from .regmap import CLIENT
@@ -65,7 +65,7 @@ class ExciterDevice:
     def __init__(self, plant: Plant, profile: Profile, *, heartbeat_timeout_s: float | None = None,
                  load_mw: float = 0.0, require_remote: bool | None = None) -> None:
         if profile.device != "exciter":
-            raise ValueError(f"profile {profile.name!r} is for a {profile.device}, not an exciter")
+            raise ValueError(f"profile {profile.name!r} is for {a_device(profile.device)}, not an exciter")
         missing = [n for n in REQUIRED if n not in profile.registers]
         if missing:
             raise ValueError(f"exciter profile {profile.name!r} lacks registers {missing}")

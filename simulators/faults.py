@@ -27,7 +27,8 @@ register name of the device's profile, or ``block`` for the recorder's data wind
 requests touching it), ``after`` (``REGISTER:N``: only once the device has received N writes to
 that register, the Nth included, e.g. ``setpoint:2``: from the end of a pulse or a step on),
 ``skip`` (let that many matching requests through first), ``count`` (how many requests it hits;
-None = until cleared). A request meets at most one reply fault (the first armed that matches) and
+None = until cleared). ``after`` may name the other device: ``recorder.arm:1`` (once the recorder
+is armed). A request meets at most one reply fault (the first armed that matches) and
 any number of plant events.
 
 Example::
@@ -81,7 +82,7 @@ class Fault:
     code: int = 4
     mode: str = "flip"
     delay_max_s: float | None = None   # late_reply / slow: a delay drawn in delay_s..delay_max_s
-    after: str | None = None           # "REGISTER:N": only from the device's Nth write to it
+    after: str | None = None           # "[DEVICE.]REGISTER:N": only from that device's Nth write to it
     mw: float | None = None            # load: the turbine's power (MW)
     bit: str | None = None             # limiter: the status bit that reads 1
     duration_s: float | None = None    # limiter: how long (None: until cleared)
@@ -122,18 +123,19 @@ class Fault:
         """A plant event (load, limiter), not a fault on the reply."""
         return self.kind in EVENT_KINDS
 
-    def after_write(self) -> tuple[str, int] | None:
-        """`after` as (register, N), or None."""
+    def after_write(self) -> tuple[str | None, str, int] | None:
+        """`after` as (device or None: the request's own, register, N), or None."""
         if self.after is None:
             return None
-        name, _, n = self.after.partition(":")
+        where, _, n = self.after.partition(":")
+        device, dot, name = where.rpartition(".")
         try:
             count = int(n) if n else 1
         except ValueError:
             count = 0
-        if not name or count < 1:
-            raise ValueError(f"fault after {self.after!r}: expected REGISTER[:N] with N >= 1")
-        return name, count
+        if not name or count < 1 or (dot and device not in ("exciter", "recorder")):
+            raise ValueError(f"fault after {self.after!r}: expected [exciter.|recorder.]REGISTER[:N] with N >= 1")
+        return (device or None), name, count
 
     def matches(self, device: str, op: str, names: Iterable[str],
                 writes: Counter[tuple[str, str]] | None = None) -> bool:
@@ -142,7 +144,7 @@ class Fault:
         if self.op not in ("any", op):
             return False
         after = self.after_write()
-        if after is not None and (writes or Counter())[(device, after[0])] < after[1]:
+        if after is not None and (writes or Counter())[(after[0] or device, after[1])] < after[2]:
             return False
         return self.register is None or self.register in set(names)
 

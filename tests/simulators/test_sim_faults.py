@@ -20,15 +20,17 @@ def test_parse_fault():
     assert parse_fault("exception:code=0x06").code == 6
     for bad in ("explode", "no_reply:colour=red", "no_reply:device=pump", "exception:code=9",
                 "no_reply:count=x", "corrupt:mode=smear", "late_reply:delay_s=0.3,delay_max_s=0.1",
-                "no_reply:after=setpoint:0", "load:device=exciter", "load:device=recorder,mw=0",
-                "limiter:device=exciter", "limiter:device=exciter,bit=ceiling_limit,duration_s=-1"):
+                "no_reply:after=setpoint:0", "no_reply:after=pump.arm", "load:device=exciter",
+                "load:device=recorder,mw=0", "limiter:device=exciter",
+                "limiter:device=exciter,bit=ceiling_limit,duration_s=-1"):
         with pytest.raises(ValueError, match="fault"):
             parse_fault(bad)
     f = parse_fault("late_reply:device=exciter,count=inf,delay_s=0.1,delay_max_s=0.45")
     assert (f.delay_s, f.delay_max_s, f.count) == (0.1, 0.45, None)
     f = parse_fault("load:device=exciter,op=write,register=setpoint,mw=-15,delay_s=0.5")
     assert f.is_event and f.mw == -15.0
-    assert parse_fault("no_reply:op=read,register=q,after=setpoint:2").after_write() == ("setpoint", 2)
+    assert parse_fault("no_reply:op=read,register=q,after=setpoint:2").after_write() == (None, "setpoint", 2)
+    assert parse_fault("no_reply:after=recorder.arm").after_write() == ("recorder", "arm", 1)
     assert parse_fault("limiter:device=exciter,bit=ceiling_limit,duration_s=inf").duration_s is None
 
 
@@ -50,6 +52,10 @@ def test_faultset_draws_delays_in_range_and_counts_writes_for_after():
     assert fs.take("exciter", "read", ["vt"]) is None
     assert fs.take("exciter", "read", ["vt", "p", "status", "q"]).kind == "no_reply"
     assert fs.writes[("exciter", "setpoint")] == 2 and fs.active() == []
+    fs.set("load", device="exciter", op="read", register="p", after="recorder.arm", mw=60.0)
+    assert fs.take_events("exciter", "read", ["p"]) == []                  # the recorder not armed
+    fs.take("recorder", "write", ["arm"])
+    assert [e.mw for e in fs.take_events("exciter", "read", ["p"])] == [60.0]
 
 
 def test_faultset_skip_count_and_filters():
