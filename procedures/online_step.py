@@ -84,6 +84,7 @@ from procedures.recorded import (
     link_free_at,
     measure_pulse,
     signed,
+    timed_write_cause,
 )
 
 #: the run is meant to leave a capture: when it ends without one, the outcome says so
@@ -384,6 +385,10 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
     summary = (f"recorded step {step.amplitude_pu:.4f} pu held {step.width_s:.3f} s from p {p_mw:.1f} MW, "
                f"q {q0:.1f} Mvar" + (f"; ABORTED: {why}" if why else "")
                + (f"; after the step: {band.worst}" if band.worst and not why else ""))
+    late_s = held_s - hold_s
+    if why is None and abs(late_s) > hold_tolerance_s:   # the restore left late: the link's or this host's doing
+        summary += (f"; the restore write left {signed(late_s * 1e3, 1)} ms off its deadline (the cause: "
+                    f"{timed_write_cause(off)}), so the step was that much off on the wire")
     return ProcedureResult(criteria=criteria, summary=summary, comms_error=carried.first,
                            data={"hold_err_s": hold_err, "amplitude_err_pu": amp_err, "aborted": why,
                                  "recorded": step.__dict__, "download_s": raw.download_s})
