@@ -35,8 +35,9 @@ SEQUENCE
     3. Start the exciter heartbeat, take remote.
     4. Write setpoint + amplitude; exactly width_s later (monotonic clock, from the moment the
        first request left) write the pre-test setpoint back. Each write is read back. On a
-       terminal the operator sees setpoint, vt, efd and the time left meanwhile: each of its reads
-       ends before the restore write asks for the link, so it never delays the restore.
+       terminal the operator sees setpoint, vt, efd and the time left meanwhile: each of its
+       requests starts before the restore write asks for the link, or not at all, so it never
+       delays the restore.
     5. Wait for the record to finish and vt to recover; give remote back, stop the heartbeat.
        Reads here are retried; one that fails for good (or a failing heartbeat, a release not
        confirmed) is carried to the end: the record is still downloaded and saved, then the run
