@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import inspect
 import io
+import logging
 import os
 import re
 import subprocess
+import sys
 
 import pytest
 
@@ -230,3 +232,17 @@ def test_a_profile_of_the_wrong_kind_is_named_with_its_article():
         RecorderDevice(plant, load_profile("sim-exciter"))
     with pytest.raises(ValueError, match="is for a recorder, not an exciter"):
         ExciterDevice(plant, load_profile("sim-recorder"))
+
+
+def test_dask_info_lines_stay_off_the_console():
+    """Dask's own console handler (it does not propagate) prints INFO lines; bench-ctl sets it to
+    warnings unless -vv."""
+    code = ("import logging; from bench_ctl.cli import main; main(['models']); import distributed; "
+            "print(logging.getLogger('distributed').getEffectiveLevel())")
+    for flags, level in (("", logging.WARNING), ("'-vv', ", logging.INFO)):
+        run = subprocess.run([sys.executable, "-c", code.replace("['models']", f"[{flags}'models']")],
+                             capture_output=True, text=True, env={k: v for k, v in run_env().items()
+                                                                  if not k.startswith("DASK_")},
+                             cwd=ROOT, timeout=300)
+        assert run.returncode == 0, run.stderr
+        assert run.stdout.strip().splitlines()[-1] == str(level), run.stdout
