@@ -68,7 +68,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from bench_ctl.capture import read_capture  # noqa: E402
-from cli_runs import bench_doc, run_argv, start_run, write_toml  # noqa: E402
+from cli_runs import audit_rows, bench_doc, run_argv, start_run, write_toml  # noqa: E402
 from simulators.bench import SimBench  # noqa: E402
 from simulators.faults import parse_fault  # noqa: E402
 from wire_proxy import WireProxy  # noqa: E402
@@ -353,9 +353,7 @@ def one_run(case: Case, work: Path) -> list[dict[str, Any]]:
         triggered = sim.recorder.trigger_step is not None
         rows = []
         for (proc, stdout, stderr), out in zip(results, outs):
-            raw_saved = (out / "recorder_raw.bin").exists() if visible else "  raw download: " in stdout
-            lost = triggered and (sim.recorder.status != "done" or (
-                not raw_saved and case.disk is None and case.action != "SIGKILL"))
+            lost = triggered and record_lost(case, out, visible)
             cap = capture_state(out, stdout, visible)
             code = proc.returncode
             if cap != "saved" and code != 0:
@@ -380,6 +378,20 @@ def one_run(case: Case, work: Path) -> list[dict[str, Any]]:
         if proxy is not None:
             proxy.close()
         sim.stop()
+
+
+def record_lost(case: Case, out: Path, visible: bool) -> bool:
+    """The record the recorder triggered on is lost to this run: the run armed it, was alive to the
+    end (not SIGKILLed), had a folder it could write (not a disk case), and saved no raw download
+    of it, without having tried and failed to download it (a download that fails for good is said:
+    exit 3; the record is still in the recorder)."""
+    if case.disk is not None or case.action == "SIGKILL" or not visible:
+        return False
+    rows = audit_rows(out / "audit.jsonl")
+    armed = any(r.get("kind") == "write" and r.get("register") == "arm" and r.get("value") == 1 for r in rows)
+    tried = any((r.get("kind") == "step_end" and r.get("step") == "download" and r.get("result") == "failed")
+                or (r.get("kind") == "record_kept" and "failed" in r) for r in rows)
+    return armed and not (out / "recorder_raw.bin").exists() and not tried
 
 
 def summarise(case: Case, rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -444,7 +456,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{s['within_cap_or_refused_pct']:6.0f} "
                   f"{s['remote_released_pct']:8.0f} {s['capture_ok_pct']:8.0f} "
                   f"{s['silent_losses']:6d} {s['records_lost']:6d}  {s['exit_codes']}"
-                  + (f"  ({s['refused_before_write']} refused before any write)" if s["refused_before_write"] else "")
+                  + (f"  ({s['refused_before_write']} wrote nothing to the exciter)"
+                     if s["refused_before_write"] else "")
                   + (f"  ({s['tracebacks']} tracebacks)" if s["tracebacks"] else "")
                   + (f"  (fault not reached in {s['fault_missed']})" if s["fault_missed"] else ""),
                   flush=True)

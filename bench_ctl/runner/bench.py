@@ -77,11 +77,14 @@ class Bench:
                    between: Callable[[], None] | None = None) -> list[SafeStateReport]:
         """Exciter first (restore the setpoint), then the recorder (disarm). Never raises.
         `cancel` (a Ctrl-C during the safe state) stops the exciter's restore retries. `between`
-        runs once the exciter is confirmed safe and before the recorder's safe state (the runner
-        keeps the record of an aborted test there); what it raises is logged."""
+        runs once the exciter's safe state is over, before the recorder's (the runner keeps the
+        record of an aborted test there; an exciter NOT made safe is said first, loudly: the host
+        can do no more for it, its heartbeat is stopped); what it raises is logged."""
         reports = []
         for dev in (self.exciter, self.recorder):
-            if dev is self.recorder and between is not None and reports and reports[0].ok:
+            if dev is self.recorder and between is not None:
+                if reports and not reports[0].ok:
+                    log.critical("%s: %s - %s", reports[0].device, reports[0].action, reports[0].detail)
                 try:
                     between()
                 except Exception:  # noqa: BLE001 - the recorder's safe state must still run
