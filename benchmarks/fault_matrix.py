@@ -21,7 +21,7 @@ state are read from the simulator itself, not from the run's own records). Fault
   file); and a read-only --out (a read-only tmpfs, or a chmod 555 folder when not root).
 
 Faults of issue 48 (group `issue48`): a slow exciter (replies 0.1-0.45 s late, or requests served
-that late; and replies 0.05-0.2 s late, which the link's check accepts), a slow recorder (replies
+that late; and replies 0.02-0.1 s late, which the link's check accepts), a slow recorder (replies
 0.1-0.45 s late), a loss of load, reverse power and a limiter acting 0.5 s into an on-line step,
 three reads lost after the pulse or the step (and every q read lost after the step), and every
 terminal signal during the on-line step (a 3 s hold under a 3.5 s cap, limits.step_hold_max_s).
@@ -153,7 +153,7 @@ def issue48_cases() -> list[Case]:
     after = "device=exciter,op=read,after=setpoint:2"
     out = [Case("slow_exciter_pulse", (f"late_reply:{slow}",), exciter=SLOW_HOST, group="issue48"),
            Case("slow_device_pulse", (f"slow:{slow}",), exciter=SLOW_HOST, group="issue48"),
-           Case("slow_exciter_mild_pulse", ("late_reply:device=exciter,count=inf,delay_s=0.05,delay_max_s=0.2",),
+           Case("slow_exciter_mild_pulse", ("late_reply:device=exciter,count=inf,delay_s=0.02,delay_max_s=0.1",),
                 exciter=SLOW_HOST, group="issue48"),
            Case("slow_exciter_step", (f"late_reply:{slow}",), exciter=SLOW_HOST, **step),
            Case("slow_recorder_pulse", ("late_reply:device=recorder,count=inf,delay_s=0.1,delay_max_s=0.45",),

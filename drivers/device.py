@@ -43,6 +43,7 @@ class WriteRecord:
     purpose: str = ""
     at_mono: float | None = None       # a timed write: its deadline (monotonic)
     t_ask_mono: float | None = None    # a timed write: when it asked for the link
+    t_prev_mono: float | None = None   # a timed write: when its thread's request before it ended
     t_link_mono: float | None = None   # a timed write: when it got the link (a request in flight ended)
 
     @property
@@ -54,8 +55,8 @@ class WriteRecord:
                 "raw": list(self.raw), "readback": list(self.readback),
                 "matched": self.matched, "t_tx_mono": self.t_tx_mono, "t_utc": self.t_utc,
                 "purpose": self.purpose,
-                **({"at_mono": self.at_mono, "t_ask_mono": self.t_ask_mono, "t_link_mono": self.t_link_mono}
-                   if self.at_mono is not None else {})}
+                **({"at_mono": self.at_mono, "t_ask_mono": self.t_ask_mono, "t_link_mono": self.t_link_mono,
+                    "t_prev_mono": self.t_prev_mono} if self.at_mono is not None else {})}
 
 
 @dataclass(frozen=True)
@@ -220,11 +221,12 @@ class RegisterDevice:
         if at_mono is not None:
             # ask for the link one request timeout before the guard: a request in flight (the
             # heartbeat) to a slow device then ends, answered or timed out, before the deadline
+            t_prev = self.link.last_request_end()
             wait_until(at_mono - TIMED_WRITE_GUARD_S - self.link.endpoint.timeout_s)
             t_ask = time.monotonic()
             with self.link.hold():
                 t_held = time.monotonic()
-                self._timed.value = (at_mono, t_ask, t_held)
+                self._timed.value = (at_mono, t_ask, t_held, t_prev)
                 wait_until(at_mono)
                 t_tx = self.link.write(reg.address, words, register=label, value=value)
             log.debug("%s: timed write of %s: link held %.3f ms before the deadline, request "
@@ -236,12 +238,14 @@ class RegisterDevice:
 
     def confirm(self, name: str, value: float, words: list[int], readback: list[int],
                 t_tx: float, purpose: str, *, at_mono: float | None = None,
-                t_ask_mono: float | None = None, t_link_mono: float | None = None) -> WriteRecord:
+                t_ask_mono: float | None = None, t_link_mono: float | None = None,
+                t_prev_mono: float | None = None) -> WriteRecord:
         """Record a write with its read-back words (listener), ReadbackMismatch when they
         differ from the words sent."""
         record = WriteRecord(device=self.name, register=name, value=value, raw=tuple(words),
                              readback=tuple(readback), t_tx_mono=t_tx, t_utc=utc_at_monotonic(t_tx),
-                             purpose=purpose, at_mono=at_mono, t_ask_mono=t_ask_mono, t_link_mono=t_link_mono)
+                             purpose=purpose, at_mono=at_mono, t_ask_mono=t_ask_mono, t_link_mono=t_link_mono,
+                             t_prev_mono=t_prev_mono)
         if self.listener is not None:
             self.listener(record)
         if not record.matched:
@@ -260,9 +264,9 @@ class RegisterDevice:
         timed = self._timed.value if at_mono is not None else None
         reg = self.register(name)
         readback = self.link.read(reg.table, reg.address, reg.count, register=self._label(reg))
-        at, ask, held = timed if timed else (None, None, None)
+        at, ask, held, prev = timed if timed else (None, None, None, None)
         return self.confirm(name, value, words, readback, t_tx, purpose, at_mono=at, t_ask_mono=ask,
-                            t_link_mono=held)
+                            t_link_mono=held, t_prev_mono=prev)
 
     def _label(self, reg: Register) -> str:
         return f"{reg.name} ({reg.table} {reg.address})"

@@ -213,6 +213,7 @@ class ModbusLink:
         self._client = _make_client(endpoint, self.frames)
         self._lock = LinkLock()
         self._priority = threading.local()
+        self._ends = threading.local()      # per thread: when its last request ended
         self._responses: deque[tuple[float, float]] = deque(maxlen=RESPONSES_KEPT)
 
     # -- connection --------------------------------------------------------------------------
@@ -276,6 +277,10 @@ class ModbusLink:
     def _request(self) -> contextlib.AbstractContextManager[None]:
         return self._lock.held(getattr(self._priority, "level", ROUTINE))
 
+    def last_request_end(self) -> float | None:
+        """When this thread's last request on the link ended (answered or failed), monotonic."""
+        return getattr(self._ends, "t", None)
+
     def response_times(self, since_mono: float | None = None) -> list[float]:
         """The response times (s) of the answered requests kept (the last RESPONSES_KEPT), those
         sent at or after `since_mono` when given: request sent to reply read."""
@@ -289,6 +294,7 @@ class ModbusLink:
             reply = fn(**kwargs, device_id=self.endpoint.unit_id)
             self._responses.append((t0, time.monotonic() - t0))
         except (ConnectionException, ModbusException, OSError) as exc:
+            self._ends.t = time.monotonic()
             cls = WriteUncertain if write and self.frames.last_tx_mono is not None else CommError
             text = f"{what} failed: {exc}"
             if cls is WriteUncertain:
@@ -296,6 +302,7 @@ class ModbusLink:
                          "before acting)")
             raise cls(text, device=self.device, register=register, value=value,
                       frames=self.frames.last()) from None
+        self._ends.t = time.monotonic()
         if reply.isError():
             code = int(getattr(reply, "exception_code", 0) or 0)
             raise ExceptionReply(what, code=code, device=self.device, register=register,

@@ -33,14 +33,26 @@ def link_free_at(deadline_mono: float, request_timeout_s: float) -> float:
     return deadline_mono - TIMED_WRITE_GUARD_S - request_timeout_s
 
 
+#: a timed write that asks for the link within this of its thread's previous request ending was
+#: held up by that request (the link), not by this host
+BUSY_GAP_S = 0.02
+
+
 def timed_write_cause(record: Any) -> str:
-    """Why a timed write (a WriteRecord with its deadline) left late: the link (it asked for the
-    link on time, and the request in flight then ended late: a slow device), or this host (it asked
-    for the link late, or sent late once it held it: the process or the machine stalled)."""
+    """Why a timed write (a WriteRecord with its deadline) left late: the link, when the write got
+    the link late because a request in flight on it ended late, or asked for it late because its
+    own thread's requests before it (the pulse write's reply and read-back) ended late: a slow
+    device; else this host (it asked or sent late with the link free: the process or the machine
+    stalled)."""
     at, ask, held = record.at_mono, record.t_ask_mono, record.t_link_mono
+    prev = getattr(record, "t_prev_mono", None)
     if at is None or ask is None or held is None:
-        return "the process or the machine stalled"
-    if ask <= at - TIMED_WRITE_GUARD_S and held > at - TIMED_WRITE_GUARD_S:
+        return "this host: the process or the machine stalled"
+    due = at - TIMED_WRITE_GUARD_S
+    if ask > due and prev is not None and ask - prev < BUSY_GAP_S:
+        return (f"the link: the requests before the restore (the pulse write's reply and read-back) ended "
+                f"{signed((prev - at) * 1e3, 1)} ms from the deadline (a slow device)")
+    if ask <= due < held:
         return (f"the link: a request in flight on it ended {signed((held - at) * 1e3, 1)} ms from the deadline "
                 "(a slow device)")
     return "this host: the process or the machine stalled"

@@ -161,7 +161,8 @@ def check_link(timing: LinkTiming, *, width_s: float, cap_s: float, cap_name: st
     """Refuse (LimitViolation, nothing written) a link too slow for the test: the slowest reply
     (`timing.max_s`, taken LINK_MARGIN times) added to the width must stay inside the cap, as the
     plant sees it (the restore acts when it reaches the device, up to one response after it was
-    sent); the slowest reply within LINK_TIMEOUT_SHARE of the request timeout; and the heartbeat,
+    sent); the pulse write's reply and read-back and one request in flight (3 replies) inside the
+    width; the slowest reply within LINK_TIMEOUT_SHARE of the request timeout; and the heartbeat,
     which waits for a timed write's hold (the guard, one timeout and its reply) and sends a write and
     its read-back, within the device's watchdog."""
     if timing.samples < 1 or not math.isfinite(timing.max_s):
@@ -173,6 +174,10 @@ def check_link(timing: LinkTiming, *, width_s: float, cap_s: float, cap_name: st
         problems.append(f"more than {LINK_TIMEOUT_SHARE:.0%} of the request timeout exciter.timeout_s = "
                         f"{timeout_s:.3f} s: the restore write could time out and the setpoint stay moved "
                         "until the safe state")
+    if 3 * r > width_s:
+        problems.append(f"the {what} write's reply and read-back and one request in flight (3 x {r * 1e3:.1f} ms) "
+                        f"do not fit inside the {width_s:.3f} s {what}: the restore could not have the link at "
+                        "its deadline")
     seen_s = width_s + LINK_MARGIN * r
     if seen_s > cap_s:
         problems.append(f"a {width_s:.3f} s {what} could last {seen_s:.3f} s as the plant sees it (the width + "

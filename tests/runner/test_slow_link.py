@@ -94,12 +94,30 @@ def test_a_slow_exciter_within_the_margin_keeps_the_pulse_inside_its_cap(slow_be
 
 def test_the_summary_names_the_link_or_the_host_for_a_late_restore():
     at = 100.0
-    link = SimpleNamespace(at_mono=at, t_ask_mono=at - 0.6, t_link_mono=at + 0.05)
-    host = SimpleNamespace(at_mono=at, t_ask_mono=at + 0.05, t_link_mono=at + 0.05)
-    sent_late = SimpleNamespace(at_mono=at, t_ask_mono=at - 0.6, t_link_mono=at - 0.5)
-    assert timed_write_cause(link).startswith("the link: a request in flight on it ended +50.0 ms")
+
+    def record(ask, held, prev=at - 0.8):
+        return SimpleNamespace(at_mono=at, t_ask_mono=ask, t_link_mono=held, t_prev_mono=prev)
+
+    in_flight = record(ask=at - 0.6, held=at + 0.05)                  # asked on time, got it late
+    own_requests = record(ask=at + 0.03, held=at + 0.03, prev=at + 0.025)  # its read-back ended late
+    host = record(ask=at + 0.05, held=at + 0.05)                      # asked late, the link idle
+    sent_late = record(ask=at - 0.6, held=at - 0.5)                   # held it on time, sent late
+    assert timed_write_cause(in_flight).startswith("the link: a request in flight on it ended +50.0 ms")
+    assert timed_write_cause(own_requests).startswith("the link: the requests before the restore")
     assert timed_write_cause(host) == "this host: the process or the machine stalled"
     assert timed_write_cause(sent_late) == "this host: the process or the machine stalled"
+
+
+def test_a_pulse_too_short_for_the_link_is_refused(slow_bench, tmp_path):
+    """Replies up to 0.2 s late: a 0.5 s pulse's write, its read-back and a beat in flight take
+    up to 0.6 s, so the restore could not have the link at its deadline (the fault matrix saw a
+    0.5 s pulse held 0.66 s): refused before any write."""
+    sim, proxy = slow_bench
+    sim.faults.set("late_reply", device="exciter", count=None, delay_s=0.15, delay_max_s=0.2)
+    out = run_procedure("no_load_pulse", bench_config(proxy, sim, exciter=HOST), tmp_path, yes=True,
+                        params={**PULSE, "width_s": 0.5})
+    assert out.exit_code == ExitCode.ABORTED, out.message
+    assert "do not fit inside the 0.500 s pulse" in out.message and proxy.writes() == []
 
 
 # ------------------------------------------------------------------ item 6: reads lost after the pulse
