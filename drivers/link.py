@@ -50,12 +50,53 @@ RESPONSES_KEPT = 256   # response times kept per link
 TIMED, HEARTBEAT, ROUTINE = 0, 1, 2
 
 
+#: per thread: how deep it is in a link lock's own bookkeeping (its queue, owner and count)
+_BOOKKEEPING = threading.local()
+#: interrupts a signal handler was asked to raise in the main thread while it was in that
+#: bookkeeping: raised as soon as the bookkeeping is whole again (`defer_interrupt`)
+_PENDING: list[BaseException] = []
+
+
+def in_link_bookkeeping() -> bool:
+    """The calling thread (a signal handler: the main thread) is changing a link lock's state: an
+    exception raised now would leave the lock half changed (a waiter queued forever, an owner
+    never cleared: every later request, the safe state's included, would wait forever)."""
+    return getattr(_BOOKKEEPING, "depth", 0) > 0
+
+
+def defer_interrupt(exc: BaseException) -> None:
+    """Raise `exc` (a Ctrl-C, a SIGTERM) in the main thread once its link lock bookkeeping is
+    whole: a waiter gives up its wait within 50 ms, nothing held; a lock just taken or given back
+    raises it at once after."""
+    _PENDING.append(exc)
+
+
+def _enter_bookkeeping() -> None:
+    _BOOKKEEPING.depth = getattr(_BOOKKEEPING, "depth", 0) + 1
+
+
+def _leave_bookkeeping() -> None:
+    _BOOKKEEPING.depth -= 1
+
+
+def _raise_pending() -> None:
+    if _PENDING and threading.current_thread() is threading.main_thread() and not in_link_bookkeeping():
+        exc = _PENDING.pop(0)
+        _PENDING.clear()
+        raise exc
+
+
 class LinkLock:
     """A re-entrant lock whose waiters get it by priority (lowest first: TIMED, HEARTBEAT,
     ROUTINE), then in order of arrival. A plain lock lets the thread that releases it take it
     again at once: a procedure reading in a loop could then hold off the heartbeat, or a timed
-    write, for several requests of a slow device. A wait interrupted (Ctrl-C raises in the main
-    thread) leaves the queue as it found it."""
+    write, for several requests of a slow device.
+
+    Its bookkeeping is Python code, which a signal handler raising in the main thread (Ctrl-C,
+    SIGTERM) could cut in half; the runner's handler defers the interrupt while the main thread
+    takes, holds or gives back a link lock (`in_link_bookkeeping`, `defer_interrupt`), and the lock
+    raises it where its state is whole: a wait is given up (within 50 ms) with nothing held, a
+    lock held raises it as soon as it is given back (one request later at most)."""
 
     def __init__(self) -> None:
         self._cond = threading.Condition(threading.Lock())
@@ -64,26 +105,46 @@ class LinkLock:
         self._queue: list[tuple[int, int, int]] = []
         self._tickets = itertools.count()
 
-    def acquire(self, priority: int = ROUTINE) -> None:
+    def _acquire(self, priority: int, may_give_up: bool) -> bool:
+        """Take the lock (True), or give up the wait for an interrupt pending (False, nothing held;
+        only a thread holding no link lock may give up). Runs inside the bookkeeping."""
         me = threading.get_ident()
         with self._cond:
             if self._owner == me:
                 self._depth += 1
-                return
+                return True
             entry = (priority, next(self._tickets), me)
             heapq.heappush(self._queue, entry)
-            try:
-                while self._owner is not None or self._queue[0] is not entry:
-                    self._cond.wait()
-            except BaseException:
-                self._queue.remove(entry)
-                heapq.heapify(self._queue)
-                self._cond.notify_all()
-                raise
+            while self._owner is not None or self._queue[0] is not entry:
+                self._cond.wait(0.05)
+                if may_give_up and _PENDING and threading.current_thread() is threading.main_thread():
+                    self._queue.remove(entry)
+                    heapq.heapify(self._queue)
+                    self._cond.notify_all()
+                    return False
             heapq.heappop(self._queue)
             self._owner, self._depth = me, 1
+            return True
+
+    def acquire(self, priority: int = ROUTINE) -> None:
+        """Take the lock. The calling thread stays in the bookkeeping until the matching `release`
+        has given it back: an interrupt meanwhile is deferred to that point (a request lasts at
+        most its timeout), so no exception can leave between taking the lock and the code that
+        gives it back (a `with` block's own set-up included)."""
+        may_give_up = not in_link_bookkeeping()
+        _enter_bookkeeping()
+        try:
+            got = self._acquire(priority, may_give_up)
+        except BaseException:
+            _leave_bookkeeping()
+            raise
+        if not got:
+            _leave_bookkeeping()
+            _raise_pending()
 
     def release(self) -> None:
+        """Give the lock back; the bookkeeping is left only by a thread that held it (a generator
+        of `held` finalised by the garbage collector in another thread must not unbalance it)."""
         with self._cond:
             if self._owner != threading.get_ident():
                 raise RuntimeError("release of a link lock this thread does not hold")
@@ -91,14 +152,16 @@ class LinkLock:
             if self._depth == 0:
                 self._owner = None
                 self._cond.notify_all()
+        _leave_bookkeeping()
+        _raise_pending()
 
     @contextlib.contextmanager
     def held(self, priority: int = ROUTINE) -> Iterator[None]:
-        self.acquire(priority)
+        self.acquire(priority)          # from here an interrupt is deferred ...
         try:
             yield
         finally:
-            self.release()
+            self.release()              # ... to the end of this
 
     def __enter__(self) -> LinkLock:
         self.acquire()
@@ -106,6 +169,7 @@ class LinkLock:
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
 
 
 @dataclass(frozen=True)
@@ -377,4 +441,4 @@ def wait_until(deadline_mono: float) -> None:
 
 
 __all__ = ["HEARTBEAT", "ROUTINE", "TIMED", "DeviceError", "Endpoint", "Frame", "FrameLog", "LinkLock",
-           "ModbusLink", "gc_paused", "wait_until"]
+           "ModbusLink", "defer_interrupt", "gc_paused", "in_link_bookkeeping", "wait_until"]

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from bench_ctl.runner.config import Limits
 from drivers.exciter import WatchdogReading, heartbeat_problems
+from drivers.link import defer_interrupt, in_link_bookkeeping
 
 log = logging.getLogger(__name__)
 
@@ -232,9 +233,11 @@ class CtrlC:
     def _handler(self, signum: int, frame: object) -> None:
         if self.armed:
             self.armed = False
-            if signum != signal.SIGINT:
-                raise Terminated(signal.Signals(signum).name)
-            raise KeyboardInterrupt
+            exc = Terminated(signal.Signals(signum).name) if signum != signal.SIGINT else KeyboardInterrupt()
+            if in_link_bookkeeping():   # a link lock's state half changed: raised once it is whole
+                defer_interrupt(exc)
+                return
+            raise exc
         self.ignored += 1
         self.abandon.set()
         log.warning("Ctrl-C during the safe state: the host stops retrying the restore once the "

@@ -305,3 +305,75 @@ def test_the_heartbeat_is_not_starved_by_a_reader_on_a_slow_exciter():
             sim.faults.clear()
             ex.safe_state("test end")
             ex.close()
+
+
+def test_interrupts_never_leave_the_link_lock_half_changed():
+    """Ctrl-C raises in the main thread at any point of its Python code, the link lock's own
+    bookkeeping included: cut there, a waiter stayed queued (or the lock owned) forever and every
+    later request, the safe state's restore included, waited forever (the fault matrix saw a run
+    hang after a SIGHUP). The handler defers the interrupt inside the bookkeeping; the lock raises
+    it where its state is whole. Here: SIGINT every 0.3-3 ms at the main thread while it takes and
+    gives back the lock against a second thread, then the lock must be free and its queue empty."""
+    import signal
+    import threading
+
+    from drivers.link import HEARTBEAT, LinkLock, defer_interrupt, in_link_bookkeeping
+
+    armed = [False]   # interrupts only inside the loop's try (the runner's CtrlC: while it is armed)
+
+    def handler(signum, frame):
+        if not armed[0]:
+            return
+        exc = KeyboardInterrupt()
+        if in_link_bookkeeping():
+            defer_interrupt(exc)
+            return
+        raise exc
+
+    lock, stop = LinkLock(), threading.Event()
+    main = threading.main_thread().ident
+
+    def other() -> None:           # the heartbeat: takes the lock too, between pauses
+        while not stop.is_set():
+            with lock.held(HEARTBEAT):
+                time.sleep(0.0002)
+            time.sleep(0.0005)
+
+    def pester() -> None:
+        import random
+
+        rng = random.Random(5)
+        while not stop.is_set():
+            signal.pthread_kill(main, signal.SIGINT)
+            time.sleep(rng.uniform(0.0003, 0.003))
+
+    old = signal.signal(signal.SIGINT, handler)
+    threads = [threading.Thread(target=other), threading.Thread(target=pester)]
+    interrupts = cycles = 0
+    try:
+        for t in threads:
+            t.start()
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            try:
+                armed[0] = True
+                with lock.held():
+                    cycles += 1
+                armed[0] = False
+            except KeyboardInterrupt:
+                armed[0] = False
+                interrupts += 1
+    finally:
+        armed[0] = False
+        stop.set()
+        for t in threads:
+            t.join(5.0)
+        signal.signal(signal.SIGINT, old)
+    assert interrupts > 50 and cycles > 50, (interrupts, cycles)
+    assert not any(t.is_alive() for t in threads)          # the other thread was never locked out
+    assert lock._owner is None and lock._queue == [] and lock._depth == 0
+    got = threading.Event()
+    t = threading.Thread(target=lambda: (lock.acquire(), got.set(), lock.release()))
+    t.start()
+    assert got.wait(1.0)
+    t.join()
