@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
 import sys
 
 import click
@@ -50,18 +51,56 @@ class LazyGroup(click.Group):
         return getattr(module, attr)
 
 
+#: libraries whose log lines stay off the console (a run's log file keeps them) unless -vv
+QUIET_LIBRARIES = ("pymodbus", "distributed", "dask", "tornado", "bokeh")
+
+
+class _LibraryFilter(logging.Filter):
+    """Keeps the libraries' own log lines (pymodbus' "No response received", Dask's INFO) off the
+    console: bench-ctl says what went wrong in its own words; the run's log file has them."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.name.startswith(QUIET_LIBRARIES) or record.levelno >= logging.CRITICAL
+
+
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
-@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
+@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug, with the "
+              "libraries' own lines).")
 @click.version_option(package_name="bench-ctl")
 def cli(verbose: int) -> None:
     """bench-ctl: pulse test, AVR identification (MVMO), validation report, gap diagnosis."""
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     compile_notice.install(compile_notice.console)   # a first run says what it compiles
+    if verbose < 2:
+        for handler in logging.getLogger().handlers:
+            if isinstance(handler, logging.StreamHandler) and not isinstance(handler, logging.FileHandler):
+                handler.addFilter(_LibraryFilter())
+        # Dask's own console handler (it does not propagate): its INFO lines off the console
+        os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
+
+
+def _standard_streams() -> None:
+    """A standard stream closed by the shell (`2>&-`) is reopened on /dev/null at its number
+    (else the first file a run opens would take fd 2 and receive every stray write), and what
+    would go to a closed stderr goes to stdout: a refusal is still said."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+    if sys.stdout is None:
+        sys.stdout = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115 - for the process' life
+    if sys.stderr is None:
+        sys.stderr = sys.stdout
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code instead of exiting (tests call it directly)."""
+    _standard_streams()
     try:
         rv = cli.main(args=argv, prog_name="bench-ctl", standalone_mode=False)
     except click.exceptions.Abort:

@@ -1,8 +1,9 @@
-"""Every fault the simulated bench can inject, x N runs of the no-load pulse test (issue 24).
+"""Every fault the simulated bench can inject, x N runs of the no-load pulse test (issue 24) and of
+the on-line step (issue 48).
 
-Each run is `bench-ctl run no_load_pulse --yes` in its own process, as an operator starts it,
-against a fresh simulated bench in this process (the exciter's events and state are read from
-the simulator itself, not from the run's own records). Faults:
+Each run is `bench-ctl run no_load_pulse --yes` (or `online_step`) in its own process, as an
+operator starts it, against a fresh simulated bench in this process (the exciter's events and
+state are read from the simulator itself, not from the run's own records). Faults (issue 24):
 
 - link cut (the connection dropped instead of the reply) and exception reply (code 4) at each
   write of the test: take remote, pulse on, pulse off, give back remote, arm the recorder;
@@ -19,16 +20,27 @@ the simulator itself, not from the run's own records). Faults:
   namespace where `unshare -rm` works (ENOSPC), else RLIMIT_FSIZE of that size (EFBIG, per
   file); and a read-only --out (a read-only tmpfs, or a chmod 555 folder when not root).
 
+Faults of issue 48 (group `issue48`): a slow exciter (replies 0.1-0.45 s late, or requests served
+that late; and replies 0.02-0.1 s late, which the link's check accepts), a slow recorder (replies
+0.1-0.45 s late), a loss of load, reverse power and a limiter acting 0.5 s into an on-line step,
+three reads lost after the pulse or the step (and every q read lost after the step), and every
+terminal signal during the on-line step (a 3 s hold under a 3.5 s cap, limits.step_hold_max_s).
+
 Per fault: setpoint restored (% of runs whose device setpoint is back at the pre-test value),
 worst time to the pre-test setpoint after the fault hit (the signal sent, the cut, the faulty
 reply; from the pulse on for faults without a moment: a full disk, a second run; 0 when the
 setpoint never moved) and worst pulse length on the device, remote released
 (% of runs after which this host does not hold remote), capture saved or its loss reported (%;
-a silent loss is an exit 0 without a readable capture), and the exit codes. Targets: 100 %
-restored; after a signal, the pre-test setpoint within 50 ms (SIGKILL: the pulse within the
-width cap + the device watchdog); 0 silent losses.
+a silent loss is an exit 0 without a readable capture), within the cap or refused (% of runs whose
+pulse or step the device held no longer than its cap, or that wrote nothing to the exciter),
+records lost (the recorder triggered on the run's pulse or step and then no longer held the record,
+or a run that was alive and had a writable folder saved no raw download of it; a SIGKILLed run's
+record stays in the recorder), tracebacks, and the exit codes. Targets: 100 % restored; after a
+signal, the pre-test setpoint within 50 ms (SIGKILL: the pulse within the width cap + the device
+watchdog); 0 silent losses; issue 48: 100 % within the cap or refused, 100 % released, 0 records
+lost, 0 tracebacks.
 
-Usage: python benchmarks/fault_matrix.py [--runs 5] [--only NAME[,NAME]] [--json OUT]
+Usage: python benchmarks/fault_matrix.py [--runs 5] [--only NAME[,NAME]] [--group issue24|issue48] [--json OUT]
 Prints a table; `--json` writes a flat object. Exits 0 when it ran (it reports, it does not judge).
 """
 from __future__ import annotations
@@ -56,13 +68,21 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from bench_ctl.capture import read_capture  # noqa: E402
-from cli_runs import bench_toml, run_argv, start_run  # noqa: E402
+from cli_runs import audit_rows, bench_doc, run_argv, start_run, write_toml  # noqa: E402
 from simulators.bench import SimBench  # noqa: E402
 from simulators.faults import parse_fault  # noqa: E402
 from wire_proxy import WireProxy  # noqa: E402
 
 PARAMS = {"pre_trigger_s": 0.3, "record_s": 2.0, "width_s": 0.5, "recovery_timeout_s": 3.0,
           "width_tolerance_s": 0.02}
+#: the on-line step: 3 s held (under a 3.5 s cap, below), 6 s recorded, 0.5 s steady before it
+STEP_PARAMS = {"hold_s": 3.0, "pre_trigger_s": 0.5, "record_s": 6.0, "recovery_timeout_s": 5.0,
+               "steady_timeout_s": 5.0}
+STEP_CAP_S = 3.5
+ONLINE_SIM = {"online": True, "recorder_profile": "sim-recorder-online"}
+#: the example bench's host side: a 0.5 s request timeout, a beat every 0.25 s (cli_runs' 0.3 s and
+#: 0.1 s would time out the slow devices' replies before any check)
+SLOW_HOST = {"timeout_s": 0.5, "heartbeat_period_s": 0.25}
 WIDTH_CAP_S = 1.5          # benches/example.toml limits.pulse_width_max_s
 WATCHDOG_S = 2.0           # the simulated exciter's default watchdog
 PRE_TEST_PU = 1.0
@@ -79,6 +99,17 @@ class Case:
     action: str | None = None                 # SIGINT.. | cut
     disk: str | None = None                   # full-12k | full-56k | read-only
     setup: str | None = None                  # second-master | second-run
+    procedure: str = "no_load_pulse"          # or online_step (the bench on line)
+    recorder: dict[str, Any] = field(default_factory=dict)
+    group: str = "issue24"
+
+    @property
+    def online(self) -> bool:
+        return self.procedure == "online_step"
+
+    @property
+    def cap_s(self) -> float:
+        return STEP_CAP_S if self.online else WIDTH_CAP_S
 
 
 def cases() -> list[Case]:
@@ -110,6 +141,31 @@ def cases() -> list[Case]:
             out.append(Case(f"{sig}_{moment.replace('-', '_')}", moment=moment, action=sig))
     out += [Case("disk_full_12k_free", disk="full-12k"), Case("disk_full_56k_free", disk="full-56k"),
             Case("read_only_out", disk="read-only")]
+    return out + issue48_cases()
+
+
+def issue48_cases() -> list[Case]:
+    """A slow exciter or recorder, the unit's faults during the on-line step, reads lost after the
+    test, the terminal's signals during the step (issue 48)."""
+    step = {"procedure": "online_step", "sim": ONLINE_SIM, "group": "issue48"}
+    at_step = "device=exciter,op=write,register=setpoint,count=1,delay_s=0.5"
+    slow = "device=exciter,count=inf,delay_s=0.1,delay_max_s=0.45"
+    after = "device=exciter,op=read,after=setpoint:2"
+    out = [Case("slow_exciter_pulse", (f"late_reply:{slow}",), exciter=SLOW_HOST, group="issue48"),
+           Case("slow_device_pulse", (f"slow:{slow}",), exciter=SLOW_HOST, group="issue48"),
+           Case("slow_exciter_mild_pulse", ("late_reply:device=exciter,count=inf,delay_s=0.02,delay_max_s=0.1",),
+                exciter=SLOW_HOST, group="issue48"),
+           Case("slow_exciter_step", (f"late_reply:{slow}",), exciter=SLOW_HOST, **step),
+           Case("slow_recorder_pulse", ("late_reply:device=recorder,count=inf,delay_s=0.1,delay_max_s=0.45",),
+                recorder={"timeout_s": 0.5}, group="issue48"),
+           Case("loss_of_load_step", (f"load:{at_step},mw=0",), **step),
+           Case("reverse_power_step", (f"load:{at_step},mw=-15",), **step),
+           Case("limiter_step", (f"limiter:{at_step},bit=ceiling_limit",), **step),
+           Case("lost_reads_recovery_pulse", (f"no_reply:{after},count=3",), group="issue48"),
+           Case("lost_reads_recovery_step", (f"no_reply:{after},count=3",), **step),
+           Case("lost_q_reads_for_good_step", (f"no_reply:{after},register=q,count=inf",), **step)]
+    for sig in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGKILL"):
+        out.append(Case(f"{sig}_mid_step", moment="mid-pulse", action=sig, **step))
     return out
 
 
@@ -146,6 +202,19 @@ def disk_argv(case: Case, argv_for: Callable[[Path], list[str]], work: Path) -> 
     if userns_mounts():
         return in_tmpfs(argv_for(mount / "run"), mount, f"size={size // 1024}k"), {}, False
     return argv_for(mount / "run"), {"preexec_fn": _rlimit(size)}, True
+
+
+def online_bench_toml(path: Path, sim: SimBench, case: Case) -> Path:
+    """bench_ctl/data/demo_bench_online.toml pointed at `sim` (the recorder on its pseudo-terminal),
+    the hold capped at STEP_CAP_S, the steady state over 0.5 s."""
+    import tomllib
+
+    doc = tomllib.loads((ROOT / "bench_ctl" / "data" / "demo_bench_online.toml").read_text())
+    ep = sim.endpoints
+    doc["exciter"].update({"url": f"tcp://{ep.exciter_host}:{ep.exciter_port}", **case.exciter})
+    doc["recorder"].update({"url": ep.recorder_serial, **case.recorder})
+    doc["limits"].update(step_hold_max_s=STEP_CAP_S, steady_time_s=0.5, restore_deadline_s=3.0)
+    return write_toml(path, doc)
 
 
 def poll_until(cond: Callable[[], bool], proc: subprocess.Popen, timeout_s: float) -> bool:
@@ -237,7 +306,7 @@ def capture_state(out: Path, stdout: str, visible: bool) -> str:
     return "silent"
 
 
-def one_run(case: Case, work: Path, lock_home: Path) -> list[dict[str, Any]]:
+def one_run(case: Case, work: Path) -> list[dict[str, Any]]:
     """One run of `case` (two for second-run); one result per run process."""
     sim = SimBench(**case.sim)
     sim.start()
@@ -249,17 +318,22 @@ def one_run(case: Case, work: Path, lock_home: Path) -> list[dict[str, Any]]:
             proxy = WireProxy(sim.endpoints.exciter_tcp)
         if case.setup == "second-master":
             other = SecondMaster(sim)
-        bench = bench_toml(work / "bench.toml", sim, exciter_url=proxy.url if proxy else None,
-                           exciter=case.exciter)
+        if case.online:
+            bench = online_bench_toml(work / "bench.toml", sim, case)
+        else:
+            doc = bench_doc(sim, exciter_url=proxy.url if proxy else None, exciter=case.exciter)
+            doc["recorder"].update(case.recorder)
+            bench = write_toml(work / "bench.toml", doc)
+        params = STEP_PARAMS if case.online else PARAMS
         outs = [work / "run"] if case.setup != "second-run" else [work / "run0", work / "run1"]
         visible = True
         extras: dict[str, Any] = {}
         if case.disk:
-            argv, extras, visible = disk_argv(case, lambda o: run_argv(bench, o, params=PARAMS), work)
+            argv, extras, visible = disk_argv(case, lambda o: run_argv(bench, o, params=params), work)
             outs = [work / "mnt" / "run"]
-            procs = [start_run(argv, lock_home, **extras)]
+            procs = [start_run(argv, **extras)]
         else:
-            procs = [start_run(run_argv(bench, o, params=PARAMS), lock_home) for o in outs]
+            procs = [start_run(run_argv(bench, o, params=params, procedure=case.procedure)) for o in outs]
         t_fault = None
         if case.moment is not None:
             if poll_until(moment_reached(sim, case.moment), procs[0], 120):
@@ -274,8 +348,12 @@ def one_run(case: Case, work: Path, lock_home: Path) -> list[dict[str, Any]]:
         settle(sim, WATCHDOG_S + 1.0)
         dev = device_outcome(sim, t_fault)
         released = not (sim.exciter.remote and sim.exciter._owner == "127.0.0.1")
+        wrote = sum(n for (device, _), n in sim.faults.writes.items() if device == "exciter") > 0
+        within = (not wrote) or dev["held_s"] <= case.cap_s
+        triggered = sim.recorder.trigger_step is not None
         rows = []
         for (proc, stdout, stderr), out in zip(results, outs):
+            lost = triggered and record_lost(case, out, visible)
             cap = capture_state(out, stdout, visible)
             code = proc.returncode
             if cap != "saved" and code != 0:
@@ -284,12 +362,13 @@ def one_run(case: Case, work: Path, lock_home: Path) -> list[dict[str, Any]]:
                     "NOT SAVED" not in stdout + stderr and "refused: --out" not in stderr:
                 cap = "silent"
             said = next((ln for ln in (stdout + stderr).splitlines()
-                         if ln.startswith(("no_load_pulse: ", "refused: "))), "")
+                         if ln.startswith((f"{case.procedure}: ", "refused: "))), "")
             lines = (stdout + stderr).splitlines()
-            if said.startswith("no_load_pulse: ") and said in lines:
+            if said.startswith(f"{case.procedure}: ") and said in lines:
                 at = lines.index(said)
                 said += " | " + (lines[at + 1] if at + 1 < len(lines) else "")
             rows.append({**dev, "released": released, "capture": cap, "exit": code, "said": said,
+                         "within_cap": within, "wrote": wrote, "record_lost": lost,
                          "traceback": "Traceback" in stdout + stderr,
                          "fault_hit": t_fault is not None or (not case.faults and case.moment is None)})
         return rows
@@ -299,6 +378,20 @@ def one_run(case: Case, work: Path, lock_home: Path) -> list[dict[str, Any]]:
         if proxy is not None:
             proxy.close()
         sim.stop()
+
+
+def record_lost(case: Case, out: Path, visible: bool) -> bool:
+    """The record the recorder triggered on is lost to this run: the run armed it, was alive to the
+    end (not SIGKILLed), had a folder it could write (not a disk case), and saved no raw download
+    of it, without having tried and failed to download it (a download that fails for good is said:
+    exit 3; the record is still in the recorder)."""
+    if case.disk is not None or case.action == "SIGKILL" or not visible:
+        return False
+    rows = audit_rows(out / "audit.jsonl")
+    armed = any(r.get("kind") == "write" and r.get("register") == "arm" and r.get("value") == 1 for r in rows)
+    tried = any((r.get("kind") == "step_end" and r.get("step") == "download" and r.get("result") == "failed")
+                or (r.get("kind") == "record_kept" and "failed" in r) for r in rows)
+    return armed and not (out / "recorder_raw.bin").exists() and not tried
 
 
 def summarise(case: Case, rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -312,6 +405,9 @@ def summarise(case: Case, rows: list[dict[str, Any]]) -> dict[str, Any]:
             "capture_ok_pct": 100.0 * sum(r["capture"] != "silent" for r in rows) / n,
             "silent_losses": sum(r["capture"] == "silent" for r in rows),
             "tracebacks": sum(r["traceback"] for r in rows),
+            "within_cap_or_refused_pct": 100.0 * sum(r["within_cap"] for r in rows) / n,
+            "refused_before_write": sum(not r["wrote"] for r in rows),
+            "records_lost": sum(r["record_lost"] for r in rows),
             "fault_missed": sum(not r["fault_hit"] for r in rows),
             "exit_codes": ",".join(str(c) for c in sorted({r["exit"] for r in rows}))}
 
@@ -320,22 +416,24 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--only", default=None, help="comma-separated case names")
+    ap.add_argument("--group", default=None, choices=("issue24", "issue48"), help="only the faults of one issue")
     ap.add_argument("--json", dest="json_out", default=None)
     ap.add_argument("-v", "--verbose", action="store_true",
                     help="print each run's exit code and the run's own outcome line")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    chosen = [c for c in cases() if args.only is None or c.name in args.only.split(",")]
+    chosen = [c for c in cases() if (args.only is None or c.name in args.only.split(","))
+              and (args.group is None or c.group == args.group)]
     result: dict[str, Any] = {"runs_per_fault": args.runs, "faults": len(chosen),
                               "pulse_width_s": PARAMS["width_s"], "width_cap_s": WIDTH_CAP_S,
                               "watchdog_s": WATCHDOG_S,
                               "disk_full_method": "tmpfs_12k_userns" if userns_mounts()
                               else "rlimit_fsize_12k"}
-    head = (f"{'fault':30s} {'runs':>4s} {'restored':>8s} {'worst to':>9s} {'worst':>8s} "
-            f"{'remote':>8s} {'capture':>8s} {'silent':>6s}  exit")
-    print(head + "\n" + f"{'':30s} {'':>4s} {'%':>8s} {'pre-test':>9s} {'pulse':>8s} "
-          f"{'released':>8s} {'ok %':>8s} {'losses':>6s}  codes\n" + "-" * len(head))
+    head = (f"{'fault':30s} {'runs':>4s} {'restored':>8s} {'worst to':>9s} {'worst':>8s} {'cap':>5s} "
+            f"{'in cap':>6s} {'remote':>8s} {'capture':>8s} {'silent':>6s} {'record':>6s}  exit")
+    print(head + "\n" + f"{'':30s} {'':>4s} {'%':>8s} {'pre-test':>9s} {'pulse':>8s} {'s':>5s} "
+          f"{'/ref %':>6s} {'released':>8s} {'ok %':>8s} {'losses':>6s} {'lost':>6s}  codes\n" + "-" * len(head))
     summaries = {}
     with tempfile.TemporaryDirectory(prefix="fault-matrix-") as tmp:
         for case in chosen:
@@ -344,7 +442,7 @@ def main(argv: list[str] | None = None) -> int:
                 work = Path(tmp) / f"{case.name}-{i}"
                 work.mkdir()
                 try:
-                    rows += one_run(case, work, Path(tmp))
+                    rows += one_run(case, work)
                 finally:
                     for p in work.rglob("*"):      # a read-only folder made by chmod
                         if p.is_dir():
@@ -354,9 +452,12 @@ def main(argv: list[str] | None = None) -> int:
             for key, value in s.items():
                 result[f"{case.name}_{key}"] = value
             print(f"{case.name:30s} {s['runs']:4d} {s['restored_pct']:8.0f} "
-                  f"{s['worst_restore_ms']:8.1f}ms {s['worst_held_ms']:6.0f}ms "
+                  f"{s['worst_restore_ms']:8.1f}ms {s['worst_held_ms']:6.0f}ms {case.cap_s:5.1f} "
+                  f"{s['within_cap_or_refused_pct']:6.0f} "
                   f"{s['remote_released_pct']:8.0f} {s['capture_ok_pct']:8.0f} "
-                  f"{s['silent_losses']:6d}  {s['exit_codes']}"
+                  f"{s['silent_losses']:6d} {s['records_lost']:6d}  {s['exit_codes']}"
+                  + (f"  ({s['refused_before_write']} wrote nothing to the exciter)"
+                     if s["refused_before_write"] else "")
                   + (f"  ({s['tracebacks']} tracebacks)" if s["tracebacks"] else "")
                   + (f"  (fault not reached in {s['fault_missed']})" if s["fault_missed"] else ""),
                   flush=True)
@@ -364,6 +465,7 @@ def main(argv: list[str] | None = None) -> int:
                 for r in rows:
                     print(f"    exit {r['exit']}: {r['said'][:300]}", flush=True)
     all_runs = sum(s["runs"] for _, s in summaries.values())
+    new = [s for c, s in summaries.values() if c.group == "issue48"]
     restored = sum(s["restored_pct"] * s["runs"] / 100 for _, s in summaries.values())
     signal_mid = [s["worst_restore_ms"] for c, s in summaries.values()
                   if c.action not in (None, "cut", "SIGKILL") and c.moment == "mid-pulse"]
@@ -375,6 +477,9 @@ def main(argv: list[str] | None = None) -> int:
                                        for _, s in summaries.values()) * 100.0 / max(all_runs, 1),
         "silent_losses_all": sum(s["silent_losses"] for _, s in summaries.values()),
         "tracebacks_all": sum(s["tracebacks"] for _, s in summaries.values()),
+        "records_lost_all": sum(s["records_lost"] for _, s in summaries.values()),
+        "issue48_within_cap_or_refused_pct": (sum(s["within_cap_or_refused_pct"] * s["runs"] / 100 for s in new)
+                                              * 100.0 / max(sum(s["runs"] for s in new), 1)),
         "signal_mid_pulse_worst_restore_ms": max(signal_mid) if signal_mid else 0.0,
         "sigkill_worst_held_ms": max(kill_held) if kill_held else 0.0,
         "sigkill_bound_ms": (WIDTH_CAP_S + WATCHDOG_S) * 1e3,
@@ -383,7 +488,12 @@ def main(argv: list[str] | None = None) -> int:
     print("-" * len(head))
     print(f"setpoint restored in {result['restored_pct_all']:.1f} % of {all_runs} run processes; "
           f"remote released in {result['remote_released_pct_all']:.1f} %; silent capture losses "
-          f"{result['silent_losses_all']}; tracebacks {result['tracebacks_all']}")
+          f"{result['silent_losses_all']}; records lost {result['records_lost_all']}; tracebacks "
+          f"{result['tracebacks_all']}")
+    if new:
+        print(f"issue 48 faults: pulses and steps within their caps (as the device held them) or refused "
+              f"before any write in {result['issue48_within_cap_or_refused_pct']:.1f} % of "
+              f"{sum(s['runs'] for s in new)} runs")
     if signal_mid:
         print(f"after SIGINT/TERM/HUP/QUIT mid-pulse: pre-test setpoint within "
               f"{result['signal_mid_pulse_worst_restore_ms']:.1f} ms at worst (target 50 ms)")

@@ -26,8 +26,9 @@ from dataclasses import dataclass
 
 from drivers.device import TIMED_WRITE_GUARD_S, RegisterDevice, SafeStateReport, WriteGuard, WriteListener, WriteRecord
 from drivers.errors import CommError, DeviceError, ExceptionReply, WriteUncertain
+from drivers.link import HEARTBEAT as HEARTBEAT_PRIORITY
 from drivers.link import ModbusLink
-from drivers.profile import Profile
+from drivers.profile import Profile, a_device
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +93,11 @@ class Heartbeat:
         return HeartbeatStats(self.beats, self.failures, self.max_gap_s)
 
     def _run(self) -> None:
+        # the beats get the link before the procedure's reads (never after a burst of them)
+        with self.device.link.priority(HEARTBEAT_PRIORITY):
+            self._beat()
+
+    def _beat(self) -> None:
         try:
             counter = int(self.device.read_words(HEARTBEAT)[0])
         except DeviceError:
@@ -188,7 +194,7 @@ class Exciter(RegisterDevice):
                  restore_deadline_s: float = 10.0, guard: WriteGuard | None = None,
                  listener: WriteListener | None = None) -> None:
         if profile.device != "exciter":
-            raise ValueError(f"profile {profile.name!r} describes a {profile.device}, "
+            raise ValueError(f"profile {profile.name!r} describes {a_device(profile.device)}, "
                              "not an exciter")
         for name in (SETPOINT, HEARTBEAT):
             profile[name]  # KeyError naming the profile when missing
@@ -218,7 +224,14 @@ class Exciter(RegisterDevice):
         reg = self.profile.registers.get(register)
         if reg is None or not reg.bits:
             return {}
-        word = int(self.read(register))
+        return self.bits_of(register, self.read(register))
+
+    def bits_of(self, register: str, value: float) -> dict[str, bool]:
+        """The named bits of a value of `register` read earlier (e.g. by `read_many`)."""
+        reg = self.profile.registers.get(register)
+        if reg is None or not reg.bits:
+            return {}
+        word = int(value)
         return {name: bool(word >> bit & 1) for name, bit in reg.bits.items()}
 
     def read_watchdog(self) -> WatchdogReading:
@@ -255,6 +268,16 @@ class Exciter(RegisterDevice):
     def heartbeat_stats(self) -> HeartbeatStats:
         """Beats, failures and the longest gap of this run's heartbeat so far."""
         return self.heartbeat.stats()
+
+    def measure_link(self, reads: int, since_mono: float | None = None) -> list[float]:
+        """Read the setpoint `reads` times (each tried once: a link that loses one before the first
+        write raises CommError) and return the response times (s) of every request answered since
+        `since_mono` (of those reads when None): what the link's check before the first write
+        judges (docs/decisions/0023)."""
+        t0 = time.monotonic()
+        for _ in range(reads):
+            self.read_words(SETPOINT, attempts=1)
+        return self.link.response_times(since_mono=t0 if since_mono is None else since_mono)
 
     # -- test sequence -----------------------------------------------------------------------
     def snapshot(self) -> PreTest:

@@ -7,8 +7,12 @@
   raises `WriteUncertain`);
 - every frame on the wire goes through `FrameLog` (pymodbus' `trace_packet` hook), so each
   error carries the last frames and a write knows the monotonic time its request left;
-- a lock serialises requests from the procedure and the heartbeat thread; `hold()` lets a timed
-  write take the link before its deadline so no other request delays it;
+- a lock serialises requests from the procedure and the heartbeat thread, and serves its waiters
+  by priority, then in order of arrival (`LinkLock`): a timed write first (`hold()` takes the
+  link before its deadline, so no other request delays it), then the heartbeat (a thread that
+  runs `with link.priority(HEARTBEAT)`: no burst of other reads starves it), then the rest;
+- every answered request's response time is kept (`response_times()`): the runner measures the
+  link with it before the first write (docs/decisions/0023);
 - `connect()` raises instead of returning False; `reconnect(deadline)` retries until a deadline.
 
 Endpoint URLs: `tcp://HOST:PORT` (Modbus TCP); `rtu+tcp://HOST:PORT` (Modbus RTU frames over a
@@ -20,6 +24,8 @@ pyserial's `in_waiting`, which a socket reports as 0 or 1 byte, ~50 ms a request
 from __future__ import annotations
 
 import contextlib
+import heapq
+import itertools
 import logging
 import threading
 import time
@@ -38,6 +44,132 @@ log = logging.getLogger(__name__)
 
 FRAMES_KEPT = 32       # frames kept per link
 FRAMES_IN_ERRORS = 8   # frames appended to an error message
+RESPONSES_KEPT = 256   # response times kept per link
+
+#: who waits for the link first (`LinkLock`): a timed write, then the heartbeat, then the rest
+TIMED, HEARTBEAT, ROUTINE = 0, 1, 2
+
+
+#: per thread: how deep it is in a link lock's own bookkeeping (its queue, owner and count)
+_BOOKKEEPING = threading.local()
+#: interrupts a signal handler was asked to raise in the main thread while it was in that
+#: bookkeeping: raised as soon as the bookkeeping is whole again (`defer_interrupt`)
+_PENDING: list[BaseException] = []
+
+
+def in_link_bookkeeping() -> bool:
+    """The calling thread (a signal handler: the main thread) is changing a link lock's state: an
+    exception raised now would leave the lock half changed (a waiter queued forever, an owner
+    never cleared: every later request, the safe state's included, would wait forever)."""
+    return getattr(_BOOKKEEPING, "depth", 0) > 0
+
+
+def defer_interrupt(exc: BaseException) -> None:
+    """Raise `exc` (a Ctrl-C, a SIGTERM) in the main thread once its link lock bookkeeping is
+    whole: a waiter gives up its wait within 50 ms, nothing held; a lock just taken or given back
+    raises it at once after."""
+    _PENDING.append(exc)
+
+
+def _enter_bookkeeping() -> None:
+    _BOOKKEEPING.depth = getattr(_BOOKKEEPING, "depth", 0) + 1
+
+
+def _leave_bookkeeping() -> None:
+    _BOOKKEEPING.depth -= 1
+
+
+def _raise_pending() -> None:
+    if _PENDING and threading.current_thread() is threading.main_thread() and not in_link_bookkeeping():
+        exc = _PENDING.pop(0)
+        _PENDING.clear()
+        raise exc
+
+
+class LinkLock:
+    """A re-entrant lock whose waiters get it by priority (lowest first: TIMED, HEARTBEAT,
+    ROUTINE), then in order of arrival. A plain lock lets the thread that releases it take it
+    again at once: a procedure reading in a loop could then hold off the heartbeat, or a timed
+    write, for several requests of a slow device.
+
+    Its bookkeeping is Python code, which a signal handler raising in the main thread (Ctrl-C,
+    SIGTERM) could cut in half; the runner's handler defers the interrupt while the main thread
+    takes, holds or gives back a link lock (`in_link_bookkeeping`, `defer_interrupt`), and the lock
+    raises it where its state is whole: a wait is given up (within 50 ms) with nothing held, a
+    lock held raises it as soon as it is given back (one request later at most)."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition(threading.Lock())
+        self._owner: int | None = None
+        self._depth = 0
+        self._queue: list[tuple[int, int, int]] = []
+        self._tickets = itertools.count()
+
+    def _acquire(self, priority: int, may_give_up: bool) -> bool:
+        """Take the lock (True), or give up the wait for an interrupt pending (False, nothing held;
+        only a thread holding no link lock may give up). Runs inside the bookkeeping."""
+        me = threading.get_ident()
+        with self._cond:
+            if self._owner == me:
+                self._depth += 1
+                return True
+            entry = (priority, next(self._tickets), me)
+            heapq.heappush(self._queue, entry)
+            while self._owner is not None or self._queue[0] is not entry:
+                self._cond.wait(0.05)
+                if may_give_up and _PENDING and threading.current_thread() is threading.main_thread():
+                    self._queue.remove(entry)
+                    heapq.heapify(self._queue)
+                    self._cond.notify_all()
+                    return False
+            heapq.heappop(self._queue)
+            self._owner, self._depth = me, 1
+            return True
+
+    def acquire(self, priority: int = ROUTINE) -> None:
+        """Take the lock. The calling thread stays in the bookkeeping until the matching `release`
+        has given it back: an interrupt meanwhile is deferred to that point (a request lasts at
+        most its timeout), so no exception can leave between taking the lock and the code that
+        gives it back (a `with` block's own set-up included)."""
+        may_give_up = not in_link_bookkeeping()
+        _enter_bookkeeping()
+        try:
+            got = self._acquire(priority, may_give_up)
+        except BaseException:
+            _leave_bookkeeping()
+            raise
+        if not got:
+            _leave_bookkeeping()
+            _raise_pending()
+
+    def release(self) -> None:
+        """Give the lock back; the bookkeeping is left only by a thread that held it (a generator
+        of `held` finalised by the garbage collector in another thread must not unbalance it)."""
+        with self._cond:
+            if self._owner != threading.get_ident():
+                raise RuntimeError("release of a link lock this thread does not hold")
+            self._depth -= 1
+            if self._depth == 0:
+                self._owner = None
+                self._cond.notify_all()
+        _leave_bookkeeping()
+        _raise_pending()
+
+    @contextlib.contextmanager
+    def held(self, priority: int = ROUTINE) -> Iterator[None]:
+        self.acquire(priority)          # from here an interrupt is deferred ...
+        try:
+            yield
+        finally:
+            self.release()              # ... to the end of this
+
+    def __enter__(self) -> LinkLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
 
 
 @dataclass(frozen=True)
@@ -143,7 +275,10 @@ class ModbusLink:
         self.read_attempts = read_attempts
         self.frames = FrameLog()
         self._client = _make_client(endpoint, self.frames)
-        self._lock = threading.RLock()
+        self._lock = LinkLock()
+        self._priority = threading.local()
+        self._ends = threading.local()      # per thread: when its last request ended
+        self._responses: deque[tuple[float, float]] = deque(maxlen=RESPONSES_KEPT)
 
     # -- connection --------------------------------------------------------------------------
     def connect(self) -> None:
@@ -187,16 +322,43 @@ class ModbusLink:
 
     @contextlib.contextmanager
     def hold(self) -> Iterator[None]:
-        """Keep the link for a timed sequence (other threads' requests wait)."""
-        with self._lock:
+        """Keep the link for a timed sequence (other threads' requests wait); it is given before
+        anything else that waits (the request in flight ends first)."""
+        with self._lock.held(TIMED):
             yield
+
+    @contextlib.contextmanager
+    def priority(self, level: int) -> Iterator[None]:
+        """This thread's requests wait for the link at `level` (HEARTBEAT for the heartbeat
+        thread) inside the block."""
+        old = getattr(self._priority, "level", ROUTINE)
+        self._priority.level = level
+        try:
+            yield
+        finally:
+            self._priority.level = old
+
+    def _request(self) -> contextlib.AbstractContextManager[None]:
+        return self._lock.held(getattr(self._priority, "level", ROUTINE))
+
+    def last_request_end(self) -> float | None:
+        """When this thread's last request on the link ended (answered or failed), monotonic."""
+        return getattr(self._ends, "t", None)
+
+    def response_times(self, since_mono: float | None = None) -> list[float]:
+        """The response times (s) of the answered requests kept (the last RESPONSES_KEPT), those
+        sent at or after `since_mono` when given: request sent to reply read."""
+        return [d for t, d in list(self._responses) if since_mono is None or t >= since_mono]
 
     # -- requests ----------------------------------------------------------------------------
     def _call(self, what: str, register: str | None, value: Any, fn: Any, *,
               write: bool, **kwargs: Any) -> Any:
+        t0 = time.monotonic()
         try:
             reply = fn(**kwargs, device_id=self.endpoint.unit_id)
+            self._responses.append((t0, time.monotonic() - t0))
         except (ConnectionException, ModbusException, OSError) as exc:
+            self._ends.t = time.monotonic()
             cls = WriteUncertain if write and self.frames.last_tx_mono is not None else CommError
             text = f"{what} failed: {exc}"
             if cls is WriteUncertain:
@@ -204,6 +366,7 @@ class ModbusLink:
                          "before acting)")
             raise cls(text, device=self.device, register=register, value=value,
                       frames=self.frames.last()) from None
+        self._ends.t = time.monotonic()
         if reply.isError():
             code = int(getattr(reply, "exception_code", 0) or 0)
             raise ExceptionReply(what, code=code, device=self.device, register=register,
@@ -218,7 +381,7 @@ class ModbusLink:
         what = f"reading {count} {table} register(s) at {address}"
         attempts = self.read_attempts if attempts is None else attempts
         for attempt in range(1, attempts + 1):
-            with self._lock:
+            with self._request():
                 fn = getattr(self._client, fn_name)
                 try:
                     reply = self._call(what, register, None, fn, write=False,
@@ -243,7 +406,7 @@ class ModbusLink:
         # the words are in the frames (audit, -vv log), not in the operator's message
         what = f"writing {len(words)} holding register(s) at {address}"
         log.debug("%s: writing %s to holding register(s) at %d", self.device, words, address)
-        with self._lock:
+        with self._request():
             self.frames.last_tx_mono = None
             self._call(what, register, value, self._client.write_registers, write=True,
                        address=address, values=list(words))
@@ -277,5 +440,5 @@ def wait_until(deadline_mono: float) -> None:
         time.sleep(left)
 
 
-__all__ = ["DeviceError", "Endpoint", "Frame", "FrameLog", "ModbusLink", "gc_paused",
-           "wait_until"]
+__all__ = ["HEARTBEAT", "ROUTINE", "TIMED", "DeviceError", "Endpoint", "Frame", "FrameLog", "LinkLock",
+           "ModbusLink", "defer_interrupt", "gc_paused", "in_link_bookkeeping", "wait_until"]

@@ -336,3 +336,8 @@ def _no_unknown(doc: Mapping[str, Any], allowed: set[str], source: str, prefix: 
         if key not in allowed:
             raise ValueError(
                 f"profile {source}: unknown key {prefix}{key!r} (allowed: {sorted(allowed)})")
+
+
+def a_device(kind: str) -> str:
+    """`an exciter`, `a recorder`: a device kind with its article, for messages."""
+    return f"{'an' if kind[:1] in 'aeiou' else 'a'} {kind}"

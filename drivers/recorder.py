@@ -31,7 +31,7 @@ import numpy as np
 from drivers.device import RegisterDevice, SafeStateReport, WriteGuard, WriteListener, WriteRecord
 from drivers.errors import CommError, DeviceError, IntegrityError, ReadbackMismatch
 from drivers.link import ModbusLink
-from drivers.profile import Profile
+from drivers.profile import Profile, a_device
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +133,7 @@ class Recorder(RegisterDevice):
                  guard: WriteGuard | None = None,
                  listener: WriteListener | None = None) -> None:
         if profile.device != "recorder":
-            raise ValueError(f"profile {profile.name!r} describes a {profile.device}, "
+            raise ValueError(f"profile {profile.name!r} describes {a_device(profile.device)}, "
                              "not a recorder")
         super().__init__(link, profile, guard=guard, listener=listener)
         s = profile.settings

@@ -21,19 +21,27 @@ PRECONDITIONS (checked before anything is written; the test is refused, never ad
     - Pre-test setpoint, terminal voltage and pulse setpoint inside
       limits.setpoint_min_pu .. setpoint_max_pu.
     - |amplitude_pu| <= limits.pulse_amplitude_max_pu, width_s <= limits.pulse_width_max_s.
+    - The exciter link fast enough for the cap, MEASURED before the first write: width_s plus twice
+      the slowest reply (but one) within limits.pulse_width_max_s, that reply within half the
+      request timeout, the heartbeat's worst gap within the device's watchdog (decision 0023).
     - The recorder is idle or holds a finished record (it will be overwritten only on arm).
 
 SEQUENCE
-    1. Read p, setpoint, mode, vt, the watchdog; check the limits; print the plan (setpoint
-       from -> to, width, limits, watchdog found) and ask the operator (real devices, unless
-       --yes).
+    1. Read p, setpoint, mode, vt, the watchdog; measure the link; check the limits; print the
+       plan (setpoint from -> to, width, limits, watchdog found, link measured) and ask the
+       operator (real devices, unless --yes).
     2. Configure the recorder (rate_hz, pre_trigger_s, record_s, trigger on a usetp step of
        half the amplitude) and arm it; wait until its pre-trigger buffer is full.
     3. Start the exciter heartbeat, take remote.
     4. Write setpoint + amplitude; exactly width_s later (monotonic clock, from the moment the
        first request left) write the pre-test setpoint back. Each write is read back. On a
-       terminal the operator sees setpoint, vt, efd and the time left meanwhile.
+       terminal the operator sees setpoint, vt, efd and the time left meanwhile: each of its
+       requests starts before the restore write asks for the link, or not at all, so it never
+       delays the restore.
     5. Wait for the record to finish and vt to recover; give remote back, stop the heartbeat.
+       Reads here are retried; one that fails for good (or a failing heartbeat, a release not
+       confirmed) is carried to the end: the record is still downloaded and saved, then the run
+       ends with exit 3 naming it.
     6. Download the record, save the raw download, then convert and save the capture
        (capture.csv + capture.json: bench config, device identities, every write with its time).
 
@@ -44,7 +52,8 @@ HAZARDS
     watchdog, which reverts the setpoint on its own.
 
 PASS CRITERIA
-    - Recorded pulse width within width_tolerance_s of the commanded width.
+    - Recorded pulse width within width_tolerance_s of the commanded width, and within the cap
+      limits.pulse_width_max_s (the recorder records the device's setpoint: what the plant saw).
     - Recorded pulse amplitude within amplitude_tolerance_pu of the commanded amplitude.
     - vt back within recovery_tolerance_pu of its pre-test value at the end of the record.
     - Setpoint read back equal to the pre-test setpoint (raw registers).
@@ -57,10 +66,17 @@ from collections.abc import Callable
 from typing import Any
 
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
-from bench_ctl.runner.devices import TIMED_WRITE_GUARD_S, DeviceError, RecordSettings, hold_gc
+from bench_ctl.runner.devices import DeviceError, RecordSettings, hold_gc
 from bench_ctl.runner.protocols import ExcitationSystem, ProcedureBench
 from bench_ctl.runner.safety import BenchBusy, PreconditionFailed, check_no_load, check_pulse
-from procedures.recorded import measure_pulse, signed
+from procedures.recorded import (
+    RECOVERY_READ_ATTEMPTS,
+    Carried,
+    link_free_at,
+    measure_pulse,
+    signed,
+    timed_write_cause,
+)
 
 log = logging.getLogger(__name__)
 
@@ -148,11 +164,12 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
         if state not in ("idle", "done"):
             raise PreconditionFailed(f"recorder status {state!r}: expected idle or done")
         ex.encode("setpoint", plan.pulse_setpoint_pu)  # representable? (RangeError, nothing sent)
+        link = run.check_link(ex, width_s=width_s, cap_name="pulse_width_max_s")
         settings = RecordSettings(rate_hz=rate_hz, pre_trigger_s=pre_trigger_s,
                                   length_s=record_s, trigger="usetp_step",
                                   threshold_pu=round(abs(amplitude_pu) / 2, 4))
         run.note("plan", setpoint_pu=plan.setpoint_pu, pulse_setpoint_pu=plan.pulse_setpoint_pu,
-                 width_s=width_s, watchdog_s=watchdog_s, record=settings.__dict__)
+                 width_s=width_s, watchdog_s=watchdog_s, link_max_s=link.max_s, record=settings.__dict__)
 
     lim = run.limits
     run.confirm("\n".join((
@@ -166,6 +183,7 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
         f"  watchdog  {run.watchdog_text()}",
         f"            if this host dies during the pulse, the device ends it {watchdog_s:.3f} s after "
         "the last heartbeat",
+        f"  link      {run.link_text()}",
         f"  recorder  {rate_hz:g} Hz, pre-trigger {pre_trigger_s:.3f} s, record {record_s:.3f} s, "
         f"trigger on a {settings.threshold_pu:.4f} pu usetp step")))
 
@@ -188,20 +206,28 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
                  late_s=commanded_width_s - width_s)
         run.hook("pulse_restored")
 
+    carried = Carried(run)   # trouble after the pulse: noted, the record still kept
     with run.step("recovery"):
-        rec.wait_status(("done",), record_s + 5.0, check=_watching(run, bench, ex, vt0))
+        rec.wait_status(("done",), record_s + 5.0, check=_watching(run, bench, ex, vt0, carried))
         deadline = time.monotonic() + recovery_timeout_s
-        vt_end = ex.read("vt")
-        while abs(vt_end - vt0) > recovery_tolerance_pu and time.monotonic() < deadline:
-            bench.check()
+        vt_end = _read_vt(ex, carried)
+        while not abs(vt_end - vt0) <= recovery_tolerance_pu and time.monotonic() < deadline:
+            carried.check(bench.check)
             time.sleep(0.1)
-            vt_end = ex.read("vt")
-            run.status(f"vt {vt_end:.4f} pu (pre-test {vt0:.4f} pu){_efd_text(ex)}")
-        sp_words = tuple(ex.read_words("setpoint"))
+            vt_end = _read_vt(ex, carried)
+            run.status(f"vt {vt_end:.4f} pu (pre-test {vt0:.4f} pu)")
+        try:
+            sp_words = tuple(ex.read_words("setpoint", attempts=RECOVERY_READ_ATTEMPTS))
+        except DeviceError as exc:
+            carried.note("reading the setpoint back", exc)
+            sp_words = ()
         run.note("recovered", vt_pu=vt_end, setpoint_words=list(sp_words))
 
     with run.step("release exciter"):
-        run.release(ex, "pulse test complete")
+        try:
+            run.release(ex, "pulse test complete")
+        except DeviceError as exc:   # the runner's safe state tries again after the download
+            carried.note("giving the exciter back", exc)
 
     with run.step("download"):
         raw, data = run.download(rec)   # saved as received before any conversion
@@ -217,6 +243,7 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
 
     width_err = pulse.width_s - width_s
     amp_err = pulse.amplitude_pu - amplitude_pu
+    cap_s = lim.pulse_width_max_s
     criteria = (
         Criterion("pulse width error", abs(width_err) <= width_tolerance_s, width_err,
                   width_tolerance_s, "s",
@@ -232,16 +259,20 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
                   list(pre.setpoint_words),
                   shown=(f"{ex.decode('setpoint', sp_words):.4f} pu, pre-test "
                          f"{pre.setpoint_pu:.4f} pu (register words "
-                         f"{'identical' if sp_words == pre.setpoint_words else 'DIFFER'})")),
+                         f"{'identical' if sp_words == pre.setpoint_words else 'DIFFER'})") if sp_words
+                  else "not read back (the read failed after the pulse)"),
+        Criterion("pulse within the cap (as recorded)", pulse.width_s <= cap_s, pulse.width_s, cap_s, "s",
+                  shown=f"{pulse.width_s:.3f} s on the device (cap limits.pulse_width_max_s {cap_s:.3f} s)"),
     )
     run.note("criteria", criteria=[c.to_dict() for c in criteria])
     summary = (f"recorded width {pulse.width_s * 1e3:.1f} ms (commanded {width_s * 1e3:.1f} ms), "
                f"amplitude {pulse.amplitude_pu:.4f} pu (commanded {amplitude_pu:.4f} pu)")
     host_late_s = commanded_width_s - width_s
-    if abs(host_late_s) > width_tolerance_s:  # the width error is the host's, not the device's
-        summary += (f"; this host sent the restore write {signed(host_late_s * 1e3, 1)} ms off its deadline "
-                    f"(the process or the machine stalled), so the pulse was that much off on the wire")
-    return ProcedureResult(criteria=criteria, summary=summary,
+    if abs(host_late_s) > width_tolerance_s:  # the restore left late: the link's or this host's doing
+        summary += (f"; the restore write left {signed(host_late_s * 1e3, 1)} ms off its deadline "
+                    f"(the cause: {timed_write_cause(off)}), so the pulse was "
+                    "that much off on the wire")
+    return ProcedureResult(criteria=criteria, summary=summary, comms_error=carried.first,
                            data={"width_err_s": width_err, "amplitude_err_pu": amp_err,
                                  "recorded": pulse.__dict__, "download_s": raw.download_s,
                                  "commanded_width_s": commanded_width_s,
@@ -250,38 +281,50 @@ def no_load_pulse(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float
 
 
 def _pulse_readout(run: RunContext, ex: ExcitationSystem, *, deadline: float, every_s: float = 0.1) -> None:
-    """On a terminal, setpoint / vt / efd and the time left while the pulse is on, until the
-    timed restore write needs the link. Each read is tried once (it never holds the link longer
-    than one request timeout, which the timed write allows for); a failed read ends the
-    readout, not the pulse: the restore write reports the link's trouble itself."""
+    """On a terminal, setpoint / vt / efd and the time left while the pulse is on. Every request
+    is tried once and starts before the timed restore write asks for the link (`link_free_at`) or
+    not at all, so the readout never delays the restore; a failed read ends the readout, not the
+    pulse (the restore write reports the link's trouble itself)."""
     if not run.shown:
         return
-    stop_at = deadline - TIMED_WRITE_GUARD_S - ex.request_timeout_s - 0.05
-    while (now := time.monotonic()) < stop_at:
+    free_at = link_free_at(deadline, ex.request_timeout_s)
+    names = ("setpoint", "vt", "efd") if ex.has("efd") else ("setpoint", "vt")
+    while (now := time.monotonic()) < free_at:
         try:
-            text = (f"setpoint {ex.read('setpoint', attempts=1):.4f} pu, vt {ex.read('vt', attempts=1):.4f} pu"
-                    + (f", efd {ex.read('efd', attempts=1):.3f} pu" if ex.has("efd") else ""))
+            seen = ex.read_many(names, attempts=1, start_by=free_at)
         except DeviceError:
             return
+        if len(seen) < len(names):
+            return
+        text = (f"setpoint {seen['setpoint']:.4f} pu, vt {seen['vt']:.4f} pu"
+                + (f", efd {seen['efd']:.3f} pu" if "efd" in seen else ""))
         run.status(f"{text}, {max(0.0, deadline - now):.2f} s left")
-        time.sleep(max(0.0, min(every_s, stop_at - time.monotonic())))
+        time.sleep(max(0.0, min(every_s, free_at - time.monotonic())))
 
 
-def _watching(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, vt0: float,
+def _read_vt(ex: ExcitationSystem, carried: Carried) -> float:
+    """vt after the pulse, read again on a lost reply; NaN (carried) when it fails for good."""
+    return carried.read("reading vt after the pulse", lambda: ex.read("vt", attempts=RECOVERY_READ_ATTEMPTS))
+
+
+def _watching(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, vt0: float, carried: Carried,
               every_s: float = 0.25) -> Callable[[], None]:
-    """The bench's check while the record completes, plus (on a terminal) a live vt / efd
-    readout every `every_s`: the operator sees the unit while the recorder finishes."""
+    """The bench's check while the record completes (a failing heartbeat is carried, not raised:
+    the setpoint is back and the record must be kept), plus (on a terminal) a live vt / efd
+    readout every `every_s`: the operator sees the unit while the recorder finishes. A readout
+    that cannot be read is skipped."""
     last = [0.0]
+    names = ("vt", "efd") if ex.has("efd") else ("vt",)
 
     def check() -> None:
-        bench.check()
+        carried.check(bench.check)
         now = time.monotonic()
         if run.shown and now - last[0] >= every_s:
             last[0] = now
-            run.status(f"recording, vt {ex.read('vt'):.4f} pu (pre-test {vt0:.4f} pu){_efd_text(ex)}")
+            try:
+                seen = ex.read_many(names, attempts=1)
+            except DeviceError:
+                return
+            run.status(f"recording, vt {seen['vt']:.4f} pu (pre-test {vt0:.4f} pu)"
+                       + (f", efd {seen['efd']:.3f} pu" if "efd" in seen else ""))
     return check
-
-
-def _efd_text(ex: ExcitationSystem) -> str:
-    """`, efd X pu` for the operator's live readout, when the exciter's profile maps efd."""
-    return f", efd {ex.read('efd'):.3f} pu" if ex.has("efd") else ""

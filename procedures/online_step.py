@@ -10,12 +10,15 @@ PARAMETERS (each bounded, checked before anything is opened; see PARAMETERS belo
     amplitude_pu 0.005..0.05 pu in size, hold_s 1..60 s, pre_trigger_s 0.5..30 s, record_s
     2..120 s and longer than pre-trigger + hold, rate_hz 10..1000 Hz, hold_tolerance_s 1..100 ms,
     amplitude_tolerance_pu 0.00001..0.01 pu and <= 20 % of the amplitude, recovery_tolerance_pu
-    0.0001..0.05 pu, vt_margin_pu 0..0.05 pu, q_margin 0..0.4 (of the Q band), poll_s 0.02..1 s.
+    0.0001..0.05 pu, vt_margin_pu 0..0.05 pu, q_margin 0..0.4 (of the Q band), poll_s 0.02..1 s,
+    steady_timeout_s 0..600 s (how long to wait for the steady state before refusing).
 
 PRECONDITIONS (checked before anything is written; the test is refused, never adjusted)
     - One run on this exciter (the runner's bench lock), remote free.
     - The exciter's heartbeat watchdog, READ FROM THE DEVICE, within limits.watchdog_max_s.
-    - The unit ON LINE: |p| at or above limits.no_load_p_max_mw (the breaker closed).
+    - The unit ON LINE: |p| at or above limits.no_load_p_max_mw (the breaker closed), and P inside
+      the unit's on-line range limits.p_min_mw .. p_max_mw (reverse power, a unit below its minimum
+      load: refused). Without that range in the bench config there is no on-line test.
     - The bench config has the unit's Q band (limits.q_min_mvar .. q_max_mvar); the exciter reads q
       and the recorder's profile records p and q.
     - Q inside its band by q_margin of its width; Vt inside limits.vt_min_pu .. vt_max_pu by
@@ -23,30 +26,44 @@ PRECONDITIONS (checked before anything is written; the test is refused, never ad
     - No limiter acting: every status bit the profile names `*_limit` or `*_active` clear.
     - |amplitude_pu| <= limits.pulse_amplitude_max_pu, hold_s <= limits.step_hold_max_s, both
       setpoints inside limits.setpoint_min_pu .. setpoint_max_pu.
+    - The exciter link fast enough for the cap, MEASURED before the first write: hold_s plus twice the
+      slowest reply (but one) within limits.step_hold_max_s (docs/decisions/0023).
     - The recorder is idle or holds a finished record.
+    - The unit STEADY: P, Q and Vt each within its band (limits.steady_p_band_mw, steady_q_band_mvar,
+      steady_vt_band_pu, as max - min) over limits.steady_time_s, waited for up to steady_timeout_s;
+      checked again right before the step (a unit that started to swing meanwhile: no step).
 
 SEQUENCE
-    1. Read p, q, vt, the setpoint, the status bits and the watchdog; check the limits; print the
-       plan and ask the operator (real devices, unless --yes).
+    1. Read p, q, vt, the setpoint, the status bits and the watchdog; wait for the steady state;
+       measure the link; check the limits; print the plan and ask the operator (real devices,
+       unless --yes).
     2. Configure and arm the recorder (trigger on a usetp step of half the amplitude).
-    3. Start the heartbeat, take remote.
-    4. Write setpoint + amplitude. While it is held, read Vt and Q every poll_s: one outside its
-       band, or a failed read, ends the step at once (the pre-test setpoint written back). Else
-       exactly hold_s after the first write, write the pre-test setpoint back.
-    5. Wait for the record to finish (Vt and Q still watched) and Vt to recover; give remote
-       back, stop the heartbeat.
+    3. Start the heartbeat, take remote; the steady state once more (no step otherwise).
+    4. Write setpoint + amplitude. While it is held, read Vt, Q, P and the status every poll_s (one
+       request where the map keeps them together): Vt or Q outside its band, P outside the unit's
+       range or moved more than limits.p_swing_max_mw from its start value (a trip, a load
+       rejection, reverse power), a limiter acting, or a failed read, ends the step at once (the
+       pre-test setpoint written back). Else exactly hold_s after the first write, write the
+       pre-test setpoint back. No read of the watch can end after the restore write asks for the
+       link: it never delays the restore.
+    5. Wait for the record to finish and Vt to recover (the same watch, its excursions noted; its
+       reads retried, one lost for good carried to the end: the record is still kept, the run then
+       ends with exit 3); give remote back, stop the heartbeat.
     6. Download the record, save the raw download, then the capture (p, q, ifd with efd, vt).
 
 HAZARDS
     A reference step moves Vt and the unit's reactive power on a live grid: the amplitude cap, the
-    Vt and Q bands with their margins, and the watch during the hold protect it. Whatever ends the
-    test (error, lost link, Ctrl-C), the runner restores the pre-test setpoint and gives remote
-    back; a host that dies leaves the device to its heartbeat watchdog, which reverts the setpoint
-    (for a hold longer than the watchdog, the step then ends early: on the safe side).
+    Vt and Q bands with their margins, the P range and the watch during the hold protect it.
+    Whatever ends the test (error, lost link, Ctrl-C), the runner restores the pre-test setpoint
+    and gives remote back; a host that dies leaves the device to its heartbeat watchdog, which
+    reverts the setpoint (for a hold longer than the watchdog, the step then ends early: on the
+    safe side).
 
 PASS CRITERIA
-    - Vt and Q stayed inside their bands throughout (an abort fails the test; its record is kept).
-    - Recorded step amplitude within amplitude_tolerance_pu, hold within hold_tolerance_s.
+    - The unit inside its bands throughout: Vt, Q, P (range and swing), no limiter acting (an abort
+      fails the test, naming what ended it; its record is kept).
+    - Recorded step amplitude within amplitude_tolerance_pu, hold within hold_tolerance_s and
+      within the cap limits.step_hold_max_s (as recorded: what the plant saw).
     - vt back within recovery_tolerance_pu of its pre-test value at the end.
     - Setpoint read back equal to the pre-test setpoint (raw registers).
 """
@@ -58,10 +75,17 @@ from collections.abc import Callable
 from typing import Any
 
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
-from bench_ctl.runner.devices import TIMED_WRITE_GUARD_S, DeviceError, RecordSettings, hold_gc
+from bench_ctl.runner.devices import DeviceError, RecordSettings, hold_gc
 from bench_ctl.runner.protocols import ExcitationSystem, ProcedureBench
 from bench_ctl.runner.safety import BenchBusy, LimitViolation, PreconditionFailed, check_pulse
-from procedures.recorded import measure_pulse, signed
+from procedures.recorded import (
+    RECOVERY_READ_ATTEMPTS,
+    Carried,
+    link_free_at,
+    measure_pulse,
+    signed,
+    timed_write_cause,
+)
 
 #: the run is meant to leave a capture: when it ends without one, the outcome says so
 CAPTURES = True
@@ -81,10 +105,13 @@ PARAMETERS: dict[str, tuple[float, float, str]] = {
     "vt_margin_pu": (0.0, 0.05, "pu"),
     "q_margin": (0.0, 0.4, ""),
     "poll_s": (0.02, 1.0, "s"),
+    "steady_timeout_s": (0.0, 600.0, "s"),
 }
 MIN_AMPLITUDE_PU = 0.005
 #: status bits that mean a limiter is acting (by their profile names)
 LIMITER_SUFFIXES = ("_limit", "_active")
+#: what the watch reads each poll (one request where the map keeps them together)
+WATCHED = ("vt", "q", "p", "status")
 
 
 def check_parameters(params: dict[str, Any]) -> list[str]:
@@ -113,16 +140,29 @@ def check_parameters(params: dict[str, Any]) -> list[str]:
 
 
 class Band:
-    """The Vt and Q band of the test (limits.vt_*, q_*): what ends the step when left."""
+    """What ends the step when left (limits.vt_*, q_*, p_*; the limiters): Vt and Q in their bands,
+    P in the unit's on-line range and within `p_swing_mw` of its value at the start, no limiter
+    acting. `worst` keeps the first excursion seen."""
 
-    def __init__(self, vt: tuple[float, float], q: tuple[float, float]) -> None:
-        self.vt, self.q = vt, q
+    def __init__(self, vt: tuple[float, float], q: tuple[float, float], p: tuple[float, float],
+                 p_swing_mw: float, p0_mw: float) -> None:
+        self.vt, self.q, self.p = vt, q, p
+        self.p_swing_mw, self.p0_mw = p_swing_mw, p0_mw
         self.worst: str | None = None    # the first excursion seen
 
-    def outside(self, vt: float, q: float) -> str | None:
-        """What is outside (None when both are in), and remember the first."""
+    def outside(self, seen: dict[str, float], limiters: list[str] | None = None) -> str | None:
+        """What is outside (None when all are in), and remember the first."""
+        vt, q, p = seen["vt"], seen["q"], seen["p"]
         why = None
-        if not (math.isfinite(vt) and self.vt[0] <= vt <= self.vt[1]):
+        if limiters:
+            why = f"limiter acting: {', '.join(limiters)} (status bit set)"
+        elif not (math.isfinite(p) and self.p[0] <= p <= self.p[1]):
+            kind = "reverse power" if p < 0 else "a trip or a load rejection" if p < self.p[0] else "overload"
+            why = f"p {p:.2f} MW outside the unit's range {self.p[0]:.2f}..{self.p[1]:.2f} MW ({kind})"
+        elif abs(p - self.p0_mw) > self.p_swing_mw:
+            why = (f"p {p:.2f} MW moved {signed(p - self.p0_mw, 2)} MW from {self.p0_mw:.2f} MW at the start, "
+                   f"more than {self.p_swing_mw:.2f} MW (a load rejection or a load change)")
+        elif not (math.isfinite(vt) and self.vt[0] <= vt <= self.vt[1]):
             why = f"vt {vt:.4f} pu outside {self.vt[0]:.4f}..{self.vt[1]:.4f} pu"
         elif not (math.isfinite(q) and self.q[0] <= q <= self.q[1]):
             why = f"q {q:.2f} Mvar outside {self.q[0]:.2f}..{self.q[1]:.2f} Mvar"
@@ -130,12 +170,55 @@ class Band:
             self.worst = why
         return why
 
+    def text(self) -> str:
+        return (f"vt {self.vt[0]:.4f}..{self.vt[1]:.4f} pu, q {self.q[0]:.2f}..{self.q[1]:.2f} Mvar, "
+                f"p {self.p[0]:.2f}..{self.p[1]:.2f} MW and within {self.p_swing_mw:.2f} MW of "
+                f"{self.p0_mw:.2f} MW, no limiter acting")
+
+
+class Steady:
+    """Samples of P, Q and Vt before the step: steady when they cover the last `time_s` without a
+    gap longer than `max_gap_s` and each moved less than its band (max - min)."""
+
+    def __init__(self, bands: dict[str, float], time_s: float, max_gap_s: float) -> None:
+        self.bands, self.time_s, self.max_gap_s = bands, time_s, max_gap_s
+        self._samples: list[tuple[float, dict[str, float]]] = []
+
+    def add(self, t: float, seen: dict[str, float]) -> None:
+        if self._samples and t - self._samples[-1][0] > self.max_gap_s:
+            self._samples.clear()      # a gap (the operator's question): the window starts again
+        self._samples.append((t, {k: seen[k] for k in self.bands}))
+        start = t - self.time_s
+        while len(self._samples) > 1 and self._samples[1][0] <= start:
+            self._samples.pop(0)
+
+    def moved(self) -> dict[str, float]:
+        """max - min of each quantity over the window."""
+        return {k: max(v[k] for _, v in self._samples) - min(v[k] for _, v in self._samples)
+                for k in self.bands} if self._samples else {}
+
+    def verdict(self) -> str | None:
+        """None when steady; else what is not (not yet covered, or what moved more than its band)."""
+        if not self._samples:
+            return "not observed yet"
+        span = self._samples[-1][0] - self._samples[0][0]
+        moved = self.moved()
+        units = {"p": "MW", "q": "Mvar", "vt": "pu"}
+        over = [f"{k} moved {moved[k]:.4g} {units[k]} (band {self.bands[k]:g} {units[k]})"
+                for k in self.bands if not moved[k] <= self.bands[k]]
+        if over:
+            return "; ".join(over) + f" over the last {span:.1f} s"
+        if span < self.time_s:
+            return f"observed {span:.1f} s of {self.time_s:g} s"
+        return None
+
 
 def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float = 0.02, hold_s: float = 10.0,
                 pre_trigger_s: float = 2.0, record_s: float = 20.0, rate_hz: int = 200,
                 hold_tolerance_s: float = 0.02, amplitude_tolerance_pu: float = 0.001,
                 recovery_tolerance_pu: float = 0.01, recovery_timeout_s: float = 30.0,
-                vt_margin_pu: float = 0.005, q_margin: float = 0.1, poll_s: float = 0.05) -> ProcedureResult:
+                vt_margin_pu: float = 0.005, q_margin: float = 0.1, poll_s: float = 0.05,
+                steady_timeout_s: float = 30.0) -> ProcedureResult:
     """The on-line step; see the module docstring (the test sheet)."""
     ex, rec = bench.exciter, bench.recorder
     lim = run.limits
@@ -147,7 +230,7 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
         vt0 = ex.read("vt")
         state = rec.status()
         holder = ex.remote_holder()
-        limiters = _limiters_acting(ex)
+        limiters = _limiters_acting(ex.bits("status"))
         run.note("readings", p_mw=p_mw, q_mvar=q0, setpoint_pu=pre.setpoint_pu, mode=pre.mode, vt_pu=vt0,
                  recorder_status=state, remote_holder=holder, limiters_acting=limiters)
         if holder is not None:
@@ -156,6 +239,10 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
         if lim.q_min_mvar is None or lim.q_max_mvar is None:
             raise LimitViolation("refused before any write: the bench config has no Q band (limits.q_min_mvar, "
                                  "q_max_mvar: the unit's capability at this P): an on-line step needs it")
+        if lim.p_min_mw is None or lim.p_max_mw is None:
+            raise LimitViolation("refused before any write: the bench config has no P range (limits.p_min_mw, "
+                                 "p_max_mw: the unit's on-line range, its minimum load to its rating): an on-line "
+                                 "step needs it to see a trip, a load rejection or reverse power")
         if not ex.has("q"):
             raise PreconditionFailed("refused before any write: the exciter's profile reads no q: an on-line step "
                                      "watches the reactive power")
@@ -168,47 +255,62 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
             raise PreconditionFailed(f"on-line precondition failed: active power p = {p_mw:.6g} MW below "
                                      f"limits.no_load_p_max_mw = {lim.no_load_p_max_mw:g} MW: the unit is not "
                                      "synchronised (the no-load test is no_load_pulse)")
+        if not lim.p_min_mw <= p_mw <= lim.p_max_mw:
+            kind = ("reverse power: the unit is motoring" if p_mw < 0 else
+                    "below the unit's minimum load" if p_mw < lim.p_min_mw else "above the unit's rating")
+            raise PreconditionFailed(f"refused before any write: p = {p_mw:.2f} MW outside the unit's on-line "
+                                     f"range limits.p_min_mw..p_max_mw = {lim.p_min_mw:g}..{lim.p_max_mw:g} MW "
+                                     f"({kind})")
         if limiters:
             raise PreconditionFailed(f"refused before any write: limiter(s) acting: {', '.join(limiters)}")
         plan = check_pulse(lim, setpoint_pu=pre.setpoint_pu, amplitude_pu=amplitude_pu, width_s=hold_s,
                            width_cap="step_hold_max_s")
-        band = Band(lim.vt_band_pu, (lim.q_min_mvar, lim.q_max_mvar))
+        band = Band(lim.vt_band_pu, (lim.q_min_mvar, lim.q_max_mvar), (lim.p_min_mw, lim.p_max_mw),
+                    lim.p_swing_mw, p_mw)
         _check_margins(band, vt0, q0, amplitude_pu, vt_margin_pu, q_margin)
         if state not in ("idle", "done"):
             raise PreconditionFailed(f"recorder status {state!r}: expected idle or done")
         ex.encode("setpoint", plan.pulse_setpoint_pu)  # representable? (RangeError, nothing sent)
+        bands = lim.steady_bands()
+        assert bands is not None   # the P range and the Q band are there
+        steady = Steady(bands, lim.steady_time_s, max_gap_s=max(0.5, 4 * poll_s) + ex.request_timeout_s)
+        _wait_steady(run, bench, ex, steady, steady_timeout_s, poll_s, before="any write")
+        link = run.check_link(ex, width_s=hold_s, cap_name="step_hold_max_s", what="step")
         settings = RecordSettings(rate_hz=rate_hz, pre_trigger_s=pre_trigger_s, length_s=record_s,
                                   trigger="usetp_step", threshold_pu=round(abs(amplitude_pu) / 2, 4))
         run.note("plan", setpoint_pu=plan.setpoint_pu, step_setpoint_pu=plan.pulse_setpoint_pu, hold_s=hold_s,
-                 watchdog_s=watchdog_s, vt_band_pu=list(band.vt), q_band_mvar=list(band.q),
-                 record=settings.__dict__)
+                 watchdog_s=watchdog_s, link_max_s=link.max_s, vt_band_pu=list(band.vt), q_band_mvar=list(band.q),
+                 p_range_mw=list(band.p), p_swing_mw=band.p_swing_mw, steady_bands=bands,
+                 steady_time_s=lim.steady_time_s, record=settings.__dict__)
 
     run.confirm("\n".join((
         f"{run.procedure} on the exciter {ex.endpoint_url} (unit {ex.unit_id}), the unit ON LINE:",
         f"  setpoint  {plan.setpoint_pu:.4f} pu -> {plan.pulse_setpoint_pu:.4f} pu held {hold_s:.3f} s, "
         f"then back to {plan.setpoint_pu:.4f} pu",
-        f"  unit now  p {p_mw:.2f} MW, q {q0:.2f} Mvar, vt {vt0:.4f} pu",
-        f"  band      vt {band.vt[0]:.4f}..{band.vt[1]:.4f} pu, q {band.q[0]:.2f}..{band.q[1]:.2f} Mvar: "
-        f"leaving it ends the step at once",
+        f"  unit now  p {p_mw:.2f} MW, q {q0:.2f} Mvar, vt {vt0:.4f} pu, steady over {lim.steady_time_s:g} s "
+        f"(p {bands['p']:g} MW, q {bands['q']:g} Mvar, vt {bands['vt']:g} pu)",
+        f"  band      {band.text()}: leaving it ends the step at once",
         f"  limits    |amplitude| <= {lim.pulse_amplitude_max_pu:.4f} pu, hold <= {lim.step_hold_max_s:.3f} s",
         f"  watchdog  {run.watchdog_text()}",
+        f"  link      {run.link_text()}",
         f"  recorder  {rate_hz:g} Hz, pre-trigger {pre_trigger_s:.3f} s, record {record_s:.3f} s, "
         f"channels {', '.join(rec.channels)}")))
 
+    sample = _sampler(run, bench, ex, steady, poll_s)
     with run.step("arm recorder"):
         rec.configure(settings)
         rec.arm()
-        rec.wait_status(("armed",), pre_trigger_s + 5.0, check=bench.check)
+        rec.wait_status(("armed",), pre_trigger_s + 5.0, check=sample)
 
     with run.step("take remote"):
         ex.take_remote()
+        _wait_steady(run, bench, ex, steady, steady_timeout_s, poll_s, before="the step")
 
     with run.step("step", amplitude_pu=amplitude_pu, hold_s=hold_s):
         on = ex.write_setpoint(plan.pulse_setpoint_pu, purpose="step on")
         run.hook("step_applied")
         deadline = on.t_tx_mono + hold_s
-        why = _watch(run, bench, ex, band, until=deadline - TIMED_WRITE_GUARD_S - ex.request_timeout_s - 0.05,
-                     poll_s=poll_s)
+        why = _watch(run, bench, ex, band, t_on=on.t_tx_mono, hold_s=hold_s, poll_s=poll_s)
         with hold_gc():
             if why is None:
                 off = ex.write_setpoint(plan.setpoint_pu, purpose="step off (restore pre-test setpoint)",
@@ -220,19 +322,27 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
         run.note("step_sent", held_s=held_s, aborted=why)
         run.hook("step_restored")
 
+    carried = Carried(run)   # trouble after the step: noted, the record still kept
     with run.step("recovery"):
-        rec.wait_status(("done",), record_s + 5.0, check=_watching(run, bench, ex, band, poll_s))
+        rec.wait_status(("done",), record_s + 5.0, check=_watching(run, bench, ex, band, poll_s, carried))
         end = time.monotonic() + recovery_timeout_s
-        vt_end = ex.read("vt")
-        while abs(vt_end - vt0) > recovery_tolerance_pu and time.monotonic() < end:
-            bench.check()
+        vt_end = _read_vt(ex, carried)
+        while not abs(vt_end - vt0) <= recovery_tolerance_pu and time.monotonic() < end:
+            carried.check(bench.check)
             time.sleep(0.1)
-            vt_end = ex.read("vt")
-        sp_words = tuple(ex.read_words("setpoint"))
+            vt_end = _read_vt(ex, carried)
+        try:
+            sp_words = tuple(ex.read_words("setpoint", attempts=RECOVERY_READ_ATTEMPTS))
+        except DeviceError as exc:
+            carried.note("reading the setpoint back", exc)
+            sp_words = ()
         run.note("recovered", vt_pu=vt_end, setpoint_words=list(sp_words), band_left=band.worst)
 
     with run.step("release exciter"):
-        run.release(ex, "on-line step complete")
+        try:
+            run.release(ex, "on-line step complete")
+        except DeviceError as exc:   # the runner's safe state tries again after the download
+            carried.note("giving the exciter back", exc)
 
     with run.step("download"):
         raw, data = run.download(rec)   # saved as received before any conversion
@@ -244,15 +354,16 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
             "start_s": raw.trigger_sample / raw.rate_hz, "pre_trigger_s": pre_trigger_s,
             "setpoint_pu": plan.setpoint_pu, "commanded_width_s": held_s, "recorded": step.__dict__,
             "operating_point": {"p_mw": p_mw, "q_mvar": q0, "vt_pu": vt0},
-            "band": {"vt_pu": list(band.vt), "q_mvar": list(band.q), "left": band.worst}}
+            "band": {"vt_pu": list(band.vt), "q_mvar": list(band.q), "p_mw": list(band.p),
+                     "p_swing_mw": band.p_swing_mw, "left": band.worst}}
         run.save_record(raw, data, test)
 
     hold_err = step.width_s - hold_s
     amp_err = step.amplitude_pu - amplitude_pu
+    cap_s = lim.step_hold_max_s
     criteria = (
-        Criterion("vt and q inside the band", band.worst is None, band.worst or "inside", "inside", "",
-                  shown=band.worst or (f"vt {band.vt[0]:.4f}..{band.vt[1]:.4f} pu, "
-                                       f"q {band.q[0]:.2f}..{band.q[1]:.2f} Mvar throughout")),
+        Criterion("unit inside its bands", band.worst is None, band.worst or "inside", "inside", "",
+                  shown=band.worst or f"{band.text()} throughout"),
         Criterion("step amplitude error", abs(amp_err) <= amplitude_tolerance_pu, amp_err,
                   amplitude_tolerance_pu, "pu",
                   shown=f"{signed(amp_err, 4)} pu (limit ±{amplitude_tolerance_pu:.4f} pu)"),
@@ -265,19 +376,27 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
         Criterion("setpoint restored (raw)", sp_words == pre.setpoint_words, list(sp_words),
                   list(pre.setpoint_words),
                   shown=(f"{ex.decode('setpoint', sp_words):.4f} pu, pre-test {pre.setpoint_pu:.4f} pu "
-                         f"(register words {'identical' if sp_words == pre.setpoint_words else 'DIFFER'})")),
+                         f"(register words {'identical' if sp_words == pre.setpoint_words else 'DIFFER'})")
+                  if sp_words else "not read back (the read failed after the step)"),
+        Criterion("step within the cap (as recorded)", step.width_s <= cap_s, step.width_s, cap_s, "s",
+                  shown=f"{step.width_s:.3f} s on the device (cap limits.step_hold_max_s {cap_s:.3f} s)"),
     )
     run.note("criteria", criteria=[c.to_dict() for c in criteria])
     summary = (f"recorded step {step.amplitude_pu:.4f} pu held {step.width_s:.3f} s from p {p_mw:.1f} MW, "
-               f"q {q0:.1f} Mvar" + (f"; ABORTED: {why}" if why else ""))
-    return ProcedureResult(criteria=criteria, summary=summary,
+               f"q {q0:.1f} Mvar" + (f"; ABORTED: {why}" if why else "")
+               + (f"; after the step: {band.worst}" if band.worst and not why else ""))
+    late_s = held_s - hold_s
+    if why is None and abs(late_s) > hold_tolerance_s:   # the restore left late: the link's or this host's doing
+        summary += (f"; the restore write left {signed(late_s * 1e3, 1)} ms off its deadline (the cause: "
+                    f"{timed_write_cause(off)}), so the step was that much off on the wire")
+    return ProcedureResult(criteria=criteria, summary=summary, comms_error=carried.first,
                            data={"hold_err_s": hold_err, "amplitude_err_pu": amp_err, "aborted": why,
                                  "recorded": step.__dict__, "download_s": raw.download_s})
 
 
-def _limiters_acting(ex: ExcitationSystem) -> list[str]:
+def _limiters_acting(bits: dict[str, bool]) -> list[str]:
     """The status bits named *_limit or *_active that read 1 (the profile's names)."""
-    return [name for name, on in ex.bits("status").items() if on and name.endswith(LIMITER_SUFFIXES)]
+    return [name for name, on in bits.items() if on and name.endswith(LIMITER_SUFFIXES)]
 
 
 def _check_margins(band: Band, vt0: float, q0: float, amplitude_pu: float, vt_margin_pu: float,
@@ -299,32 +418,19 @@ def _check_margins(band: Band, vt0: float, q0: float, amplitude_pu: float, vt_ma
         raise PreconditionFailed("refused before any write: near a limit: " + "; ".join(problems))
 
 
-def _read_band(ex: ExcitationSystem) -> tuple[float, float]:
-    return ex.read("vt", attempts=1), ex.read("q", attempts=1)
+def _read_watched(ex: ExcitationSystem, attempts: int | None,
+                  start_by: float | None = None) -> tuple[dict[str, float], list[str]] | None:
+    """Vt, Q, P and the status in one request where the map allows, and the limiters acting; None
+    when a request could not start before `start_by`."""
+    seen = ex.read_many(WATCHED, attempts=attempts, start_by=start_by)
+    if len(seen) < len(WATCHED):
+        return None
+    return seen, _limiters_acting(ex.bits_of("status", seen["status"]))
 
 
-def _watch(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, band: Band, *, until: float,
-           poll_s: float) -> str | None:
-    """Read Vt and Q every poll_s until `until`: what left the band (or the failed read) ends it."""
-    while (now := time.monotonic()) < until:
-        bench.check()
-        try:
-            vt, q = _read_band(ex)
-        except DeviceError as exc:
-            band.worst = band.worst or f"vt / q not read ({exc.summary})"
-            return band.worst
-        why = band.outside(vt, q)
-        if why is not None:
-            return why
-        run.status(f"vt {vt:.4f} pu, q {q:.2f} Mvar, {max(0.0, until - now):.1f} s held")
-        time.sleep(max(0.0, min(poll_s, until - time.monotonic())))
-    return None
-
-
-def _watching(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, band: Band,
-              poll_s: float) -> Callable[[], None]:
-    """The bench's check while the record completes, with Vt and Q held against the band (the
-    setpoint is already back; an excursion is noted and fails the test)."""
+def _sampler(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, steady: Steady,
+             poll_s: float) -> Callable[[], None]:
+    """The bench's check while the recorder arms, sampling the steady state every poll_s."""
     last = [0.0]
 
     def check() -> None:
@@ -332,7 +438,95 @@ def _watching(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, band
         now = time.monotonic()
         if now - last[0] >= poll_s:
             last[0] = now
-            vt, q = _read_band(ex)
-            band.outside(vt, q)
-            run.status(f"recording, vt {vt:.4f} pu, q {q:.2f} Mvar")
+            got = _read_watched(ex, attempts=None)
+            assert got is not None
+            steady.add(now, got[0])
+    return check
+
+
+def _wait_steady(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, steady: Steady,
+                 timeout_s: float, poll_s: float, *, before: str) -> None:
+    """Sample until P, Q and Vt have been steady over limits.steady_time_s (and no limiter acts);
+    PreconditionFailed when that takes longer than steady_time_s + `timeout_s`."""
+    give_up = time.monotonic() + steady.time_s + timeout_s
+    while True:
+        bench.check()
+        now = time.monotonic()
+        got = _read_watched(ex, attempts=None)
+        assert got is not None
+        seen, limiters = got
+        steady.add(now, seen)
+        verdict = steady.verdict()
+        if limiters:
+            verdict = f"limiter(s) acting: {', '.join(limiters)}"
+        if verdict is None:
+            run.note("steady", before=before, moved=steady.moved(), bands=steady.bands, time_s=steady.time_s)
+            return
+        if now >= give_up:
+            run.note("steady", before=before, moved=steady.moved(), bands=steady.bands, time_s=steady.time_s,
+                     refused=verdict)
+            waited = steady.time_s + timeout_s
+            raise PreconditionFailed(f"refused before {before}: the unit is not steady: {verdict} "
+                                     f"(limits.steady_time_s {steady.time_s:g} s, waited {waited:g} s in all); "
+                                     "wait for it to settle")
+        run.status(f"waiting for a steady state: {verdict}")
+        time.sleep(max(0.0, poll_s - (time.monotonic() - now)))
+
+
+def _watch(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, band: Band, *, t_on: float,
+           hold_s: float, poll_s: float) -> str | None:
+    """Read Vt, Q, P and the status every poll_s while the step is held: what left the band (or
+    a failed read, a failing heartbeat) ends it. A request starts before the timed restore asks for
+    the link or not at all (`link_free_at`), so the watch never delays the restore."""
+    free_at = link_free_at(t_on + hold_s, ex.request_timeout_s)
+    while time.monotonic() < free_at:
+        try:
+            bench.check()
+        except DeviceError as exc:
+            band.worst = band.worst or f"heartbeat failing ({exc.summary})"
+            return band.worst
+        try:
+            got = _read_watched(ex, attempts=1, start_by=free_at)
+        except DeviceError as exc:
+            band.worst = band.worst or f"vt / q / p not read ({exc.summary})"
+            return band.worst
+        if got is None:
+            return None
+        seen, limiters = got
+        why = band.outside(seen, limiters)
+        if why is not None:
+            return why
+        now = time.monotonic()
+        run.status(f"vt {seen['vt']:.4f} pu, q {seen['q']:.2f} Mvar, p {seen['p']:.1f} MW, "
+                   f"{now - t_on:.1f} s of {hold_s:.1f} s held")
+        time.sleep(max(0.0, min(poll_s, free_at - time.monotonic())))
+    return None
+
+
+def _read_vt(ex: ExcitationSystem, carried: Carried) -> float:
+    """vt after the step, read again on a lost reply; NaN (carried) when it fails for good."""
+    return carried.read("reading vt after the step", lambda: ex.read("vt", attempts=RECOVERY_READ_ATTEMPTS))
+
+
+def _watching(run: RunContext, bench: ProcedureBench, ex: ExcitationSystem, band: Band, poll_s: float,
+              carried: Carried) -> Callable[[], None]:
+    """The bench's check while the record completes, with Vt, Q, P and the limiters held against the
+    band (the setpoint is already back; an excursion is noted and fails the test). Its reads are
+    retried; one lost for good, or a failing heartbeat, is carried (the record is still kept)."""
+    last = [0.0]
+
+    def check() -> None:
+        carried.check(bench.check)
+        now = time.monotonic()
+        if now - last[0] >= poll_s:
+            last[0] = now
+            try:
+                got = _read_watched(ex, attempts=RECOVERY_READ_ATTEMPTS)
+            except DeviceError as exc:
+                carried.note("reading vt, q, p after the step", exc)
+                return
+            assert got is not None
+            seen, limiters = got
+            band.outside(seen, limiters)
+            run.status(f"recording, vt {seen['vt']:.4f} pu, q {seen['q']:.2f} Mvar, p {seen['p']:.1f} MW")
     return check

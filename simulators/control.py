@@ -3,10 +3,16 @@
 One command per line, one reply line (``ok ...`` or ``error ...``)::
 
     fault no_reply device=exciter count=1      arm a fault (keys as simulators.faults.Fault)
-    clear [KIND]                               disarm all faults (or those of one kind)
+    fault late_reply device=exciter count=inf delay_s=0.1 delay_max_s=0.45    a slow exciter
+    fault load device=exciter op=write register=setpoint mw=0 delay_s=0.5    loss of load in a step
+    fault limiter device=exciter op=write register=setpoint bit=ceiling_limit delay_s=0.5
+    fault no_reply device=exciter op=read register=q after=setpoint:2        a lost read in recovery
+    clear [KIND]                               disarm all faults (or those of one kind; a limiter's
+                                               forced status bit ends with it)
     list                                       the armed faults
-    load 12.5                                  set the exciter's active power (MW)
-    state                                      plant step, vt, efd, setpoint, recorder status
+    load 12.5                                  set the exciter's active power (MW; on line the
+                                               turbine's power, which P follows)
+    state                                      plant step, vt, efd, p, q, setpoint, recorder status
 
 e.g. ``printf 'fault late_reply device=recorder delay_s=0.4\\n' | socat - TCP:127.0.0.1:5029``.
 Binds to loopback by default; it is a test aid, not an operator interface.
@@ -45,7 +51,10 @@ def execute(bench: Controllable, line: str) -> str:
             bench.faults.add(fault)
             return f"ok {fault}"
         if cmd == "clear":
-            return f"ok cleared {bench.faults.clear(kind=args[0] if args else None)}"
+            kind = args[0] if args else None
+            if kind in (None, "limiter"):
+                bench.exciter.clear_forced_bits()
+            return f"ok cleared {bench.faults.clear(kind=kind)}"
         if cmd == "list":
             return "ok " + "; ".join(str(f) for f in bench.faults.active())
         if cmd == "load" and len(args) == 1:
@@ -53,7 +62,9 @@ def execute(bench: Controllable, line: str) -> str:
             return f"ok load {float(args[0])} MW"
         if cmd == "state":
             st = bench.plant.state()
-            return (f"ok step={st.step} vt={st.vt:.6f} efd={st.efd:.6f} usetp={st.usetp:.6f} "
+            power = (f"p={st.p * bench.plant.mva:.3f} q={st.q * bench.plant.mva:.3f} "
+                     if bench.plant.on_line else f"p={bench.exciter.load_mw:.3f} ")
+            return (f"ok step={st.step} vt={st.vt:.6f} efd={st.efd:.6f} {power}usetp={st.usetp:.6f} "
                     f"remote={bench.exciter.remote} recorder={bench.recorder.status}")
     except ValueError as exc:
         return f"error {exc}"

@@ -22,7 +22,10 @@ Behaviour:
   status.remote_other_master (where the profile has that bit) reads 1 to them. The hold ends
   when remote is given back or the watchdog trips. The device's own panel (the model called
   directly, as tests do) is never refused;
-- manual mode is not simulated: a mode write without the auto bit -> exception 03.
+- manual mode is not simulated: a mode write without the auto bit -> exception 03;
+- plant events of the fault injection (`plant_event`): a `load` sets the turbine's power (a load
+  rejection, a trip, reverse power on line), a `limiter` makes a status bit read 1 for a while (a
+  limiter acting, as the device reports it).
 """
 from __future__ import annotations
 
@@ -36,8 +39,9 @@ from pymodbus.constants import ExcCodes
 
 from bench_ctl.plants import FLAG_CEILING, FLAG_RAMP, FLAG_RATE, TURBINE_PU, Plant
 from drivers.exciter import OTHER_MASTER_BIT, watchdog_register
-from drivers.profile import Profile, Register
+from drivers.profile import Profile, Register, a_device
 
+from .faults import Fault
 from .regmap import CLIENT
 
 log = logging.getLogger(__name__)
@@ -60,7 +64,7 @@ class ExciterDevice:
     def __init__(self, plant: Plant, profile: Profile, *, heartbeat_timeout_s: float | None = None,
                  load_mw: float = 0.0, require_remote: bool | None = None) -> None:
         if profile.device != "exciter":
-            raise ValueError(f"profile {profile.name!r} is for a {profile.device}, not an exciter")
+            raise ValueError(f"profile {profile.name!r} is for {a_device(profile.device)}, not an exciter")
         missing = [n for n in REQUIRED if n not in profile.registers]
         if missing:
             raise ValueError(f"exciter profile {profile.name!r} lacks registers {missing}")
@@ -100,6 +104,8 @@ class ExciterDevice:
         #: plant step from which the last written setpoint acts
         self.last_setpoint_step: int | None = None
         self._extra: dict[str, float] = {}
+        #: status bits forced on by a `limiter` fault: name -> monotonic end (inf: until cleared)
+        self.forced_bits: dict[str, float] = {}
         #: (monotonic time, event, value) of what happened to the device, for tests and logs
         self.events: list[tuple[float, str, float]] = []
         plant.add_listener(self._on_plant)
@@ -115,6 +121,10 @@ class ExciterDevice:
         st = self.plant.state()
         flags = 0
         sb = self._status_bits
+        now = time.monotonic()
+        for name, until in list(self.forced_bits.items()):
+            if name in sb and now < until:
+                flags |= 1 << sb[name]
         for name, on in (("ceiling_limit", st.flags & FLAG_CEILING),
                          ("rate_limit", st.flags & FLAG_RATE),
                          ("setpoint_ramping", st.flags & FLAG_RAMP),
@@ -212,6 +222,30 @@ class ExciterDevice:
         if self.plant.on_line:
             self.plant.set_mech_power(p_mw / self.plant.mva)
         self.load_mw = float(p_mw)
+
+    def plant_event(self, event: Fault) -> None:
+        """A plant event of the fault injection (simulators.faults): `load` sets the turbine's
+        power to `event.mw` MW; `limiter` makes status bit `event.bit` read 1 for
+        `event.duration_s` (until cleared when None)."""
+        now = time.monotonic()
+        try:
+            if event.kind == "load":
+                self.set_load_mw(float(event.mw))
+                self.events.append((now, "load", float(event.mw)))
+            elif event.kind == "limiter":
+                if event.bit not in self._status_bits:
+                    raise ValueError(f"status has no bit {event.bit!r} (bits: {', '.join(self._status_bits)})")
+                end = now + event.duration_s if event.duration_s is not None else float("inf")
+                self.forced_bits[event.bit] = end
+                self.events.append((now, "limiter", 1.0))
+        except ValueError as exc:
+            log.warning("plant event %s not applied: %s", event.kind, exc)
+            return
+        log.info("plant event: %s", event)
+
+    def clear_forced_bits(self) -> None:
+        """End every limiter a fault forced."""
+        self.forced_bits.clear()
 
     # ---------------------------------------------------------------- watchdog
     def _on_plant(self, k0: int, out: np.ndarray) -> None:

@@ -9,6 +9,7 @@ request (a context variable: each request is handled in its own asyncio task).
 """
 from __future__ import annotations
 
+import asyncio
 import contextvars
 import logging
 
@@ -28,6 +29,8 @@ _READ_FC = {3: "holding", 4: "input"}
 _WRITE_FC = {6: "holding", 16: "holding", 23: "holding"}
 _REPLY_FAULT: contextvars.ContextVar[Fault | None] = contextvars.ContextVar("reply_fault",
                                                                             default=None)
+#: the delay drawn for this request's late_reply fault
+_REPLY_DELAY: contextvars.ContextVar[float] = contextvars.ContextVar("reply_delay", default=0.0)
 
 
 def build_simdevice(device: DeviceModel, unit_id: int, faults: FaultSet) -> SimDevice:
@@ -48,12 +51,21 @@ def build_simdevice(device: DeviceModel, unit_id: int, faults: FaultSet) -> SimD
             op, table = "read", _READ_FC[function_code]
         else:
             return ExcCodes.ILLEGAL_FUNCTION
-        fault = None if second_half else faults.take(device.kind, op,
-                                                     image.names(table, address, count))
+        names = image.names(table, address, count)
+        fault = None if second_half else faults.take(device.kind, op, names)
+        if not second_half:
+            for event in faults.take_events(device.kind, op, names):
+                _schedule(device, event)
         if fault is not None:
             if fault.kind == "exception":
                 return ExcCodes(fault.code)
-            _REPLY_FAULT.set(fault)
+            if fault.kind == "slow":   # the device serves the request that late
+                delay = faults.delay_for(fault)
+                log.info("fault: request served %.3f s late", delay)
+                await asyncio.sleep(delay)
+            else:
+                _REPLY_FAULT.set(fault)
+                _REPLY_DELAY.set(faults.delay_for(fault) if fault.kind == "late_reply" else 0.0)
         if op == "write":
             return image.write(table, address, [int(v) for v in set_values])
         words = image.read(table, address, count)
@@ -64,6 +76,15 @@ def build_simdevice(device: DeviceModel, unit_id: int, faults: FaultSet) -> SimD
         return None
 
     return SimDevice(id=unit_id, simdata=_blocks(ends["holding"], ends["input"]), action=action)
+
+
+def _schedule(device: DeviceModel, event: Fault) -> None:
+    """Set off a plant event (`load`, `limiter`) `delay_s` after this request."""
+    apply = getattr(device, "plant_event", None)
+    if apply is None:
+        log.warning("fault %s: the %s has no plant", event.kind, device.kind)
+        return
+    asyncio.get_running_loop().call_later(event.delay_s, apply, event)
 
 
 def _blocks(holding: int, inputs: int) -> tuple:
@@ -133,8 +154,9 @@ class _FaultHandler(ServerRequestHandler):
                 self.transport.close()
             return None
         if fault.kind == "late_reply":
-            log.info("fault: reply delayed by %.3f s", fault.delay_s)
-            self.loop.call_later(fault.delay_s, self._send_late, pdu, addr)
+            delay = _REPLY_DELAY.get()
+            log.info("fault: reply delayed by %.3f s", delay)
+            self.loop.call_later(delay, self._send_late, pdu, addr)
             return None
         if fault.kind == "corrupt":
             packet = self.framer.buildFrame(pdu)

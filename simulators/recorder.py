@@ -27,7 +27,7 @@ import numpy as np
 from pymodbus.constants import ExcCodes
 
 from bench_ctl.plants import O_USETP, Plant
-from drivers.profile import Profile, Register
+from drivers.profile import Profile, Register, a_device
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +51,7 @@ class RecorderDevice:
     def __init__(self, plant: Plant, profile: Profile, *, noise_pu: float = 0.01,
                  seed: int | None = 0) -> None:
         if profile.device != "recorder":
-            raise ValueError(f"profile {profile.name!r} is for a {profile.device}, not a recorder")
+            raise ValueError(f"profile {profile.name!r} is for {a_device(profile.device)}, not a recorder")
         missing = [n for n in REQUIRED if n not in profile.registers]
         if missing:
             raise ValueError(f"recorder profile {profile.name!r} lacks registers {missing}")

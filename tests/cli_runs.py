@@ -78,14 +78,15 @@ def run_argv(bench: Path, out: Path, *, params: dict[str, Any] | None = None,
     return argv
 
 
-def run_env(lock_home: Path) -> dict[str, str]:
-    """The environment of a run: this worktree importable, bench locks under `lock_home`."""
-    return {**os.environ, "PYTHONPATH": str(ROOT), "XDG_RUNTIME_DIR": str(lock_home)}
+def run_env(**extra: str) -> dict[str, str]:
+    """The environment of a run: this worktree importable (bench locks are host-wide whatever the
+    environment: bench_ctl/runner/lock.py), plus `extra`."""
+    return {**os.environ, "PYTHONPATH": str(ROOT), **extra}
 
 
-def start_run(argv: list[str], lock_home: Path, **popen: Any) -> subprocess.Popen:
+def start_run(argv: list[str], *, env: dict[str, str] | None = None, **popen: Any) -> subprocess.Popen:
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=run_env(lock_home), cwd=ROOT, **popen)
+                            env=run_env() if env is None else env, cwd=ROOT, **popen)
 
 
 def wait_for(cond: Any, timeout_s: float, what: str, every_s: float = 0.002) -> None:

@@ -50,9 +50,10 @@ def _print_outcome(outcome: RunOutcome) -> None:
     for line in outcome.not_saved:
         if line not in outcome.message:
             click.secho(f"  {line}", fg="red", bold=True, err=True)
-    if outcome.expects_capture and outcome.safe_state and not _on_disk(outcome.capture_path) and \
+    if outcome.expects_capture and outcome.started and not _on_disk(outcome.capture_path) and \
             not any("capture" in line for line in outcome.not_saved):
-        click.secho("  capture: NOT SAVED - the run ended before its capture was written (the reason is above)",
+        kept = "; the recorder's record is saved raw (below)" if _on_disk(outcome.raw_path) else ""
+        click.secho(f"  capture: NOT SAVED - the run ended before its capture was written (the reason is above){kept}",
                     fg="red", bold=True, err=True)
     for c in outcome.criteria:
         mark = "PASS" if c.passed else "FAIL"

@@ -11,7 +11,7 @@ over captures k and signals n (efd with the unit's efd weight; vt when the captu
 its weight is > 0; Q of an on-line record, weight `q`, default 1), docs/identification.md.
 
 A capture with P and Q channels is an on-line record: it runs on the machine on the grid
-(`bench_ctl.model.online`, the unit's [grid] data) from the record's own pre-step P, Q and Vt.
+(`bench_ctl.engine.machines.grid`, the unit's [grid] data) from the record's own pre-step P, Q and Vt.
 
 Candidates the kernel marks failed (unstable or invalid parameters) get a penalty larger than
 any objective a finite simulation can produce, and larger the earlier they fail, so every

@@ -132,7 +132,7 @@ STRUCTURE_PARAMS = ("KPP", "KDA", "SATEQ", "KF", "TF", "TEX", "KE", "E1", "SE1",
 #: parameters of the record's timing rather than of the unit (never in a unit file or a .dyr)
 RECORD_PARAMS = ("EDGE1", "EDGE2", "EDGE3", "EDGE4")
 
-#: the machine on the grid (bench_ctl.model.online; a unit's [grid]): its data beside the kernel's
+#: the machine on the grid (the engine's grid machine; a unit's [grid]): its data beside the kernel's
 #: T'd0, T''d0, S(1.0), S(1.2), Vt0, the grid to the infinite bus and the operating point
 MACHINE_CATALOGUE: tuple[ParamInfo, ...] = (
     ParamInfo("XD", "pu", "d-axis synchronous reactance Xd", 0.2, 4.0),

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from bench_ctl.runner.config import BenchConfig
@@ -72,11 +73,22 @@ class Bench:
                             register="heartbeat", frames=hb.last_error.frames)
 
     def safe_state(self, reason: str, *, reconnect: bool = False,
-                   cancel: threading.Event | None = None) -> list[SafeStateReport]:
+                   cancel: threading.Event | None = None,
+                   between: Callable[[], None] | None = None) -> list[SafeStateReport]:
         """Exciter first (restore the setpoint), then the recorder (disarm). Never raises.
-        `cancel` (a Ctrl-C during the safe state) stops the exciter's restore retries."""
+        `cancel` (a Ctrl-C during the safe state) stops the exciter's restore retries. `between`
+        runs once the exciter's safe state is over, before the recorder's (the runner keeps the
+        record of an aborted test there; an exciter NOT made safe is said first, loudly: the host
+        can do no more for it, its heartbeat is stopped); what it raises is logged."""
         reports = []
         for dev in (self.exciter, self.recorder):
+            if dev is self.recorder and between is not None:
+                if reports and not reports[0].ok:
+                    log.critical("%s: %s - %s", reports[0].device, reports[0].action, reports[0].detail)
+                try:
+                    between()
+                except Exception:  # noqa: BLE001 - the recorder's safe state must still run
+                    log.exception("keeping the record before the recorder's safe state failed")
             try:
                 extra = {"cancel": cancel} if dev is self.exciter and cancel is not None else {}
                 reports.append(dev.safe_state(reason, reconnect=reconnect, **extra))

@@ -43,7 +43,17 @@ ConfigError line naming the profile, the role and what is wrong.
     vt_max_pu = 1.08                  # test (default the setpoint band); leaving it aborts
     q_min_mvar = -30.0                # on line: the band Q must stay in (the unit's capability
     q_max_mvar = 60.0                 # at this P, less a margin); without it no on-line test
+    p_min_mw = 30.0                   # on line: the unit's on-line range of P (its minimum stable
+    p_max_mw = 100.0                  # load .. its rating); P outside it before the step refuses
+                                      # the test, during it ends the step (a trip, a load
+                                      # rejection, reverse power); without it no on-line test
+    p_swing_max_mw = 10.0             # optional, on line: how far P may move from its value at the
+                                      # start while the step is held (default 10 % of p_max_mw)
     step_hold_max_s = 30.0            # on line: the longest hold of a reference step
+    steady_time_s = 2.0               # optional, on line: P, Q and Vt steady this long before the
+    steady_p_band_mw = 2.0            # step, each within its band (max - min): defaults 2 s,
+    steady_q_band_mvar = 5.0          # 2 % of p_max_mw, 5 % of the Q band, 0.005 pu
+    steady_vt_band_pu = 0.005
 
     [procedures.no_load_pulse]        # optional: keyword parameters of a procedure
     amplitude_pu = 0.05
@@ -92,6 +102,11 @@ class DeviceConfig:
 #: pulse can last. 1.5 s accepts the 2-3 s watchdogs real excitation systems ship with against
 #: a 1.5 s cap (docs/decisions/0011).
 WATCHDOG_MARGIN_S = 1.5
+#: on line, the defaults of the P swing allowed during a step and of the steady-state bands before
+#: it: shares of the unit's P range top (p_max_mw) and of the Q band's width
+P_SWING_SHARE = 0.10
+STEADY_P_SHARE = 0.02
+STEADY_Q_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -109,6 +124,32 @@ class Limits:
     q_min_mvar: float | None = None       # None: no on-line test (the unit's capability is needed)
     q_max_mvar: float | None = None
     step_hold_max_s: float = 30.0
+    # on line: the unit's range of P (None: no on-line test), how far P may swing during the step
+    p_min_mw: float | None = None
+    p_max_mw: float | None = None
+    p_swing_max_mw: float | None = None   # None: P_SWING_SHARE of p_max_mw
+    # on line: the steady state before the step (each band: max - min over steady_time_s)
+    steady_time_s: float = 2.0
+    steady_p_band_mw: float | None = None      # None: STEADY_P_SHARE of p_max_mw
+    steady_q_band_mvar: float | None = None    # None: STEADY_Q_SHARE of the Q band's width
+    steady_vt_band_pu: float = 0.005
+
+    @property
+    def p_swing_mw(self) -> float | None:
+        """How far P may move from its value at the start of an on-line step (None without a P range)."""
+        if self.p_swing_max_mw is not None:
+            return self.p_swing_max_mw
+        return None if self.p_max_mw is None else P_SWING_SHARE * self.p_max_mw
+
+    def steady_bands(self) -> dict[str, float] | None:
+        """The steady-state bands before an on-line step, {"p": MW, "q": Mvar, "vt": pu} (None
+        without the P range or the Q band, which their defaults derive from)."""
+        if self.p_max_mw is None or self.q_min_mvar is None or self.q_max_mvar is None:
+            return None
+        return {"p": self.steady_p_band_mw if self.steady_p_band_mw is not None else STEADY_P_SHARE * self.p_max_mw,
+                "q": self.steady_q_band_mvar if self.steady_q_band_mvar is not None
+                else STEADY_Q_SHARE * (self.q_max_mvar - self.q_min_mvar),
+                "vt": self.steady_vt_band_pu}
 
     @property
     def vt_band_pu(self) -> tuple[float, float]:
@@ -180,7 +221,10 @@ _LIMIT_KEYS = {"pulse_amplitude_max_pu": (float, True), "pulse_width_max_s": (fl
                "setpoint_min_pu": (float, True), "setpoint_max_pu": (float, True),
                "no_load_p_max_mw": (float, True), "restore_deadline_s": (float, False),
                "watchdog_max_s": (float, False), "vt_min_pu": (float, False), "vt_max_pu": (float, False),
-               "q_min_mvar": (float, False), "q_max_mvar": (float, False), "step_hold_max_s": (float, False)}
+               "q_min_mvar": (float, False), "q_max_mvar": (float, False), "step_hold_max_s": (float, False),
+               "p_min_mw": (float, False), "p_max_mw": (float, False), "p_swing_max_mw": (float, False),
+               "steady_time_s": (float, False), "steady_p_band_mw": (float, False),
+               "steady_q_band_mvar": (float, False), "steady_vt_band_pu": (float, False)}
 _BENCH_KEYS = {"name": (str, False)}
 _TOP = {"bench", "exciter", "recorder", "limits", "procedures"}
 
@@ -261,11 +305,12 @@ def config_from_dict(doc: Mapping[str, Any], source: str = "<dict>",
     _positive(source, "limits", lim, ("pulse_amplitude_max_pu", "pulse_width_max_s",
                                       "no_load_p_max_mw", "restore_deadline_s",
                                       "setpoint_min_pu", "watchdog_max_s", "vt_min_pu",
-                                      "step_hold_max_s"))
+                                      "step_hold_max_s", "p_max_mw", "p_swing_max_mw", "steady_time_s",
+                                      "steady_p_band_mw", "steady_q_band_mvar", "steady_vt_band_pu"))
     if lim["setpoint_min_pu"] >= lim["setpoint_max_pu"]:
         raise ConfigError(f"{source}: limits.setpoint_min_pu {lim['setpoint_min_pu']} must be "
                           f"below limits.setpoint_max_pu {lim['setpoint_max_pu']}")
-    for lo, hi in (("vt_min_pu", "vt_max_pu"), ("q_min_mvar", "q_max_mvar")):
+    for lo, hi in (("vt_min_pu", "vt_max_pu"), ("q_min_mvar", "q_max_mvar"), ("p_min_mw", "p_max_mw")):
         if (lo in lim) != (hi in lim):
             raise ConfigError(f"{source}: limits.{lo} and limits.{hi} go together (a band has two ends)")
         if lo in lim and lim[lo] >= lim[hi]:

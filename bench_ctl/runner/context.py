@@ -2,6 +2,8 @@
 
 `RunContext.step(name)` logs the start, end, duration and outcome of a step to the audit;
 `check_watchdog()` refuses a device watchdog (as read from the device) the limits do not allow;
+`check_link()` measures the exciter link's response time and refuses one too slow for the
+test's cap (docs/decisions/0023);
 `confirm(plan)` checks that this run holds the bench lock and the watchdog, shows the plan
 (printed on every run shown to an operator, asked about on real devices unless `--yes`,
 recorded either way), and `guard` refuses any device write before it; `hook(name)` calls a
@@ -15,6 +17,8 @@ import contextlib
 import getpass
 import hashlib
 import logging
+import math
+import statistics
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -25,8 +29,17 @@ from typing import Any
 from bench_ctl.capture import write_capture
 from bench_ctl.runner.audit import AuditLog
 from bench_ctl.runner.config import BenchConfig, Limits
-from bench_ctl.runner.safety import NoOperator, OperatorDeclined, OutputLost, Refused, check_watchdog
-from drivers.device import WriteRecord
+from bench_ctl.runner.safety import (
+    LINK_SAMPLES,
+    LinkTiming,
+    NoOperator,
+    OperatorDeclined,
+    OutputLost,
+    Refused,
+    check_link,
+    check_watchdog,
+)
+from drivers.device import TIMED_WRITE_GUARD_S, WriteRecord
 from drivers.errors import DeviceError
 from drivers.exciter import WatchdogReading
 from drivers.recorder import RawRecord
@@ -71,11 +84,14 @@ class Criterion:
 
 @dataclass(frozen=True)
 class ProcedureResult:
-    """What a procedure returns when it ran to its end."""
+    """What a procedure returns when it ran to its end. `comms_error`: a communication error the
+    procedure met after its test and carried to the end so as to keep the record (a read lost for
+    good during recovery): the run still ends with exit 3 and says it."""
 
     criteria: tuple[Criterion, ...] = ()
     summary: str = ""
     data: dict[str, Any] = field(default_factory=dict)
+    comms_error: str | None = None
 
     @property
     def passed(self) -> bool:
@@ -107,7 +123,11 @@ class RunContext:
         self.lost_outputs: list[str] = []       # files that could not be saved, and why
         self.watchdog: WatchdogReading | None = None   # read from the exciter after connecting
         self.watchdog_s: float | None = None    # the watchdog once check_watchdog accepted it
+        self.connected_mono: float | None = None  # when the runner connected (the link measured since)
+        self.link: LinkTiming | None = None     # the exciter link once check_link accepted it
         self.bench_lock: Any = None             # runner.lock.BenchLock once taken (writing runs)
+        self.download_tried = False             # the procedure asked for the record
+        self.kept_raw: Path | None = None       # the record of an aborted test, kept by the runner
         self._confirm = confirm
         self._hooks = dict(hooks or {})
 
@@ -146,7 +166,11 @@ class RunContext:
     @property
     def shown(self) -> bool:
         """The run is shown on a terminal (steps and live readouts are written)."""
-        return bool(self.progress and sys.stderr.isatty())
+        isatty = getattr(sys.stderr, "isatty", None)    # None: stderr closed (`2>&-`)
+        try:
+            return bool(self.progress and isatty is not None and isatty())
+        except ValueError:                                # a closed file object
+            return False
 
     def _show(self, text: str, *, end: str) -> None:
         """One line on stderr, rewritten in place until it ends (`end` = newline)."""
@@ -193,6 +217,33 @@ class RunContext:
         self.watchdog_s = wd
         return wd
 
+    # -- the exciter's link -----------------------------------------------------------------
+    def check_link(self, ex: Any, *, width_s: float, cap_name: str, what: str = "pulse") -> LinkTiming:
+        """Measure the exciter link (LINK_SAMPLES reads of the setpoint, with every request answered
+        since connecting) and refuse it (LimitViolation, nothing written) when it is too slow for
+        a `width_s` pulse or step under the cap `limits.<cap_name>` (safety.check_link)."""
+        times = sorted(ex.measure_link(LINK_SAMPLES, since_mono=self.connected_mono))
+        # the slowest reply but one counts: one reply held up by this host (a stall of the
+        # process, not the link) does not refuse the test; two do (docs/decisions/0023)
+        slowest = times[-2] if len(times) >= LINK_SAMPLES else (times[-1] if times else math.inf)
+        timing = LinkTiming(samples=len(times), max_s=slowest,
+                            median_s=statistics.median(times) if times else math.inf)
+        ex_cfg = self.config.exciter
+        try:
+            check_link(timing, width_s=width_s, cap_s=getattr(self.limits, cap_name), cap_name=cap_name,
+                       timeout_s=ex_cfg.timeout_s, watchdog_s=self.watchdog_s,
+                       heartbeat_period_s=ex_cfg.heartbeat_period_s, guard_s=TIMED_WRITE_GUARD_S, what=what)
+        except Refused as exc:
+            self.audit.event("link_check", accepted=False, **asdict(timing), refused=str(exc))
+            raise
+        self.audit.event("link_check", accepted=True, **asdict(timing))
+        self.link = timing
+        return timing
+
+    def link_text(self) -> str:
+        """`10 requests answered in 1.2 ms (median), 3.4 ms at most` for the plan."""
+        return self.link.text() if self.link else "not measured"
+
     def watchdog_text(self) -> str:
         """`2.000 s (read from the device, register ...); limit 3.000 s` for the plan."""
         reading = self.watchdog.text() if self.watchdog else "not read"
@@ -209,6 +260,9 @@ class RunContext:
             raise WriteRefused(f"{self.procedure}: no write without the bench lock (a procedure "
                                "declared WRITES = False writes nothing)")
         self.check_watchdog()
+        if self.link is None:
+            raise WriteRefused(f"{self.procedure}: no write before the exciter link was measured "
+                               "(RunContext.check_link: a link too slow for the cap is refused)")
         if self.warnings:
             summary = summary + "".join(f"\nWARNING: {w}" for w in self.warnings)
         if self.dry_run or self.yes:
@@ -292,6 +346,7 @@ class RunContext:
 
     def download(self, rec: Any) -> tuple[RawRecord, dict[str, Any]]:
         """The record downloaded, saved as received (before any conversion), then converted."""
+        self.download_tried = True
         raw = rec.download(progress=self.progress_bar())
         self.save_raw(raw)
         return raw, raw.convert()

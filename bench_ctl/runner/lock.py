@@ -1,8 +1,12 @@
 """One run per exciter: an exclusive lock file keyed by the exciter's endpoint.
 
-A run that may write takes `BenchLock` before it connects: `fcntl.flock` on a file in a
-per-user runtime folder (`$XDG_RUNTIME_DIR/bench-ctl`, else `<tmp>/bench-ctl-<uid>`), one file
-per exciter endpoint (host resolved to its address, port, unit id). The holder writes its pid,
+A run that may write takes `BenchLock` before it connects: `fcntl.flock` on a file in ONE
+host-wide folder, whatever the environment and whoever runs it (`LOCK_FOLDER`:
+`/run/lock/bench-ctl`, or `/tmp/bench-ctl-locks` on a host without `/run/lock`; never taken from
+`XDG_RUNTIME_DIR`, `TMPDIR` or the user, which differ between two shells of one host), one file
+per exciter endpoint (host resolved to its address, port, unit id). The folder is shared like
+/tmp (mode 1777: anyone makes a lock file, only its owner removes it) and each lock file is
+readable and writable by all (0666), so two users' runs on one exciter meet on one file. The holder writes its pid,
 host, user, procedure, output folder and start time into the file, so a second run is refused
 with a message naming it. The lock is released on every way out of the run (and by the
 operating system when the holder dies, even by SIGKILL: a crashed run never leaves a stale
@@ -19,7 +23,6 @@ import logging
 import os
 import socket
 import stat
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -29,20 +32,30 @@ from bench_ctl.timestamps import utc_now_text
 log = logging.getLogger(__name__)
 
 
+#: candidate host-wide folders of the lock files, the first whose parent exists is the one (a
+#: property of the host, the same for every user and environment; docs/decisions/0012)
+LOCK_FOLDERS = (Path("/run/lock/bench-ctl"), Path("/tmp/bench-ctl-locks"))
+
+
 def lock_dir() -> Path:
-    """The per-user folder of lock files (made 0700 when missing; refused when another user
-    owns it or it is not a folder, as anyone may create names under /tmp)."""
-    runtime = os.environ.get("XDG_RUNTIME_DIR")
-    base = Path(runtime) / "bench-ctl" if runtime and Path(runtime).is_dir() else \
-        Path(tempfile.gettempdir()) / f"bench-ctl-{os.getuid()}"
+    """The host-wide folder of lock files (see the module docstring): made with mode 1777 (sticky,
+    shared as /tmp is) when missing; refused when it is not a folder (a link, a file) or when
+    another user owns it without the sticky bit (they could remove a lock file in use)."""
+    base = next((f for f in LOCK_FOLDERS if f.parent.is_dir()), LOCK_FOLDERS[-1])
     try:
-        base.mkdir(mode=0o700, exist_ok=True)
+        base.mkdir(mode=0o1777, exist_ok=False)   # sticky from the start (the umask may narrow the rest)
+        os.chmod(base, 0o1777)
+    except FileExistsError:
+        pass
     except OSError as exc:
-        raise OSError(exc.errno, f"cannot make the lock folder {base}: {exc.strerror}") from None
+        raise OSError(exc.errno, f"cannot make the lock folder {base}: {exc.strerror} (an administrator "
+                      f"can make it once: mkdir -m 1777 {base})") from None
     st = os.lstat(base)
-    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
-        raise OSError(errno.EPERM, f"lock folder {base} is not a folder of this user; "
-                      "refusing to keep bench locks there")
+    if not stat.S_ISDIR(st.st_mode):
+        raise OSError(errno.EPERM, f"lock folder {base} is not a folder; refusing to keep bench locks there")
+    if st.st_uid not in (0, os.getuid()) and not st.st_mode & stat.S_ISVTX:
+        raise OSError(errno.EPERM, f"lock folder {base} belongs to another user and is not sticky (mode "
+                      f"{stat.S_IMODE(st.st_mode):o}): they could remove a lock in use; make it 1777 or root's")
     return base
 
 
@@ -81,8 +94,10 @@ class BenchLock:
         name = hashlib.sha256(self.key.encode()).hexdigest()[:20]
         self.path = folder / f"exciter-{name}.lock"
         for _ in range(10):
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
             try:
+                if os.fstat(fd).st_uid == os.getuid():
+                    os.fchmod(fd, 0o666)   # every user's run opens it (the umask narrowed it)
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 holder = _read_holder(fd)

@@ -87,6 +87,7 @@ class RunOutcome:
     duration_s: float
     not_saved: tuple[str, ...] = ()  # what the run could not save (disk full, read-only), and why
     expects_capture: bool = False   # the procedure is meant to leave a capture (its module's CAPTURES)
+    started: bool = False           # the test was confirmed (writes may have been sent): not a refusal
 
     @property
     def safe(self) -> bool:
@@ -339,7 +340,7 @@ def run_procedure(name: str, bench_config: BenchConfig | str | Path, out_dir: st
                       raw_path=ctx.raw_path, safe_state=tuple(reports),
                       criteria=result.criteria, data=dict(result.data), dry_run=dry_run,
                       duration_s=time.monotonic() - t_start, not_saved=tuple(not_saved),
-                      expects_capture=records_capture(fn))
+                      expects_capture=records_capture(fn), started=ctx.confirmed)
 
 
 def _usable_out(out: Path) -> None:
@@ -382,6 +383,7 @@ def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig, ctx: RunContext,
     result = ProcedureResult()
     reason = "end of procedure"
     reconnect = False
+    failed: BaseException | None = None
     with CtrlC().installed() as ctrl_c:
         try:
             if lock is not None:
@@ -394,6 +396,7 @@ def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig, ctx: RunContext,
                     ctx.note("bench_lock", key=lock.key, path=str(lock.path))
             with ctx.step("connect"):
                 bench.connect()
+                ctx.connected_mono = time.monotonic()
                 ctx.identities = bench.identities()
                 ctx.note("identity", devices=ctx.identities)
                 ctx.watchdog = bench.exciter.read_watchdog()
@@ -401,8 +404,13 @@ def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig, ctx: RunContext,
             result = fn(bench, ctx, **kwargs)
             code = ExitCode.OK if result.passed else ExitCode.FAILED
             message = result.summary or STATUS[code]
+            if result.comms_error is not None:   # met after the test, carried to keep the record
+                code = ExitCode.COMMS
+                message = f"communication error: {result.comms_error}; {message}"
+                ctx.note("error", error="CommError", message=result.comms_error, carried=True)
         except BaseException as exc:  # noqa: BLE001 - every exit path ends in the safe state
             ctrl_c.armed = False
+            failed = exc
             code, message, reconnect = _classify(exc)
             reason = message.splitlines()[0]
             ctx.note("error", error=type(exc).__name__, message=str(exc),
@@ -414,7 +422,10 @@ def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig, ctx: RunContext,
         finally:
             ctrl_c.armed = False
             ctx.audit.step = "safe state"
-            reports = bench.safe_state(reason, reconnect=reconnect, cancel=ctrl_c.abandon)
+            keep = None
+            if failed is not None and not isinstance(failed, OutputLost) and not ctx.download_tried:
+                keep = lambda: _keep_record(bench, ctx, ctrl_c.abandon)  # noqa: E731
+            reports = bench.safe_state(reason, reconnect=reconnect, cancel=ctrl_c.abandon, between=keep)
             for r in reports:
                 ctx.note("safe_state", **r.to_dict())
             bench.close()
@@ -423,4 +434,44 @@ def _run(fn: Any, kwargs: dict[str, Any], config: BenchConfig, ctx: RunContext,
             ctx.audit.step = None
             if ctrl_c.ignored:
                 ctx.note("ctrl_c_ignored", count=ctrl_c.ignored)
+    if ctx.kept_raw is not None:
+        message = f"{message}; the recorder's record of the aborted test was downloaded and saved raw ({ctx.kept_raw})"
     return code, message, result, reports
+
+
+#: how long past the record's length the runner waits for the record of an aborted test
+KEEP_MARGIN_S = 5.0
+
+
+def _keep_record(bench: Bench, ctx: RunContext, cancel: Any) -> None:
+    """After a test that ended abnormally, once the exciter is safe: a record this run's recorder
+    triggered on (still recording, or done) is waited for and downloaded, and saved raw (there is
+    no capture: the procedure did not finish), so that what the recorder holds is never thrown
+    away by the recorder's safe state (a disarm). A Ctrl-C now (`cancel`) leaves it: the recorder
+    is then disarmed. Trouble is noted, never raised."""
+    rec = bench.recorder
+    if not rec.armed_by_us:
+        return
+    try:
+        state = rec.status()
+        if state not in ("triggered", "done"):
+            return
+        if state == "triggered":
+            wait_s = float(rec.read("record_length")) + KEEP_MARGIN_S
+            log.warning("waiting up to %.0f s for the recorder to finish the record of the aborted test "
+                        "(the setpoint is back; Ctrl-C again leaves the record)", wait_s)
+            ctx.status(f"keeping the record: waiting for the recorder (up to {wait_s:.0f} s; Ctrl-C leaves it)")
+
+            def check() -> None:
+                if cancel.is_set():
+                    raise KeyboardInterrupt
+            rec.wait_status(("done",), wait_s, check=check)
+        raw = rec.download()
+        path = ctx.save_raw(raw)
+        ctx.kept_raw = path
+        ctx.note("record_kept", path=str(path), state_before=state)
+    except KeyboardInterrupt:
+        ctx.note("record_kept", left="the operator stopped it (Ctrl-C)")
+    except (DeviceError, OutputLost, OSError) as exc:
+        ctx.note("record_kept", failed=f"{type(exc).__name__}: {exc}")
+        log.error("the record of the aborted test could not be kept: %s", exc)

@@ -3,7 +3,9 @@
 Checks refuse, never clip: every violated limit is listed in one `LimitViolation` (or
 `PreconditionFailed` for the state of the unit), raised before anything is written. The
 device's watchdog is one of them: read from the device, refused when longer than the limits
-allow or too short for this host's heartbeat (`check_watchdog`, docs/decisions/0011).
+allow or too short for this host's heartbeat (`check_watchdog`, docs/decisions/0011); the link to
+the exciter is another: its response time, measured before the first write, must leave the
+pulse (or the step) inside its cap as the plant sees it (`check_link`, docs/decisions/0023).
 `CtrlC` keeps a Ctrl-C (or SIGTERM, SIGHUP, SIGQUIT) from interrupting the safe-state sequence
 itself.
 """
@@ -19,6 +21,7 @@ from dataclasses import dataclass
 
 from bench_ctl.runner.config import Limits
 from drivers.exciter import WatchdogReading, heartbeat_problems
+from drivers.link import defer_interrupt, in_link_bookkeeping
 
 log = logging.getLogger(__name__)
 
@@ -128,6 +131,70 @@ def check_watchdog(limits: Limits, reading: WatchdogReading | None, *, heartbeat
     return wd
 
 
+#: reads of the exciter's setpoint that measure the link before the first write (with every
+#: request answered since connecting)
+LINK_SAMPLES = 10
+#: the restore may reach the device up to one response time after it left; the slowest reply
+#: measured counts this many times (a sample of a few tens of requests does not see the worst)
+LINK_MARGIN = 2.0
+#: the slowest reply measured may take at most this share of the request timeout: nearer, a
+#: restore write would time out (WriteUncertain) and the pulse would end only in the safe state
+LINK_TIMEOUT_SHARE = 0.5
+
+
+@dataclass(frozen=True)
+class LinkTiming:
+    """The exciter link's response times as measured before the first write (s): `max_s` is the
+    slowest reply but one (one reply held up by a stall of this host is not the link's)."""
+
+    samples: int
+    max_s: float
+    median_s: float
+
+    def text(self) -> str:
+        return (f"{self.samples} requests answered in {self.median_s * 1e3:.1f} ms (median), "
+                f"{self.max_s * 1e3:.1f} ms at most but one")
+
+
+def check_link(timing: LinkTiming, *, width_s: float, cap_s: float, cap_name: str, timeout_s: float,
+               watchdog_s: float | None, heartbeat_period_s: float, guard_s: float,
+               what: str = "pulse") -> None:
+    """Refuse (LimitViolation, nothing written) a link too slow for the test: the slowest reply
+    (`timing.max_s`, taken LINK_MARGIN times) added to the width must stay inside the cap, as the
+    plant sees it (the restore acts when it reaches the device, up to one response after it was
+    sent); the pulse write's reply and read-back and one request in flight (3 replies) inside the
+    width; the slowest reply within LINK_TIMEOUT_SHARE of the request timeout; and the heartbeat,
+    which waits for a timed write's hold (the guard, one timeout and its reply) and sends a write and
+    its read-back, within the device's watchdog."""
+    if timing.samples < 1 or not math.isfinite(timing.max_s):
+        raise LimitViolation("refused before any write: the exciter link's response time was not measured")
+    r = timing.max_s
+    found = f"the exciter answers in up to {r * 1e3:.1f} ms ({timing.text()})"
+    problems = []
+    if r > LINK_TIMEOUT_SHARE * timeout_s:
+        problems.append(f"more than {LINK_TIMEOUT_SHARE:.0%} of the request timeout exciter.timeout_s = "
+                        f"{timeout_s:.3f} s: the restore write could time out and the setpoint stay moved "
+                        "until the safe state")
+    if 3 * r > width_s:
+        problems.append(f"the {what} write's reply and read-back and one request in flight (3 x {r * 1e3:.1f} ms) "
+                        f"do not fit inside the {width_s:.3f} s {what}: the restore could not have the link at "
+                        "its deadline")
+    seen_s = width_s + LINK_MARGIN * r
+    if seen_s > cap_s:
+        problems.append(f"a {width_s:.3f} s {what} could last {seen_s:.3f} s as the plant sees it (the width + "
+                        f"{LINK_MARGIN:g} x the slowest reply), above the cap limits.{cap_name} = {cap_s:.3f} s; "
+                        "shorten the width or mend the link")
+    if watchdog_s is not None:
+        gap_s = heartbeat_period_s + guard_s + timeout_s + 3 * r
+        if gap_s >= watchdog_s:
+            problems.append(f"the heartbeat could be held off {gap_s:.3f} s (period, a timed write's hold, "
+                            f"its reply, a beat and its read-back), not under the device's watchdog "
+                            f"{watchdog_s:.3f} s")
+    if problems:
+        raise LimitViolation(f"refused before any write: the link is too slow for this test: {found}: "
+                             + "; ".join(problems))
+
+
 def check_no_load(limits: Limits, p_mw: float) -> None:
     """No-load precondition: |p| below limits.no_load_p_max_mw."""
     if not math.isfinite(p_mw) or abs(p_mw) >= limits.no_load_p_max_mw:
@@ -166,9 +233,11 @@ class CtrlC:
     def _handler(self, signum: int, frame: object) -> None:
         if self.armed:
             self.armed = False
-            if signum != signal.SIGINT:
-                raise Terminated(signal.Signals(signum).name)
-            raise KeyboardInterrupt
+            exc = Terminated(signal.Signals(signum).name) if signum != signal.SIGINT else KeyboardInterrupt()
+            if in_link_bookkeeping():   # a link lock's state half changed: raised once it is whole
+                defer_interrupt(exc)
+                return
+            raise exc
         self.ignored += 1
         self.abandon.set()
         log.warning("Ctrl-C during the safe state: the host stops retrying the restore once the "

@@ -65,4 +65,4 @@ def test_demo_online_runs_the_reference_step_end_to_end(tmp_path, capsys):
     assert 0.8e-4 < result["mse"] < 1.3e-4
     html = (out / "report.html").read_text()
     assert "On line: P, Q, Vt and efd" in html
-    assert "vt and q inside the band" in printed and "online_step: PASSED" in printed
+    assert "unit inside its bands" in printed and "online_step: PASSED" in printed

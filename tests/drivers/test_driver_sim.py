@@ -222,3 +222,158 @@ def test_timed_write_takes_the_link_before_a_silent_device_can_delay_it():
         assert rec.t_tx_mono - deadline < 0.005, rec.t_tx_mono - deadline
         ex.safe_state("end")
         ex.close()
+
+
+# ------------------------------------------------------------------ the link's order and reads
+def test_the_link_lock_serves_a_timed_write_then_the_heartbeat_then_the_rest():
+    """Waiters get the link by priority, then in order of arrival; the holder may take it again
+    (re-entrant); a wait interrupted leaves the queue as it was."""
+    import threading
+
+    from drivers.link import HEARTBEAT, ROUTINE, TIMED, LinkLock
+
+    lock, order, started = LinkLock(), [], []
+    lock.acquire()
+    lock.acquire()                                   # re-entrant
+    lock.release()
+
+    def wait(name: str, level: int) -> None:
+        started.append(name)
+        with lock.held(level):
+            order.append(name)
+
+    threads = []
+    for name, level in (("read 1", ROUTINE), ("beat", HEARTBEAT), ("read 2", ROUTINE), ("restore", TIMED)):
+        t = threading.Thread(target=wait, args=(name, level))
+        t.start()
+        threads.append(t)
+        wait_for(lambda n=name: n in started and len(lock._queue) == len(started), 2.0, f"{name} queued")
+    lock.release()
+    for t in threads:
+        t.join(2.0)
+    assert order == ["restore", "beat", "read 1", "read 2"]
+    with pytest.raises(RuntimeError, match="does not hold"):
+        lock.release()
+
+
+def test_read_many_reads_registers_back_to_back_in_one_request():
+    with SimBench(serial=False, online=True, recorder_profile="sim-recorder-online") as sim:
+        ex = make_exciter(sim, "sim-exciter")
+        try:
+            t0 = time.monotonic()
+            many = ex.read_many(("vt", "q", "p", "status"))
+            assert len(ex.link.response_times(since_mono=t0)) == 1    # input 2..13 in one request
+            assert list(many) == ["vt", "q", "p", "status"]
+            assert many["p"] == pytest.approx(80.0, abs=0.01) and many["q"] == pytest.approx(10.0, abs=0.01)
+            assert many["vt"] == pytest.approx(ex.read("vt"), abs=1e-6) and many["status"] == 0
+            t0 = time.monotonic()
+            apart = ex.read_many(("setpoint", "vt", "firmware"))         # holding 0; input 2, input 21
+            assert len(ex.link.response_times(since_mono=t0)) == 3        # 14..19 are not mapped
+            assert apart["setpoint"] == pytest.approx(1.0) and apart["firmware"] == 0x0100
+        finally:
+            ex.close()
+
+
+def test_the_heartbeat_is_not_starved_by_a_reader_on_a_slow_exciter():
+    """Replies 0.1-0.2 s late and a thread reading as fast as the link answers: the heartbeat
+    still gets the link next each time (a beat waits for one request in flight, not a burst)."""
+    import threading
+
+    with SimBench(serial=False, heartbeat_timeout_s=5.0) as sim:
+        ex = make_exciter(sim, "sim-exciter", heartbeat_period_s=0.1)
+        stop = threading.Event()
+
+        def reader() -> None:
+            while not stop.is_set():
+                ex.read("vt")
+
+        try:
+            ex.snapshot()
+            sim.faults.set("late_reply", device="exciter", count=None, delay_s=0.1, delay_max_s=0.2)
+            t = threading.Thread(target=reader)
+            t.start()
+            ex.take_remote()
+            time.sleep(3.0)
+            stop.set()
+            t.join(5.0)
+            stats = ex.heartbeat_stats()
+            # a beat: its write and read-back (2 x 0.2 s), the read in flight (0.2 s), the period
+            assert stats.failures == 0 and stats.beats >= 4
+            assert stats.max_gap_s < 0.1 + 3 * 0.2 + 0.1, stats
+            assert not sim.exciter.watchdog_tripped
+        finally:
+            sim.faults.clear()
+            ex.safe_state("test end")
+            ex.close()
+
+
+def test_interrupts_never_leave_the_link_lock_half_changed():
+    """Ctrl-C raises in the main thread at any point of its Python code, the link lock's own
+    bookkeeping included: cut there, a waiter stayed queued (or the lock owned) forever and every
+    later request, the safe state's restore included, waited forever (the fault matrix saw a run
+    hang after a SIGHUP). The handler defers the interrupt inside the bookkeeping; the lock raises
+    it where its state is whole. Here: SIGINT every 0.3-3 ms at the main thread while it takes and
+    gives back the lock against a second thread, then the lock must be free and its queue empty."""
+    import signal
+    import threading
+
+    from drivers.link import HEARTBEAT, LinkLock, defer_interrupt, in_link_bookkeeping
+
+    armed = [False]   # interrupts only inside the loop's try (the runner's CtrlC: while it is armed)
+
+    def handler(signum, frame):
+        if not armed[0]:
+            return
+        exc = KeyboardInterrupt()
+        if in_link_bookkeeping():
+            defer_interrupt(exc)
+            return
+        raise exc
+
+    lock, stop = LinkLock(), threading.Event()
+    main = threading.main_thread().ident
+
+    def other() -> None:           # the heartbeat: takes the lock too, between pauses
+        while not stop.is_set():
+            with lock.held(HEARTBEAT):
+                time.sleep(0.0002)
+            time.sleep(0.0005)
+
+    def pester() -> None:
+        import random
+
+        rng = random.Random(5)
+        while not stop.is_set():
+            signal.pthread_kill(main, signal.SIGINT)
+            time.sleep(rng.uniform(0.0003, 0.003))
+
+    old = signal.signal(signal.SIGINT, handler)
+    threads = [threading.Thread(target=other), threading.Thread(target=pester)]
+    interrupts = cycles = 0
+    try:
+        for t in threads:
+            t.start()
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            try:
+                armed[0] = True
+                with lock.held():
+                    cycles += 1
+                armed[0] = False
+            except KeyboardInterrupt:
+                armed[0] = False
+                interrupts += 1
+    finally:
+        armed[0] = False
+        stop.set()
+        for t in threads:
+            t.join(5.0)
+        signal.signal(signal.SIGINT, old)
+    assert interrupts > 50 and cycles > 50, (interrupts, cycles)
+    assert not any(t.is_alive() for t in threads)          # the other thread was never locked out
+    assert lock._owner is None and lock._queue == [] and lock._depth == 0
+    got = threading.Event()
+    t = threading.Thread(target=lambda: (lock.acquire(), got.set(), lock.release()))
+    t.start()
+    assert got.wait(1.0)
+    t.join()

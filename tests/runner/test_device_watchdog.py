@@ -126,7 +126,7 @@ def test_a_host_killed_mid_pulse_leaves_it_to_the_watchdog_it_read(tmp_path):
     with SimBench(heartbeat_timeout_s=0.6) as sim:
         bench = bench_toml(tmp_path / "bench.toml", sim, exciter={"timeout_s": 0.2})
         proc = start_run(run_argv(bench, tmp_path / "run", params={**FAST_PARAMS, "width_s": 1.0,
-                                                                   "record_s": 2.0}), tmp_path)
+                                                                   "record_s": 2.0}))
         try:
             wait_for(lambda: any(k == "setpoint" for _, k, _ in sim.exciter.events) or
                      proc.poll() is not None, 60, "the pulse")

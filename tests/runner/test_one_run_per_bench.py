@@ -9,6 +9,7 @@ address) holding remote is refused by the simulated exciter and by the procedure
 from __future__ import annotations
 
 import signal
+import stat
 import subprocess
 import sys
 import textwrap
@@ -16,7 +17,7 @@ import textwrap
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from bench_ctl.runner.lock import BenchLock, endpoint_key
+from bench_ctl.runner.lock import LOCK_FOLDERS, BenchLock, endpoint_key, lock_dir
 from bench_ctl.runner.runner import run_procedure
 from bench_ctl.runner.safety import BenchBusy
 from cli_runs import FAST_PARAMS, ROOT, bench_toml, run_argv, run_env, start_run
@@ -33,7 +34,7 @@ def test_two_runs_started_together_exactly_one_writes(tmp_path):
         proxy = WireProxy(sim.endpoints.exciter_tcp)
         try:
             bench = bench_toml(tmp_path / "bench.toml", sim, exciter_url=proxy.url)
-            procs = [start_run(run_argv(bench, tmp_path / f"run{i}"), tmp_path) for i in (0, 1)]
+            procs = [start_run(run_argv(bench, tmp_path / f"run{i}")) for i in (0, 1)]
             results = [(p.pid, p.wait(120), *p.communicate()) for p in procs]
         finally:
             proxy.close()
@@ -48,6 +49,38 @@ def test_two_runs_started_together_exactly_one_writes(tmp_path):
     kinds = [(k, round(v, 4)) for _, k, v in sim.exciter.events]
     assert kinds == [("remote", 1.0), ("setpoint", 1.05), ("setpoint", 1.0), ("local", 1.0)]
     assert [w for w in proxy.writes() if w[0] == MODE] == [(MODE, [3]), (MODE, [1])]
+
+
+def test_the_lock_is_one_per_exciter_on_the_host_whatever_the_environment(tmp_path):
+    """Issue 48 item 5: a run with XDG_RUNTIME_DIR set and one without it (and another TMPDIR)
+    meet on one lock: exactly one writes."""
+    (tmp_path / "xdg").mkdir()
+    (tmp_path / "tmp").mkdir()
+    envs = [run_env(XDG_RUNTIME_DIR=str(tmp_path / "xdg")),
+            {k: v for k, v in run_env(TMPDIR=str(tmp_path / "tmp")).items() if k != "XDG_RUNTIME_DIR"}]
+    with SimBench() as sim:
+        bench = bench_toml(tmp_path / "bench.toml", sim)
+        procs = [start_run(run_argv(bench, tmp_path / f"run{i}"), env=env) for i, env in enumerate(envs)]
+        results = [(p.wait(120), *p.communicate()) for p in procs]
+    codes = sorted(r[0] for r in results)
+    assert codes[1] == 2 and codes[0] in (0, 1), results
+    refused = next(out + err for code, out, err in results if code == 2)
+    assert "refused before any write: another run holds the exciter" in refused
+    kinds = [(k, round(v, 4)) for _, k, v in sim.exciter.events]
+    assert kinds == [("remote", 1.0), ("setpoint", 1.05), ("setpoint", 1.0), ("local", 1.0)]
+
+
+def test_the_lock_folder_is_host_wide_and_shared_by_every_user(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    a = lock_dir()
+    monkeypatch.delenv("XDG_RUNTIME_DIR")
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    assert lock_dir() == a and a in LOCK_FOLDERS
+    assert stat.S_IMODE(a.stat().st_mode) == 0o1777              # shared as /tmp: sticky, all write
+    lock = BenchLock("tcp://127.0.0.1:1", 1, procedure="p", out_dir="o")
+    with lock:
+        assert lock.path.parent == a and stat.S_IMODE(lock.path.stat().st_mode) == 0o666
+    assert not lock.path.exists()
 
 
 def test_the_lock_names_its_holder_and_is_released_on_every_exit(tmp_path):
@@ -76,7 +109,7 @@ def test_a_killed_holder_leaves_no_stale_lock(tmp_path):
         BenchLock("tcp://127.0.0.1:5020", 1, procedure="p", out_dir="o",
                   folder=__import__("pathlib").Path({str(tmp_path)!r})).acquire()
         print("held", flush=True)
-        time.sleep(60)""")], stdout=subprocess.PIPE, text=True, env=run_env(tmp_path), cwd=ROOT)
+        time.sleep(60)""")], stdout=subprocess.PIPE, text=True, env=run_env(), cwd=ROOT)
     try:
         assert holder.stdout.readline().strip() == "held"
         lock = BenchLock("tcp://127.0.0.1:5020", 1, procedure="q", out_dir="o", folder=tmp_path)

@@ -172,14 +172,19 @@ def test_ctrl_c_during_pulse_restores_and_exits_non_zero(bench, tmp_path):
                         hooks={"pulse_applied": lambda run: os.kill(os.getpid(), signal.SIGINT)})
     assert out.exit_code == 2 and "interrupted by the operator (Ctrl-C)" in out.message
     assert out.safe and out.safe_state[0].action == "setpoint restored by host after reconnect"
-    assert out.safe_state[1].action == "disarmed (was triggered)"
     assert device_writes(proxy) == PULSE_AND_RESTORE
     assert events(sim) == [("remote", 1.0), ("setpoint", 1.05), ("setpoint", 1.0),
                            ("local", 1.0)]
-    assert sim.recorder.status == "idle"                  # disarmed on the device
+    # the setpoint back, the record the recorder had triggered on is finished and kept (raw)
+    assert out.safe_state[1].action == "left in state done" and sim.recorder.status == "done"
+    assert out.raw_path.exists() and out.capture_path is None
+    assert "the recorder's record of the aborted test was downloaded and saved raw" in out.message
     rows = read_audit(out.audit_path)
+    kept = [r for r in rows if r["kind"] == "record_kept"]
+    assert kept and kept[0]["state_before"] == "triggered"
     restore = [r for r in rows if r["kind"] == "write" and r["register"] == "setpoint"][-1]
     assert restore["step"] == "safe state" and restore["matched"]
+    assert rows.index(restore) < rows.index(kept[0])     # the setpoint back before the record is kept
     assert rows[-1]["kind"] == "run_end" and rows[-1]["exit_code"] == 2
 
 
@@ -194,7 +199,7 @@ def test_sigterm_sighup_and_sigquit_during_pulse_end_in_the_safe_state(bench, tm
     assert out.exit_code == 2 and f"terminated by {signal.Signals(sig).name}" in out.message
     assert out.safe and out.safe_state[0].action.startswith("setpoint restored by host")
     assert device_writes(proxy) == PULSE_AND_RESTORE
-    assert sim.recorder.status == "idle"
+    assert sim.recorder.status == "done" and out.raw_path.exists()     # the record kept
     rows = read_audit(out.audit_path)
     assert rows[-1]["kind"] == "run_end" and rows[-1]["exit_code"] == 2
 
@@ -261,7 +266,8 @@ def test_host_stall_during_the_pulse_fails_the_width_and_says_whose_fault(bench,
     assert not width.passed and width.value > FAST["width_tolerance_s"]
     late_ms = (out.data["commanded_width_s"] - FAST["width_s"]) * 1e3
     assert late_ms > 70
-    assert "this host sent the restore write +" in out.message and "stalled" in out.message
+    assert "the restore write left +" in out.message
+    assert "the cause: this host: the process or the machine stalled" in out.message
     assert abs(out.data["width_err_s"] * 1e3 - late_ms) < 5  # the wire width is what the host sent
     assert device_writes(proxy) == PULSE_AND_RESTORE
 

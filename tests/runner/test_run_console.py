@@ -1,5 +1,5 @@
 """What the engineer reads on the console of a run, and the inputs a run refuses in one line
-(issue 24 items 13 (procedure parameters), 18, 19).
+(issue 24 items 13 (procedure parameters), 18, 19; issue 48 item 16).
 
 - The plan (setpoint from -> to, width, limits, the watchdog found on the device) is printed on
   every run, also with --yes and --dry-run; a live readout (setpoint, vt, efd, time left) runs
@@ -12,17 +12,26 @@ from __future__ import annotations
 
 import inspect
 import io
+import logging
+import os
 import re
+import subprocess
+import sys
 
 import pytest
 
 from bench_ctl.cli import main
+from bench_ctl.commands.run import print_outcome
+from bench_ctl.plants import Plant
 from bench_ctl.runner.config import ConfigError, config_from_dict
 from bench_ctl.runner.runner import run_procedure
-from cli_runs import FAST_PARAMS, ROOT, bench_toml
+from cli_runs import FAST_PARAMS, ROOT, bench_toml, run_argv, run_env, start_run
+from drivers.profile import load_profile
 from procedures import no_load_pulse as pulse_module
 from pulse_bench import bench_config, config_doc
 from simulators.bench import SimBench
+from simulators.exciter import ExciterDevice
+from simulators.recorder import RecorderDevice
 from wire_proxy import WireProxy
 
 PLAN_LINES = ("no_load_pulse on the exciter tcp://127.0.0.1:",
@@ -56,7 +65,7 @@ def test_the_plan_is_printed_with_yes_and_the_criteria_in_engineering_format(tmp
         assert line in out.out, out.out
     assert "(--yes given: not asked)" in out.out
     crit = [ln for ln in out.out.splitlines() if ln.startswith("  [PASS]") or ln.startswith("  [FAIL]")]
-    assert len(crit) == 4
+    assert len(crit) == 5
     assert re.search(r"pulse width error: [-+]?\d+\.\d ms \(limit ±20\.0 ms\)", crit[0]), crit[0]
     assert re.search(r"pulse amplitude error: [-+]?\d\.\d{4} pu \(limit ±0\.0010 pu\)", crit[1]), crit[1]
     assert_engineering(out.out)
@@ -169,3 +178,71 @@ def test_a_bench_config_that_is_not_a_file_is_refused_unread(tmp_path, capsys):
     big.write_text("# " + "x" * (1 << 20) + "\n")
     rc = main(["run", "comms_check", "--bench", str(big), "--out", str(tmp_path / "y")])
     assert rc == 2 and "more than the 1048576 bytes a bench config may have" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ issue 48 item 16
+def test_a_run_with_stderr_closed_says_its_outcome_on_stdout(tmp_path):
+    """`2>&-`: the run used to abort before any write with AttributeError ... isatty and say
+    nothing; now it runs, and a refusal's reason reaches stdout."""
+    bench = ROOT / "benches" / "example.toml"
+    for name, params, code in (("refused", {**FAST_PARAMS, "amplitude_pu": 0.08}, 2), ("run", FAST_PARAMS, None)):
+        argv = run_argv(bench, tmp_path / name, params=params, extra=("--dry-run",))
+        proc = subprocess.run(argv, stdout=subprocess.PIPE, text=True, env=run_env(), cwd=ROOT, timeout=600,
+                              preexec_fn=lambda: os.close(2))   # as `2>&-` leaves it
+        assert "Traceback" not in proc.stdout and "AttributeError" not in proc.stdout, proc.stdout
+        if code is not None:
+            assert proc.returncode == code
+            assert "|amplitude_pu| = 0.08 pu above the cap" in proc.stdout, proc.stdout
+        else:
+            assert proc.returncode in (0, 1), proc.stdout
+            assert "no_load_pulse: " in proc.stdout and (tmp_path / name / "capture.csv").exists()
+
+
+def test_library_log_lines_stay_off_the_console_and_go_to_the_run_log(tmp_path):
+    """A lost reply read again: pymodbus logs an ERROR for it; the console shows none of it, the
+    run's log file keeps it."""
+    with SimBench() as sim:
+        sim.faults.set("no_reply", device="exciter", op="read", register="vt", count=1)
+        bench = bench_toml(tmp_path / "bench.toml", sim)
+        proc = start_run(run_argv(bench, tmp_path / "run"))
+        out, err = proc.communicate(timeout=300)
+    assert proc.returncode in (0, 1), out + err
+    assert sim.faults.history                                       # the reply was lost
+    assert "pymodbus" not in out + err and "No response received" not in out + err, out + err
+    assert "pymodbus.logging: No response received" in (tmp_path / "run" / "run.log").read_text()
+
+
+def test_a_refusal_before_any_write_does_not_say_a_capture_was_lost(tmp_path, capsys):
+    with SimBench() as sim:
+        proxy = WireProxy(sim.endpoints.exciter_tcp)
+        try:
+            out = run_procedure("no_load_pulse", bench_config(proxy, sim), tmp_path, yes=True,
+                                params={**FAST_PARAMS, "amplitude_pu": 0.08})
+        finally:
+            proxy.close()
+    assert out.exit_code == 2 and not out.started
+    print_outcome(out)
+    printed = capsys.readouterr()
+    assert "refused before any write" in printed.err and "NOT SAVED" not in printed.out + printed.err
+
+
+def test_a_profile_of_the_wrong_kind_is_named_with_its_article():
+    plant = Plant(None, rt_priority=None)
+    with pytest.raises(ValueError, match="is for an exciter, not a recorder"):
+        RecorderDevice(plant, load_profile("sim-exciter"))
+    with pytest.raises(ValueError, match="is for a recorder, not an exciter"):
+        ExciterDevice(plant, load_profile("sim-recorder"))
+
+
+def test_dask_info_lines_stay_off_the_console():
+    """Dask's own console handler (it does not propagate) prints INFO lines; bench-ctl sets it to
+    warnings unless -vv."""
+    code = ("import logging; from bench_ctl.cli import main; main(['models']); import distributed; "
+            "print(logging.getLogger('distributed').getEffectiveLevel())")
+    for flags, level in (("", logging.WARNING), ("'-vv', ", logging.INFO)):
+        run = subprocess.run([sys.executable, "-c", code.replace("['models']", f"[{flags}'models']")],
+                             capture_output=True, text=True, env={k: v for k, v in run_env().items()
+                                                                  if not k.startswith("DASK_")},
+                             cwd=ROOT, timeout=300)
+        assert run.returncode == 0, run.stderr
+        assert run.stdout.strip().splitlines()[-1] == str(level), run.stdout

@@ -153,9 +153,9 @@ def test_a_real_full_disk_under_out(tmp_path, how):
         bench = bench_toml(tmp_path / "bench.toml", sim)
         argv = run_argv(bench, out_dir / "run")
         if how == "tmpfs_12k":
-            proc = start_run(in_tmpfs(argv, out_dir, "size=12k"), tmp_path)
+            proc = start_run(in_tmpfs(argv, out_dir, "size=12k"))
         else:
-            proc = start_run(argv, tmp_path, preexec_fn=lambda: _rlimit(12 * 1024))
+            proc = start_run(argv, preexec_fn=lambda: _rlimit(12 * 1024))
         stdout, stderr = proc.communicate(timeout=120)
         text = stdout + stderr
         assert proc.returncode == 2, text
@@ -189,7 +189,7 @@ def test_run_onto_a_read_only_folder_is_one_line_and_touches_nothing(tmp_path):
         bench = bench_toml(tmp_path / "bench.toml", sim)
         argv, cleanup = _read_only_out(tmp_path, lambda out: run_argv(bench, out))
         try:
-            proc = start_run(argv, tmp_path)
+            proc = start_run(argv)
             stdout, stderr = proc.communicate(timeout=120)
         finally:
             cleanup()
@@ -208,7 +208,7 @@ def test_demo_onto_a_read_only_folder_is_one_line(tmp_path):
     argv, cleanup = _read_only_out(
         tmp_path, lambda out: [sys.executable, "-m", "bench_ctl.cli", "demo", "--out", str(out)])
     try:
-        proc = start_run(argv, tmp_path)
+        proc = start_run(argv)
         stdout, stderr = proc.communicate(timeout=120)
     finally:
         cleanup()

@@ -31,7 +31,7 @@ def test_a_terminal_signal_to_the_dry_run_group_restores_against_a_living_simula
             str(ROOT / "benches" / "example.toml"), "--dry-run", "--out", str(out)]
     for p in PARAMS:
         argv += ["--param", p]
-    proc = start_run(argv, tmp_path, start_new_session=True)   # a terminal's foreground group
+    proc = start_run(argv, start_new_session=True)   # a terminal's foreground group
     try:
         wait_for(lambda: pulse_is_on(out / "audit.jsonl") or proc.poll() is not None, 180,
                  "the pulse", every_s=0.005)

@@ -19,9 +19,43 @@ def test_parse_fault():
     assert f == Fault("late_reply", device="recorder", delay_s=0.25, count=None, register="block")
     assert parse_fault("exception:code=0x06").code == 6
     for bad in ("explode", "no_reply:colour=red", "no_reply:device=pump", "exception:code=9",
-                "no_reply:count=x", "corrupt:mode=smear"):
+                "no_reply:count=x", "corrupt:mode=smear", "late_reply:delay_s=0.3,delay_max_s=0.1",
+                "no_reply:after=setpoint:0", "no_reply:after=pump.arm", "load:device=exciter",
+                "load:device=recorder,mw=0", "limiter:device=exciter",
+                "limiter:device=exciter,bit=ceiling_limit,duration_s=-1"):
         with pytest.raises(ValueError, match="fault"):
             parse_fault(bad)
+    f = parse_fault("late_reply:device=exciter,count=inf,delay_s=0.1,delay_max_s=0.45")
+    assert (f.delay_s, f.delay_max_s, f.count) == (0.1, 0.45, None)
+    f = parse_fault("load:device=exciter,op=write,register=setpoint,mw=-15,delay_s=0.5")
+    assert f.is_event and f.mw == -15.0
+    assert parse_fault("no_reply:op=read,register=q,after=setpoint:2").after_write() == (None, "setpoint", 2)
+    assert parse_fault("no_reply:after=recorder.arm").after_write() == ("recorder", "arm", 1)
+    assert parse_fault("limiter:device=exciter,bit=ceiling_limit,duration_s=inf").duration_s is None
+
+
+def test_faultset_draws_delays_in_range_and_counts_writes_for_after():
+    fs = FaultSet(seed=3)
+    slow = fs.set("late_reply", device="exciter", count=None, delay_s=0.1, delay_max_s=0.45)
+    delays = [fs.delay_for(slow) for _ in range(200)]
+    assert 0.1 <= min(delays) < 0.15 and 0.40 < max(delays) <= 0.45
+    assert FaultSet(seed=3).delay_for(slow) == delays[0]                   # seeded
+    fs.clear()
+    fs.set("no_reply", device="exciter", op="read", register="q", after="setpoint:2")
+    fs.set("load", device="exciter", op="write", register="setpoint", mw=0.0, skip=1)
+    assert fs.take("exciter", "read", ["q"]) is None                        # no setpoint write yet
+    assert fs.take("exciter", "write", ["setpoint"]) is None
+    assert fs.take_events("exciter", "write", ["setpoint"]) == []          # skipped: the first write
+    assert fs.take("exciter", "read", ["q"]) is None                        # one write only
+    assert fs.take("exciter", "write", ["setpoint"]) is None                # the second: events only
+    assert [e.kind for e in fs.take_events("exciter", "write", ["setpoint"])] == ["load"]
+    assert fs.take("exciter", "read", ["vt"]) is None
+    assert fs.take("exciter", "read", ["vt", "p", "status", "q"]).kind == "no_reply"
+    assert fs.writes[("exciter", "setpoint")] == 2 and fs.active() == []
+    fs.set("load", device="exciter", op="read", register="p", after="recorder.arm", mw=60.0)
+    assert fs.take_events("exciter", "read", ["p"]) == []                  # the recorder not armed
+    fs.take("recorder", "write", ["arm"])
+    assert [e.mw for e in fs.take_events("exciter", "read", ["p"])] == [60.0]
 
 
 def test_faultset_skip_count_and_filters():
@@ -93,6 +127,60 @@ def test_late_reply_keeps_its_transaction_id(bench):
         assert reply[:2] == b"\x00\x07" and reply[7] == 0x04
 
 
+def test_late_replies_drawn_in_a_range(bench):
+    bench.faults.set("late_reply", device="exciter", count=4, delay_s=0.15, delay_max_s=0.3)
+    with tcp(bench) as s:
+        for tid in range(4):
+            t = time.monotonic()
+            s.sendall(bytes.fromhex(READ_VT.format(tid=tid)))
+            reply = recv_for(s, 2.0)
+            assert 0.15 <= time.monotonic() - t < 0.3 + 0.2, tid
+            assert reply[:2] == bytes([0, tid])
+        t = time.monotonic()
+        s.sendall(bytes.fromhex(READ_VT.format(tid=9)))                       # used up
+        assert recv_for(s, 2.0)[:2] == b"\x00\x09" and time.monotonic() - t < 0.15
+
+
+def test_a_slow_device_executes_the_request_late(bench):
+    """`slow`: the write reaches the device's state only after the delay (a late reply does not
+    hold back the write itself: `late_reply` executes at once)."""
+    bench.faults.set("slow", device="exciter", op="write", register="heartbeat", delay_s=0.3)
+    bench.faults.set("late_reply", device="exciter", op="write", register="heartbeat", skip=1,
+                     delay_s=0.3)
+    with tcp(bench) as s:
+        t = time.monotonic()
+        s.sendall(bytes.fromhex("00 01 00 00 00 06 01 06 00 02 00 21"))   # heartbeat = 0x21
+        time.sleep(0.1)
+        assert bench.exciter.heartbeat != 0x21                              # not yet served
+        assert recv_for(s, 2.0)[:2] == b"\x00\x01" and time.monotonic() - t >= 0.3
+        assert bench.exciter.heartbeat == 0x21
+        s.sendall(bytes.fromhex("00 02 00 00 00 06 01 06 00 02 00 22"))   # late reply only
+        time.sleep(0.1)
+        assert bench.exciter.heartbeat == 0x22                              # served at once
+        assert recv_for(s, 2.0)[:2] == b"\x00\x02"
+
+
+def test_a_limiter_event_sets_its_status_bit_for_its_duration(bench):
+    bench.faults.set("limiter", device="exciter", op="read", register="firmware", bit="ceiling_limit",
+                     delay_s=0.0, duration_s=0.4)
+    with tcp(bench) as s:
+        def status() -> int:
+            s.sendall(bytes.fromhex("00 05 00 00 00 06 01 04 00 0a 00 01"))
+            return recv_for(s, 2.0)[-1]
+        assert status() & 1 == 0
+        s.sendall(bytes.fromhex("00 06 00 00 00 06 01 04 00 15 00 01"))   # firmware: sets it off
+        recv_for(s, 2.0)
+        deadline = time.monotonic() + 2
+        while not status() & 1:
+            assert time.monotonic() < deadline
+        t_on = time.monotonic()
+        while status() & 1:
+            assert time.monotonic() < deadline
+        assert 0.2 < time.monotonic() - t_on < 0.6
+    assert [k for _, k, _ in bench.exciter.events] == ["limiter"]
+    bench.exciter.events.clear()
+
+
 def test_drop_connection_executes_then_closes(bench):
     bench.faults.set("drop_connection", device="exciter", op="write", register="heartbeat")
     with tcp(bench) as s:
@@ -161,6 +249,20 @@ def test_control_port_commands(bench):
     bench.exciter.set_load_mw(0.0)
     assert execute(bench, "state").startswith("ok step=")
     assert execute(bench, "fault explode").startswith("error ")
+    assert execute(bench, "fault load device=exciter mw=3 op=read register=firmware delay_s=0").startswith("ok ")
+    assert execute(bench, "fault limiter device=exciter bit=rate_limit op=read register=firmware "
+                          "delay_s=0").startswith("ok ")
+    with tcp(bench) as s:
+        s.sendall(bytes.fromhex("00 06 00 00 00 06 01 04 00 15 00 01"))   # firmware: sets both off
+        recv_for(s, 2.0)
+    deadline = time.monotonic() + 2
+    while bench.exciter.load_mw != 3.0 or "rate_limit" not in bench.exciter.forced_bits:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    assert execute(bench, "state").startswith("ok step=") and " p=3.000 " in execute(bench, "state")
+    assert execute(bench, "clear limiter") == "ok cleared 0" and bench.exciter.forced_bits == {}
+    bench.exciter.set_load_mw(0.0)
+    bench.exciter.events.clear()
     assert execute(bench, "dance").startswith("error unknown command")
 
 
