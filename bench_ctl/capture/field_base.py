@@ -162,7 +162,7 @@ def from_no_load(base: EfdBase, what: str, column: str | None) -> tuple[float, d
     """The factor of `what` (efd or ifd) that the no-load import `base.path` found or was given, and
     the sidecar block that says so. Refused (ValueError naming the capture) when that capture is
     not an import, is itself on line, has no such factor, or took `what` from another column."""
-    from bench_ctl.capture.capture import read_capture   # the capture layer's own reader
+    from bench_ctl.capture.capture import read_capture  # the capture layer's own reader
 
     path = str(base.path)
     try:

@@ -32,8 +32,7 @@ import numpy as np
 from bench_ctl.capture import comtrade_io
 from bench_ctl.capture.capture import CHANNEL_UNITS, Capture, read_capture, write_capture
 from bench_ctl.capture.errors import CaptureError
-from bench_ctl.capture.field_base import (EfdBase, NoLoad, auto_factor, explicit_block, from_no_load,
-                                          pre_step)
+from bench_ctl.capture.field_base import EfdBase, NoLoad, auto_factor, explicit_block, from_no_load, pre_step
 from bench_ctl.capture.found_test import FoundTest, find_test, tolerance_on
 from bench_ctl.capture.plausible import implausible
 from bench_ctl.capture.steady import pre_step_steadiness
