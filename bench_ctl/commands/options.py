@@ -114,9 +114,12 @@ def build_unit(unit_path: str | None, overrides: Sequence[str], effects: Sequenc
 
 
 def fmt_value(v: Any, spec: str = ".4g") -> str:
-    """A number for a summary table: '-' for missing, 'inf'/'nan' as such."""
+    """A number for a summary table: '-' for missing, 'inf' as such (a fit that failed), 'n/a' for
+    a figure that could not be computed (never 'nan': issue 49 item 7)."""
     if v is None:
         return "-"
+    if isinstance(v, float) and math.isnan(v):
+        return "n/a"
     if isinstance(v, float) and not math.isfinite(v):
         return str(v)
     return format(v, spec)
