@@ -200,11 +200,14 @@ def explicit_block(base: EfdBase | None, factor: float, *, file: str, time: np.n
         block = ({"mode": base.mode, "given": base.text(), "factor": factor} if base is not None
                  else {"mode": "scale", "given": f"{factor:g}", "factor": factor})
     block["on_line"] = on_line
-    if edge_lo_s is None or no_load is None:
+    if edge_lo_s is None or (no_load is None and not on_line):
         return block
     try:
         pre = pre_step(file, time, x, edge_lo_s, "efd")
     except CaptureError:
+        return block
+    if on_line:   # a loaded unit's field: no no-load value to set beside it
+        block.update(pre_step_pu=float(np.mean(pre)) * factor)
         return block
     vt0 = no_load.vt0_pu if vt_pre is None else float(vt_pre)
     block.update(pre_step_pu=float(np.mean(pre)) * factor, vt0_pu=vt0, no_load_pu=no_load.efd0(vt0),

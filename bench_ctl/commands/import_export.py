@@ -179,10 +179,12 @@ def summary(capture: Capture) -> list[str]:
                              "so that the model starts where the record does")
         elif b["mode"] != "scale" or b["factor"] != 1.0:
             tail = ""
-            if b.get("pre_step_pu") is not None:
+            if b.get("pre_step_pu") is not None and b.get("on_line"):
+                tail = (f"; pre-step efd {b['pre_step_pu']:.4g} pu on the model's base (the loaded unit's field, "
+                        "above its no-load value)")
+            elif b.get("pre_step_pu") is not None:
                 tail = (f"; pre-step efd {b['pre_step_pu']:.4g} pu on the model's base (its no-load efd at "
-                        f"Vt0 {b['vt0_pu']:.4g}: {b['no_load_pu']:.4g} pu"
-                        + ("; on line the loaded unit's field is above it)" if b.get("on_line") else ")"))
+                        f"Vt0 {b['vt0_pu']:.4g}: {b['no_load_pu']:.4g} pu)")
             src = b.get("from")
             if src:
                 tail = f" (the {src['mode']} base of the no-load import {src['path']}){tail}"
