@@ -21,7 +21,7 @@ reactance is no effect of its.
 
 Without a record it runs nothing and exits 0 (`make bench`).
 
-Usage: python benchmarks/real_online.py RECORD.csv --dyr unit.dyr [--efd-base 0.33869rf]
+Usage: python benchmarks/real_online.py RECORD.csv --dyr unit.dyr [--dyr-ignore PSS2B] [--efd-base 0.33869rf]
            [--xe-bounds 0.02,0.8] [--weights vt=100,q=10] [--evals 1000] [--seed 1] [--diagnose]
            [--json OUT]
 """
@@ -67,6 +67,9 @@ def main_(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("record", nargs="?", help="the export (none: nothing runs; the data is not in the repository)")
     ap.add_argument("--dyr", help="the unit's planning record (GENSAL/GENROU and its exciter)")
+    ap.add_argument("--dyr-ignore", action="append", default=[], metavar="MODEL",
+                    help="leave this record of the unit out (--from-dyr stops at a stabiliser or limiter it cannot "
+                         "model, e.g. PSS2B, unless left out)")
     ap.add_argument("--efd-base", default="0.33869rf")
     ap.add_argument("--test", default="step:amplitude=0.05")
     ap.add_argument("--resample", type=float, default=200.0)
@@ -93,7 +96,8 @@ def main_(argv: list[str] | None = None) -> int:
             print(f"import refused: {err.strip()}")
             return 1
         print(out.strip())
-        ident = ["identify", str(cap_path), "--from-dyr", args.dyr, "--evals", str(args.evals), "--seed",
+        ignore = [a for m in args.dyr_ignore for a in ("--dyr-ignore", m)]
+        ident = ["identify", str(cap_path), "--from-dyr", args.dyr, *ignore, "--evals", str(args.evals), "--seed",
                  str(args.seed), "--json", str(res_path)] + [a for s in sets for a in ("--set", s)]
         rc, out, err, id_s = _run(ident)
         print(out.strip())
@@ -105,7 +109,8 @@ def main_(argv: list[str] | None = None) -> int:
         diag = None
         if args.diagnose:
             diag_path = Path(tmp) / "diagnosis.json"
-            rc, out, err, diag_s = _run(["diagnose", str(cap_path), "--from-dyr", args.dyr, "--result", str(res_path),
+            rc, out, err, diag_s = _run(["diagnose", str(cap_path), "--from-dyr", args.dyr, *ignore, "--result",
+                                         str(res_path),
                                          "--seed", str(args.seed), "--json", str(diag_path)]
                                         + [a for s in sets for a in ("--set", s)])
             print(out.strip())

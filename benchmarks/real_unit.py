@@ -16,7 +16,7 @@ record plus the check's deviance (a structure with more freedom must earn it on 
 The Mostar exports (ALSETLab/Mostar) have no licence: give their paths, never copy them here.
 Without a path it does nothing and exits 0 (`make bench`).
 
-Usage: python benchmarks/real_unit.py PATH [--dyr PLANT.dyr] [--models all|A,B] [--evals 1000]
+Usage: python benchmarks/real_unit.py PATH [--dyr PLANT.dyr] [--dyr-ignore PSS2B] [--models all|A,B] [--evals 1000]
            [--seed 1] [--diagnose ESST5B,REFERENCE] [--set NAME=VALUE ...] [--test step:amplitude=0.1]
            [--json OUT]
 """
@@ -49,6 +49,9 @@ def main_bench(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("path", nargs="?", type=Path)
     ap.add_argument("--dyr", type=Path, default=None, help="planning record whose values are run as they are")
+    ap.add_argument("--dyr-ignore", action="append", default=[], metavar="MODEL",
+                    help="leave this record of the unit out (a stabiliser or limiter bench-ctl cannot model, e.g. "
+                         "PSS2B, stops the reading unless left out)")
     ap.add_argument("--models", default="all",
                     help="structures whose rows are reported (identify --model auto fits every one)")
     ap.add_argument("--evals", type=int, default=1000)
@@ -77,7 +80,7 @@ def main_bench(argv: list[str] | None = None) -> int:
                     "efd_factor": row["efd_factor"]})
         generator: list[str] = []
         if args.dyr:
-            unit = unit_from_dyr(base, args.dyr)
+            unit = unit_from_dyr(base, args.dyr, ignore=args.dyr_ignore)
             p = make_problem([cap], unit)
             m = p.mse(p.x_start())[0]
             print(f"{args.dyr.name} ({unit.model}) as it is: mse {m:.4g} pu^2 = {m / var:.1f} x the disturbance")

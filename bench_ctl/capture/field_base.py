@@ -16,8 +16,13 @@ base:
 - `<X>V`: the channel records volts and X volts are 1 pu of the model's efd (factor 1/X).
 - `<X>rf`: the channel records per unit of the rated field voltage and X of it is 1 pu of the
   model's efd (factor 1/X).
+- `from:NOLOAD.csv`: the factor an earlier import of the same unit's no-load step found (its
+  sidecar's `import.efd_base`): what an on-line record needs, where the no-load relation above
+  does not hold (a loaded unit's field is larger: armature reaction). `auto` on an on-line record
+  is refused, naming this way.
 
-`--scale ifd=auto` does the same for the field current (ifd0 = Vt0 + Sat(Vt0) at no load).
+`--scale ifd=auto` does the same for the field current (ifd0 = Vt0 + Sat(Vt0) at no load), and
+`--scale ifd=from:NOLOAD.csv` takes the no-load import's `import.ifd_base`.
 `NoLoad` carries Vt0 and Sat from the unit; the caller (the import command) builds it.
 """
 from __future__ import annotations
@@ -43,15 +48,21 @@ _SYNTAX = re.compile(r"([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-z]+)
 
 @dataclass(frozen=True)
 class EfdBase:
-    """How the recorded efd reaches the model's base: `auto`, or 1 pu of the model = `value`
-    volts (`volts`) / rated-field units (`rated`)."""
+    """How the recorded efd reaches the model's base: `auto`, 1 pu of the model = `value` volts
+    (`volts`) / rated-field units (`rated`), or the factor of a no-load import (`from`, its
+    capture at `path`)."""
 
     mode: str
     value: float | None = None
+    path: str | None = None
 
     def __post_init__(self) -> None:
-        if self.mode not in ("auto", "volts", "rated"):
-            raise ValueError(f"efd base mode {self.mode!r}: expected auto, volts or rated")
+        if self.mode not in ("auto", "volts", "rated", "from"):
+            raise ValueError(f"efd base mode {self.mode!r}: expected auto, volts, rated or from")
+        if self.mode == "from":
+            if not self.path:
+                raise ValueError("from: needs the no-load capture's path, e.g. from:noload.csv")
+            return
         if self.mode != "auto" and not (isinstance(self.value, (int, float)) and math.isfinite(self.value)
                                         and self.value > 0):
             raise ValueError(f"efd base {self.value!r}: a positive finite number")
@@ -59,15 +70,20 @@ class EfdBase:
     def text(self) -> str:
         if self.mode == "auto":
             return "auto"
+        if self.mode == "from":
+            return f"from:{self.path}"
         return f"{self.value:g}{'V' if self.mode == 'volts' else 'rf'}"
 
 
 def parse_efd_base(text: str) -> EfdBase:
-    """`auto`, `95V` (volts) or `0.34rf` (rated-field units): what 1 pu of the model's efd is in
-    the recorded channel's unit. A bare number is refused: it says neither."""
+    """`auto`, `95V` (volts), `0.34rf` (rated-field units) or `from:NOLOAD.csv` (an earlier no-load
+    import's factor): what 1 pu of the model's efd is in the recorded channel's unit. A bare number
+    is refused: it says neither."""
     t = text.strip()
     if t.lower() == "auto":
         return EfdBase("auto")
+    if t.lower().startswith("from:"):
+        return EfdBase("from", path=t[5:].strip())
     m = _SYNTAX.fullmatch(t)
     if m is None:
         raise ValueError(f"{text!r}: expected auto, <X>V or <X>rf (e.g. 95V, 0.34rf)")
@@ -142,18 +158,56 @@ def auto_factor(file: str, what: str, column: str | None, time: np.ndarray, x: n
     }
 
 
+def from_no_load(base: EfdBase, what: str, column: str | None) -> tuple[float, dict[str, Any]]:
+    """The factor of `what` (efd or ifd) that the no-load import `base.path` found or was given, and
+    the sidecar block that says so. Refused (ValueError naming the capture) when that capture is
+    not an import, is itself on line, has no such factor, or took `what` from another column."""
+    from bench_ctl.capture.capture import read_capture  # the capture layer's own reader
+
+    path = str(base.path)
+    try:
+        cap = read_capture(path)
+    except (CaptureError, OSError) as exc:
+        raise ValueError(f"from:{path}: {exc}") from None
+    imp = cap.meta.get("import") if isinstance(cap.meta.get("import"), dict) else None
+    block = None if imp is None else imp.get(f"{what}_base")
+    if not isinstance(block, dict) or not isinstance(block.get("factor"), (int, float)):
+        raise ValueError(f"from:{path}: its sidecar has no import.{what}_base (import the unit's no-load step "
+                         f"with --{'efd-base auto' if what == 'efd' else 'scale ifd=auto'} first)")
+    if cap.on_line:
+        raise ValueError(f"from:{path}: that record is on line too (it holds P and Q): the base comes from "
+                         "the unit's no-load step")
+    was = (imp.get("columns") or {}).get(what)
+    if column is not None and was is not None and was != column:
+        raise ValueError(f"from:{path}: its {what} came from column {was!r}, here it is {column!r}: another "
+                         f"channel or unit; give the factor itself if they are the same "
+                         f"({'--efd-scale' if what == 'efd' else '--scale ifd='}{block['factor']:.6g})")
+    factor = float(block["factor"])
+    return factor, {"mode": "from", "given": base.text(), "factor": factor, "column": column,
+                    "from": {"path": str(cap.source), "sha256": cap.meta.get("csv_sha256"),
+                             "mode": block.get("mode"), "column": was,
+                             "source": (imp.get("source") or {}).get("path")}}
+
+
 def explicit_block(base: EfdBase | None, factor: float, *, file: str, time: np.ndarray, x: np.ndarray,
-                   edge_lo_s: float | None, no_load: NoLoad | None, vt_pre: float | None) -> dict[str, Any]:
-    """The sidecar block of a base the user gave (None: the plain factor of --efd-scale), with
-    what the pre-step efd becomes on the model's base beside the model's no-load efd, when both
-    are known."""
-    block: dict[str, Any] = ({"mode": base.mode, "given": base.text(), "factor": factor} if base is not None
-                             else {"mode": "scale", "given": f"{factor:g}", "factor": factor})
-    if edge_lo_s is None or no_load is None:
+                   edge_lo_s: float | None, no_load: NoLoad | None, vt_pre: float | None,
+                   block: dict[str, Any] | None = None, on_line: bool = False) -> dict[str, Any]:
+    """The sidecar block of a base the user gave (None: the plain factor of --efd-scale; `block`:
+    one made already, `from_no_load`'s), with what the pre-step efd becomes on the model's base
+    beside the model's no-load efd, when both are known (on line, `on_line`, a loaded unit's field
+    is above the no-load one: said, not compared)."""
+    if block is None:
+        block = ({"mode": base.mode, "given": base.text(), "factor": factor} if base is not None
+                 else {"mode": "scale", "given": f"{factor:g}", "factor": factor})
+    block["on_line"] = on_line
+    if edge_lo_s is None or (no_load is None and not on_line):
         return block
     try:
         pre = pre_step(file, time, x, edge_lo_s, "efd")
     except CaptureError:
+        return block
+    if on_line:   # a loaded unit's field: no no-load value to set beside it
+        block.update(pre_step_pu=float(np.mean(pre)) * factor)
         return block
     vt0 = no_load.vt0_pu if vt_pre is None else float(vt_pre)
     block.update(pre_step_pu=float(np.mean(pre)) * factor, vt0_pu=vt0, no_load_pu=no_load.efd0(vt0),

@@ -2,11 +2,16 @@
 
 Maps vendor column names to `usetp` / `efd` / `vt` and the named channels `ifd`, `p`, `q`, `vr`,
 builds time from a seconds column or from date + clock-time columns, puts efd (and ifd) on the
-model's base (a factor, a base in volts or rated-field units, or `auto` from the pre-step level:
-`field_base`), synthesises `usetp` from a test description when there is no setpoint channel -
-with its edges found in the record when the description has no start (`found_test`) - and
-resamples (linear interpolation) only when asked: jittered time without a resample request is
-refused with the row. The record must pass the plausibility checks identify makes
+model's base (a factor, a base in volts or rated-field units, `auto` from the pre-step level at
+no load, or the factor a no-load import found: `field_base`), synthesises `usetp` from a test
+description when there is no setpoint channel - with its edges found in the record when the
+description has no start (`found_test`) - and resamples (linear interpolation) only when asked:
+jittered time without a resample request is refused with the row. A long export is cut to the
+test's window when asked (`window`); a time base is rebuilt from the recorder's rate when asked
+(`rate`: a clock a spreadsheet shortened is refused without it); a pre-step part that is not
+steady is warned of, with a window that leaves it out (`steady`). A record with P and Q (or a
+loaded P or Q) is of the unit on line: vt's amplitude check knows it, and the no-load base
+(`auto`) is refused there. The record must pass the plausibility checks identify makes
 (`bench_ctl.capture.plausible`: time unit, physical values, the test description) before it is
 written; whether it holds a test at all is left to the commands that fit it. The sidecar's
 `import` block records each of these steps.
@@ -27,11 +32,13 @@ import numpy as np
 from bench_ctl.capture import comtrade_io
 from bench_ctl.capture.capture import CHANNEL_UNITS, Capture, read_capture, write_capture
 from bench_ctl.capture.errors import CaptureError
-from bench_ctl.capture.field_base import EfdBase, NoLoad, auto_factor, explicit_block, pre_step
+from bench_ctl.capture.field_base import EfdBase, NoLoad, auto_factor, explicit_block, from_no_load, pre_step
 from bench_ctl.capture.found_test import FoundTest, find_test, tolerance_on
 from bench_ctl.capture.plausible import implausible
+from bench_ctl.capture.steady import pre_step_steadiness
 from bench_ctl.capture.timebase import check_time, resample_linear, step_stats
 from bench_ctl.capture.vendor_csv import RawRecord, read_vendor_csv
+from bench_ctl.capture.window import Window, cut
 from bench_ctl.limits import sha256_file
 from bench_ctl.signals.edges import SETPOINT, find_edges
 
@@ -39,6 +46,9 @@ log = logging.getLogger(__name__)
 
 RESAMPLE_METHOD = "linear interpolation"
 MAX_GAP_RATIO = 2.0  # a source step above this many median steps is a dropout, not jitter
+#: a mapped P or Q whose median lies this far from zero (pu, or whatever --scale made it) is a
+#: loaded unit's, on line (P and Q both mapped: on line whatever their level, as every fit reads it)
+ON_LINE_MIN_PU = 0.02
 
 
 def _finite(value: Any, what: str, *, positive: bool = False, nonzero: bool = False) -> None:
@@ -125,6 +135,10 @@ class ImportSpec:
     resample_hz: resample onto this rate (linear interpolation); None refuses jitter.
     test: the test, needed when `usetp` is not mapped (then synthesised), recorded always.
     keep_columns: other source columns to keep as extra capture columns (numeric).
+    window: the test's part of a long export (`bench_ctl.capture.window`), cut first.
+    rate_hz: the recorder's rate: time rebuilt as k / rate and checked against the file's own
+    time marks (CSV only; `bench_ctl.capture.rate`).
+    ifd_from: the no-load capture whose `import.ifd_base` factor puts ifd on the model's base.
     """
 
     columns: Mapping[str, str]
@@ -143,6 +157,9 @@ class ImportSpec:
     resample_hz: float | None = None
     test: TestDescription | None = None
     keep_columns: tuple[str, ...] = ()
+    window: Window | None = None
+    rate_hz: float | None = None
+    ifd_from: str | None = None
 
     def __post_init__(self) -> None:
         comtrade_io.check_mapping(self.columns, required=("efd",))
@@ -159,6 +176,10 @@ class ImportSpec:
             raise ValueError("give either the efd base or efd_base_scale, not both")
         if self.ifd_auto and ("ifd" not in self.columns or "ifd" in self.scale):
             raise ValueError("ifd auto needs ifd mapped and no other scale for it")
+        if self.ifd_from is not None and ("ifd" not in self.columns or "ifd" in self.scale or self.ifd_auto):
+            raise ValueError("ifd from a no-load import needs ifd mapped and no other scale for it")
+        if self.rate_hz is not None:
+            _finite(self.rate_hz, "rate_hz", positive=True)
         if (self.ifd_auto or (self.efd_base is not None and self.efd_base.mode == "auto")) \
                 and self.no_load is None:
             raise ValueError("an auto base needs the unit's no-load field (no_load)")
@@ -183,11 +204,11 @@ def _read_source(src: Path, spec: ImportSpec) -> tuple[RawRecord, dict[str, Any]
     """The source as a RawRecord of source-named columns, and the sidecar's source block."""
     block: dict[str, Any] = {"path": str(src.resolve()), "sha256": sha256_file(src)}
     if src.suffix.lower() == ".cfg":
-        if spec.time_column or spec.date_column or spec.clock_column:
-            raise ValueError("a COMTRADE record brings its own time: no time/date/clock column")
+        if spec.time_column or spec.date_column or spec.clock_column or spec.rate_hz is not None:
+            raise ValueError("a COMTRADE record brings its own time and rate: no time/date/clock column, no --rate")
         table = comtrade_io.load_comtrade_table(src, uniform=False)  # checked below, or resampled
         scaled = ({"efd"} if spec.efd_base_scale != 1.0 or spec.efd_base is not None else set()) \
-            | ({"ifd"} if spec.ifd_auto else set())
+            | ({"ifd"} if spec.ifd_auto or spec.ifd_from is not None else set())
         cols = {ch: comtrade_io.channel_values(table, our, ch, our in scaled | set(spec.scale))
                 for our, ch in spec.columns.items()}
         for name in spec.keep_columns:
@@ -205,7 +226,7 @@ def _read_source(src: Path, spec: ImportSpec) -> tuple[RawRecord, dict[str, Any]
                           time_column=spec.time_column, date_column=spec.date_column,
                           clock_column=spec.clock_column, date_format=spec.date_format,
                           delimiter=spec.delimiter, decimal=spec.decimal,
-                          header_line=spec.header_line)
+                          header_line=spec.header_line, rate_hz=spec.rate_hz)
     block.update(format="csv", delimiter=spec.delimiter, decimal=spec.decimal,
                  header_line=spec.header_line)
     return rec, block
@@ -224,16 +245,31 @@ def _resample(rec: RawRecord, rate_hz: float) -> tuple[np.ndarray, dict[str, np.
     return resample_linear(rec.time, rec.columns, rate_hz)
 
 
+def on_line_of(spec: ImportSpec, raw: Mapping[str, np.ndarray]) -> dict[str, Any] | None:
+    """Whether the record is of the unit on line (the sidecar's `import.on_line`; None: not, or it
+    cannot tell): P and Q both mapped, or one of them with a median at least ON_LINE_MIN_PU away
+    from zero (a loaded unit)."""
+    have = {k: float(np.median(raw[k])) for k in ("p", "q") if k in raw}
+    loaded = [k for k, v in have.items() if abs(v) >= ON_LINE_MIN_PU]
+    if len(have) < 2 and not loaded:
+        return None
+    why = "P and Q recorded" if len(have) == 2 else f"{loaded[0].upper()} away from zero"
+    return {**{f"{k}_median": v for k, v in have.items()},
+            "columns": {k: spec.columns[k] for k in have}, "why": why}
+
+
 def _the_test(file: str, spec: ImportSpec, rec: RawRecord, raw: Mapping[str, np.ndarray],
-              grid: np.ndarray) -> tuple[TestDescription | None, FoundTest | None]:
+              grid: np.ndarray, on_line: bool = False, origin_s: float | None = None
+              ) -> tuple[TestDescription | None, FoundTest | None]:
     """The test to synthesise usetp from: as described, or with its edges found in the record
     (no start given); None when usetp is recorded."""
     test = spec.test
     if "usetp" in spec.columns or test is None or test.start_s is not None:
         return test, None
-    channels = {k: v for k, v in raw.items() if k in ("vr", "efd", "vt")}
+    channels = {k: v for k, v in raw.items() if k in ("vr", "efd", "vt", "ifd")}
     found = find_test(file, rec.time, channels, kind=test.kind, amplitude_pu=test.amplitude_pu,
-                      width_s=test.width_s, columns=spec.columns, rows=rec.rows)
+                      width_s=test.width_s, columns=spec.columns, rows=rec.rows, on_line=on_line,
+                      origin_s=origin_s)
     tol = max(tolerance_on(grid, found.edges), test.edge_tolerance_s or 0.0)
     found.block["tolerance_s"] = tol
     found.block["tolerance_given_s"] = test.edge_tolerance_s
@@ -255,10 +291,25 @@ def _first_edge_lo(test: TestDescription | None, found: FoundTest | None, rec: R
     return None
 
 
+def _not_on_line(file: str, what: str, on_line: dict[str, Any]) -> CaptureError:
+    """The refusal of a no-load base (`auto`) on a record of the unit on line."""
+    level = ", ".join(f"{k[0].upper()} {v:.4g}" for k, v in on_line.items() if k.endswith("_median"))
+    option = "--efd-base auto" if what == "efd" else "--scale ifd=auto"
+    given = "--efd-base from:NOLOAD.csv (or the base itself: <X>V, <X>rf)" if what == "efd" else \
+        "--scale ifd=from:NOLOAD.csv (or its factor: --scale ifd=K)"
+    return CaptureError(file, f"{option}: the record is of the unit on line ({on_line['why']}: {level}, medians in the "
+                        f"columns' units): the no-load base {what}0 = Vt0 + Sat(Vt0) does not hold for a loaded unit, "
+                        f"whose field is larger (armature reaction). Import the unit's no-load step with {option} and "
+                        f"give that import here: {given}")
+
+
 def _field_factors(file: str, spec: ImportSpec, rec: RawRecord, raw: Mapping[str, np.ndarray],
-                   edge_lo: float | None) -> tuple[dict[str, float], dict[str, Any], dict[str, Any] | None]:
+                   edge_lo: float | None, on_line: dict[str, Any] | None = None
+                   ) -> tuple[dict[str, float], dict[str, Any], dict[str, Any] | None]:
     """The factors of efd (and ifd when auto) and the sidecar blocks saying how they were found."""
     auto = spec.efd_base is not None and spec.efd_base.mode == "auto"
+    if on_line is not None and (auto or spec.ifd_auto):
+        raise _not_on_line(file, "efd" if auto else "ifd", on_line)
     if (auto or spec.ifd_auto) and edge_lo is None:
         raise CaptureError(file, "no setpoint edge in the record: an auto base needs the pre-step part")
     vt_pre = None
@@ -274,15 +325,21 @@ def _field_factors(file: str, spec: ImportSpec, rec: RawRecord, raw: Mapping[str
         efd, efd_block = auto_factor(file, "efd", col["efd"], rec.time, raw["efd"], edge_lo, spec.no_load, vt_pre)
     else:
         base = spec.efd_base
-        efd = spec.efd_base_scale if base is None else 1.0 / float(base.value)  # type: ignore[arg-type]
+        made = None
+        if base is not None and base.mode == "from":
+            efd, made = from_no_load(base, "efd", col["efd"])
+        else:
+            efd = spec.efd_base_scale if base is None else 1.0 / float(base.value)  # type: ignore[arg-type]
         efd_block = explicit_block(base, efd, file=file, time=rec.time, x=rec.columns[col["efd"]], edge_lo_s=edge_lo,
-                                   no_load=spec.no_load, vt_pre=vt_pre)
+                                   no_load=spec.no_load, vt_pre=vt_pre, block=made, on_line=on_line is not None)
     factors = {"efd": efd}
     ifd_block = None
     if spec.ifd_auto:
         assert spec.no_load is not None and edge_lo is not None
         factors["ifd"], ifd_block = auto_factor(file, "ifd", col["ifd"], rec.time, raw["ifd"], edge_lo,
                                                 spec.no_load, vt_pre)
+    elif spec.ifd_from is not None:
+        factors["ifd"], ifd_block = from_no_load(EfdBase("from", path=spec.ifd_from), "ifd", col["ifd"])
     return factors, efd_block, ifd_block
 
 
@@ -294,9 +351,14 @@ def import_export(
     src = Path(src_path)
     file = str(src)
     rec, source_block = _read_source(src, spec)
+    origin_s = float(rec.time[0])                 # the export's first sample (windows count from it)
+    check_time(rec.time, uniform=False, file=rec.file, rows=rec.rows, row_kind=rec.row_kind,
+               column=rec.time_column)
+    window_block = None
+    if spec.window is not None:
+        rec, window_block = cut(rec, spec.window, file)
     where = {"file": rec.file, "rows": rec.rows, "row_kind": rec.row_kind,
              "column": rec.time_column}
-    check_time(rec.time, uniform=False, **where)
     stats = step_stats(rec.time)
     resampled: dict[str, Any] | bool = False
     if spec.resample_hz is not None:
@@ -311,9 +373,14 @@ def import_export(
     # of their factor: their base is found below): where the edges are found
     raw = {our: rec.columns[name] * spec.scale.get(our, 1.0) for our, name in spec.columns.items()}
     raw["efd"] = raw["efd"] * math.copysign(1.0, spec.efd_base_scale)
-    test, found = _the_test(file, spec, rec, raw, time)
+    on_line = on_line_of(spec, raw)
+    test, found = _the_test(file, spec, rec, raw, time, on_line is not None, origin_s)
     edge_lo = _first_edge_lo(test, found, rec, raw, stats["median_s"])
-    factors, efd_block, ifd_block = _field_factors(file, spec, rec, raw, edge_lo)
+    factors, efd_block, ifd_block = _field_factors(file, spec, rec, raw, edge_lo, on_line)
+    steady = None
+    if edge_lo is not None:
+        hi = found.edges[0].hi_s if found is not None else edge_lo
+        steady = pre_step_steadiness(rec.time, raw, spec.columns, edge_lo, hi, float(rec.time[-1]), origin_s)
     data: dict[str, np.ndarray] = {"time": time}
     for our, name in spec.columns.items():
         data[our] = cols[name] * factors.get(our, spec.scale.get(our, 1.0))
@@ -341,6 +408,9 @@ def import_export(
             "resampled": resampled,
             "usetp_synthesised": "usetp" not in spec.columns,
             "test": test_meta,
+            "window": window_block,
+            "on_line": on_line,
+            "pre_step_steady": steady,
         },
     }
     if ifd_block is not None:

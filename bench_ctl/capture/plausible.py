@@ -5,8 +5,11 @@ and where.
 - the time unit, decided from the record as a whole, not from the sample step alone: the step
   lies between 10 us and 0.1 s; the record lasts at most `MAX_RECORD_S` and its setpoint edges lie
   at most `MAX_EDGE_GAP_S` apart (a 10 s record at 20 kHz with a time axis in ms has a fine step
-  of 0.05 "s" but lasts 10 000 "s", its 1 s pulse 1000 "s"); the sidecar's rate must match the
-  step (`read_capture`) and its test description the setpoint edges (below);
+  of 0.05 "s" but lasts 10 000 "s", its 1 s pulse 1000 "s"), and efd reaches half of its response
+  to the first setpoint edge within `MAX_HALF_RESPONSE_S` (a step has no second edge to be too far
+  from the first: a 20 kHz step record with its time in ms lasts 290 "s" and passes the rest, but
+  its efd takes 11 "s" to reach half of its response); the sidecar's rate must match the step (`read_capture`) and its
+  test description the setpoint edges (below);
 - efd, usetp and vt are physical: |efd| <= 100 pu, 0 < usetp, vt <= 5 pu (1e308 is a broken cell);
 - the setpoint changes (a step or pulse test), and efd responds to the change: after it, efd
   leaves its pre-trigger level by more than 5 standard deviations of the pre-trigger noise and
@@ -36,6 +39,15 @@ MAX_STEP_S = 0.1
 MAX_RECORD_S = 600.0
 #: the longest time between two setpoint edges (a pulse's width, a step held before the return)
 MAX_EDGE_GAP_S = 60.0
+#: after a setpoint edge efd reaches half of its largest departure (up to the next edge, within
+#: MAX_EDGE_GAP_S) within this long: a static exciter within tens of ms (the Mostar unit's records:
+#: 10-20 ms; the library's static structures at their typical values 3-33 ms), a rotating exciter
+#: within a second (IEEEX1 typical 0.14 s, with TE = 3 s and KA = 5 at the ends of its bounds
+#: 0.76 s); a time axis in ms makes it 1000 times slower (the reference unit at 20 kHz: 11 "s",
+#: ESST5B's 3 ms: 3 "s")
+MAX_HALF_RESPONSE_S = 1.5
+#: ... judged only when that departure is this many times the pre-edge noise (a clear response)
+HALF_RESPONSE_SIGMAS = 20.0
 EFD_MAX_PU = 100.0
 SIGNAL_MAX_PU = 5.0
 RESPONSE_SIGMAS = 5.0
@@ -139,6 +151,31 @@ def _test_meta(capture: Capture, file: str, where: str | None) -> CaptureError |
     return None
 
 
+def _slow_response(capture: Capture, file: str, edges: np.ndarray) -> CaptureError | None:
+    """efd's response to the first setpoint edge, too slow for an exciter (see MAX_HALF_RESPONSE_S)."""
+    if not edges.size or edges[0] < 2:
+        return None
+    t, efd = np.asarray(capture.time, float), np.asarray(capture.efd, float)
+    k0 = int(edges[0])
+    k1 = int(edges[1]) if edges.size > 1 else efd.size
+    k1 = min(k1, int(np.searchsorted(t, t[k0] + MAX_EDGE_GAP_S, side="right")))
+    pre = efd[:k0 - 1]
+    level, noise = float(np.mean(pre)), float(np.std(pre))
+    dev = np.abs(efd[k0:k1] - level)
+    if dev.size < 2:
+        return None
+    peak = float(dev.max())
+    if peak <= max(HALF_RESPONSE_SIGMAS * noise, RESPONSE_MIN_PU):
+        return None
+    half = int(np.flatnonzero(dev >= 0.5 * peak)[0])
+    took = float(t[k0 + half] - t[k0])
+    if took <= MAX_HALF_RESPONSE_S:
+        return None
+    return CaptureError(file, f"efd takes {took:.4g} s after the setpoint edge at t = {t[k0] - t[0]:.6g} s to reach "
+                        f"half of its response ({peak:.3g} pu): an exciter responds within {MAX_HALF_RESPONSE_S:g} s"
+                        f"{_MS_HINT}", column="time")
+
+
 def implausible(capture: Capture, *, rows: np.ndarray | None = None, row_kind: str = "row",
                 file: str | None = None, test_where: str | None = None,
                 response: bool = True) -> CaptureError | None:
@@ -186,6 +223,9 @@ def implausible(capture: Capture, *, rows: np.ndarray | None = None, row_kind: s
                                 f"{t[edges[i]] - t[0]:.6g} s and {t[edges[i + 1]] - t[0]:.6g} s, longer than a "
                                 f"setpoint test holds it ({MAX_EDGE_GAP_S:g} s at most){_MS_HINT}",
                                 column="time")
+    slow = _slow_response(capture, file, edges)
+    if slow is not None:
+        return slow
     if not response or not moved.size:
         return _test_meta(capture, file, test_where)
     k0 = int(moved[0])

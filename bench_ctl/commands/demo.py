@@ -8,6 +8,10 @@ DIR/capture.csv, capture.json, audit.jsonl, result.json, diagnosis.json, report.
 against the simulated bench on line), identification on efd, Vt and Q, the diagnosis with the on-line vocabulary
 (the grid's reactance among the effects; dead time, setpoint ramp and recorder skew not yet), and
 the report with its on-line section.
+
+Exit codes: 0 the fit and the report pass (PASS, or PASS WITH WARNINGS), 1 the report's verdict is
+FAIL or the fit violates a constraint or failed, 2 aborted (a refusal, an output that exists), 3 a
+communication error of the pulse test.
 """
 from __future__ import annotations
 
@@ -137,4 +141,14 @@ def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, 
         if path is not None:
             click.echo(f"  {label:<9} {path}")
     click.echo(f"  total     {time.perf_counter() - t_start:.1f} s")
-    return ExitCode.FAILED if result.constraints_violated or result.failed else ExitCode.OK
+    return demo_exit(result, data.verdict)
+
+
+def demo_exit(result, verdict: str) -> ExitCode:
+    """The demo's exit code: 1 when the fit violates a constraint or failed, or the report's verdict
+    is FAIL (issue 48 item 15: it printed "report verdict: FAIL" and exited 0), else 0."""
+    from bench_ctl.report.checks import FAIL
+
+    if result.constraints_violated or result.failed or verdict == FAIL:
+        return ExitCode.FAILED
+    return ExitCode.OK

@@ -198,12 +198,12 @@ def _command_line(capture: str, holdout: str | None, unit_path: str | None, over
 def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None, model: str | None,
              from_dyr: str | None, dyr_bus: int | None, dyr_id: str | None, overrides: tuple[str, ...],
              result_path: str | None, seed: int, json_out: str | None, report_out: str | None,
-             force: bool = False) -> int:
+             force: bool = False, dyr_ignore: tuple[str, ...] = ()) -> int:
     """Diagnose the gap between the unit's model and CAPTURE (a pulse or step test)."""
     from bench_ctl.diagnosis import DiagnosisError
     from bench_ctl.diagnosis import diagnose as run
 
-    model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id)
+    model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id, dyr_ignore=dyr_ignore)
     auto = is_auto(model)
     if auto and result_path:
         click.echo("error: --model auto starts each structure from its own fit; --result is for one structure",

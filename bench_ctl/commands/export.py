@@ -11,7 +11,9 @@ for no limit; `--from-dyr` reads it back as open), every value in full precision
 `--from-dyr` on the export simulates what the result does. What the model has and the record
 cannot hold (a dead time, a rate limit, ...) is named on the console and in the record's
 comment. A unit with a power system stabiliser (its [grid] PSS_KS > 0, given or fitted on line)
-gets its IEEEST record after the exciter's, at the same bus and ID. Exit codes: 0 written, 2 bad
+gets its IEEEST record after the exciter's, at the same bus and ID. The bus must be a PSS/E bus
+number (1 .. 999997) and the ID one or two characters that read back the same (no blank, quote or
+`/`, not empty): anything else is refused, as PSS/E would not read it. Exit codes: 0 written, 2 bad
 input (file, key or value named) or an output refused.
 """
 from __future__ import annotations
@@ -29,8 +31,9 @@ NO_LIMIT = 999.0
 @click.argument("result_path", metavar="RESULT.json", type=click.Path(dir_okay=False))
 @click.option("--dyr", "dyr_out", required=True, type=click.Path(dir_okay=False),
               help="PSS/E .dyr file to write (an existing one only with --force, never an input).")
-@click.option("--bus", type=int, default=1, show_default=True, help="Bus number of the record.")
-@click.option("--id", "machine_id", default="1", show_default=True, help="Machine ID of the record.")
+@click.option("--bus", type=int, default=1, show_default=True, help="Bus number of the record (1 .. 999997).")
+@click.option("--id", "machine_id", default="1", show_default=True,
+              help="Machine ID of the record: one or two characters, no blank, quote or /.")
 @click.option("--force", is_flag=True, help="Replace an existing .dyr (never an input).")
 def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: bool = False) -> int:
     """Write the identified model of RESULT.json as a PSS/E dynamic data record."""
@@ -39,9 +42,14 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
     from bench_ctl.limits import InputError
     from bench_ctl.model.structures import StructureError
     from bench_ctl.records import FormatError
-    from bench_ctl.units.dyr import DyrError, DyrRecord, dyr_text
+    from bench_ctl.units.dyr import DyrError, DyrRecord, check_bus_id, dyr_text
     from bench_ctl.units.dyr_unit import dyr_fields, dyr_values_of, not_carried, pss_record
 
+    try:   # what PSS/E reads back the same: refused before anything is read or written
+        check_bus_id(bus, str(machine_id))
+    except DyrError as exc:
+        click.echo(f"error: --bus {bus} --id {machine_id!r}: {exc}", err=True)
+        return ExitCode.ABORTED
     try:
         out = outputs.guard_outputs({"--dyr": dyr_out}, [result_path], force=force)
     except outputs.OutputRefused as exc:

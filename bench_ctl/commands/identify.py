@@ -47,12 +47,22 @@ MIN_EVALS = int(IDENTIFY["particles"])
 DE_POPSIZE = 5
 
 
+def unit_line(unit: dict[str, Any], model: dict[str, Any], on_line: list[bool]) -> str:
+    """The header's unit: its name (a --from-dyr unit's is the record's: file, bus, ID, generator
+    and exciter models), the structure that ran, and whether the captures are on line or at no
+    load (issue 49 item 7)."""
+    st = model.get("name") or unit.get("model") or "REFERENCE"
+    where = ("on line (the captures hold P and Q)" if all(on_line) else "at no load" if not any(on_line)
+             else f"{sum(on_line)} of {len(on_line)} captures on line")
+    return f"unit: {unit.get('name', '?')}; structure {st}; {where}"
+
+
 def summary(ident: Identification) -> str:
     """The human-readable summary table of a result."""
     r = ident.result
     idn = r.identifiability or {}
-    lines = [f"unit: {r.unit['name']}   optimizer: {r.optimizer['name']} "
-             f"(seed {r.optimizer['seed']})   evaluations: {r.evaluations}   "
+    lines = [unit_line(r.unit, r.model or {}, [c.on_line for c in ident.problem.captures]),
+             f"optimizer: {r.optimizer['name']} (seed {r.optimizer['seed']})   evaluations: {r.evaluations}   "
              f"wall: {r.wall_s:.2f} s (compile {r.compile_s:.2f} s)", ""]
     head = f"{'param':<7}{'value':>12}{'min':>10}{'max':>10}{'std':>11}{'rel std':>9}  determined"
     lines += [head, "-" * len(head)]
@@ -163,9 +173,10 @@ def plot_fit(ident: Identification, path: str | Path, out: outputs.Outputs | Non
 def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None, from_dyr: str | None,
              dyr_bus: int | None, dyr_id: str | None, overrides: tuple[str, ...],
              optimizers: tuple[str, ...], compare: bool, evals: int, seed: int,
-             json_out: str | None, plot_out: str | None, no_progress: bool, force: bool = False) -> int:
+             json_out: str | None, plot_out: str | None, no_progress: bool, force: bool = False,
+             dyr_ignore: tuple[str, ...] = ()) -> int:
     """Identify the AVR parameters from CAPTURE files (CSV + sidecar) by simulation in the loop."""
-    model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id)
+    model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id, dyr_ignore=dyr_ignore)
     if is_auto(model):
         return _identify_auto(captures, unit_path, overrides, model_kw, optimizers, compare, evals, seed,
                               json_out, plot_out, force)

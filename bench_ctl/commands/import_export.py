@@ -13,8 +13,12 @@ Example:
 Without a start, `--test` has its edges found in the record (the regulator output `vr`, else efd,
 else vt: bench_ctl/capture/found_test.py); `--efd-base auto` puts the pre-step efd on the model's
 no-load base Vt0 + Sat(Vt0) with the unit's saturation (--unit, --set, --from-dyr as elsewhere:
-bench_ctl/capture/field_base.py). What was found and the factors used are printed and stored in
-the sidecar's `import` block (docs/formats.md).
+bench_ctl/capture/field_base.py); on an on-line record (P and Q mapped) it is refused, and
+`--efd-base from:NOLOAD.csv` takes the factor the unit's no-load import found. `--window START:END`
+takes the test out of a long export, `--rate HZ` rebuilds the time base from the recorder's rate
+(a clock column a spreadsheet shortened to MM:SS.f needs it). What was found and the factors used
+are printed and stored in the sidecar's `import` block (docs/formats.md); a pre-step part that is
+not steady is warned of, with a window that leaves it out.
 
 The record must pass the checks identify makes on its values (a time axis in ms, a broken cell
 such as 1e308, a test description that is not the record's are refused before anything is
@@ -38,6 +42,8 @@ from bench_ctl.capture.errors import CaptureError
 from bench_ctl.capture.field_base import NoLoad, parse_efd_base
 from bench_ctl.capture.importer import ImportSpec, TestDescription
 from bench_ctl.capture.importer import import_export as run_import
+from bench_ctl.capture.steady import warning_lines
+from bench_ctl.capture.window import parse_window
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.units.unit import Unit, UnitError
 
@@ -90,17 +96,23 @@ def parse_test(text: str) -> TestDescription:
         raise click.BadParameter(str(exc), param_hint="--test") from None
 
 
-def _scales(values: tuple[str, ...]) -> tuple[dict[str, float], bool]:
-    """--scale NAME=FACTOR pairs, and whether ifd=auto was asked for."""
+def _scales(values: tuple[str, ...]) -> tuple[dict[str, float], bool, str | None]:
+    """--scale NAME=FACTOR pairs, whether ifd=auto was asked for, and ifd=from:NOLOAD.csv's path."""
     pairs = _pairs(values, "--scale")
     ifd_auto = pairs.get("ifd", "").lower() == "auto"
+    ifd_from = None
     if ifd_auto:
         del pairs["ifd"]
-    bad = [k for k, v in pairs.items() if v.lower() == "auto"]
+    elif pairs.get("ifd", "").lower().startswith("from:"):
+        ifd_from = pairs.pop("ifd")[5:].strip()
+        if not ifd_from:
+            raise click.BadParameter("ifd=from: needs the no-load import's capture, e.g. ifd=from:noload.csv",
+                                     param_hint="--scale")
+    bad = [k for k, v in pairs.items() if v.lower() == "auto" or v.lower().startswith("from:")]
     if bad:
-        raise click.BadParameter(f"auto is for ifd only (the field current on the no-load base), not {bad[0]!r}",
-                                 param_hint="--scale")
-    return _floats(pairs, "--scale"), ifd_auto
+        raise click.BadParameter(f"auto and from: are for ifd only (the field current on the no-load base), "
+                                 f"not {bad[0]!r}", param_hint="--scale")
+    return _floats(pairs, "--scale"), ifd_auto, ifd_from
 
 
 def _no_load(unit: Unit) -> NoLoad:
@@ -121,6 +133,16 @@ def summary(capture: Capture) -> list[str]:
     """What the import found and used, for the console (from the sidecar's import block)."""
     imp = capture.meta.get("import", {})
     lines = []
+    win = imp.get("window")
+    if win:
+        lines.append(f"window {win['given']}: t = {win['start_s']:.3f} .. {win['end_s']:.3f} s of the export "
+                     f"(rows {win['first_row']}..{win['last_row']}, {win['samples']} of {win['export_samples']} "
+                     "samples)")
+    rebuilt = (imp.get("time") or {}).get("rebuilt")
+    if rebuilt:
+        lines.append(f"time rebuilt as k / {rebuilt['rate_hz']:g} Hz: within {rebuilt['max_deviation_s']:.4g} s of "
+                     f"the {rebuilt['checked_against']} (resolution {rebuilt['resolution_s']:g} s, "
+                     f"tolerance {rebuilt['tolerance_s']:.3g} s)")
     found = imp.get("edges_found")
     if found:
         edges = ", ".join(f"{e['edge']} {e['instant_s']:.4f} s +- {e['uncertainty_s']:.4f} s"
@@ -133,6 +155,8 @@ def summary(capture: Capture) -> list[str]:
         if chk.get("ratio") is not None:
             lines.append(f"  amplitude: vt moves {chk['change_pu']:+.4f} pu over the edge, "
                          f"{chk['ratio']:.3f} x the stated {chk['stated_pu']:+g} pu")
+            if chk.get("note"):
+                lines.append(f"  {'note' if (chk.get('reference') or {}).get('ok') else 'NOTE'}: {chk['note']}")
         else:
             lines.append(f"  amplitude: {chk.get('note')}")
         for s in found["searched"]:
@@ -155,10 +179,22 @@ def summary(capture: Capture) -> list[str]:
                              "so that the model starts where the record does")
         elif b["mode"] != "scale" or b["factor"] != 1.0:
             tail = ""
-            if b.get("pre_step_pu") is not None:
+            if b.get("pre_step_pu") is not None and b.get("on_line"):
+                tail = (f"; pre-step efd {b['pre_step_pu']:.4g} pu on the model's base (the loaded unit's field, "
+                        "above its no-load value)")
+            elif b.get("pre_step_pu") is not None:
                 tail = (f"; pre-step efd {b['pre_step_pu']:.4g} pu on the model's base (its no-load efd at "
                         f"Vt0 {b['vt0_pu']:.4g}: {b['no_load_pu']:.4g} pu)")
+            src = b.get("from")
+            if src:
+                tail = f" (the {src['mode']} base of the no-load import {src['path']}){tail}"
             lines.append(f"{what} base {b['given']}: factor {b['factor']:.5g}{tail}")
+    on = imp.get("on_line")
+    if on:
+        lines.append(f"on line ({on['why']}): every fit starts the machine from the record's operating point")
+    steady = imp.get("pre_step_steady")
+    if steady:
+        lines += warning_lines(steady)
     return lines
 
 
@@ -180,13 +216,21 @@ def summary(capture: Capture) -> list[str]:
               help="1-based line of the header (lines before it are skipped).")
 @click.option("--efd-scale", type=float, default=None,
               help="Multiply efd by this (rated-field base -> model base); default 1.")
-@click.option("--efd-base", "efd_base", default=None, metavar="auto|<X>V|<X>rf",
-              help="efd's base: auto (the pre-step efd = Vt0 + Sat(Vt0) with the unit's saturation), "
-                   "<X>V (the channel records volts, X V = 1 pu) or <X>rf (rated-field units, X of them = 1 pu).")
+@click.option("--efd-base", "efd_base", default=None, metavar="auto|<X>V|<X>rf|from:NOLOAD.csv",
+              help="efd's base: auto (no load only: the pre-step efd = Vt0 + Sat(Vt0) with the unit's saturation), "
+                   "<X>V (the channel records volts, X V = 1 pu), <X>rf (rated-field units, X of them = 1 pu) or "
+                   "from:NOLOAD.csv (the factor the unit's no-load import found: for an on-line record).")
 @click.option("--scale", "scales", multiple=True, metavar="NAME=FACTOR",
-              help="Factor for usetp, vt, ifd, p, q or vr; ifd=auto puts the field current on the no-load base.")
+              help="Factor for usetp, vt, ifd, p, q or vr; ifd=auto puts the field current on the no-load base "
+                   "(no load only), ifd=from:NOLOAD.csv takes the no-load import's.")
 @click.option("--resample", "resample_hz", type=float, default=None, metavar="HZ",
               help="Resample onto HZ by linear interpolation (otherwise jitter is refused).")
+@click.option("--rate", "rate_hz", type=float, default=None, metavar="HZ",
+              help="The recorder's rate: time rebuilt as k / HZ where the samples are evenly spaced, checked "
+                   "against the file's own time (needed for a clock column a spreadsheet shortened to MM:SS.f).")
+@click.option("--window", "window_text", default=None, metavar="START:END",
+              help="Take the test out of a long export: seconds from its first sample (120:150, 120:) or clock "
+                   "times (12:53:58.5:12:54:30).")
 @click.option("--test", "test_text", default=None, metavar="KIND:key=value,...",
               help="e.g. pulse:start=1.0,amplitude=0.05,width=1.0 (synthesises usetp when it is not "
                    "mapped); step:amplitude=0.1 without a start: the edges are found in the record.")
@@ -197,12 +241,17 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
                   date_column: str | None, clock_column: str | None, date_format: str,
                   delimiter: str, decimal_comma: bool, header_line: int, efd_scale: float | None,
                   efd_base: str | None, scales: tuple[str, ...], resample_hz: float | None,
+                  rate_hz: float | None, window_text: str | None,
                   test_text: str | None, keep: tuple[str, ...], unit_path: str | None, overrides: tuple[str, ...],
                   effects: tuple[str, ...], model: str | None, from_dyr: str | None, dyr_bus: int | None,
-                  dyr_id: str | None) -> int:
+                  dyr_id: str | None, dyr_ignore: tuple[str, ...] = ()) -> int:
     """Import a recorder export SRC (CSV or COMTRADE .cfg) as a capture."""
     test = parse_test(test_text) if test_text else None
-    factors, ifd_auto = _scales(scales)
+    factors, ifd_auto, ifd_from = _scales(scales)
+    try:
+        window = parse_window(window_text) if window_text is not None else None
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--window") from None
     if efd_base is not None and efd_scale is not None:
         raise click.UsageError("give --efd-base or --efd-scale, not both")
     try:
@@ -213,9 +262,10 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
     try:
         # the unit is read for what needs it: an auto base, and what an explicit one becomes
         if ifd_auto or base is not None or efd_scale is not None or unit_path or overrides or effects \
-                or model or from_dyr:
+                or model or from_dyr or dyr_ignore:
             no_load = _no_load(resolve_unit(unit_path, overrides, model=model, from_dyr=from_dyr,
-                                            dyr_bus=dyr_bus, dyr_id=dyr_id, effects=effects))
+                                            dyr_bus=dyr_bus, dyr_id=dyr_id, effects=effects,
+                                            dyr_ignore=dyr_ignore))
     except (UnitError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
@@ -226,14 +276,16 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
             delimiter="\t" if delimiter.lower() == "tab" else delimiter,
             decimal="," if decimal_comma else ".", header_line=header_line,
             efd_base_scale=1.0 if efd_scale is None else efd_scale, efd_base=base, scale=factors,
-            ifd_auto=ifd_auto, no_load=no_load, resample_hz=resample_hz, test=test, keep_columns=keep)
+            ifd_auto=ifd_auto, no_load=no_load, resample_hz=resample_hz, test=test, keep_columns=keep,
+            window=window, rate_hz=rate_hz, ifd_from=ifd_from)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     try:
         if not str(out).lower().endswith(".csv"):
             raise ValueError(f"-o {out}: a capture file name must end in .csv")
         outputs.guard_outputs({"-o": out, "-o (its sidecar)": Path(out).with_suffix(".json")},
-                              [src, unit_path, from_dyr],
+                              [src, unit_path, from_dyr, base.path if base is not None and base.mode == "from"
+                               else None, ifd_from],
                               replace_hint="captures are never overwritten: choose another name")
         capture = run_import(src, spec, out)
     except (CaptureError, FileExistsError, ValueError) as exc:

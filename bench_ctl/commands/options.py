@@ -14,8 +14,12 @@ from bench_ctl.units.unit import Unit, UnitError, apply_overrides, load_unit, wi
 
 
 def model_options(f):
-    """--model NAME and --from-dyr FILE [--dyr-bus N --dyr-id ID]: the structure and the record a
-    unit starts from (see `resolve_unit`)."""
+    """--model NAME and --from-dyr FILE [--dyr-bus N --dyr-id ID --dyr-ignore MODEL]: the structure
+    and the record a unit starts from (see `resolve_unit`)."""
+    f = click.option("--dyr-ignore", "dyr_ignore", multiple=True, metavar="MODEL",
+                     help="Leave the unit's MODEL record of --from-dyr out (repeatable): a stabiliser, limiter or "
+                          "compensator bench-ctl does not model stops the command unless left out by name "
+                          "(e.g. --dyr-ignore PSS2B when the test was made with the stabiliser off).")(f)
     f = click.option("--dyr-id", default=None, metavar="ID",
                      help="Machine ID of the records to take from --from-dyr (default: the only one).")(f)
     f = click.option("--dyr-bus", type=int, default=None, metavar="N",
@@ -37,23 +41,31 @@ def model_args(kw: dict) -> list[str]:
                      ("dyr_id", "--dyr-id")):
         if kw.get(key) is not None:
             out += [opt, str(kw[key])]
+    for m in kw.get("dyr_ignore") or ():
+        out += ["--dyr-ignore", str(m)]
     return out
 
 
 def resolve_unit(unit_path: str | None, overrides: Sequence[str], *, model: str | None = None,
                  from_dyr: str | None = None, dyr_bus: int | None = None, dyr_id: str | None = None,
-                 effects: Sequence[str] = ()) -> Unit:
+                 effects: Sequence[str] = (), dyr_ignore: Sequence[str] = ()) -> Unit:
     """The unit file (or the reference unit), in the structure `model`, started from a .dyr
-    record, then the --set overrides (standard names of the structure) and --effect's."""
+    record, then the --set overrides (standard names of the structure) and --effect's. What the
+    record holds and is left out (or read under another model's name) is said on stderr."""
     unit = load_unit(unit_path)
     if model:
         try:
             unit = with_model(unit, model)
         except ValueError as exc:
             raise UnitError(f"--model {model}: {exc}") from None
+    if dyr_ignore and not from_dyr:
+        raise UnitError("--dyr-ignore leaves out a record of --from-dyr: give --from-dyr")
     if from_dyr:
         from bench_ctl.units.dyr_unit import unit_from_dyr
-        unit = unit_from_dyr(unit, from_dyr, bus=dyr_bus, ident=dyr_id)
+        notes: list[str] = []
+        unit = unit_from_dyr(unit, from_dyr, bus=dyr_bus, ident=dyr_id, ignore=dyr_ignore, notes=notes)
+        for note in notes:
+            click.echo(f"note: --from-dyr: {note}", err=True)
         if model and unit.model != with_model(unit, model).model:
             raise UnitError(f"--model {model} differs from the record's model {unit.model} in {from_dyr}")
     unit = apply_overrides(unit, overrides)
@@ -102,9 +114,12 @@ def build_unit(unit_path: str | None, overrides: Sequence[str], effects: Sequenc
 
 
 def fmt_value(v: Any, spec: str = ".4g") -> str:
-    """A number for a summary table: '-' for missing, 'inf'/'nan' as such."""
+    """A number for a summary table: '-' for missing, 'inf' as such (a fit that failed), 'n/a' for
+    a figure that could not be computed (never 'nan': issue 49 item 7)."""
     if v is None:
         return "-"
+    if isinstance(v, float) and math.isnan(v):
+        return "n/a"
     if isinstance(v, float) and not math.isfinite(v):
         return str(v)
     return format(v, spec)

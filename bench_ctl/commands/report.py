@@ -5,7 +5,10 @@ Example:
 
 Writes one self-contained HTML page (figures embedded, nothing fetched), each figure as
 `<stem>_<name>.png` beside it, and the PDF (matplotlib PdfPages) when asked. Capture paths in
-the result are relative to the result file's folder (absolute ones used as written). Every file
+the result are relative to the result file's folder (absolute ones used as written); a path that
+leads outside the result's folder and the working folder is refused before the file is opened,
+unless --allow-outside (a result is a file anyone can hand over: its paths must not make the
+report read and hash any file). The captures read are named on the console. Every file
 goes through the output guard (`bench_ctl.outputs`): the PNGs too are never an input, never an
 existing file without --force, never written through a symbolic link. A diagnosis of another
 capture is shown, with a warning on the console, and its noise floor is not used.
@@ -64,8 +67,10 @@ def _command_line(result_json: str, diagnosis_json: str | None, out: str, pdf: s
 @click.option("--noise-ratio-limit", type=click.FloatRange(min=1.0),
               default=DEFAULT_NOISE_RATIO_LIMIT, show_default=True,
               help="Warn when MSE exceeds this multiple of the noise floor.")
+@click.option("--allow-outside", is_flag=True,
+              help="Read captures the result names outside its folder and the working folder (refused by default).")
 def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | None,
-           edge_window: float, noise_ratio_limit: float, force: bool = False) -> int:
+           edge_window: float, noise_ratio_limit: float, force: bool = False, allow_outside: bool = False) -> int:
     """Write the validation report for RESULT.json (from `bench-ctl identify --json`)."""
     try:
         result = load_result(result_json)
@@ -80,10 +85,13 @@ def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | No
                        where=result_json, window_s=edge_window,
                        noise_ratio_limit=noise_ratio_limit,
                        report_command=_command_line(result_json, diagnosis_json, out, pdf,
-                                                    edge_window, noise_ratio_limit))
+                                                    edge_window, noise_ratio_limit),
+                       confine=None if allow_outside else [base, Path.cwd()])
     except (ReportError, outputs.OutputRefused) as exc:
         click.echo(f"error: {exc}", err=True)
         return ExitCode.ABORTED
+    for c in data.captures:
+        click.echo(f"read capture {c.loaded.path} (SHA-256 as in the result)")
     for c in data.checks:
         if c.name == "diagnosis of this record" and c.status == "warn":
             click.echo(f"WARNING: --diagnosis {diagnosis_json}: {c.detail}", err=True)

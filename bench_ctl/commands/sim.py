@@ -75,7 +75,7 @@ def _hostport(text: str, option: str) -> tuple[str, int]:
               help="Open a line-based control port for run-time faults.")
 def sim(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, tcp, recorder_tcp, serial_link, no_serial,
         exciter_profile, recorder_profile, exciter_unit_id, recorder_unit_id, heartbeat_timeout,
-        load_mw, online, mva, noise, seed, faults, control) -> int:
+        load_mw, online, mva, noise, seed, faults, control, dyr_ignore=()) -> int:
     """Run the simulated exciter and recorder around one real-time plant until Ctrl-C."""
     from simulators.bench import SimBench
     from simulators.faults import parse_fault
@@ -85,7 +85,7 @@ def sim(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, tcp, re
     control_addr = _hostport(control, "--control") if control else None
     try:
         unit = build_unit(unit_path, overrides, effects, model=model, from_dyr=from_dyr,
-                          dyr_bus=dyr_bus, dyr_id=dyr_id)
+                          dyr_bus=dyr_bus, dyr_id=dyr_id, dyr_ignore=dyr_ignore)
         if unit.model != "REFERENCE" and not online:   # the no-load plant steps the reference blocks only
             raise UnitError(f"the simulated bench at no load runs the REFERENCE structure only, not {unit.model} "
                             "(on line, --online, it runs any); use `bench-ctl simulate` for a capture of another "

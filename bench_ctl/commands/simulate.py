@@ -37,11 +37,11 @@ MAX_SAMPLES = 1.0e7
                    "Vt0 (the unit's [grid], --set, or a GENROU record via --from-dyr); P, Q and Ifd recorded too.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Capture CSV to write.")
 def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, amplitude, width, start, duration,
-             rate, noise, lsb, seed, online, output):
+             rate, noise, lsb, seed, online, output, dyr_ignore=()):
     """Write a synthetic pulse capture (CSV + JSON sidecar) of the unit."""
     try:
         unit = build_unit(unit_path, overrides, effects, model=model, from_dyr=from_dyr,
-                          dyr_bus=dyr_bus, dyr_id=dyr_id)
+                          dyr_bus=dyr_bus, dyr_id=dyr_id, dyr_ignore=dyr_ignore)
         for opt, v in (("--amplitude", amplitude), ("--width", width), ("--start", start),
                        ("--duration", duration), ("--rate", rate), ("--noise", noise), ("--lsb", lsb)):
             if not math.isfinite(v):

@@ -42,6 +42,17 @@ def _finite(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
+#: what an evidence text says in place of a figure that could not be measured (never "nan")
+UNMEASURED = "not measurable"
+
+
+def _fig(v: float, spec: str, unit: str = "", scale: float = 1.0) -> str:
+    """A figure of an evidence text: `v * scale` formatted, or UNMEASURED (issue 49 item 7: no
+    nan in anything an engineer reads)."""
+    v = float(v)
+    return f"{v * scale:{spec}}{unit}" if math.isfinite(v) else UNMEASURED
+
+
 def _smooth(y: np.ndarray, m: int) -> np.ndarray:
     if m <= 1:
         return np.asarray(y, float)
@@ -159,10 +170,13 @@ def delay(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: f
     d = float(np.median(lags)) if lags else math.nan
     vals["delay_s"] = d
     detected = math.isfinite(d) and d >= 2.0 * dt
-    onsets = ", ".join(f"{lab} {vals[f'{lab}_onset_s'] * 1e3:.1f} ms vs "
-                       f"{vals[f'{lab}_model_onset_s'] * 1e3:.1f} ms" for lab, _ in names)
-    lags = ", ".join(f"{vals[f'{lab}_xcorr_lag_s'] * 1e3:.1f} ms" for lab, _ in names)
-    ev = (f"the measured efd leaves its pre-edge level {d * 1e3:.1f} ms later than the base model "
+    onsets = ", ".join(f"{lab} {_fig(vals[f'{lab}_onset_s'], '.1f', ' ms', 1e3)} vs "
+                       f"{_fig(vals[f'{lab}_model_onset_s'], '.1f', ' ms', 1e3)}" for lab, _ in names)
+    lags = ", ".join(_fig(vals[f"{lab}_xcorr_lag_s"], ".1f", " ms", 1e3) for lab, _ in names)
+    later = (f"{d * 1e3:.1f} ms later than the base model" if math.isfinite(d) else
+             f"at a time {UNMEASURED} against the base model (no onset beyond {thresh:.3g} pu within "
+             f"{window * dt * 1e3:.0f} ms of an edge)")
+    ev = (f"the measured efd leaves its pre-edge level {later} "
           f"(onsets: " + onsets + "; derivative cross-correlation lags " + lags
           + "); a dead time and a recorder skew both delay the record, only the dead time changes the loop")
     return Feature("delay", detected, ev, vals)
@@ -232,9 +246,10 @@ def asymmetry(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigm
     r, r_m = up / down if down > 0 else math.inf, up_m / down_m if down_m > 0 else math.inf
     tol = 4.0 * sigma * (1.0 / max(up, 1e-9) + 1.0 / max(down, 1e-9)) + 0.02
     detected = math.isfinite(r) and math.isfinite(r_m) and abs(r / r_m - 1.0) > tol
-    ev = (f"up excursion {up:.3f} pu, down {down:.3f} pu (ratio {r:.3f}; base model {r_m:.3f}); steepest slope "
-          f"up {su:.1f} pu/s, down {sd:.1f} pu/s (model {su_m:.1f}, {sd_m:.1f}); equal capped slopes point "
-          f"to a slew limit, unequal excursions to a ceiling on one side")
+    ev = (f"up excursion {up:.3f} pu, down {down:.3f} pu (ratio {_fig(r, '.3f')}; base model {_fig(r_m, '.3f')}); "
+          f"steepest slope up {_fig(su, '.1f', ' pu/s')}, down {_fig(sd, '.1f', ' pu/s')} (model {_fig(su_m, '.1f')}, "
+          f"{_fig(sd_m, '.1f')}); equal capped slopes point to a slew limit, unequal excursions to a ceiling on one "
+          "side")
     return Feature("asymmetry", detected, ev, {"up": up, "down": down, "ratio": r, "model_ratio": r_m,
                                                "slope_up": su, "slope_down": sd, "model_slope_up": su_m,
                                                "model_slope_down": sd_m})
@@ -262,6 +277,17 @@ def _rise(y: np.ndarray, k: int, w: int, sgn: float, m: int, dt: float) -> tuple
     return (t90 - t10) * dt, peak, (t50 - t10) / (t90 - t50)
 
 
+def _rise_text(label: str, tr: float, peak: float, st: float, tr_m: float, st_m: float, window_s: float) -> str:
+    """One edge's part of the edge_shape evidence; a rise that could not be measured (no first
+    peak above the pre-edge level within the window, or thresholds crossed out of order) is said
+    so, never as nan."""
+    why = f"{UNMEASURED} (no rise to a first peak within {window_s * 1e3:.0f} ms of the edge)"
+    meas = (f"10-90 % rise {tr * 1e3:.1f} ms to {peak:.3f} pu, straightness {st:.2f}" if math.isfinite(tr)
+            else f"rise {why}")
+    model = f"{tr_m * 1e3:.1f} ms, {st_m:.2f}" if math.isfinite(tr_m) else f"rise {UNMEASURED}"
+    return f"{label} edge: {meas} (base model {model})"
+
+
 def edge_shape(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: float,
                amplitude: float) -> Feature:
     """Shape of the response to each setpoint edge: a first-order lag rises steepest at once and
@@ -281,8 +307,7 @@ def edge_shape(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sig
         straight_edges += straight
         vals.update({f"{label}_rise_s": tr, f"{label}_straightness": st, f"{label}_model_rise_s": tr_m,
                      f"{label}_model_straightness": st_m, f"{label}_slope": 0.8 * peak / tr if tr else math.nan})
-        parts.append(f"{label} edge: 10-90 % rise {tr * 1e3:.1f} ms to {peak:.3f} pu, straightness {st:.2f} "
-                     f"(base model {tr_m * 1e3:.1f} ms, {st_m:.2f})")
+        parts.append(_rise_text(label, tr, peak, st, tr_m, st_m, w * dt))
     detected = straight_edges > 0
     ev = ("; ".join(parts) + "; a straight rise (straightness near 1, a first-order lag gives 0.37) points to a "
           "setpoint ramp or a slew limit")

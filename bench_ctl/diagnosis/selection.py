@@ -169,25 +169,31 @@ class Selection:
     def separation(self) -> dict[str, Any] | None:
         """Where the best two differ most on the record: the segment of the first capture whose
         mse ratio, weighted by its samples, is largest, and whether that is beyond the noise
-        (EQUAL_FIT in n ln mse); None with fewer than two fitted candidates."""
+        (EQUAL_FIT in n ln mse) where at least one of the two misses the noise floor: two fits that
+        are both at the floor in a segment (within FLOOR_SIGMAS standard errors) fit it equally
+        well whatever their ratio, and the same equations there give such a pair (issue 48 item
+        13). None with fewer than two fitted candidates."""
         fitted = [c for c in self.candidates if c.where and math.isfinite(c.mse)]
         if len(fitted) < 2:
             return None
         a, b = fitted[0], fitted[1]
-        best_seg, best_w = None, -1.0
+        at_floor = self.floor * (1.0 + FLOOR_SIGMAS * self.floor_rel_se)
+        best: tuple[float, bool, dict, dict] | None = None   # (weight, both at the floor, a's, b's)
         for sa, sb in zip(a.where[0]["segments"], b.where[0]["segments"]):
             n = max(1.0, (sa["t1"] - sa["t0"]) / max(self.dt, 1e-12))
             if sa["mse"] <= 0 or sb["mse"] <= 0:
                 continue
             w = n * abs(math.log(sb["mse"] / sa["mse"]))
-            if w > best_w:
-                best_seg, best_w = (sa, sb), w
-        if best_seg is None:
+            both = sa["mse"] <= at_floor and sb["mse"] <= at_floor
+            # a segment where one misses the floor ranks before any where both are at it
+            if best is None or (best[1], -best[0]) > (both, -w):
+                best = (w, both, sa, sb)
+        if best is None:
             return None
-        sa, sb = best_seg
+        w, both, sa, sb = best
         return {"models": [a.model, b.model], "segment": sa["name"], "t0": sa["t0"], "t1": sa["t1"],
-                "x_floor": [sa["mse"] / self.floor, sb["mse"] / self.floor], "weight": best_w,
-                "separated": bool(best_w > EQUAL_FIT)}
+                "x_floor": [sa["mse"] / self.floor, sb["mse"] / self.floor], "weight": w,
+                "both_at_floor": both, "separated": bool(w > EQUAL_FIT and not both)}
 
     def to_json(self) -> dict[str, Any]:
         """The result's `selection` (docs/formats.md)."""
@@ -464,6 +470,10 @@ def separation_text(sel: dict[str, Any]) -> str:
          f"{_g(sep['x_floor'][0])}x against {_g(sep['x_floor'][1])}x the floor)"
     if sep["separated"]:
         return f"{a} and {b} differ most at {at}: this record separates them"
+    if sep.get("both_at_floor"):
+        return (f"{a} and {b} both fit every part of this record at the noise floor (most apart at {at}): this "
+                "record does not separate them; a test at another level (where a limit acts) or a holdout record "
+                "would")
     return (f"{a} and {b} differ by less than the noise everywhere (most at {at}): this record does not "
             "separate them; a test at another level (where a limit acts) or a holdout record would")
 

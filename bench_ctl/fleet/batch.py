@@ -112,10 +112,19 @@ class BatchOutcome:
 
 def _report_step(id_row: dict | None, dg_row: dict | None, entry: Entry, folder: str, evals: int,
                  seed: int) -> dict:
-    """The report of a capture, once its identification (and diagnosis) ended."""
-    if id_row is None or id_row.get("rc") not in DONE_CODES:
+    """The report of a capture, once its identification (and diagnosis) ended; a row whose steps
+    leave identify out reports from the result an earlier batch left in its folder."""
+    def refused(why: str) -> dict:
         return {"step": "report", "capture": entry.name, "rc": int(ExitCode.ABORTED), "wall_s": 0.0,
-                "error": "not made: the identification failed", "output": ""}
+                "error": why, "output": ""}
+
+    if "identify" in entry.steps:
+        if id_row is None or id_row.get("rc") not in DONE_CODES:
+            return refused("not made: the identification failed")
+    else:
+        why = tasks.earlier_result_problem(entry, Path(folder))
+        if why:
+            return refused(f"not made: {why}")
     return tasks.run_step("report", entry, folder, evals, seed)
 
 
@@ -335,6 +344,10 @@ def run_batch(manifest: str | Path, out_dir: str | Path, *, scheduler: str | Non
             cluster.close()
     ordered = [rows.get(e.name) or summary_row(e, out / e.name, steps[e.name]) | {"status": "not run"}
                for e in entries]
-    csv_path, index = write_summary(out, ordered, guard)
+    try:
+        csv_path, index = write_summary(out, ordered, guard)
+    except OSError as exc:   # the outputs stay where they are; the summary is what failed
+        raise OutputRefused(f"the batch's summary was not written ({why_not_written(exc, out / 'summary.csv')}); "
+                            f"every capture's own files are in {out}") from None
     return BatchOutcome(ordered, csv_path, index, time.perf_counter() - t0, warm, interrupted,
                         [r for s in steps.values() for r in s.values()], t0_unix)

@@ -10,7 +10,10 @@ Each file a row names resolves inside the manifest's folder (links followed) unl
 outside, is missing, is not a regular file or is too large stays in the list with its `problem`
 (the batch reports it as an error row and runs the others); nothing of such a file is read. A row
 that repeats an earlier one exactly (same capture, holdout, unit, model, set and steps) is run
-once: the second would compute the same result into a second folder; `notes` says which.
+once: the second would compute the same result into a second folder; `notes` says which. A row's
+output folder is named from its capture's path, never as one of the batch's own files
+(`RESERVED`: a capture `index.html.csv` gets the folder `index.html-2`, not one that would take
+the place of the batch's index.html).
 """
 from __future__ import annotations
 
@@ -25,6 +28,9 @@ from bench_ctl.limits import LIMITS, InputError, read_text
 from bench_ctl.model.structures import StructureError, structure
 
 STEPS = ("identify", "diagnose", "report")
+#: the batch's own files in its output folder: no capture's folder may take their name (compared
+#: case-blind: a case-insensitive file system holds one of INDEX.HTML and index.html)
+RESERVED = ("index.html", "summary.csv")
 COLUMNS = ("capture", "holdout", "unit", "model", "set", "steps")
 #: the kind (`bench_ctl.limits`) of the file each column names
 _KIND = {"capture": "a capture", "holdout": "a capture", "unit": "a unit file"}
@@ -51,7 +57,7 @@ class Entry:
 def _name(capture: str, taken: set[str]) -> str:
     base = re.sub(r"[^A-Za-z0-9._-]+", "_", str(Path(capture).with_suffix(""))).strip("._") or "capture"
     name, k = base, 2
-    while name in taken:
+    while name.casefold() in {t.casefold() for t in taken} or name.casefold() in RESERVED:
         name, k = f"{base}-{k}", k + 1
     taken.add(name)
     return name

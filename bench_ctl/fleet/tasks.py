@@ -58,9 +58,33 @@ def argv_for(step: str, entry: Entry, folder: Path, *, evals: int, seed: int) ->
         return ["diagnose", str(entry.capture), *hold, *_unit_args(entry), "--seed", str(seed), "--force",
                 "--json", str(folder / DIAGNOSIS)]
     if step == "report":
+        # the result is the batch's own (its identify step, or an earlier batch's of this row, whose
+        # capture `earlier_result_problem` checked): its capture lies outside the row's folder
         diag = ["--diagnosis", str(folder / DIAGNOSIS)] if (folder / DIAGNOSIS).exists() else []
-        return ["report", str(folder / RESULT), *diag, "--force", "-o", str(folder / REPORT)]
+        return ["report", str(folder / RESULT), *diag, "--force", "--allow-outside", "-o", str(folder / REPORT)]
     raise ValueError(f"unknown step {step!r}")
+
+
+def earlier_result_problem(entry: Entry, folder: Path) -> str:
+    """Why a row whose steps leave identify out cannot be reported from the result in its folder
+    ("" when it can): none there, unreadable, or made from another capture than the row's."""
+    from bench_ctl.identification.result_file import read_result
+    from bench_ctl.records import FormatError
+
+    path = folder / RESULT
+    if not path.exists():
+        return (f"the row's steps leave identify out and {path} does not exist (an earlier batch's "
+                "identification of this capture is reported; run identify first)")
+    try:
+        result = read_result(path)
+    except (InputError, FormatError) as exc:
+        return f"{path}: {exc}"
+    want = Path(entry.capture).resolve()
+    for i, c in enumerate(result.captures):
+        got = (folder / c.path).resolve() if c.path and not Path(c.path).is_absolute() else Path(c.path or "")
+        if got.resolve() != want:
+            return f"{path} was made from another capture (captures[{i}]: {c.path}), not {entry.capture}"
+    return ""
 
 
 def run_step(step: str, entry: Entry, folder: str, evals: int, seed: int) -> dict[str, Any]:

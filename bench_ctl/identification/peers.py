@@ -128,8 +128,13 @@ def _run_mvmo(problem: Problem, max_evals: int, seed: int | None, x0: np.ndarray
     # the swap restarts' evaluations, kept from MVMO (what they leave is not spent); not where the
     # caller divides the budget (`polish_evals`: the diagnosis' effect searches)
     n_swap = min(SWAP_RESERVE_MAX, int(SWAP_RESERVE_SHARE * max_evals)) if swaps and not caller_split else 0
-    if max_evals - n_pol - n_swap < 3 * (problem.d + 1):
+    # MVMO needs its whole swarm in the first generation (and three Jacobians' worth): the swap
+    # restarts, then the polish, give way to it on a small budget (`identify --evals 32` runs)
+    need = max(int(opts.get("particles", 1)), 3 * (problem.d + 1))
+    if max_evals - n_pol - n_swap < need:
         n_swap = 0
+    if max_evals - n_pol - n_swap < need and not caller_split:
+        n_pol, edge = 0, []
     if not edge:
         res = _mvmo_search(problem, max_evals - n_pol - n_swap, seed, x0, progress, opts, kind)
         if n_pol:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -96,16 +96,17 @@ def analyse(result: IdentificationResult, *, diagnosis: Diagnosis | None = None,
             base_dir: Path | None = None, where: str = "result",
             window_s: float = DEFAULT_EDGE_WINDOW_S,
             noise_ratio_limit: float = chk.DEFAULT_NOISE_RATIO_LIMIT,
-            report_command: str = "") -> ReportData:
+            report_command: str = "", confine: Sequence[Path] | None = None) -> ReportData:
     """Verify the captures of `result`, re-simulate, compute every figure and the checks.
 
     `where` names the result in error messages (its file name); `base_dir` is where relative
-    capture paths are looked for when they do not exist relative to the current directory.
+    capture paths are looked for when they do not exist relative to the current directory;
+    `confine`: the folders capture paths must stay inside (`inputs.load_captures`).
     Raises `ReportError` (see `inputs`) for input that cannot be reported on.
     """
     check_result(result, where)
     values = model_values(*_kernel_view(result), where)
-    loaded = load_captures(result, where, base_dir)
+    loaded = load_captures(result, where, base_dir, confine)
     unit = result.unit
     weights = unit.get("weights") if isinstance(unit.get("weights"), Mapping) else {}
     w_efd, w_vt = _num(weights.get("efd"), 1.0), _num(weights.get("vt"), 0.0)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -101,26 +101,44 @@ def resolve_capture_path(raw: str, base_dir: Path | None) -> Path:
     return path
 
 
+def outside(path: Path, roots: Sequence[Path]) -> bool:
+    """Whether `path` (its real location, symbolic links followed) lies outside every folder of
+    `roots`."""
+    real = path.resolve()
+    return not any(real.is_relative_to(Path(r).resolve()) for r in roots)
+
+
 def load_captures(result: IdentificationResult, where: str,
-                  base_dir: Path | None = None) -> list[LoadedCapture]:
+                  base_dir: Path | None = None, confine: Sequence[Path] | None = None) -> list[LoadedCapture]:
     """Read every capture of the result, refusing a missing file, a SHA-256 / n / rate mismatch
-    and a record that is not a plausible setpoint test (`bench_ctl.capture.plausible`)."""
+    and a record that is not a plausible setpoint test (`bench_ctl.capture.plausible`). With
+    `confine` (the `report` command: the result's folder and the working folder) a capture path
+    that leads outside those folders is refused before the file is opened: a result is a file
+    anyone can hand over, and its paths must not make the report read (and hash) another file. A
+    hash that differs is said without the file's own hash."""
     out = []
     for i, entry in enumerate(result.captures):
         key = f"{where}: captures[{i}]"
         if not entry.path:
             raise ReportError(f"{key}.path: the result names no capture file (it was identified in memory)")
         path = resolve_capture_path(entry.path, base_dir)
+        if confine is not None and outside(path, confine):
+            raise ReportError(f"{key}.path: {entry.path} leads outside the result's folder and the working folder "
+                              f"({', '.join(str(Path(r)) for r in confine)}); not read (give --allow-outside to "
+                              "read captures elsewhere)")
         if not path.is_file():
             raise ReportError(f"{key}.path: capture file {path} not found")
         if not entry.sha256:
             raise ReportError(f"{key}.sha256: the result records no SHA-256 for {path}, so the "
                               "capture cannot be verified")
         expected = entry.sha256.lower()
-        actual = sha256_file(path)
+        try:
+            actual = sha256_file(path, "a capture")
+        except InputError as exc:
+            raise ReportError(f"{key}.path: {exc}") from None
         if actual != expected:
-            raise ReportError(f"{key}.sha256: capture {path} has SHA-256 {actual}, the result "
-                              f"was made on {expected}: the file is not the one identified")
+            raise ReportError(f"{key}.sha256: capture {path} is not the file identified: its SHA-256 is not the "
+                              f"result's {expected}")
         try:
             capture = read_capture(path)
         except CaptureError as exc:

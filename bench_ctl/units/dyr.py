@@ -11,6 +11,10 @@ cross-checked with ANDES' andes/io/psse-dyr.yaml, the InterPSS reader and publis
 - ESST1A: ICONs UEL VOS; TR VIMAX VIMIN TC TB TC1 TB1 KA TA VAMAX VAMIN VRMAX VRMIN KC KF TF KLR ILR
   (ANDES 2.0's psse-dyr.yaml lists TB before TC and KLR, ILR, KC elsewhere: it misreads ESST1A)
 - IEEEX1: TR KA TA TB TC VRMAX VRMIN KE TE KF TF1 SWITCH E1 SE(E1) E2 SE(E2)
+- ESDC1A: the same fields (PSS/E's IEEE 421.5 DC1A; `--from-dyr` reads it as IEEEX1: the same
+  equations, said on the console)
+- IEEET1: TR KA TA VRMAX VRMIN KE TE KF TF SWITCH E1 SE(E1) E2 SE(E2) (the IEEE 1968 type 1 without
+  the lead-lag; `--from-dyr` reads it as IEEEX1 with TB = TC = 0, said on the console)
 - ESST4B: TR KPR KIR VRMAX VRMIN TA KPM KIM VMMAX VMMIN KG KP KI VBMAX KC XL THETAP
 - ESST5B: TR KR T1 KC VRMAX VRMIN TC1 TB1 TC2 TB2 TOC1 TOB1 TOC2 TOB2 TUC1 TUB1 TUC2 TUB2
   (IEEE 421.5 lists the under-excitation channel first; PSS/E's record and the InterPSS reader
@@ -24,9 +28,14 @@ cross-checked with ANDES' andes/io/psse-dyr.yaml, the InterPSS reader and publis
   stabiliser: MODE 1 the rotor speed deviation; filter (1 + A5 s + A6 s^2)/((1 + A1 s + A2 s^2)
   (1 + A3 s + A4 s^2)), two lead-lags, KS, washout T5 s/(1 + T6 s), output limits, cut-off by Vt)
 
-Records of other models are kept with positional names (CON1..), never refused: real files hold
-hundreds of governors and stabilisers. Written by hand (no maintained PyPI reader of .dyr files
-exists; ANDES' reader builds an ANDES system, it is a benchmark extra): docs/decisions/0009.
+Records of other models are kept with positional names (CON1..), never refused here: real files
+hold hundreds of governors and stabilisers (`--from-dyr` names those of the unit it leaves out:
+`dyr_kinds`). The bus is a PSS/E bus number (1 .. 999997) and the machine ID one or two
+characters (letters, digits, `_ & * # . + -`); a quoted ID is read without its padding blanks
+(`'1 '` is machine 1, as PSS/E reads it); an ID that cannot be written so that it reads back the
+same (empty, a blank, a quote, a `/` that ends a record, more than two characters) is refused.
+Written by hand (no maintained PyPI reader of .dyr files exists; ANDES' reader builds an ANDES
+system, it is a benchmark extra): docs/decisions/0009.
 """
 from __future__ import annotations
 
@@ -47,6 +56,9 @@ FIELDS: dict[str, tuple[str, ...]] = {
                "VRMIN", "KC", "KF", "TF", "KLR", "ILR"),
     "IEEEX1": ("TR", "KA", "TA", "TB", "TC", "VRMAX", "VRMIN", "KE", "TE", "KF", "TF1", "SWITCH", "E1",
                "SE1", "E2", "SE2"),
+    "ESDC1A": ("TR", "KA", "TA", "TB", "TC", "VRMAX", "VRMIN", "KE", "TE", "KF", "TF1", "SWITCH", "E1",
+               "SE1", "E2", "SE2"),
+    "IEEET1": ("TR", "KA", "TA", "VRMAX", "VRMIN", "KE", "TE", "KF", "TF", "SWITCH", "E1", "SE1", "E2", "SE2"),
     "ESST4B": ("TR", "KPR", "KIR", "VRMAX", "VRMIN", "TA", "KPM", "KIM", "VMMAX", "VMMIN", "KG", "KP", "KI",
                "VBMAX", "KC", "XL", "THETAP"),
     "ESST5B": ("TR", "KR", "T1", "KC", "VRMAX", "VRMIN", "TC1", "TB1", "TC2", "TB2", "TOC1", "TOB1", "TOC2",
@@ -64,6 +76,7 @@ DESCRIPTION = {
     "GENROU": "round-rotor generator", "GENSAL": "salient-pole generator",
     "SEXS": "simplified excitation system", "EXST1": "IEEE ST1 static exciter",
     "ESST1A": "IEEE 421.5 ST1A static exciter", "IEEEX1": "IEEE type 1 DC exciter",
+    "ESDC1A": "IEEE 421.5 DC1A exciter", "IEEET1": "IEEE 1968 type 1 exciter",
     "ESST4B": "IEEE 421.5 ST4B potential-source static exciter",
     "ESST5B": "IEEE 421.5 ST5B static exciter",
     "EXAC1": "IEEE type AC1 rotating exciter",
@@ -73,10 +86,34 @@ DESCRIPTION = {
 }
 
 _TOKEN = re.compile(r"'[^']*'|\"[^\"]*\"|[^\s']+")
+#: a machine ID that writes and reads back the same (PSS/E: one or two characters)
+_ID = re.compile(r"[A-Za-z0-9_&*#.+-]{1,2}")
+#: PSS/E's bus numbers
+BUS_MIN, BUS_MAX = 1, 999_997
 
 
 class DyrError(ValueError):
     """A record that cannot be read or written; the message names the file and line."""
+
+
+def check_bus_id(bus: int, ident: str, where: str = "") -> None:
+    """Refuse (DyrError) a bus number PSS/E does not accept and a machine ID that cannot be
+    written so that it reads back the same (see the module docstring)."""
+    at = f"{where}: " if where else ""
+    if isinstance(bus, bool) or not isinstance(bus, int) or not BUS_MIN <= bus <= BUS_MAX:
+        raise DyrError(f"{at}bus {bus!r}: PSS/E's bus numbers are {BUS_MIN} .. {BUS_MAX}")
+    if not ident:
+        raise DyrError(f"{at}an empty machine ID: PSS/E needs one or two characters (e.g. 1)")
+    if ident != ident.strip():
+        raise DyrError(f"{at}machine ID {ident!r}: PSS/E pads IDs with blanks ({ident.strip()!r} is the same "
+                       f"machine): give {ident.strip()!r}")
+    bad = [c for c in ident if c in "'\"/" or c.isspace()]
+    if bad:
+        raise DyrError(f"{at}machine ID {ident!r}: {bad[0]!r} cannot be in an ID (a quote delimits it, a / ends "
+                       "the record, a blank separates fields)")
+    if not _ID.fullmatch(ident):
+        raise DyrError(f"{at}machine ID {ident!r}: PSS/E's IDs are one or two characters, letters, digits or "
+                       "_ & * # . + -")
 
 
 @dataclass(frozen=True)
@@ -128,7 +165,11 @@ def parse_dyr(text: str, name: str = "<dyr>") -> list[DyrRecord]:
         except ValueError:
             raise DyrError(f"{where}: bus {tok[0]!r} is not an integer") from None
         model = tok[1].strip("'\"").upper()
-        ident = tok[2].strip("'\"")
+        ident = tok[2].strip("'\"").strip()
+        if not ident:
+            raise DyrError(f"{where}: an empty machine ID ({tok[2]}): PSS/E needs one or two characters")
+        if bus < BUS_MIN:
+            raise DyrError(f"{where}: bus {bus}: PSS/E's bus numbers start at {BUS_MIN}")
         rest = tok[3:]
         where = f"{where}: {model}"
         icon_names = ICONS.get(model, ())
@@ -173,6 +214,7 @@ def format_record(rec: DyrRecord, comment: str | None = None, per_line: int = 5)
     missing = [k for k in names if k not in rec.values] + [k for k in ICONS.get(rec.model, ()) if k not in rec.icons]
     if missing:
         raise DyrError(f"{rec.model} at bus {rec.bus}: no value for {', '.join(missing)}")
+    check_bus_id(rec.bus, rec.id, rec.model)
     bad = [f"{k} = {rec.values[k]}" for k in names if not math.isfinite(float(rec.values[k]))]
     if bad:
         raise DyrError(f"{rec.model} at bus {rec.bus}: {', '.join(bad)} cannot be written (a record holds numbers)")

@@ -21,6 +21,20 @@ What a record's values mean, read and written the same way (issue 24 items 6 and
   DC exciter time constant with KE != 1 or saturation is refused: the kernel has no bypass for
   them yet (it needs them > 0).
 
+What the unit's records hold and bench-ctl does not model is never replaced in silence (issue 48
+item 9, issue 49 item 6; the unit's records are those at the exciter's bus and machine ID):
+
+- an exciter model the library does not have is refused (file:line and why), except ESDC1A and
+  IEEET1, read as IEEEX1 (the same equations; IEEET1 without the lead-lag, TB = TC = 0) and said;
+- two generator (or exciter, or stabiliser) records for one machine are refused, naming both;
+- a GENROU / GENSAL saturation bench-ctl's curve cannot hold is refused: S(1.0) or S(1.2) < 0,
+  S(1.2) = 0 with S(1.0) > 0, S(1.0) = 0 with S(1.2) > 0, Sat(1.2) = 1.2 S(1.2) not above S(1.0);
+- every other record of the unit is named (`notes`); a stabiliser, limiter, compensator, exciter
+  or generator record bench-ctl does not model stops the command unless it is left out by name
+  (`ignore`, the CLI's `--dyr-ignore MODEL`: `dyr_kinds`); a unit without a generator record keeps
+  its own generator constants, said too. The unit's name becomes the record's (file, bus, ID,
+  generator and exciter models) and its `source` lists what was left out.
+
 A stabiliser record (IEEEST, at the exciter's bus and ID) gives the machine on the grid its PSS
 (`[grid]` PSS_*, `pss_from_record`), and `export --dyr` writes one when the result's unit has a
 PSS (`pss_record`). bench-ctl's stabiliser is the IEEEST on the rotor speed without its filter: a
@@ -36,7 +50,7 @@ the absolute excess Sat(1.2). The conversion is here, in both directions.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -44,12 +58,24 @@ from typing import Any
 from bench_ctl.model.dialect import describe, kernel_sections, std_name
 from bench_ctl.model.params import GENERATOR_OPTIONAL, MACHINE_DEFAULTS, PARAMS
 from bench_ctl.model.structures import STRUCTURES, Structure, structure
+from bench_ctl.units import dyr_kinds
 
 from .dyr import FIELDS, DyrError, DyrRecord, find, read_dyr
 from .unit import Bound, Unit, UnitError, grid_values, with_model
 
 GENERATORS = ("GENROU", "GENSAL")
 STABILISERS = ("IEEEST",)
+#: exciter models read as a structure of the library with the same equations: model -> (the
+#: structure's record model, values from the record, why)
+ALIASES: dict[str, tuple[str, Any, str]] = {
+    "ESDC1A": ("IEEEX1", lambda v: dict(v),
+               "the same equations (IEEE 421.5 DC1A is the IEEE type 1 DC exciter with its lead-lag) and the same "
+               "PSS/E fields"),
+    "IEEET1": ("IEEEX1", lambda v: {**{k: x for k, x in v.items() if k != "TF"}, "TB": 0.0, "TC": 0.0,
+                                    "TF1": v["TF"]},
+               "the same equations with its lead-lag bypassed (TB = TC = 0): the IEEE 1968 type 1 DC exciter has "
+               "none"),
+}
 
 
 #: the record written for "no limit" (see the module docstring)
@@ -91,9 +117,29 @@ def generator_from_record(rec: DyrRecord) -> dict[str, float]:
            "KPP": (xdpp - xl) / (xdp - xl), "KDA": (xd - xdp) * (xdp - xdpp) / (xdp - xl) ** 2,
            "SATEQ": 1.0 if rec.model == "GENSAL" else 0.0}
     s10, s12 = v.get("S(1.0)", 0.0), v.get("S(1.2)", 0.0)
+    _check_saturation(where, s10, s12)
     if s10 > 0.0 and s12 > 0.0:
         out["S10"], out["S12"] = s10, 1.2 * s12
     return out
+
+
+def _check_saturation(where: str, s10: float, s12: float) -> None:
+    """Refuse a saturation bench-ctl's curve (the kernel's quadratic through S(1.0) and
+    Sat(1.2) = 1.2 S(1.2), docs/model.md) would not hold as the record gives it."""
+    if s10 < 0.0 or s12 < 0.0:
+        raise UnitError(f"{where} S(1.0) = {s10:g}, S(1.2) = {s12:g}: a saturation factor cannot be negative")
+    if s10 == 0.0 and s12 == 0.0:
+        return
+    if s12 == 0.0:
+        raise UnitError(f"{where} S(1.2) = 0 with S(1.0) = {s10:g}: no curve through them (saturation grows with "
+                        "the flux); give S(1.2) > S(1.0) / 1.2, or S(1.0) = S(1.2) = 0 for none")
+    if s10 == 0.0:
+        raise UnitError(f"{where} S(1.0) = 0 with S(1.2) = {s12:g}: bench-ctl's saturation curve passes through "
+                        "S(1.0) > 0 (it would drop S(1.2) and run without saturation); give S(1.0) > 0, or both 0")
+    if 1.2 * s12 <= s10:
+        raise UnitError(f"{where} S(1.0) = {s10:g}, S(1.2) = {s12:g}: Sat(1.2) = 1.2 S(1.2) = {1.2 * s12:g} is not "
+                        f"above Sat(1.0) = {s10:g} (saturation grows with the flux): bench-ctl's curve would drop "
+                        "them")
 
 
 def _values(rec: DyrRecord) -> dict[str, float]:
@@ -173,25 +219,103 @@ def _kf_name(st: Structure) -> str:
     return st.std_name("KF") or "KF"
 
 
-def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident: str | None = None) -> Unit:
-    """`unit` (its generator constants, weights, effects) started from the records in `path`."""
+def _one(records: Sequence[DyrRecord], models: set[str], bus: int | None, ident: str | None, what: str,
+         path: str | Path) -> DyrRecord | None:
+    """The one record of `models` (at `bus`, `ident` when given); None when there is none. Two for
+    one machine (the same bus and ID) are refused naming both; several machines ask for
+    --dyr-bus / --dyr-id."""
+    hits = [r for r in records if r.model in models and (bus is None or r.bus == bus)
+            and (ident is None or r.id == str(ident))]
+    if len(hits) <= 1:
+        return hits[0] if hits else None
+    if len({(r.bus, r.id) for r in hits}) == 1:
+        raise UnitError(f"--from-dyr {path}: {len(hits)} {what} records for one machine (bus {hits[0].bus}, ID "
+                        f"{hits[0].id}): " + ", ".join(f"{r.model} at {r.source}" for r in hits)
+                        + "; a machine has one: remove the others")
+    try:
+        return find(records, models, bus=bus, id=ident)
+    except DyrError as exc_:
+        raise UnitError(f"--from-dyr {path}: {exc_}") from None
+
+
+def _aliased(rec: DyrRecord, notes: list[str]) -> DyrRecord:
+    """An exciter record of a model the library has under another name (`ALIASES`), as that
+    model's record; said in `notes`."""
+    model, values, why = ALIASES[rec.model]
+    notes.append(f"{rec.model} at {rec.source} is read as {model}: {why}; `export --dyr` writes it back as {model}")
+    return replace(rec, model=model, values=values(rec.values))
+
+
+def _left_out(records: Sequence[DyrRecord], bus: int, ident: str, used: Sequence[DyrRecord],
+              ignore: set[str], path: str | Path, notes: list[str]) -> list[str]:
+    """Name every record of the machine (bus, ident) not in `used` (`notes`); refuse one that
+    changes the excitation system's response unless its model is in `ignore`. Returns the
+    'MODEL (kind) at file:line' of each left out."""
+    out, stop = [], []
+    for r in records:
+        if r.bus != bus or r.id != ident or any(r is u for u in used):
+            continue
+        kind = dyr_kinds.kind_of(r.model)
+        what = f"{r.model} ({kind}) at {r.source}"
+        if r.model in ignore:
+            notes.append(f"{what}: left out, as --dyr-ignore {r.model} asks")
+        elif dyr_kinds.stops(r.model):
+            stop.append(what)
+            continue
+        else:
+            notes.append(f"{what}: not modelled by bench-ctl, left out")
+        out.append(what)
+    if stop:
+        raise UnitError(f"--from-dyr {path}: the unit (bus {bus}, ID {ident}) has records bench-ctl cannot model: "
+                        + "; ".join(stop) + ". They change the excitation system's response in a test: fitted "
+                        "without them the model would stand in for them. Leave each out by name if the test was "
+                        "made without it (e.g. the stabiliser switched off): "
+                        + " ".join(f"--dyr-ignore {m}" for m in dict.fromkeys(w.split(" ")[0] for w in stop)))
+    return out
+
+
+def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident: str | None = None,
+                  ignore: Sequence[str] = (), notes: list[str] | None = None) -> Unit:
+    """`unit` (its generator constants, weights, effects) started from the records in `path`;
+    `ignore`: models of the unit's records to leave out (`--dyr-ignore`); `notes` (when given)
+    receives a line for each record aliased or left out (see the module docstring)."""
+    notes = [] if notes is None else notes
     try:
         records = read_dyr(path)
     except (DyrError, OSError) as exc_:
         raise UnitError(f"--from-dyr {path}: {exc_}") from None
-    exciters = {s.dyr_model for s in STRUCTURES.values() if s.name != "REFERENCE"}
-    if not any(r.model in exciters for r in records):   # a generator record only: the unit's structure
-        try:
-            gen = find(records, set(GENERATORS), bus=bus, id=ident)
-        except DyrError as exc_:
-            raise UnitError(f"--from-dyr {path}: neither an exciter record ({', '.join(sorted(exciters))}) "
-                            f"nor a usable generator record: {exc_}") from None
+    skip = {m.strip().upper() for m in ignore}
+    absent = sorted(skip - {r.model for r in records})
+    if absent:
+        raise UnitError(f"--dyr-ignore {', '.join(absent)}: no such record in {path}")
+    kept = [r for r in records if r.model not in skip]
+    exciter_models = {s.dyr_model for s in STRUCTURES.values() if s.name != "REFERENCE"}
+    exciter_like = (exciter_models | set(ALIASES) | dyr_kinds.EXCITERS) - skip
+    exc = _one(kept, exciter_like, bus, ident, "exciter", path)
+    if exc is None:   # a generator record only: the unit's structure
+        gen = _one(kept, set(GENERATORS), bus, ident, "generator", path)
+        if gen is None:
+            other = _one(kept, set(dyr_kinds.GENERATORS), bus, ident, "generator", path)
+            if other is not None:
+                raise UnitError(f"--from-dyr {path}: {other.model} at {other.source}: a generator model bench-ctl "
+                                f"does not read (it reads {' and '.join(GENERATORS)})")
+            raise UnitError(f"--from-dyr {path}: neither an exciter record ({', '.join(sorted(exciter_models))}) "
+                            f"nor a generator record ({', '.join(GENERATORS)})"
+                            + (f" at bus {bus}" if bus is not None else "") + (f" with ID {ident}" if ident else ""))
+        notes.append(f"no exciter record for bus {gen.bus}, ID {gen.id}: the unit's own structure {unit.model} runs "
+                     f"with its own values")
         new = _with_generator(replace(unit, source=f"{unit.source} with --from-dyr {path}"), gen)
-        return _with_stabiliser(new, records, gen.bus, gen.id)
-    try:
-        exc = find(records, exciters, bus=bus, id=ident)
-    except DyrError as exc_:
-        raise UnitError(f"--from-dyr {path}: {exc_}") from None
+        new = _with_stabiliser(new, kept, gen.bus, gen.id)
+        return _named(new, path, gen, None, _left_out(records, gen.bus, gen.id, [gen, *_pss_of(kept, gen)], skip,
+                                                        path, notes))
+    used = [exc]
+    if exc.model not in exciter_models:
+        if exc.model not in ALIASES:
+            raise UnitError(f"--from-dyr {path}: {exc.model} at {exc.source}: an exciter model bench-ctl does not "
+                            f"have (its library: {', '.join(sorted(exciter_models))}; ESDC1A and IEEET1 are read as "
+                            "IEEEX1). Another structure's equations are never run in its place: choose one with "
+                            "--model and give its values with --set, without --from-dyr")
+        exc = _aliased(exc, notes)
     st = structure(exc.model)
     new = with_model(unit, st.name)
     std, bypassed = _exciter_std(st, exc)
@@ -217,12 +341,30 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
         del fixed[k]   # an open limit: the parameter's neutral value (JSON holds no infinity)
     new = replace(new, identify=identify, fixed=fixed, model_values={**new.model_values, **std},
                   source=f"{unit.source} with --from-dyr {path}")
-    try:
-        gen = find(records, set(GENERATORS), bus=exc.bus, id=exc.id)
-    except DyrError:
-        gen = None
-    new = _with_generator(new, gen) if gen is not None else new
-    return _with_stabiliser(new, records, exc.bus, exc.id)
+    gen = _one(kept, set(GENERATORS), exc.bus, exc.id, "generator", path)
+    if gen is not None:
+        used.append(gen)
+        new = _with_generator(new, gen)
+    elif _one(kept, set(dyr_kinds.GENERATORS), exc.bus, exc.id, "generator", path) is None:
+        notes.append(f"no generator record for bus {exc.bus}, ID {exc.id}: the unit's own generator constants are "
+                     f"kept (T'd0 {unit.generator.get('Td0p')} s, T''d0 {unit.generator.get('Td0pp')} s)")
+    new = _with_stabiliser(new, kept, exc.bus, exc.id)
+    used += _pss_of(kept, exc)
+    return _named(new, path, gen, exc, _left_out(records, exc.bus, exc.id, used, skip, path, notes))
+
+
+def _pss_of(records: Sequence[DyrRecord], rec: DyrRecord) -> list[DyrRecord]:
+    return [r for r in records if r.model in STABILISERS and r.bus == rec.bus and r.id == rec.id]
+
+
+def _named(unit: Unit, path: str | Path, gen: DyrRecord | None, exc: DyrRecord | None, left: list[str]) -> Unit:
+    """The unit named after the records it was made from, its source listing what was left out."""
+    at = gen or exc
+    assert at is not None
+    parts = [m for m in ((gen.model if gen else None), (exc.model if exc else None)) if m]
+    name = f"{Path(path).name} bus {at.bus} ID {at.id} ({' + '.join(parts)})"
+    source = unit.source + (f"; left out: {'; '.join(left)}" if left else "")
+    return replace(unit, name=name, source=source)
 
 
 def machine_from_record(rec: DyrRecord) -> dict[str, float]:
@@ -283,7 +425,7 @@ def pss_record(grid: Mapping[str, Any], bus: int, ident: str) -> DyrRecord | Non
     return DyrRecord(bus, "IEEEST", str(ident), values, {"MODE": 1, "BUSR": 0})
 
 
-def _with_stabiliser(unit: Unit, records: list[DyrRecord], bus: int, ident: str) -> Unit:
+def _with_stabiliser(unit: Unit, records: Sequence[DyrRecord], bus: int, ident: str) -> Unit:
     """`unit` with the PSS of the IEEEST record at `bus`, machine `ident` (unchanged without one)."""
     hits = [r for r in records if r.model in STABILISERS and r.bus == bus and r.id == ident]
     if not hits:

@@ -171,7 +171,7 @@ def test_efd_base_in_volts_or_rated_field_units(tmp_path, capsys):
                       "--efd-base", "auto", "--efd-scale", "2") == 2
     assert run_import(src, tmp_path / "x.csv", "--map", "efd=UF", "--map", "vt=UG", "--test",
                       "pulse:amplitude=0.05", "--scale", "vt=auto") == 2
-    assert "auto is for ifd only" in capsys.readouterr().err
+    assert "auto and from: are for ifd only" in capsys.readouterr().err
     assert not (tmp_path / "x.csv").exists()
 
 

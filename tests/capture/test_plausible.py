@@ -214,3 +214,28 @@ def test_a_result_finds_its_capture_from_any_working_directory(tmp_path, cap, mo
         (tmp_path / name).rename(moved / name)
     assert main(["report", str(moved / "results" / "r.json"), "-o", str(moved / "r2.html")]) in (0, 1)
     assert "error" not in capsys.readouterr().err
+
+
+def test_a_20khz_step_record_with_a_time_axis_in_ms_is_caught_as_a_pulse_is(tmp_path, capsys):
+    """Issue 48 item 11: a 20 kHz step record in ms (5801 samples, 0.29 s) imported as "5800
+    samples at 20 Hz" with exit 0: its step has no second edge to be too far from the first, but
+    its efd takes ~11 "s" to reach half of its response; the same record in seconds passes."""
+    for rate in (20_000.0, 10_000.0):
+        c = synthetic_capture(reference_unit(), duration=0.29, rate=rate, seed=4, start=0.1, width=None)
+        assert implausible(c) is None
+        err = implausible(Capture(c.time * 1000.0, c.usetp, c.efd))
+        assert err is not None and "to reach half of its response" in str(err) and "in ms?" in str(err), err
+    # through the import, as the probe did it: refused before anything is written
+    lines = ["t_ms,EFD,U"] + [f"{float(t) * 1000.0!r},{float(e)!r},{float(u)!r}"
+                              for t, e, u in zip(c.time, c.efd, c.usetp)]
+    (tmp_path / "step_ms.csv").write_text("\n".join(lines) + "\n")
+    assert main(["import", str(tmp_path / "step_ms.csv"), "--map", "efd=EFD", "--map", "usetp=U",
+                 "--time-column", "t_ms", "-o", str(tmp_path / "s.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "is the time column in ms?" in err and not (tmp_path / "s.csv").exists()
+    # a slow DC exciter's response in seconds still passes (IEEEX1 with TE and KA at the slow ends of
+    # their bounds: half of its response after 0.76 s)
+    assert main(["simulate", "--model", "IEEEX1", "--set", "TE=3.0", "--set", "KA=5", "--width", "8", "--duration",
+                 "12", "--rate", "1000", "-o", str(tmp_path / "dc.csv")]) == 0
+    from bench_ctl.capture import read_capture
+    assert implausible(read_capture(tmp_path / "dc.csv")) is None

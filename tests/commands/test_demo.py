@@ -66,3 +66,32 @@ def test_demo_online_runs_the_reference_step_end_to_end(tmp_path, capsys):
     html = (out / "report.html").read_text()
     assert "On line: P, Q, Vt and efd" in html
     assert "unit inside its bands" in printed and "online_step: PASSED" in printed
+
+
+def test_the_demo_exits_with_the_reports_verdict():
+    """Issue 48 item 15: `demo --online --evals 100` printed "report verdict: FAIL" and exited 0."""
+    from types import SimpleNamespace
+
+    from bench_ctl.commands.demo import demo_exit
+    from bench_ctl.report.checks import FAIL
+
+    fit = SimpleNamespace(constraints_violated=[], failed=False)
+    assert demo_exit(fit, FAIL) == 1
+    assert demo_exit(fit, "PASS") == 0 and demo_exit(fit, "PASS WITH WARNINGS") == 0
+    assert demo_exit(SimpleNamespace(constraints_violated=["TA2 <= TA1"], failed=False), "PASS") == 1
+    assert demo_exit(SimpleNamespace(constraints_violated=[], failed=True), "PASS") == 1
+
+
+@pytest.mark.slow
+def test_demo_online_with_a_small_budget_exits_as_its_report_says(tmp_path, capsys):
+    out = tmp_path / "demo-small"
+    rc = main(["demo", "--online", "--out", str(out), "--evals", "100"])
+    printed = capsys.readouterr().out
+    verdict = next((line for line in printed.splitlines() if "report verdict:" in line), None)
+    if verdict is None and rc == 1 and "[FAIL] step hold error" in printed:
+        # the on-line step measured its own hold off by more than its tolerance: the machine stalled
+        # in real time (as test_demo_writes_every_artifact_and_fits skips it), no analysis was made
+        pytest.skip("host stalled during the on-line step: "
+                    + next(line for line in printed.splitlines() if "step hold error" in line).strip())
+    assert verdict is not None, printed
+    assert rc == (1 if "FAIL" in verdict else 0), printed

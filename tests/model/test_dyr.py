@@ -11,24 +11,24 @@ from bench_ctl.units.dyr import FIELDS, ICONS, DyrError, DyrRecord, find, format
 from bench_ctl.units.dyr_unit import pss_from_record, pss_record, unit_from_dyr
 from bench_ctl.units.unit import UnitError, reference_unit
 
-FILE = """// a plant: generator, exciter, and a stabiliser bench-ctl does not model
+FILE = """// a plant: generator, exciter, and a governor bench-ctl does not model
 @! comment line
   101 'GENROU' 1   8.000000  0.030000  0.400000  0.050000  6.500000  0.000000  1.800000
   1.700000  0.300000  0.550000  0.250000  0.200000  0.039200  0.267200  /  a comment after the slash
   101 'ESST1A' 1   1  1  0.01  99  -99  1  10  1  1  200  0.02  4  -4  4  -4  0.1  0  1  0  3  /
-  101 'STAB1' 1   1 2 3 4 /
+  101 'TGOV1' 1   1 2 3 4 /
 """
 
 
 def test_a_realistic_file_parses_with_standard_field_names():
     recs = parse_dyr(FILE, "plant.dyr")
-    assert [r.model for r in recs] == ["GENROU", "ESST1A", "STAB1"]
-    gen, exc, pss = recs
+    assert [r.model for r in recs] == ["GENROU", "ESST1A", "TGOV1"]
+    gen, exc, gov = recs
     assert gen.values["T'do"] == 8.0 and gen.values["S(1.2)"] == 0.2672 and gen.source == "plant.dyr:3"
     assert exc.icons == {"UEL": 1, "VOS": 1}
     assert (exc.values["TC"], exc.values["TB"], exc.values["KA"], exc.values["TA"]) == (1, 10, 200, 0.02)
     assert (exc.values["KC"], exc.values["ILR"]) == (0.1, 3)
-    assert pss.values == {"CON1": 1.0, "CON2": 2.0, "CON3": 3.0, "CON4": 4.0}
+    assert gov.values == {"CON1": 1.0, "CON2": 2.0, "CON3": 3.0, "CON4": 4.0}
     assert find(recs, {"ESST1A", "SEXS"}) is exc
     with pytest.raises(DyrError, match="no SEXS record at bus 7"):
         find(recs, "SEXS", bus=7)
