@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.errors import CaptureError, SpecError
 
 MIN_PRE_SAMPLES = 20
 #: samples left out at the end of the pre-step part (the change may start there)
@@ -51,10 +51,10 @@ class EfdBase:
 
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "volts", "rated"):
-            raise ValueError(f"efd base mode {self.mode!r}: expected auto, volts or rated")
+            raise SpecError(f"efd base mode {self.mode!r}: expected auto, volts or rated")
         if self.mode != "auto" and not (isinstance(self.value, (int, float)) and math.isfinite(self.value)
                                         and self.value > 0):
-            raise ValueError(f"efd base {self.value!r}: a positive finite number")
+            raise SpecError(f"efd base {self.value!r}: a positive finite number")
 
     def text(self) -> str:
         if self.mode == "auto":
@@ -70,14 +70,14 @@ def parse_efd_base(text: str) -> EfdBase:
         return EfdBase("auto")
     m = _SYNTAX.fullmatch(t)
     if m is None:
-        raise ValueError(f"{text!r}: expected auto, <X>V or <X>rf (e.g. 95V, 0.34rf)")
+        raise SpecError(f"{text!r}: expected auto, <X>V or <X>rf (e.g. 95V, 0.34rf)")
     value, unit = float(m.group(1)), (m.group(2) or "").lower()
     if not unit:
-        raise ValueError(f"{text!r}: say what the efd channel records: {t}V (it records volts, {t} V are "
+        raise SpecError(f"{text!r}: say what the efd channel records: {t}V (it records volts, {t} V are "
                          f"1 pu of the model's efd) or {t}rf (it records rated-field units, {t} of them are "
                          "1 pu); a plain factor is --efd-scale")
     if unit not in UNITS:
-        raise ValueError(f"{text!r}: unit {m.group(2)!r}: expected V (volts) or rf (rated-field units)")
+        raise SpecError(f"{text!r}: unit {m.group(2)!r}: expected V (volts) or rf (rated-field units)")
     return EfdBase(UNITS[unit][0], value)
 
 

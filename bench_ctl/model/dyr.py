@@ -37,6 +37,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bench_ctl.exitcodes import BadInput
+
 FIELDS: dict[str, tuple[str, ...]] = {
     "GENROU": ("T'do", "T''do", "T'qo", "T''qo", "H", "D", "Xd", "Xq", "X'd", "X'q", "X''d", "Xl",
                "S(1.0)", "S(1.2)"),
@@ -75,7 +77,7 @@ DESCRIPTION = {
 _TOKEN = re.compile(r"'[^']*'|\"[^\"]*\"|[^\s']+")
 
 
-class DyrError(ValueError):
+class DyrError(BadInput):
     """A record that cannot be read or written; the message names the file and line."""
 
 

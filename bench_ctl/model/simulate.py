@@ -15,7 +15,7 @@ from .edges import EdgeSpec
 from .kernel import run_kernel, saturation_ab
 from .online import machine_matrix, run_online, unit_machine, with_placeholders
 from .params import COL, KERNEL_PARAMS, PARAMS, RECORD_PARAMS, STRUCTURE_PARAMS
-from .unit import Unit
+from .unit import Unit, UnitError
 
 
 def param_matrix(base: Mapping[str, float], names: Sequence[str] = (), X: np.ndarray | None = None, *,
@@ -146,7 +146,11 @@ def synthetic_record(unit: Unit, t: np.ndarray, usetp: np.ndarray, recorder: Rec
     grid (its [grid] data, `online.run_online`), with P, Q and Ifd measured too."""
     dt = float(t[1] - t[0])
     if online:
-        out = run_online(param_matrix(unit.values()), machine_matrix(unit_machine(unit)), usetp, dt,
+        try:
+            machine = unit_machine(unit)
+        except ValueError as exc:   # the [grid] data the unit lacks, named: the unit's to give
+            raise UnitError(str(exc)) from None
+        out = run_online(param_matrix(unit.values()), machine_matrix(machine), usetp, dt,
                          pre_trigger_mean(usetp, dt))
         series = {name: out[name][0] for name in ("efd", "vt", "p", "q", "ifd")}
         fail = int(out["fail_step"][0])
@@ -154,6 +158,6 @@ def synthetic_record(unit: Unit, t: np.ndarray, usetp: np.ndarray, recorder: Rec
         efd, vt, fail = simulate(unit.values(), usetp, dt)
         series = {"efd": efd, "vt": vt}
     if fail >= 0:
-        raise ValueError(f"the unit {unit.name!r} is unstable with these parameters (failed at t = {fail * dt:.3f} s)")
+        raise UnitError(f"the unit {unit.name!r} is unstable with these parameters (failed at t = {fail * dt:.3f} s)")
     rng = np.random.default_rng(seed)
     return {"time": t, "usetp": usetp, **{name: recorder.apply(x, rng) for name, x in series.items()}}

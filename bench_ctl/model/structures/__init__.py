@@ -22,11 +22,13 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from bench_ctl.exitcodes import BadInput
+
 from ..params import PARAMS
 from .blocks import Block, Param, generate
 
 
-class StructureError(ValueError):
+class StructureError(BadInput):
     """An unknown structure or a parameter it does not have; the message names both."""
 
 
