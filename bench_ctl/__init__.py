@@ -9,7 +9,7 @@ __version__ = "0.1.0"
 # stayed scalar in its own build and was vectorised only in copies re-optimised inside a caller,
 # so the speed of a process depended on which cached object it happened to load first (EXST1:
 # 0.46 or 0.19 ms a candidate on one thread). Set before numba builds its code generator (the
-# first @njit of the process); `bench_ctl.model.kernel.optimisation_note` says when it came too
+# first @njit of the process); `bench_ctl.engine.optimisation_note` says when it came too
 # late. A value the user set is kept. See docs/decisions/0003.
 if "NUMBA_OPT" not in _os.environ:
     _os.environ["NUMBA_OPT"] = "max"

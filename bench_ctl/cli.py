@@ -2,7 +2,10 @@
 
 Each sub-command lives in its own module (imported only when used, so `bench-ctl sim` does not
 pay for compiling the identification kernel). Exit codes (docs/style.md): 0 pass, 1 criteria
-failed, 2 aborted / safe state reached / bad input, 3 communication error: `bench_ctl.exitcodes`.
+failed, 2 aborted / safe state reached / bad input, 3 communication error, 70 a bug:
+`bench_ctl.exitcodes`. `main` is the one place that maps errors to exit codes: a `BadInput`
+(every layer's input error) or an `OSError` a command did not expect ends it with one line and
+exit 2, any other exception as a bug (exit 70, one line; the traceback with `-v`).
 """
 from __future__ import annotations
 
@@ -10,11 +13,12 @@ import importlib
 import logging
 import os
 import sys
+import traceback
 
 import click
 
 from bench_ctl import compile_notice
-from bench_ctl.exitcodes import ExitCode
+from bench_ctl.exitcodes import BadInput, ExitCode
 
 # name -> "module:attribute" of a click.Command
 COMMANDS = {
@@ -63,12 +67,18 @@ class _LibraryFilter(logging.Filter):
         return not record.name.startswith(QUIET_LIBRARIES) or record.levelno >= logging.CRITICAL
 
 
+#: -v given to the command being run (the traceback of a bug is shown with it)
+_verbose = 0
+
+
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug, with the "
               "libraries' own lines).")
 @click.version_option(package_name="bench-ctl")
 def cli(verbose: int) -> None:
     """bench-ctl: pulse test, AVR identification (MVMO), validation report, gap diagnosis."""
+    global _verbose
+    _verbose = verbose
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     compile_notice.install(compile_notice.console)   # a first run says what it compiles
@@ -101,6 +111,8 @@ def _standard_streams() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code instead of exiting (tests call it directly)."""
     _standard_streams()
+    global _verbose
+    _verbose = 0
     try:
         rv = cli.main(args=argv, prog_name="bench-ctl", standalone_mode=False)
     except click.exceptions.Abort:
@@ -111,7 +123,26 @@ def main(argv: list[str] | None = None) -> int:
         return exc.exit_code
     except click.exceptions.Exit as exc:
         return exc.exit_code
+    except BadInput as exc:
+        click.echo(f"error: {exc}", err=True)
+        return exc.exit_code
+    except OSError as exc:   # an input a command reads without its own check: a folder, a permission
+        click.echo(f"error: {exc.filename}: {exc.strerror}" if exc.filename else f"error: {exc}", err=True)
+        return ExitCode.ABORTED
+    except Exception as exc:  # noqa: BLE001 - anything else is a bug, said as such
+        return _bug(exc)
     return int(rv or 0)
+
+
+def _bug(exc: Exception) -> int:
+    """One line saying an unexpected error is bench-ctl's, not the input's; the traceback with -v."""
+    where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+    at = f" at {where.filename.rsplit('/', 1)[-1]}:{where.lineno}" if where else ""
+    click.echo(f"internal error (a bug in bench-ctl, not in the input): {type(exc).__name__}: {exc}{at}; "
+               + ("the traceback follows" if _verbose else "run again with -v for the traceback"), err=True)
+    if _verbose:
+        click.echo("".join(traceback.format_exception(exc)).rstrip(), err=True)
+    return ExitCode.BUG
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -20,6 +20,8 @@ import os
 import stat
 from typing import Any
 
+from bench_ctl.exitcodes import BadInput
+
 __all__ = ["LIMITS", "InputError", "decode_text", "read_bounded", "read_json", "read_text", "sha256_file"]
 
 MIB = 1 << 20
@@ -47,7 +49,7 @@ LIMITS: dict[str, int] = {
 }
 
 
-class InputError(ValueError):
+class InputError(BadInput):
     """An input file refused; `str()` is `FILE: REASON` (the file first), and `file` and `reason`
     keep the two apart for a layer that formats its own error (a `CaptureError`)."""
 

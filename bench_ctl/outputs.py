@@ -22,16 +22,19 @@ fit never ends in a traceback for want of a writable folder.
 """
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
 import secrets
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from bench_ctl.exitcodes import BadInput
+
 __all__ = ["OutputRefused", "Outputs", "guard_outputs", "input_family", "write_bytes", "write_json",
-           "write_text", "why_not_written"]
+           "write_text", "why_not_written", "writing", "path_from"]
 
 #: the files that belong to an input: a capture CSV's sidecar, a COMTRADE record's other half
 _FAMILY = {".csv": (".json",), ".cfg": (".dat", ".json"), ".dat": (".cfg", ".json"), ".cff": (".json",)}
@@ -44,7 +47,7 @@ FORCE_HINT = "give --force to replace an earlier output"
 NEVER_HINT = "it is never overwritten: choose another name"
 
 
-class OutputRefused(ValueError):
+class OutputRefused(BadInput):
     """An output path that would destroy an input or an earlier result, or cannot be written."""
 
 
@@ -59,6 +62,28 @@ def why_not_written(exc: OSError, path: str | os.PathLike[str]) -> str:
     what = {errno.ENOSPC: "no space left on the device", errno.EROFS: "read-only file system",
             errno.EDQUOT: "disk quota exceeded"}.get(exc.errno or 0, exc.strerror or str(exc))
     return f"cannot write {exc.filename or path}: {what}"
+
+
+def path_from(output: str | os.PathLike[str], path: str | os.PathLike[str]) -> str:
+    """`path` as the file `output` records it: relative to `output`'s folder, with forward
+    slashes, so the pair can move as a whole and be read from any working directory; absolute
+    where there is no relative path (another drive)."""
+    absolute = os.path.abspath(path)
+    try:
+        return Path(os.path.relpath(absolute, Path(os.path.abspath(output)).parent)).as_posix()
+    except ValueError:
+        return absolute
+
+
+@contextlib.contextmanager
+def writing(path: str | os.PathLike[str] | None, what: str = "") -> Iterator[None]:
+    """Inside it, an OSError met while writing `path` (a full disk, a folder gone read-only)
+    becomes an `OutputRefused` saying why in one line (`why_not_written`, after `what`), which a
+    command ends on as bad input (exit 2)."""
+    try:
+        yield
+    except OSError as exc:
+        raise OutputRefused(what + why_not_written(exc, path or "")) from None
 
 
 def _probe_folder(folder: Path) -> str | None:

@@ -2,12 +2,14 @@
 
 A `Record` subclass declares its keys as dataclass fields, in the order they are written, with
 their JSON types as annotations (`str`, `int`, `float` (an integer is a number too), `bool`,
-`X | None`, `list[X]`, `tuple[X, ...]` (written as a list), `dict[str, X]`, `Any`, another
-`Record`). `from_json` refuses a missing key, a key of the wrong type and a key the record does
+`X | None`, `list[X]`, `tuple[X, ...]` (written as a list), `dict[str, X]`, another `Record`, and
+`JSON`: any JSON value, kept as it is, for the few objects a record copies from elsewhere, such
+as a capture's sidecar). `from_json` refuses a missing key, a key of the wrong type and a key the record does
 not know with a `FormatError` naming the file and the key (`captures[0].sha256`), never a
 KeyError; `to_json` writes the keys back in field order, values as they were read (numbers are
 never converted; a non-finite one, which only a record made in memory holds, is written as
-null), so a file read and written again is the same JSON. The fields named in
+null; a numpy scalar is written as the Python number), so a file read and written again is the
+same JSON. The fields named in
 `OMITTED_WHEN_NONE` are keys some writers leave out: absent on reading, they are None and are
 not written.
 
@@ -22,16 +24,23 @@ import math
 import types
 import typing
 from collections.abc import Mapping
-from typing import Any, ClassVar, TypeVar, Union
+from typing import Any, ClassVar, NewType, TypeVar, Union
 
 import numpy as np
 
-__all__ = ["FormatError", "Record", "plain", "schema_version"]
+from bench_ctl.exitcodes import BadInput
+
+__all__ = ["FormatError", "JSON", "Record", "plain", "schema_version"]
 
 R = TypeVar("R", bound="Record")
 
+#: any JSON value (null, true / false, a number, a string, a list or an object of JSON values),
+#: checked as such and kept as it is: a key whose content a record copies from elsewhere (a
+#: capture's sidecar, an optimizer's settings)
+JSON = NewType("JSON", object)
 
-class FormatError(ValueError):
+
+class FormatError(BadInput):
     """A JSON file that is not the record it should be; the message names the file and the key."""
 
 
@@ -39,6 +48,8 @@ def _describe(tp: Any) -> str:
     """The JSON type an annotation stands for, in words."""
     if tp is Any:
         return "any value"
+    if _is_json(tp):
+        return "a JSON value"
     if tp is type(None):
         return "null"
     if tp is bool:
@@ -73,6 +84,10 @@ def _read(value: Any, tp: Any, key: str, where: str) -> Any:
         return FormatError(f"{where}: key {key!r} must be {_describe(tp)}, got {shown}")
 
     if tp is Any:
+        return value
+    if _is_json(tp):
+        if not _json_value(value):
+            raise wrong()
         return value
     if tp is type(None):
         if value is not None:
@@ -124,11 +139,28 @@ def _read(value: Any, tp: Any, key: str, where: str) -> Any:
     raise TypeError(f"unsupported annotation {tp!r}")
 
 
+def _is_json(tp: Any) -> bool:
+    return tp is JSON
+
+
+def _json_value(v: Any) -> bool:
+    """Whether `v` is a JSON value as `json.loads` gives it (or a record made in memory holds)."""
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return True
+    if isinstance(v, (list, tuple)):
+        return all(_json_value(x) for x in v)
+    if isinstance(v, dict):
+        return all(isinstance(k, str) and _json_value(x) for k, x in v.items())
+    return False
+
+
 def _is_container(tp: Any) -> bool:
     return typing.get_origin(tp) in (list, tuple, dict) or (isinstance(tp, type) and issubclass(tp, Record))
 
 
 def _write(value: Any) -> Any:
+    if isinstance(value, np.generic):   # a numpy scalar a writer passed on: the Python number
+        value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, Record):

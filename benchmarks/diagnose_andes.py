@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
                "verdict": d.verdict, "explained_by": expl,
                "params": d.explained_by[-1].params if expl else {},
                "base_over_floor": d.base.mse / d.noise_floor,
-               "left_over_floor": d.left["mse_over_floor"], "note": d.left["note"],
+               "left_over_floor": d.left.mse_over_floor, "note": d.left.note,
                "ceiling_variant": ceiling.variant if ceiling is not None else None, "wall_s": wall,
                "sat_and_ceiling": ({"saturation", "ceiling_limit"} <= set(expl)) if limited else None}
         rows.append(row)

@@ -12,14 +12,29 @@ Over every text file of the tree (code, tests, docs, configs), a finding is:
 And the paths the docs cite in backticks (`bench_ctl/...`, `tests/...`) must exist, so a moved
 module cannot leave its documentation pointing at nothing.
 
+And every code identifier a page names in backticks - `name`, `module.name`, `Class.method()`,
+`bench_ctl.pkg.module.name` - exists in the code: the set of names is read from the code itself
+(`code_names`: every module, class, function, argument, assigned name and attribute, import,
+keyword and identifier-like string constant of the tree, the keys of its TOML files, Python's
+builtins), so a renamed function leaves no page naming the old one. A name of another library is
+written with its module (`scipy.integrate.solve_ivp`); key templates (`wall_s_C`) and file names
+are not identifiers; the dated notes of `docs/lab/` record what was true on their date and are
+not checked.
+
 This file is not scanned: its fixtures are bad pointers on purpose. `PENDING` lists findings
 another branch removes (none today); an entry that no longer matches anything fails, so it cannot
 outlive its reason.
 """
 from __future__ import annotations
 
+import ast
+import builtins
+import collections
 import glob
+import importlib.util
 import re
+import tomllib
+from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -208,3 +223,208 @@ def test_the_checker_catches_each_kind_of_pointer(tmp_path):
     assert any("link 'docs/gone.md' does not resolve" in f for f in found), found
     assert not any(f.startswith("ok.py") for f in found), found
     assert not any("#edge-timing" in f for f in found), found
+
+
+# --- every code identifier a page names exists -------------------------------------------------
+
+CODE_DIRS = ("bench_ctl", "drivers", "simulators", "procedures", "benchmarks", "tests")
+#: configuration files whose words count as names (a pytest marker's environment variable)
+CONFIG_FILES = ("pyproject.toml", "Makefile", ".ci/run")
+IDENTIFIER = re.compile(r"[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*")
+WORD = re.compile(r"[A-Za-z_]\w*")
+CODE_SPAN = re.compile(r"`([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)(\(\))?`")
+#: the last part of a file name, not an identifier (`result.json`, `kernel.py`)
+FILE_SUFFIXES = {"py", "json", "jsonl", "csv", "html", "toml", "bin", "log", "md", "png", "pdf", "dat", "cfg",
+                 "cff", "txt", "dyr", "yml", "yaml", "lock"}
+
+
+@dataclass
+class CodeNames:
+    """What the code defines: `defined` (any name bound anywhere), `keys` (strings the code uses as
+    keys, and the TOML files' keys), `members` (module dotted path or class name -> the names it
+    defines at its top level), `modules` (the dotted paths)."""
+    defined: set[str] = field(default_factory=set)
+    keys: set[str] = field(default_factory=set)
+    members: dict[str, set[str]] = field(default_factory=lambda: collections.defaultdict(set))
+    modules: set[str] = field(default_factory=set)
+
+    def drop(self, name: str) -> CodeNames:
+        """These names without `name` (what a page would be checked against had `name` been
+        renamed)."""
+        members = collections.defaultdict(set, {k: v - {name} for k, v in self.members.items()})
+        return CodeNames(self.defined - {name}, self.keys - {name}, members, set(self.modules))
+
+
+def _docstrings(tree: ast.AST) -> set[int]:
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                out.add(id(first.value))
+    return out
+
+
+def _top_level(body: list[ast.stmt]) -> set[str]:
+    out = set()
+    for node in body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            for target in node.targets if isinstance(node, ast.Assign) else [node.target]:
+                out.update(n.id for n in ast.walk(target) if isinstance(n, ast.Name))
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            out.update((a.asname or a.name).split(".")[0] for a in node.names)
+    return out
+
+
+def code_names(root: Path) -> CodeNames:
+    """Every name the code of `root` defines (see `CodeNames`); derived from the code, never a list."""
+    names = CodeNames()
+    names.defined |= set(dir(builtins))
+    for top in CODE_DIRS:
+        for path in sorted((root / top).rglob("*.py")):
+            rel = path.relative_to(root)
+            if any(part in SKIP_DIRS for part in rel.parts) or path.resolve() == SELF:
+                continue
+            parts = rel.with_suffix("").parts
+            dotted = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            names.modules.add(dotted)
+            names.defined.update(dotted.split("."))
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            docs = _docstrings(tree)
+            names.members[dotted] |= _top_level(tree.body)
+            for node in ast.walk(tree):
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                    names.defined.add(node.name)
+                    if isinstance(node, ast.ClassDef):
+                        names.members[node.name] |= _top_level(node.body)
+                elif isinstance(node, ast.arg):
+                    names.defined.add(node.arg)
+                elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+                    names.defined.add(node.id)
+                elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+                    names.defined.add(node.attr)
+                elif isinstance(node, ast.alias):
+                    names.defined.update((node.asname or node.name).split("."))
+                elif isinstance(node, ast.keyword) and node.arg:
+                    names.keys.add(node.arg)
+                elif isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs \
+                        and IDENTIFIER.fullmatch(node.value):
+                    names.keys.update(node.value.split("."))
+    for path in root.rglob("*.toml"):
+        if any(part in SKIP_DIRS for part in path.relative_to(root).parts):
+            continue
+        stack: list = [tomllib.loads(path.read_text(encoding="utf-8"))]
+        while stack:
+            x = stack.pop()
+            if isinstance(x, dict):
+                names.keys.update(x)
+                stack += list(x.values())
+            elif isinstance(x, list):
+                stack += x
+    for rel in CONFIG_FILES:
+        if (root / rel).is_file():
+            names.keys.update(WORD.findall((root / rel).read_text(encoding="utf-8")))
+    return names
+
+
+def _template(token: str) -> bool:
+    """A key template (`wall_s_C`, `SEXS_ratio`): upper-case placeholders among lower-case parts."""
+    parts = [p for p in re.split(r"[_.]", token) if p]
+    return any(p.isupper() for p in parts) and any(re.search(r"[a-z]", p) for p in parts)
+
+
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def _exists(token: str, names: CodeNames) -> bool:
+    parts = token.split(".")
+    known = names.defined | names.keys
+    if len(parts) == 1:
+        return token in known
+    if any(m == token or m.endswith("." + token) for m in names.modules):   # a module (`bench_ctl.runner`)
+        return True
+    # a module of the tree, by its dotted path or by the end of it (`dialect.Dialect`,
+    # `fleet.tasks.warm_worker`): the name after it is one the module defines
+    for i in range(len(parts) - 1, 0, -1):
+        prefix = ".".join(parts[:i])
+        mods = [m for m in names.modules if m == prefix or m.endswith("." + prefix)]
+        if mods and (parts[0] in CODE_DIRS or i > 0):
+            rest = parts[i:]
+            if any(rest[0] in names.members[m] for m in mods) and all(r in known for r in rest[1:]):
+                return True
+            if parts[0] in CODE_DIRS:
+                return False
+    if parts[0] in names.members:    # a class and one of its own names (`EdgeSearch.pulse`)
+        if parts[1] in names.members[parts[0]] and all(r in known for r in parts[2:]):
+            return True
+    if all(p in names.keys for p in parts):    # a key path of a file (`model.name`, `limits.q_min_mvar`)
+        return True
+    head = parts[0]
+    if head not in known or _installed(head):   # another library's (`scipy.integrate.solve_ivp`)
+        return head not in {m.split(".")[-1] for m in names.modules} and head not in names.members
+    return False
+
+
+def identifier_findings(root: Path, names: CodeNames | None = None,
+                        pages: list[Path] | None = None) -> list[str]:
+    """Code identifiers the docs (and the README) name in backticks that the code does not have."""
+    names = names if names is not None else code_names(root)
+    if pages is None:
+        pages = [p for p in sorted((root / "docs").rglob("*.md")) if "lab" not in p.relative_to(root).parts]
+        pages.append(root / "README.md")
+    found = []
+    for page in pages:
+        text = page.read_text(encoding="utf-8")
+        for m in CODE_SPAN.finditer(text):
+            token, call = m.group(1), m.group(2)
+            if token.rsplit(".", 1)[-1] in FILE_SUFFIXES or _template(token):
+                continue
+            if not (call or "_" in token or "." in token or re.search(r"[a-z][A-Z]", token)):
+                continue    # a plain word or a parameter name (`auto`, `KAVR`)
+            if not _exists(token, names):
+                found.append(f"{page.relative_to(root).as_posix()}:{_line(text, m.start())}: "
+                             f"`{token}{call or ''}` is not a name of the code")
+    return found
+
+
+def test_every_identifier_the_docs_name_exists():
+    assert identifier_findings(ROOT) == []
+
+
+def test_a_stale_identifier_fails_the_check(tmp_path):
+    """Mutations: a page naming a function that is not in the code, and the code losing a name a
+    page names (as a rename would), each make the check fail; a qualified name of another
+    library, a key template and a file name do not."""
+    names = code_names(ROOT)
+    page = tmp_path / "docs" / "page.md"
+    page.parent.mkdir()
+    page.write_text("The report's `bench_ctl.model.dialect.kernel_sections` and `Dialect.kernel_text`;\n"
+                    "`diagnosis.significance.SIGNIFICANT`, `scipy.integrate.solve_ivp`, `wall_s_C`, `result.json`.\n",
+                    encoding="utf-8")
+    assert identifier_findings(tmp_path, names, [page]) == []
+    # a page names what no longer exists (decision 0009 named `_rhs_ref`, 0010 `_st4`)
+    page.write_text("the reference right-hand side (`_rhs_ref`) and `online.step_online`\n", encoding="utf-8")
+    found = identifier_findings(tmp_path, names, [page])
+    assert len(found) == 2 and "`_rhs_ref`" in found[0] and "`online.step_online`" in found[1], found
+    # the code renames a function a real page names: that page fails
+    real = ROOT / "docs" / "model.md"
+    assert identifier_findings(ROOT, names, [real]) == []
+    gone = identifier_findings(ROOT, names.drop("CHECK_GAIN"), [real]) + \
+        identifier_findings(ROOT, names.drop("kernel_view"), [real])
+    assert any("CHECK_GAIN" in f for f in gone) and any("kernel_view" in f for f in gone), gone
+
+
+def test_the_benchmarks_page_is_reference_not_a_lab_log():
+    """docs/benchmarks.md states the current figures, each with its command; dated measurements
+    ("Measured again 2026-11-27 ...") belong to docs/lab/ or a decision record's appendix."""
+    text = (ROOT / "docs" / "benchmarks.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 300
+    dated = re.findall(r"(?im)^.*\b(?:measured|recorded)(?: again)?(?: on)? \(?20\d\d-\d\d-\d\d.*$", text)
+    assert dated == []
+    assert list((ROOT / "docs" / "lab").glob("*.md")), "the dated notes have a home"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import typing
 from pathlib import Path
 
 import pytest
@@ -12,22 +13,32 @@ import pytest
 from bench_ctl.cli import main
 from bench_ctl.diagnosis.diagnosis_file import BaseFit, Diagnosis, EffectEntry, Step, read_diagnosis
 from bench_ctl.identification.result_file import CaptureEntry, IdentificationResult, read_result
-from bench_ctl.records import FormatError, plain
-from records import diagnosis_json, effect_json, result_json, step_json
+from bench_ctl.records import FormatError, Record, plain
+from records import (
+    assert_round_trip,
+    diagnosis_json,
+    edge_json,
+    effect_json,
+    ident_json,
+    model_json,
+    result_json,
+    step_json,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
 CAPTURE = {"path": "pulse.csv", "sha256": "ab" * 32, "n": 5001, "rate_hz": 1000.0, "meta": {"test": {"kind": "pulse"}},
            "mse": 1.2e-4, "objective": 0.6, "weight": 1.0,
-           "edges": [{"index": 1000, "jump_pu": 0.05, "fitted_s": 0.9995, "std_s": None}]}
+           "edges": [edge_json(fitted_s=0.9995, offset_s=-0.0005, fitted=True)]}
 
 
 def _result() -> dict:
     return result_json(captures=[json.loads(json.dumps(CAPTURE))], params={"KAVR": 201.5, "TA1": 1},
                        fixed={"VRMAX": None, "Td0p": 7.5},
                        bounds={"KAVR": [50, 500]}, mse=1.2e-4, objective=0.6, evaluations=1000,
-                       history=[[32, None], [64, 0.7]], identifiability={"names": ["KAVR"], "std": {"KAVR": 1.5}},
-                       failed=False, message="", model={"name": "REFERENCE"})
+                       history=[[32, None], [64, 0.7]],
+                       identifiability=ident_json(["KAVR"], std={"KAVR": 1.5}),
+                       failed=False, message="", model=model_json())
 
 
 def _diagnosis() -> dict:
@@ -166,19 +177,88 @@ def _fields(cls) -> list[str]:
     return [f.name for f in dataclasses.fields(cls)]
 
 
-@pytest.mark.parametrize(("section", "cls", "nested"), [
-    ("Result JSON", IdentificationResult, {"captures": CaptureEntry}),
-    ("Diagnosis JSON", Diagnosis, {"base": BaseFit, "effects": EffectEntry, "explained_by": Step}),
-])
-def test_the_format_page_names_every_key_of_the_classes(section, cls, nested):
+def _nested(cls: type) -> dict[str, list[type]]:
+    """Each key of `cls` that holds records -> the record classes it holds, its own nested ones
+    included (read from the annotations: every typed part of a file is named in its key's row)."""
+    hints = typing.get_type_hints(cls)
+
+    def records(tp: object) -> list[type]:
+        if isinstance(tp, type) and issubclass(tp, Record):
+            return [tp] + [r for f in dataclasses.fields(tp) for r in records(typing.get_type_hints(tp)[f.name])]
+        return [r for arg in typing.get_args(tp) for r in records(arg)]
+    return {f.name: found for f in dataclasses.fields(cls) if (found := records(hints[f.name]))}
+
+
+@pytest.mark.parametrize(("section", "cls"), [("Result JSON", IdentificationResult), ("Diagnosis JSON", Diagnosis)])
+def test_the_format_page_names_every_key_of_the_classes(section, cls):
     rows = _table(section)
     assert list(rows) == _fields(cls)        # the same keys, in the order they are written
     for key in cls.OMITTED_WHEN_NONE:
         assert "optional" in rows[key], key
     for key in set(_fields(cls)) - set(cls.OMITTED_WHEN_NONE):
         assert not rows[key].startswith("optional"), key
-    for key, inner in nested.items():
+    nested = _nested(cls)
+    assert {"captures", "unit", "identifiability", "model", "selection"} <= set(nested) or cls is Diagnosis
+    for key, inner_classes in nested.items():
+        if key in ("unit", "selection") and cls is Diagnosis:   # "as in a result", named there
+            continue
         named = set(re.findall(r"`([a-z_0-9]+)`", rows[key]))
-        assert set(_fields(inner)) <= named, (key, set(_fields(inner)) - named)
-        for opt in inner.OMITTED_WHEN_NONE:
-            assert re.search(rf"`{opt}`[^|`]*optional", rows[key]), (key, opt)
+        for inner in inner_classes:
+            assert set(_fields(inner)) <= named, (key, inner.__name__, set(_fields(inner)) - named)
+            for opt in inner.OMITTED_WHEN_NONE:
+                assert re.search(rf"`{opt}`[^|`]*optional", rows[key]), (key, inner.__name__, opt)
+
+
+# --- the files bench-ctl writes read back the same ---------------------------------------------
+
+#: result and diagnosis files as `identify` / `diagnose` wrote them, one of each shape: the reference
+#: structure, a standard one (its `kernel` key) with `--compare`, two captures, on line (a [grid]
+#: value fitted), `--model auto` (`selection`), a holdout, `diagnose --result`
+STORED = sorted((ROOT / "tests" / "fixtures" / "records").glob("*.json"))
+
+
+@pytest.mark.parametrize("path", STORED, ids=lambda p: p.name)
+def test_every_stored_file_reads_back_the_same(path):
+    """Read into its typed record (every nested part typed: unit, identifiability, model,
+    selection, the diagnosis' check, localization, ...), written again: the same JSON, key order
+    included."""
+    assert_round_trip(path)
+
+
+def test_the_stored_files_cover_each_shape():
+    names = {p.name for p in STORED}
+    assert {"result_reference.json", "result_esst1a_compare.json", "result_auto.json", "result_online.json",
+            "diagnosis_reference_holdout.json", "diagnosis_esst1a.json", "diagnosis_auto.json",
+            "diagnosis_online.json"} <= names
+    shapes = {p.name: json.loads(p.read_text(encoding="utf-8")) for p in STORED}
+    assert "kernel" in shapes["result_esst1a_compare.json"] and "comparison" in shapes["result_esst1a_compare.json"]
+    assert "selection" in shapes["result_auto.json"] and "selection" in shapes["diagnosis_auto.json"]
+    assert shapes["result_online.json"]["unit"]["grid_identify"]
+    assert shapes["diagnosis_reference_holdout.json"]["holdout"] is not None
+
+
+def test_no_result_or_diagnosis_record_holds_an_untyped_object():
+    """No `dict[str, Any]` (or `Any`) field in the result's and the diagnosis' records: every part
+    is a record or a table of numbers, texts or flags; a capture's sidecar and an optimizer's
+    settings, copied as they are, are `JSON`."""
+    seen, todo, loose = set(), [IdentificationResult, Diagnosis], []
+    while todo:
+        cls = todo.pop()
+        if cls in seen:
+            continue
+        seen.add(cls)
+        for name, tp in typing.get_type_hints(cls).items():
+            if name == "OMITTED_WHEN_NONE":
+                continue
+            text = repr(tp)
+            if "typing.Any" in text:
+                loose.append(f"{cls.__name__}.{name}: {text}")
+            todo += [t for t in _records_in(tp)]
+    assert loose == []
+    assert len(seen) >= 30, sorted(c.__name__ for c in seen)
+
+
+def _records_in(tp: object) -> list[type]:
+    if isinstance(tp, type) and issubclass(tp, Record):
+        return [tp]
+    return [r for arg in typing.get_args(tp) for r in _records_in(arg)]

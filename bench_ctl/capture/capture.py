@@ -25,13 +25,10 @@ import numpy as np
 
 import bench_ctl
 from bench_ctl import outputs
-from bench_ctl.capture.errors import CaptureError, shown_names
+from bench_ctl.capture.errors import CaptureError, SpecError, shown_names
 from bench_ctl.capture.table import decode_utf8, parse_numeric, read_limited, read_text_table, try_numeric
 from bench_ctl.capture.timebase import check_time, step_tolerance
-
-# the one file hash lives in bench_ctl.limits; bench_ctl.identification.identify still imports it
-# from here until its rewrite lands
-from bench_ctl.limits import sha256_file  # noqa: F401
+from bench_ctl.limits import sha256_file
 from bench_ctl.timestamps import utc_now_text
 
 log = logging.getLogger(__name__)
@@ -143,6 +140,17 @@ class Capture:
 
 def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+def capture_sha256(path: str | os.PathLike[str] | None) -> str | None:
+    """The SHA-256 of a capture file, the one hash every result and diagnosis records and the
+    report verifies: the file's bytes on disk are the truth (docs/formats.md, "Capture"); a
+    sidecar's `csv_sha256` is checked against them when the capture is read, never taken in their
+    place. None when there is no file (a capture held in memory, or named by a label); an
+    `InputError` naming a file that cannot be read."""
+    if not path or not Path(path).is_file():
+        return None
+    return sha256_file(path, "a capture")
 
 
 def sidecar_path(csv_path: str | os.PathLike[str]) -> Path:
@@ -321,7 +329,7 @@ def write_capture(
     """
     path = Path(path)
     if path.suffix.lower() != ".csv":
-        raise ValueError(f"{path}: a capture file name must end in .csv")
+        raise SpecError(f"{path}: a capture file name must end in .csv")
     json_path = sidecar_path(path)
     if not overwrite:
         for target in (path, json_path):

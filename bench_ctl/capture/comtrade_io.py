@@ -20,7 +20,7 @@ import comtrade
 import numpy as np
 
 from bench_ctl.capture.capture import PER_UNIT_SPELLINGS, Capture, sha256_bytes
-from bench_ctl.capture.errors import CaptureError, shown, shown_names
+from bench_ctl.capture.errors import CaptureError, SpecError, shown, shown_names
 from bench_ctl.capture.table import decode_utf8, read_limited
 from bench_ctl.capture.timebase import check_time
 
@@ -212,24 +212,24 @@ def channel_values(table: ComtradeTable, our: str, channel: str, scaled: bool) -
 def _check_factors(scale: Mapping[str, float], mapping: Mapping[str, str]) -> None:
     for our, factor in scale.items():
         if our not in mapping:
-            raise ValueError(f"scale given for {our!r}, which is not mapped")
+            raise SpecError(f"scale given for {our!r}, which is not mapped")
         if isinstance(factor, bool) or not isinstance(factor, (int, float)) \
                 or not math.isfinite(factor) or factor == 0:
-            raise ValueError(f"scale for {our!r} must be a finite non-zero number, "
+            raise SpecError(f"scale for {our!r} must be a finite non-zero number, "
                              f"got {factor!r}")
 
 
 def check_mapping(mapping: Mapping[str, str], required: tuple[str, ...]) -> None:
     for our in mapping:
         if our not in CAPTURE_CHANNELS:
-            raise ValueError(f"mapping key {our!r}: expected one of {CAPTURE_CHANNELS}")
+            raise SpecError(f"mapping key {our!r}: expected one of {CAPTURE_CHANNELS}")
     for our in required:
         if our not in mapping:
-            raise ValueError(f"mapping needs {our!r} (have {sorted(mapping)})")
+            raise SpecError(f"mapping needs {our!r} (have {sorted(mapping)})")
     used = list(mapping.values())
     for name in used:
         if used.count(name) > 1:
-            raise ValueError(f"channel {name!r} is mapped to more than one capture column")
+            raise SpecError(f"channel {name!r} is mapped to more than one capture column")
 
 
 def read_comtrade(

@@ -1,16 +1,25 @@
-"""The one error type of the capture layer: bad input named by file, row and column.
+"""The error types of the capture layer: bad input named by file, row and column, and a request
+that cannot be carried out.
 
-A `CaptureError` is a `ValueError` whose message always starts with the file, then (where they
-apply) the row - the 1-based line number a text editor shows, header included, or the sample
-number of a binary COMTRADE record - and the column or channel name, then what is wrong.
+A `CaptureError` is a `ValueError` (a `BadInput`) whose message always starts with the file, then
+(where they apply) the row - the 1-based line number a text editor shows, header included, or the
+sample number of a binary COMTRADE record - and the column or channel name, then what is wrong. A
+`SpecError` refuses what was asked of the layer before any file is read (an import's mapping, test
+description, efd base or scale, a capture's file name).
 """
 from __future__ import annotations
 
 import os
 import re
 
+from bench_ctl.exitcodes import BadInput
 
-class CaptureError(ValueError):
+
+class SpecError(BadInput):
+    """An import or write request that cannot be carried out; the message says which part."""
+
+
+class CaptureError(BadInput):
     """Refused capture input.
 
     Attributes keep the parts apart for callers that want them: `file`, `row` (int or None),

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.errors import CaptureError, SpecError
 
 MIN_PRE_SAMPLES = 20
 #: samples left out at the end of the pre-step part (the change may start there)
@@ -58,14 +58,14 @@ class EfdBase:
 
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "volts", "rated", "from"):
-            raise ValueError(f"efd base mode {self.mode!r}: expected auto, volts, rated or from")
+            raise SpecError(f"efd base mode {self.mode!r}: expected auto, volts, rated or from")
         if self.mode == "from":
             if not self.path:
-                raise ValueError("from: needs the no-load capture's path, e.g. from:noload.csv")
+                raise SpecError("from: needs the no-load capture's path, e.g. from:noload.csv")
             return
         if self.mode != "auto" and not (isinstance(self.value, (int, float)) and math.isfinite(self.value)
                                         and self.value > 0):
-            raise ValueError(f"efd base {self.value!r}: a positive finite number")
+            raise SpecError(f"efd base {self.value!r}: a positive finite number")
 
     def text(self) -> str:
         if self.mode == "auto":
@@ -86,14 +86,14 @@ def parse_efd_base(text: str) -> EfdBase:
         return EfdBase("from", path=t[5:].strip())
     m = _SYNTAX.fullmatch(t)
     if m is None:
-        raise ValueError(f"{text!r}: expected auto, <X>V or <X>rf (e.g. 95V, 0.34rf)")
+        raise SpecError(f"{text!r}: expected auto, <X>V or <X>rf (e.g. 95V, 0.34rf)")
     value, unit = float(m.group(1)), (m.group(2) or "").lower()
     if not unit:
-        raise ValueError(f"{text!r}: say what the efd channel records: {t}V (it records volts, {t} V are "
+        raise SpecError(f"{text!r}: say what the efd channel records: {t}V (it records volts, {t} V are "
                          f"1 pu of the model's efd) or {t}rf (it records rated-field units, {t} of them are "
                          "1 pu); a plain factor is --efd-scale")
     if unit not in UNITS:
-        raise ValueError(f"{text!r}: unit {m.group(2)!r}: expected V (volts) or rf (rated-field units)")
+        raise SpecError(f"{text!r}: unit {m.group(2)!r}: expected V (volts) or rf (rated-field units)")
     return EfdBase(UNITS[unit][0], value)
 
 
@@ -168,18 +168,18 @@ def from_no_load(base: EfdBase, what: str, column: str | None) -> tuple[float, d
     try:
         cap = read_capture(path)
     except (CaptureError, OSError) as exc:
-        raise ValueError(f"from:{path}: {exc}") from None
+        raise SpecError(f"from:{path}: {exc}") from None
     imp = cap.meta.get("import") if isinstance(cap.meta.get("import"), dict) else None
     block = None if imp is None else imp.get(f"{what}_base")
     if not isinstance(block, dict) or not isinstance(block.get("factor"), (int, float)):
-        raise ValueError(f"from:{path}: its sidecar has no import.{what}_base (import the unit's no-load step "
+        raise SpecError(f"from:{path}: its sidecar has no import.{what}_base (import the unit's no-load step "
                          f"with --{'efd-base auto' if what == 'efd' else 'scale ifd=auto'} first)")
     if cap.on_line:
-        raise ValueError(f"from:{path}: that record is on line too (it holds P and Q): the base comes from "
+        raise SpecError(f"from:{path}: that record is on line too (it holds P and Q): the base comes from "
                          "the unit's no-load step")
     was = (imp.get("columns") or {}).get(what)
     if column is not None and was is not None and was != column:
-        raise ValueError(f"from:{path}: its {what} came from column {was!r}, here it is {column!r}: another "
+        raise SpecError(f"from:{path}: its {what} came from column {was!r}, here it is {column!r}: another "
                          f"channel or unit; give the factor itself if they are the same "
                          f"({'--efd-scale' if what == 'efd' else '--scale ifd='}{block['factor']:.6g})")
     factor = float(block["factor"])

@@ -31,7 +31,7 @@ import numpy as np
 
 from bench_ctl.capture import comtrade_io
 from bench_ctl.capture.capture import CHANNEL_UNITS, Capture, read_capture, write_capture
-from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.errors import CaptureError, SpecError
 from bench_ctl.capture.field_base import EfdBase, NoLoad, auto_factor, explicit_block, from_no_load, pre_step
 from bench_ctl.capture.found_test import FoundTest, find_test, tolerance_on
 from bench_ctl.capture.plausible import implausible
@@ -53,11 +53,11 @@ ON_LINE_MIN_PU = 0.02
 
 def _finite(value: Any, what: str, *, positive: bool = False, nonzero: bool = False) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{what} must be a finite number, got {value!r}")
+        raise SpecError(f"{what} must be a finite number, got {value!r}")
     if positive and value <= 0:
-        raise ValueError(f"{what} must be > 0, got {value!r}")
+        raise SpecError(f"{what} must be > 0, got {value!r}")
     if nonzero and value == 0:
-        raise ValueError(f"{what} must not be 0")
+        raise SpecError(f"{what} must not be 0")
 
 
 @dataclass(frozen=True)
@@ -84,25 +84,25 @@ class TestDescription:
 
     def __post_init__(self) -> None:
         if self.kind not in ("step", "pulse"):
-            raise ValueError(f"test kind must be 'step' or 'pulse', got {self.kind!r}")
+            raise SpecError(f"test kind must be 'step' or 'pulse', got {self.kind!r}")
         if self.start_s is not None:
             _finite(self.start_s, "test start_s")
         _finite(self.amplitude_pu, "test amplitude_pu", nonzero=True)
         _finite(self.usetp0_pu, "test usetp0_pu")
         if self.kind == "pulse":
             if self.width_s is None and self.start_s is not None:
-                raise ValueError("a pulse test needs width_s (or neither start nor width: both found)")
+                raise SpecError("a pulse test needs width_s (or neither start nor width: both found)")
             if self.width_s is not None:
                 _finite(self.width_s, "test width_s", positive=True)
         elif self.width_s is not None:
-            raise ValueError("a step test has no width_s")
+            raise SpecError("a step test has no width_s")
         if self.edge_tolerance_s is not None:
             _finite(self.edge_tolerance_s, "test edge_tolerance_s", positive=True)
 
     def usetp(self, time: np.ndarray, *, file: str = "<test description>") -> np.ndarray:
         """The setpoint on `time` (uniform). Refuses edges outside the record."""
         if self.start_s is None:
-            raise ValueError("the test's start is not known yet: find it in the record first")
+            raise SpecError("the test's start is not known yet: find it in the record first")
         step = float(time[1] - time[0])
         tol = 1e-6 * step
         t0, t1 = float(time[0]), float(time[-1])
@@ -164,37 +164,37 @@ class ImportSpec:
     def __post_init__(self) -> None:
         comtrade_io.check_mapping(self.columns, required=("efd",))
         if "usetp" not in self.columns and self.test is None:
-            raise ValueError("no usetp column mapped and no test description to synthesise it")
+            raise SpecError("no usetp column mapped and no test description to synthesise it")
         if len(self.delimiter) != 1 or self.delimiter in "\"\r\n":
-            raise ValueError(f"delimiter must be one character, got {self.delimiter!r}")
+            raise SpecError(f"delimiter must be one character, got {self.delimiter!r}")
         if self.decimal not in (".", ","):
-            raise ValueError(f"decimal must be '.' or ',', got {self.decimal!r}")
+            raise SpecError(f"decimal must be '.' or ',', got {self.decimal!r}")
         if self.decimal == self.delimiter:
-            raise ValueError("a decimal comma needs a delimiter other than ','")
+            raise SpecError("a decimal comma needs a delimiter other than ','")
         _finite(self.efd_base_scale, "efd_base_scale", nonzero=True)
         if self.efd_base is not None and self.efd_base_scale != 1.0:
-            raise ValueError("give either the efd base or efd_base_scale, not both")
+            raise SpecError("give either the efd base or efd_base_scale, not both")
         if self.ifd_auto and ("ifd" not in self.columns or "ifd" in self.scale):
-            raise ValueError("ifd auto needs ifd mapped and no other scale for it")
+            raise SpecError("ifd auto needs ifd mapped and no other scale for it")
         if self.ifd_from is not None and ("ifd" not in self.columns or "ifd" in self.scale or self.ifd_auto):
-            raise ValueError("ifd from a no-load import needs ifd mapped and no other scale for it")
+            raise SpecError("ifd from a no-load import needs ifd mapped and no other scale for it")
         if self.rate_hz is not None:
             _finite(self.rate_hz, "rate_hz", positive=True)
         if (self.ifd_auto or (self.efd_base is not None and self.efd_base.mode == "auto")) \
                 and self.no_load is None:
-            raise ValueError("an auto base needs the unit's no-load field (no_load)")
+            raise SpecError("an auto base needs the unit's no-load field (no_load)")
         for our, factor in self.scale.items():
             if our == "efd":
-                raise ValueError("scale efd with efd_base_scale")
+                raise SpecError("scale efd with efd_base_scale")
             if our not in self.columns:
-                raise ValueError(f"scale given for {our!r}, which is not mapped")
+                raise SpecError(f"scale given for {our!r}, which is not mapped")
             _finite(factor, f"scale for {our!r}", nonzero=True)
         if self.resample_hz is not None:
             _finite(self.resample_hz, "resample_hz", positive=True)
         clash = set(self.keep_columns) & (set(self.columns.values()) | {"time", "usetp", "efd", "vt",
                                                                           *CHANNEL_UNITS})
         if clash:
-            raise ValueError(f"keep_columns {sorted(clash)} are mapped or capture names")
+            raise SpecError(f"keep_columns {sorted(clash)} are mapped or capture names")
         object.__setattr__(self, "columns", MappingProxyType(dict(self.columns)))
         object.__setattr__(self, "scale", MappingProxyType(dict(self.scale)))
         object.__setattr__(self, "keep_columns", tuple(self.keep_columns))
@@ -205,7 +205,7 @@ def _read_source(src: Path, spec: ImportSpec) -> tuple[RawRecord, dict[str, Any]
     block: dict[str, Any] = {"path": str(src.resolve()), "sha256": sha256_file(src)}
     if src.suffix.lower() == ".cfg":
         if spec.time_column or spec.date_column or spec.clock_column or spec.rate_hz is not None:
-            raise ValueError("a COMTRADE record brings its own time and rate: no time/date/clock column, no --rate")
+            raise SpecError("a COMTRADE record brings its own time and rate: no time/date/clock column, no --rate")
         table = comtrade_io.load_comtrade_table(src, uniform=False)  # checked below, or resampled
         scaled = ({"efd"} if spec.efd_base_scale != 1.0 or spec.efd_base is not None else set()) \
             | ({"ifd"} if spec.ifd_auto or spec.ifd_from is not None else set())
@@ -254,7 +254,8 @@ def on_line_of(spec: ImportSpec, raw: Mapping[str, np.ndarray]) -> dict[str, Any
     if len(have) < 2 and not loaded:
         return None
     why = "P and Q recorded" if len(have) == 2 else f"{loaded[0].upper()} away from zero"
-    return {**{f"{k}_median": v for k, v in have.items()},
+    medians = {"p_median": have.get("p"), "q_median": have.get("q")}   # the sidecar's keys
+    return {**{k: v for k, v in medians.items() if v is not None},
             "columns": {k: spec.columns[k] for k in have}, "why": why}
 
 

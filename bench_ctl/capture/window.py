@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.errors import CaptureError, SpecError
 from bench_ctl.capture.vendor_csv import RawRecord
 
 #: the fewest samples a window may keep
@@ -51,7 +51,7 @@ def _bound(text: str | None) -> Bound | None:
     if re.fullmatch(_CLOCK, text):
         h, m, s = text.replace(",", ".").split(":")
         if int(h) > 23 or int(m) > 59 or float(s) >= 60.0:
-            raise ValueError(f"{text!r} is not a clock time (HH:MM:SS[.f])")
+            raise SpecError(f"{text!r} is not a clock time (HH:MM:SS[.f])")
         return Bound("clock", int(h) * 3600 + int(m) * 60 + float(s), text)
     return Bound("s", float(text), text)
 
@@ -61,11 +61,11 @@ def parse_window(text: str) -> Window:
     bound may be left out (`120:` is from 120 s to the end). ValueError when malformed."""
     m = _SYNTAX.fullmatch(text)
     if m is None or (m.group(1) is None and m.group(2) is None):
-        raise ValueError(f"{text!r}: expected START:END, seconds from the export's first sample (120:150) or "
+        raise SpecError(f"{text!r}: expected START:END, seconds from the export's first sample (120:150) or "
                          "clock times (12:53:58.5:12:54:30); either may be left out")
     w = Window(text.strip(), _bound(m.group(1)), _bound(m.group(2)))
     if w.start is not None and w.end is not None and w.start.kind == w.end.kind and w.end.value <= w.start.value:
-        raise ValueError(f"{text!r}: the window ends before it starts")
+        raise SpecError(f"{text!r}: the window ends before it starts")
     return w
 
 

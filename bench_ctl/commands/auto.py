@@ -7,8 +7,8 @@ from typing import Any
 
 from bench_ctl.capture import Capture
 from bench_ctl.diagnosis.selection import Selection, free_limits, select_structure, separation_text, where_left
-from bench_ctl.model.dialect import shared_names
-from bench_ctl.model.params import PARAMS
+from bench_ctl.exitcodes import BadInput
+from bench_ctl.identification.result_file import SelectionEntry
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
 from bench_ctl.model.structures import STRUCTURES
 from bench_ctl.units.unit import Unit, apply_overrides, with_model
@@ -90,61 +90,58 @@ def _takes(unit: Unit, item: str) -> bool:
     key = item.split("=", 1)[0].strip()
     if key.startswith("weights."):
         return True
-    key = key.split(".", 1)[0]
-    if unit.model == DEFAULT_MODEL:
-        return key in PARAMS
-    return key in unit.structure.names or key in shared_names()
+    return unit.dialect.speaks(key.split(".", 1)[0])
 
 
-def selection_summary(sel: dict[str, Any]) -> str:
+def selection_summary(sel: SelectionEntry) -> str:
     """The ranking table of --model auto."""
     head = f"{'rank':<5}{'model':<11}{'k':>3}{'fit x floor':>13}{'check x floor':>15}{'score':>11}  note"
-    lines = ["", f"structure selection ({len(sel['candidates'])} candidates; score: BIC + the check's "
+    lines = ["", f"structure selection ({len(sel.candidates)} candidates; score: BIC + the check's "
              "deviance, relative to the first)", head, "-" * len(head)]
-    for c in sel["candidates"]:
-        note = "fits as well (more parameters)" if c["equivalent"] else (c.get("error") or "")
-        if c.get("constraints_violated"):
-            note = "constraint violated: " + ", ".join(c["constraints_violated"])
-        if c.get("inert"):
-            note = "; ".join(filter(None, [note, f"not counted in k (moves nothing here): {', '.join(c['inert'])}"]))
-        if c.get("searches", 1) > 1:
+    for c in sel.candidates:
+        note = "fits as well (more parameters)" if c.equivalent else (c.error or "")
+        if c.constraints_violated:
+            note = "constraint violated: " + ", ".join(c.constraints_violated)
+        if c.inert:
+            note = "; ".join(filter(None, [note, f"not counted in k (moves nothing here): {', '.join(c.inert)}"]))
+        if c.searches > 1:
             note = "; ".join(filter(None, [note, "searched twice (its first search ended on its bounds)"]))
-        lines.append(f"{c['rank']:<5}{c['model']:<11}{c['k']:>3}{_fmt(c['x_floor'], '.3g'):>13}"
-                     f"{_fmt(c['check_x_floor'], '.3g'):>15}{_fmt(c['score_difference'], '+.1f'):>11}  {note}")
-    best = sel["candidates"][0]
-    if sel["verdict"] == "explains":
-        lines.append(f"{sel['chosen']} explains the record: its fit is at the noise floor "
-                     f"({_fmt(best['x_floor'], '.3g')}x)")
-    elif sel["verdict"] == "closest":
-        lines.append(f"{sel['chosen']} fits best but leaves {_fmt(best['x_floor'], '.3g')}x the noise floor: "
+        lines.append(f"{c.rank:<5}{c.model:<11}{c.k:>3}{_fmt(c.x_floor, '.3g'):>13}"
+                     f"{_fmt(c.check_x_floor, '.3g'):>15}{_fmt(c.score_difference, '+.1f'):>11}  {note}")
+    best = sel.candidates[0]
+    if sel.verdict == "explains":
+        lines.append(f"{sel.chosen} explains the record: its fit is at the noise floor "
+                     f"({_fmt(best.x_floor, '.3g')}x)")
+    elif sel.verdict == "closest":
+        lines.append(f"{sel.chosen} fits best but leaves {_fmt(best.x_floor, '.3g')}x the noise floor: "
                      "no structure of the library explains the record (try `bench-ctl diagnose`)")
         lines += where_left(sel)
     else:
         lines.append("no structure could be fitted")
-    if sel["equivalent"]:
-        lines.append(f"as good on this record: {', '.join(sel['equivalent'])} (more or as many parameters)")
+    if sel.equivalent:
+        lines.append(f"as good on this record: {', '.join(sel.equivalent)} (more or as many parameters)")
     sep = separation_text(sel)
     if sep:
         lines.append(sep)
-    for note in sel.get("notes", []):
+    for note in sel.notes:
         lines.append(f"note: {note}")
     return "\n".join(lines)
 
 
 
-class NoStructureFitted(ValueError):
+class NoStructureFitted(BadInput):
     """Every candidate failed; the message names each one's error."""
 
 
 def rank_structures(captures: Sequence[Capture], units: Mapping[str, Unit], notes: Sequence[str], *,
                     seed: int, command_line: str, max_evals: int = 1000,
-                    progress: Callable[[str, Any], None] | None = None) -> tuple[Selection, dict[str, Any]]:
-    """The selection of `identify` / `diagnose --model auto` and its JSON with the `--set` notes.
-    Raises NoStructureFitted when no candidate could be fitted, ValueError for a capture the
+                    progress: Callable[[str, Any], None] | None = None) -> tuple[Selection, SelectionEntry]:
+    """The selection of `identify` / `diagnose --model auto` and its record with the `--set` notes.
+    Raises NoStructureFitted when no candidate could be fitted, DiagnosisError for a capture the
     check cannot use."""
     sel = select_structure(captures, units, max_evals=max_evals, seed=seed, command_line=command_line,
                            progress=progress)
     if sel.best.ident is None:
         raise NoStructureFitted("no structure could be fitted: " + "; ".join(
             f"{c.model}: {c.error}" for c in sel.candidates))
-    return sel, {**sel.to_json(), "notes": list(notes)}
+    return sel, sel.entry(notes)

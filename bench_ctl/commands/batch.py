@@ -13,9 +13,6 @@ from __future__ import annotations
 
 import click
 
-from bench_ctl.exitcodes import ExitCode
-from bench_ctl.fleet.manifest import ManifestError
-
 
 @click.command("batch")
 @click.argument("manifest", type=click.Path(dir_okay=False))
@@ -37,14 +34,9 @@ def batch(manifest: str, out_dir: str, scheduler: str | None, workers: int | Non
           seed: int, allow_outside: bool = False) -> int:
     """Run identify + diagnose + report for every capture listed in MANIFEST (CSV)."""
     from bench_ctl.fleet.batch import run_batch
-    from bench_ctl.outputs import OutputRefused
 
-    try:
-        outcome = run_batch(manifest, out_dir, scheduler=scheduler, workers=workers, evals=evals, seed=seed,
-                            echo=click.echo, allow_outside=allow_outside, host=host)
-    except (ManifestError, OutputRefused) as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
+    outcome = run_batch(manifest, out_dir, scheduler=scheduler, workers=workers, evals=evals, seed=seed,
+                        echo=click.echo, allow_outside=allow_outside, host=host)
     counts: dict[str, int] = {}
     for r in outcome.rows:
         counts[r["status"]] = counts.get(r["status"], 0) + 1

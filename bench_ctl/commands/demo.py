@@ -110,14 +110,14 @@ def _analyse(outcome, out: Path, guard: outputs.Outputs, evals: int, seed: int, 
                       max_evals=evals, seed=seed, command_line=command_line)
     result_path = out / "result.json"
     guard.write_json(result_path, result_for_file(result, result_path).to_json())
-    det = (result.identifiability or {}).get("determined") or {}
+    det = result.identifiability.determined if result.identifiability else {}
     click.echo("    identified: " + ", ".join(
         f"{n} {v:.4g}{'' if det.get(n, True) else ' (not determined)'}" for n, v in result.params.items()))
     click.echo(f"    mse {result.mse:.3e} pu^2; setpoint edges at "
-               + ", ".join(f"{e['fitted_s']:.5f} s" for e in result.edges or []))
-    for row in result.comparison or []:
-        click.echo(f"    {row['optimizer']:<10} mse {row['mse']:.3e}  evals {row['evaluations']:>5}  "
-                   f"{row['wall_s']:.2f} s  violated: {', '.join(row['constraints_violated']) or '-'}")
+               + ", ".join(f"{e.fitted_s:.5f} s" for e in result.edges or ()))
+    for row in result.comparison or ():
+        click.echo(f"    {row.optimizer:<10} mse {row.mse:.3e}  evals {row.evaluations:>5}  "
+                   f"{row.wall_s:.2f} s  violated: {', '.join(row.constraints_violated) or '-'}")
 
     click.echo("3/4 gap diagnosis (each unmodelled effect added to the fitted model"
                + (", the grid's reactance among them)" if online else ")"))

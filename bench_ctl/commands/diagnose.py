@@ -27,19 +27,24 @@ import click
 import numpy as np
 
 from bench_ctl import outputs
-from bench_ctl.capture import Capture, CaptureError, read_capture
+from bench_ctl.capture import Capture, read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis
 from bench_ctl.diagnosis.localize import where_lines
 from bench_ctl.engine.simulate import simulate
-from bench_ctl.exitcodes import ExitCode
-from bench_ctl.identification.constraints import ConstraintError, parse_constraints
-from bench_ctl.identification.result_file import RESULT_SCHEMA, IdentificationResult, read_result
+from bench_ctl.exitcodes import BadInput, ExitCode
+from bench_ctl.identification.constraints import parse_constraints
+from bench_ctl.identification.result_file import (
+    RESULT_SCHEMA,
+    CaptureEntry,
+    ConstraintEntry,
+    IdentificationResult,
+    OptimizerEntry,
+    read_result,
+)
 from bench_ctl.identification.timing import edge_spec_of
-from bench_ctl.limits import InputError
-from bench_ctl.model.dialect import kernel_keys, kernel_sections, result_to_std, std_name
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
-from bench_ctl.records import FormatError, plain
+from bench_ctl.records import plain
 from bench_ctl.units.unit import Unit, UnitError
 
 from .auto import auto_units, is_auto, rank_structures, selection_summary
@@ -52,17 +57,17 @@ log = logging.getLogger(__name__)
 def summary(d: Diagnosis) -> str:
     """Human-readable summary of a diagnosis."""
     b = d.base
-    lines = [f"capture: {d.capture['path']}   holdout: {(d.holdout or {}).get('path', 'none')} "
-             f"(check: {d.validation['kind']})",
+    lines = [f"capture: {d.capture.path}   holdout: {d.holdout.path if d.holdout else 'none'} "
+             f"(check: {d.validation.kind})",
              f"noise floor {_fmt(d.noise_floor)} pu^2   base model mse {_fmt(b.mse)}, on the check "
              f"record {_fmt(b.mse_holdout)}   at the noise floor: {b.at_noise_floor}", "",
              "where the base model misses (share of the residual energy):"]
-    lines.append("  " + "  ".join(f"{s['name']} {s['share']:.2f}" for s in d.localization["segments"]))
-    lines.append("  " + "  ".join(f"{s['name']} ({s['f0_hz']:g}-{s['f1_hz']:g} Hz) {s['share']:.2f}"
-                                  for s in d.localization["bands"]))
+    lines.append("  " + "  ".join(f"{s.name} {s.share:.2f}" for s in d.localization.segments))
+    lines.append("  " + "  ".join(f"{s.name} ({s.f0_hz:g}-{s.f1_hz:g} Hz) {s.share:.2f}"
+                                  for s in d.localization.bands))
     lines += ["", "features:"]
     for f in d.features:
-        lines.append(f"  [{'x' if f['detected'] else ' '}] {f['name']}: {f['evidence']}")
+        lines.append(f"  [{'x' if f.detected else ' '}] {f.name}: {f.evidence}")
     lines += ["", f"{'effect':<16}{'mse':>11}{'mse check':>11}{'gap closed':>12}{'score':>11}  params"]
     if b.at_noise_floor:
         lines.append("  (gap closed: n/a, the base model is already at the noise floor)")
@@ -72,10 +77,10 @@ def summary(d: Diagnosis) -> str:
                      f"{_fmt(e.gap_closed, '.3f'):>12}{_fmt(e.score, '.1f'):>11}  {params}"
                      + ("" if e.significant else "  (not significant)"))
     for a in d.ambiguous:
-        lines.append(f"ambiguous: {' / '.join(a['effects'])}: {a['separating_test']}")
-    not_tried = (d.vocabulary or {}).get("not_tried") or {}
+        lines.append(f"ambiguous: {' / '.join(a.effects)}: {a.separating_test}")
+    not_tried = d.vocabulary.not_tried if d.vocabulary else {}
     if not_tried:
-        lines.append(f"not tried{' on line' if d.vocabulary.get('on_line') else ''}: "
+        lines.append(f"not tried{' on line' if d.vocabulary and d.vocabulary.on_line else ''}: "
                      + "; ".join(f"{k} ({v})" for k, v in not_tried.items()))
     if d.explained_by:
         lines += ["", "explained by (each step re-fitted jointly; error over the noise floor):",
@@ -88,10 +93,9 @@ def summary(d: Diagnosis) -> str:
         if last:
             lines.append("  the model after the last step: "
                          + ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in last.items()))
-    if d.left:
-        lines.append(f"left: {d.left['note']}")
-        if d.left.get("localization") and d.left.get("mse_over_floor", 0.0) > 1.0:
-            lines += where_lines(d.left["localization"], d.noise_floor)
+    lines.append(f"left: {d.left.note}")
+    if (d.left.mse_over_floor or 0.0) > 1.0:
+        lines += where_lines(d.left.localization, d.noise_floor)
     lines += ["", f"verdict: {d.verdict}   ({d.wall_s:.1f} s)"]
     return "\n".join(lines)
 
@@ -103,16 +107,11 @@ def _ratio(a: float | None, b: float | None) -> str:
 def for_file(d: Diagnosis, path: str | Path) -> Diagnosis:
     """The diagnosis as written to `path`: the capture and holdout paths relative to its folder
     (as a result's, issue 24 item 14)."""
-    folder = Path(os.path.abspath(path)).parent
     moved = {}
     for key in ("capture", "holdout"):
         ref = getattr(d, key)
-        if isinstance(ref, dict) and isinstance(ref.get("path"), str) and ref["path"]:
-            try:
-                rel = Path(os.path.relpath(os.path.abspath(ref["path"]), folder)).as_posix()
-            except ValueError:
-                rel = os.path.abspath(ref["path"])
-            moved[key] = {**ref, "path": rel}
+        if ref is not None and ref.path:
+            moved[key] = replace(ref, path=outputs.path_from(path, ref.path))
     return replace(d, **moved)
 
 
@@ -121,40 +120,39 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
     the report can re-simulate and show it next to the diagnosis."""
     from bench_ctl.identification.identify import model_entry
 
-    st = unit.structure
-    base_params = kernel_keys(st, d.base.params)   # the diagnosis speaks the structure's names
+    base_params = {k: float(v) for k, v in d.kernel_base_params().items() if v is not None}
     values = unit.values()
     values.update(base_params)
-    edges = [{k: v for k, v in e.items() if k != "capture"} for e in d.edges if e.get("capture") == "capture"]
+    edges = tuple(replace(e, capture=None) for e in d.edges if e.capture == "capture")
     spec, offsets = edge_spec_of(edges, capture.n)
     efd, _vt, _fail = simulate({**values, **offsets}, capture.usetp, capture.dt, edges=spec)
-    t1 = d.validation["fit"]["t1"]
+    t1 = d.validation.fit.t1
     k1 = min(capture.n, int(round(t1 / capture.dt)) + 1)  # t1 included (the whole capture today)
     r = capture.efd[:k1] - efd[:k1]
     objective = float(capture.dt * (np.sum(r * r) - 0.5 * (r[0] ** 2 + r[-1] ** 2)))
     mse = float(np.mean(r * r))  # a result's mse is the plain mean (the diagnosis' the trapezoidal one)
     names = list(unit.identified_names)
     x = np.array([base_params[n] for n in names])
-    cons = []
-    for c in parse_constraints(unit.constraints, names):
-        cons.append({"expr": c.expr, "satisfied": c.satisfied(x), "margin": float(c.rhs - c.coef @ x)})
-    return IdentificationResult.from_json(plain({**result_to_std(st, {
-        "schema": RESULT_SCHEMA, "software_version": d.software_version,
-        "command_line": d.command_line, "created_utc": d.created_utc, "unit": unit.to_dict(),
-        "captures": [{"path": os.path.abspath(capture.source) if capture.source else d.capture["path"],
-                      "sha256": d.capture["sha256"], "n": capture.n,
-                      "rate_hz": capture.rate_hz, "meta": capture.meta, "mse": mse,
-                      "objective": objective, "weight": 1.0, "edges": edges}],
-        "params": dict(base_params),
-        "fixed": {k: (v if math.isfinite(v) else None) for k, v in values.items()
-                  if k in KERNEL_PARAMS and k not in base_params and k not in RECORD_PARAMS},
-        "bounds": {n: [b.min, b.max] for n, b in unit.identify.items()},
-        "constraints": cons, "objective": objective, "mse": mse,
-        "evaluations": d.base.evaluations, "wall_s": d.wall_s, "compile_s": 0.0,
-        "optimizer": {"name": "mvmo + least squares (diagnosis base fit)", "settings": {}, "seed": None},
-        "history": [], "fit_window": None if k1 >= capture.n else [0.0, t1],
-        "model": model_entry(unit, values, names, {}),
-    }), **({"selection": d.selection} if d.selection else {})}), "the diagnosis' base fit")
+    cons = tuple(ConstraintEntry(c.expr, c.satisfied(x), float(c.rhs - c.coef @ x))
+                 for c in parse_constraints(unit.constraints, names))
+    result = IdentificationResult(
+        schema=RESULT_SCHEMA, software_version=d.software_version,
+        command_line=d.command_line, created_utc=d.created_utc, unit=unit.entry(),
+        captures=(CaptureEntry(path=os.path.abspath(capture.source) if capture.source else d.capture.path,
+                               sha256=d.capture.sha256, n=capture.n, rate_hz=capture.rate_hz,
+                               meta=plain(dict(capture.meta)), mse=mse, objective=objective, weight=1.0,
+                               edges=edges),),
+        params=dict(base_params),
+        fixed={k: (v if math.isfinite(v) else None) for k, v in values.items()
+               if k in KERNEL_PARAMS and k not in base_params and k not in RECORD_PARAMS},
+        bounds={n: [b.min, b.max] for n, b in unit.identify.items()},
+        constraints=cons, objective=objective, mse=mse,
+        evaluations=d.base.evaluations, wall_s=d.wall_s, compile_s=0.0,
+        optimizer=OptimizerEntry(name="mvmo + least squares (diagnosis base fit)", settings={}, seed=None),
+        history=[], fit_window=None if k1 >= capture.n else [0.0, t1],
+        model=model_entry(unit, values, names, {}),
+    )
+    return replace(result.renamed(unit.dialect), selection=d.selection)
 
 
 def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str], model_kw: dict,
@@ -200,95 +198,67 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
              result_path: str | None, seed: int, json_out: str | None, report_out: str | None,
              force: bool = False, dyr_ignore: tuple[str, ...] = ()) -> int:
     """Diagnose the gap between the unit's model and CAPTURE (a pulse or step test)."""
-    from bench_ctl.diagnosis import DiagnosisError
     from bench_ctl.diagnosis import diagnose as run
 
     model_kw = dict(model=model, from_dyr=from_dyr, dyr_bus=dyr_bus, dyr_id=dyr_id, dyr_ignore=dyr_ignore)
     auto = is_auto(model)
     if auto and result_path:
-        click.echo("error: --model auto starts each structure from its own fit; --result is for one structure",
-                   err=True)
-        return ExitCode.ABORTED
+        raise BadInput("--model auto starts each structure from its own fit; --result is for one structure")
 
-    try:
-        if auto:
-            units, notes = auto_units(unit_path, overrides, model_kw)
-            unit = next(iter(units.values()))
-        else:
-            unit = resolve_unit(unit_path, overrides, **model_kw)
-        capture = read_capture(capture_path)
-        holdout = read_capture(holdout_path) if holdout_path else None
-        for c in (capture, holdout):
-            if c is not None:
-                check_plausible(c)
-        base_params = None
-        if result_path:
-            previous = read_result(result_path)
-            params = kernel_sections(previous.to_json())["params"]      # the result's names -> the kernel's
-            base_params = {}
-            for k, v in params.items():
-                if k in unit.identify:
-                    if not math.isfinite(v):
-                        raise UnitError(f"{result_path}: params.{std_name(unit.structure, k)} = {v!r} "
-                                        "is not a finite number")
-                    base_params[k] = float(v)
-            if not base_params:
-                raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
-    except (CaptureError, UnitError, ConstraintError, InputError, FormatError, ValueError) as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
-        return ExitCode.ABORTED
-    try:
-        out = outputs.Outputs([capture_path, holdout_path, unit_path, result_path, from_dyr], force=force)
-        out.claim("--json", json_out)
-        if report_out:
-            from bench_ctl.report import claim_report
-            claim_report(out, report_out)   # the HTML and every figure it may draw beside it
-    except outputs.OutputRefused as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
+    if auto:
+        units, notes = auto_units(unit_path, overrides, model_kw)
+        unit = next(iter(units.values()))
+    else:
+        unit = resolve_unit(unit_path, overrides, **model_kw)
+    capture = read_capture(capture_path)
+    holdout = read_capture(holdout_path) if holdout_path else None
+    for c in (capture, holdout):
+        if c is not None:
+            check_plausible(c)
+    base_params = None
+    if result_path:
+        previous = read_result(result_path)
+        params = previous.kernel_view()["params"]      # the result's names -> the kernel's
+        base_params = {}
+        for k, v in params.items():
+            if k in unit.identify:
+                if not math.isfinite(v):
+                    raise UnitError(f"{result_path}: params.{unit.dialect.name(k)} = {v!r} "
+                                    "is not a finite number")
+                base_params[k] = float(v)
+        if not base_params:
+            raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
+    out = outputs.Outputs([capture_path, holdout_path, unit_path, result_path, from_dyr], force=force)
+    out.claim("--json", json_out)
+    if report_out:
+        from bench_ctl.report import claim_report
+        claim_report(out, report_out)   # the HTML and every figure it may draw beside it
     command_line = _command_line(capture_path, holdout_path, unit_path, overrides, model_kw, result_path, seed,
                                  json_out, report_out)
     selection = None
     if auto:   # the structures ranked first; the first one is diagnosed from its fit
-        try:
-            sel, selection = rank_structures([capture], units, notes, seed=seed, command_line=command_line)
-        except ValueError as exc:   # (no structure fitted included)
-            click.echo(f"error: {exc}", err=True)
-            return ExitCode.ABORTED
+        sel, selection = rank_structures([capture], units, notes, seed=seed, command_line=command_line)
         click.echo(selection_summary(selection))
         click.echo(f"\ndiagnosing {sel.best.model}, the first of the ranking\n")
         unit = units[sel.best.model]
         fitted = sel.best.ident.problem.params(sel.best.ident.best.x)
         base_params = {k: v for k, v in fitted.items() if k in unit.identify}
-    try:
-        d = run(capture, unit, holdout=holdout, seed=seed, base_params=base_params, command_line=command_line)
-    except DiagnosisError as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
+    d = run(capture, unit, holdout=holdout, seed=seed, base_params=base_params, command_line=command_line)
     if selection is not None:
         d = replace(d, selection=selection)
     click.echo(summary(d))
-    try:
-        if json_out:
+    if json_out:
+        with outputs.writing(json_out):
             out.write_json(json_out, for_file(d, json_out).to_json())
-            click.echo(f"diagnosis written to {json_out}")
-        if report_out:
-            from bench_ctl.report import ReportError, render_report
-            try:
+        click.echo(f"diagnosis written to {json_out}")
+    if report_out:
+        from bench_ctl.report import ReportError, render_report
+        try:
+            with outputs.writing(report_out):
                 written = render_report(base_result(d, capture, unit), report_out,
                                         diagnosis=Diagnosis.from_json(d.to_json(), "the diagnosis"),
                                         report_command=command_line, outputs=out)
-            except ReportError as exc:
-                click.echo(f"error: report not written: {exc}", err=True)
-                return ExitCode.ABORTED
-            click.echo(f"report written to {written[0]}")
-    except outputs.OutputRefused as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: {outputs.why_not_written(exc, json_out or report_out or '')}", err=True)
-        return ExitCode.ABORTED
+        except ReportError as exc:
+            raise ReportError(f"report not written: {exc}") from None
+        click.echo(f"report written to {written[0]}")
     return ExitCode.OK if d.verdict == "none" else ExitCode.FAILED  # FAILED: an effect found

@@ -39,41 +39,30 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
     """Write the identified model of RESULT.json as a PSS/E dynamic data record."""
     from bench_ctl import outputs
     from bench_ctl.identification.result_file import read_result
-    from bench_ctl.limits import InputError
     from bench_ctl.model.structures import StructureError
-    from bench_ctl.records import FormatError
     from bench_ctl.units.dyr import DyrError, DyrRecord, check_bus_id, dyr_text
     from bench_ctl.units.dyr_unit import dyr_fields, dyr_values_of, not_carried, pss_record
 
     try:   # what PSS/E reads back the same: refused before anything is read or written
         check_bus_id(bus, str(machine_id))
     except DyrError as exc:
-        click.echo(f"error: --bus {bus} --id {machine_id!r}: {exc}", err=True)
-        return ExitCode.ABORTED
-    try:
-        out = outputs.guard_outputs({"--dyr": dyr_out}, [result_path], force=force)
-    except outputs.OutputRefused as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    try:
-        result = read_result(result_path)
+        raise DyrError(f"--bus {bus} --id {machine_id!r}: {exc}") from None
+    out = outputs.guard_outputs({"--dyr": dyr_out}, [result_path], force=force)
+    result = read_result(result_path)
+    try:   # a result that reads well but holds no record this structure can write
         st, std = dyr_values_of(result.to_json())
         fields = dyr_fields(st)
         values = st.dyr_values(std, fields)
         for k, v in values.items():
             if not math.isfinite(v):
-                raise ValueError(f"field {k} = {v} is not finite")
-        missing = not_carried(result.to_json(), st, std)
-        pss = pss_record(result.unit.get("grid") or {}, bus, str(machine_id))
-    except (InputError, FormatError) as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except (ValueError, TypeError, StructureError, DyrError) as exc:
-        click.echo(f"error: {result_path}: {exc}", err=True)
-        return ExitCode.ABORTED
-    model = result.model or {}
-    identified = set(model.get("identified") or [])
-    if st.name == "ESST1A" and model.get("name") == "REFERENCE":
+                raise DyrError(f"field {k} = {v} is not finite")
+        missing = not_carried(result.kernel_view(), st, std)
+        pss = pss_record(result.unit.grid or {}, bus, str(machine_id))
+    except (StructureError, DyrError) as exc:
+        raise DyrError(f"{result_path}: {exc}") from None
+    model = result.model
+    identified = set(model.identified if model else ())
+    if st.name == "ESST1A" and model is not None and model.name == "REFERENCE":
         identified = {st.std_name(k) for k in result.params} - {None}
     typical = st.typical()
     notes = []
@@ -90,7 +79,7 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
         notes.append(f"{f} = {values[f]:.6G}: {how}")
     if missing:
         notes.append("NOT IN THIS RECORD (the model has them, the record cannot hold them): " + "; ".join(missing))
-    header = (f"bench-ctl export of {result_path} (model {model.get('name', st.name)} as PSS/E {st.dyr_model})\n"
+    header = (f"bench-ctl export of {result_path} (model {model.name if model else st.name} as PSS/E {st.dyr_model})\n"
               f"command: {result.command_line}\n"
               f"fit: mse {result.mse} pu^2 over {len(result.captures)} capture(s)")
     icons = {"UEL": 1, "VOS": 1} if st.dyr_model == "ESST1A" else {}
@@ -99,14 +88,8 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
     if pss is not None:
         records.append((pss, "the unit's power system stabiliser ([grid] PSS_*): speed input, no filter, "
                              "washout T5 = T6 = PSS_TW, no cut-off"))
-    try:
+    with outputs.writing(dyr_out):
         out.write_text(dyr_out, dyr_text(records, header=header))
-    except outputs.OutputRefused as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: {outputs.why_not_written(exc, dyr_out)}", err=True)
-        return ExitCode.ABORTED
     click.echo(f"wrote {dyr_out}: {st.dyr_model} at bus {bus}, ID {machine_id} "
                f"({len(identified)} identified, {len(fields) - len(identified)} fixed or default)"
                + (f", and its stabiliser as IEEEST (KS {pss.values['KS']:g})" if pss is not None else ""))

@@ -9,7 +9,8 @@ Prints a summary (parameters with bounds, std and whether the capture determines
 constraints; equivalent parameter sets; the comparison when several optimizers ran).
 Exit codes: 0 fitted, every constraint satisfied and every value inside its bounds; 1 a
 constraint is violated, a value lies outside its bounds (`local` ignores them) or the fit
-failed; 2 bad input (capture, unit file, --set, option), with the file / key named.
+failed; 2 bad input (capture, unit file, --set, option), with the file / key named (raised as
+`BadInput`, mapped by `bench_ctl.cli.main`).
 """
 from __future__ import annotations
 
@@ -23,17 +24,16 @@ from typing import Any
 import click
 
 from bench_ctl import outputs
-from bench_ctl.capture import CaptureError, read_capture
+from bench_ctl.capture import read_capture
 from bench_ctl.capture.plausible import check_plausible
-from bench_ctl.exitcodes import ExitCode
+from bench_ctl.exitcodes import BadInput, ExitCode
 from bench_ctl.identification.constraints import ConstraintError
 from bench_ctl.identification.identify import Identification, result_for_file, run_identification
 from bench_ctl.identification.options import IDENTIFY
 from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.problem import ProblemError, make_problem
-from bench_ctl.identification.result_file import IdentificationResult  # noqa: F401 (the summary's input)
-from bench_ctl.model.dialect import std_text
-from bench_ctl.units.unit import UnitError
+from bench_ctl.identification.result_file import IdentificationResult, ModelEntry  # noqa: F401 (the summary's input)
+from bench_ctl.model.unit_record import UnitEntry
 
 from .auto import NoStructureFitted, auto_units, is_auto, rank_structures, selection_summary
 from .options import fmt_value as _fmt
@@ -47,37 +47,36 @@ MIN_EVALS = int(IDENTIFY["particles"])
 DE_POPSIZE = 5
 
 
-def unit_line(unit: dict[str, Any], model: dict[str, Any], on_line: list[bool]) -> str:
+def unit_line(unit: UnitEntry, model: ModelEntry | None, on_line: list[bool]) -> str:
     """The header's unit: its name (a --from-dyr unit's is the record's: file, bus, ID, generator
     and exciter models), the structure that ran, and whether the captures are on line or at no
     load (issue 49 item 7)."""
-    st = model.get("name") or unit.get("model") or "REFERENCE"
+    st = (model.name if model else None) or unit.model or "REFERENCE"
     where = ("on line (the captures hold P and Q)" if all(on_line) else "at no load" if not any(on_line)
              else f"{sum(on_line)} of {len(on_line)} captures on line")
-    return f"unit: {unit.get('name', '?')}; structure {st}; {where}"
+    return f"unit: {unit.name}; structure {st}; {where}"
 
 
 def summary(ident: Identification) -> str:
     """The human-readable summary table of a result."""
     r = ident.result
-    idn = r.identifiability or {}
-    lines = [unit_line(r.unit, r.model or {}, [c.on_line for c in ident.problem.captures]),
-             f"optimizer: {r.optimizer['name']} (seed {r.optimizer['seed']})   evaluations: {r.evaluations}   "
+    idn = r.identifiability
+    lines = [unit_line(r.unit, r.model, [c.on_line for c in ident.problem.captures]),
+             f"optimizer: {r.optimizer.name} (seed {r.optimizer.seed})   evaluations: {r.evaluations}   "
              f"wall: {r.wall_s:.2f} s (compile {r.compile_s:.2f} s)", ""]
     head = f"{'param':<7}{'value':>12}{'min':>10}{'max':>10}{'std':>11}{'rel std':>9}  determined"
     lines += [head, "-" * len(head)]
-    model = r.model or {}
-    if model.get("name", "REFERENCE") != "REFERENCE":
-        lines.insert(1, f"model: {model['name']} ({model.get('title', '')})")
+    if r.model_name != "REFERENCE":
+        lines.insert(1, f"model: {r.model_name} ({r.model.title if r.model else ''})")
     # [grid] values fitted on line (the unit's grid, its bounds in grid_identify) after the model's
-    fitted_grid = {n: (r.unit["grid"][n], b["min"], b["max"]) for n, b in (r.unit.get("grid_identify") or {}).items()}
+    fitted_grid = {n: ((r.unit.grid or {})[n], b.min, b.max) for n, b in (r.unit.grid_identify or {}).items()}
     rows = [(n, v, *r.bounds[n]) for n, v in r.params.items()] + [(n, *vb) for n, vb in fitted_grid.items()]
     for n, v, lo, hi in rows:
-        rel = idn.get("rel_std", {}).get(n)
-        det = idn.get("determined", {}).get(n)
-        why = "; ".join(idn.get("reasons", {}).get(n, []))
+        rel = idn.rel_std.get(n) if idn else None
+        det = idn.determined.get(n) if idn else None
+        why = "; ".join((idn.reasons or {}).get(n, [])) if idn else ""
         lines.append(f"{n:<7}{_fmt(v, '.6g'):>12}{_fmt(lo, '.4g'):>10}{_fmt(hi, '.4g'):>10}"
-                     f"{_fmt(idn.get('std', {}).get(n), '.3g'):>11}"
+                     f"{_fmt(idn.std.get(n) if idn else None, '.3g'):>11}"
                      f"{(_fmt(100 * rel, '.1f') + ' %') if rel is not None else '-':>9}  "
                      f"{'yes' if det else 'NO'}{('  (' + why + ')') if why else ''}")
     lines.append("")
@@ -86,20 +85,20 @@ def summary(ident: Identification) -> str:
                      f"mse {_fmt(c.mse, '.4g')}, objective {_fmt(c.objective, '.4g')}")
     lines.append(f"mse {_fmt(r.mse, '.4g')}   objective {_fmt(r.objective, '.4g')}")
     lines.append("constraints: " + ", ".join(
-        f"{c['expr']} {'ok' if c['satisfied'] else 'VIOLATED'}" for c in r.constraints) if r.constraints
+        f"{c.expr} {'ok' if c.satisfied else 'VIOLATED'}" for c in r.constraints) if r.constraints
         else "constraints: none")
-    for e in idn.get("equivalent_sets", []):
+    for e in (idn.equivalent_sets if idn else ()):
         # the values the exchange moved (the result's names: the structure's)
-        vals = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in e["params"].items()
+        vals = ", ".join(f"{k}={_fmt(v, '.4g')}" for k, v in e.params.items()
                          if k in r.params and v != r.params[k])
-        lines.append(f"equivalent set? {e['note']}: {vals}; mse {_fmt(e['mse'], '.4g')}: {e['verdict']}")
-    for note in idn.get("notes", []):
+        lines.append(f"equivalent set? {e.note}: {vals}; mse {_fmt(e.mse, '.4g')}: {e.verdict}")
+    for note in (idn.notes if idn else ()):
         lines.append(f"note: {note}")
     if r.comparison is not None:
         lines += ["", f"{'optimizer':<11}{'mse':>12}{'objective':>12}{'evals':>7}{'wall s':>8}  violated"]
         for c in r.comparison:
-            lines.append(f"{c['optimizer']:<11}{_fmt(c['mse'], '.5g'):>12}{_fmt(c['objective'], '.5g'):>12}"
-                         f"{c['evaluations']:>7}{c['wall_s']:>8.2f}  {', '.join(c['constraints_violated']) or '-'}")
+            lines.append(f"{c.optimizer:<11}{_fmt(c.mse, '.5g'):>12}{_fmt(c.objective, '.5g'):>12}"
+                         f"{c.evaluations:>7}{c.wall_s:>8.2f}  {', '.join(c.constraints_violated) or '-'}")
     if r.failed:
         lines.append(f"FIT FAILED: {r.message or ''}")
     return "\n".join(lines)
@@ -180,34 +179,22 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
     if is_auto(model):
         return _identify_auto(captures, unit_path, overrides, model_kw, optimizers, compare, evals, seed,
                               json_out, plot_out, force)
+    unit = resolve_unit(unit_path, overrides, **model_kw)
+    caps = [read_capture(p) for p in captures]
+    for c in caps:
+        check_plausible(c)
     try:
-        unit = resolve_unit(unit_path, overrides, **model_kw)
-        caps = [read_capture(p) for p in captures]
-        for c in caps:
-            check_plausible(c)
         problem = make_problem(caps, unit)
-    except (CaptureError, UnitError) as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
     except (ProblemError, ConstraintError) as exc:   # said on the kernel's names: in the structure's
-        click.echo(f"error: {std_text(unit.structure, str(exc))}", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
-        return ExitCode.ABORTED
-    try:
-        out = outputs.guard_outputs({"--json": json_out, "--plot": plot_out},
-                                    [*captures, unit_path, from_dyr], force=force)
-    except outputs.OutputRefused as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
+        raise type(exc)(unit.dialect.text(str(exc))) from None
+    out = outputs.guard_outputs({"--json": json_out, "--plot": plot_out},
+                                [*captures, unit_path, from_dyr], force=force)
     chosen = list(dict.fromkeys(optimizers or ("mvmo",)))
     others = chosen[1:] + ([n for n in OPTIMIZERS if n not in chosen] if compare else [])
     short = [f"{n} needs at least {min_evals(n, problem.d)}" for n in chosen + others
              if evals < min_evals(n, problem.d)]
     if short:
-        click.echo(f"error: --evals {evals}: {'; '.join(short)} evaluations ({problem.d} parameters)", err=True)
-        return ExitCode.ABORTED
+        raise BadInput(f"--evals {evals}: {'; '.join(short)} evaluations ({problem.d} parameters)")
 
     bars: list[Any] = []
 
@@ -233,13 +220,9 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         ident = run_identification(caps, unit, optimizer=chosen[0], compare=others, max_evals=evals,
                                    seed=seed, command_line=command_line, problem=problem,
                                    progress_factory=factory)
-    except ValueError as exc:
+    finally:
         for b in bars:
             b.close()
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    for b in bars:
-        b.close()
     click.echo(summary(ident))
     return _write_and_judge(ident, out, json_out, plot_out)
 
@@ -247,20 +230,15 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
 def _write_and_judge(ident: Identification, out: outputs.Outputs, json_out: str | None,
                      plot_out: str | None) -> int:
     """Write --json / --plot, then the exit code: 0 fitted within its constraints and bounds, 1
-    not (said on stderr), 2 an output that could not be written."""
-    try:
-        if json_out:
+    not (said on stderr); an output that could not be written is an `OutputRefused` (exit 2)."""
+    if json_out:
+        with outputs.writing(json_out):
             out.write_json(json_out, result_for_file(ident.result, json_out).to_json())
-            click.echo(f"result written to {json_out}")
-        if plot_out:
+        click.echo(f"result written to {json_out}")
+    if plot_out:
+        with outputs.writing(plot_out):
             plot_fit(ident, plot_out, out)
-            click.echo(f"plot written to {plot_out}")
-    except outputs.OutputRefused as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: {outputs.why_not_written(exc, json_out or plot_out or '')}", err=True)
-        return ExitCode.ABORTED
+        click.echo(f"plot written to {plot_out}")
     if not ident.ok:
         bad = ident.result.constraints_violated
         why = [f"constraint(s) violated: {', '.join(bad)}"] if bad else []
@@ -300,26 +278,14 @@ def _identify_auto(captures: tuple[str, ...], unit_path: str | None, overrides: 
     """`identify --model auto` (module docstring)."""
 
     if compare or any(o != "mvmo" for o in optimizers):
-        click.echo("error: --model auto identifies every structure with mvmo; --optimizer / --compare "
-                   "are for one structure", err=True)
-        return ExitCode.ABORTED
-    try:
-        units, notes = auto_units(unit_path, overrides, model_kw)
-        caps = [read_capture(p) for p in captures]
-        for c in caps:
-            check_plausible(c)
-    except (CaptureError, UnitError) as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: cannot read {exc.filename}: {exc.strerror}", err=True)
-        return ExitCode.ABORTED
-    try:
-        out = outputs.guard_outputs({"--json": json_out, "--plot": plot_out},
-                                    [*captures, unit_path, model_kw.get("from_dyr")], force=force)
-    except outputs.OutputRefused as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
+        raise BadInput("--model auto identifies every structure with mvmo; --optimizer / --compare "
+                       "are for one structure")
+    units, notes = auto_units(unit_path, overrides, model_kw)
+    caps = [read_capture(p) for p in captures]
+    for c in caps:
+        check_plausible(c)
+    out = outputs.guard_outputs({"--json": json_out, "--plot": plot_out},
+                                [*captures, unit_path, model_kw.get("from_dyr")], force=force)
     command_line = _command_line(captures, unit_path, overrides, model_kw, ["mvmo"], False, evals, seed,
                                  json_out, plot_out)
 
@@ -329,12 +295,9 @@ def _identify_auto(captures: tuple[str, ...], unit_path: str | None, overrides: 
     try:
         sel, chosen = rank_structures(caps, units, notes, seed=seed, command_line=command_line, max_evals=evals,
                                       progress=said)
-    except NoStructureFitted as exc:
+    except NoStructureFitted as exc:   # the work was done, and no fit came of it
         click.echo(f"error: {exc}", err=True)
         return ExitCode.FAILED
-    except ValueError as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
     ident = sel.best.ident
     ident = replace(ident, result=replace(ident.result, selection=chosen))
     click.echo(summary(ident))

@@ -38,14 +38,14 @@ import click
 
 from bench_ctl import outputs
 from bench_ctl.capture.capture import Capture
-from bench_ctl.capture.errors import CaptureError
+from bench_ctl.capture.errors import SpecError
 from bench_ctl.capture.field_base import NoLoad, parse_efd_base
 from bench_ctl.capture.importer import ImportSpec, TestDescription
 from bench_ctl.capture.importer import import_export as run_import
 from bench_ctl.capture.steady import warning_lines
 from bench_ctl.capture.window import parse_window
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.units.unit import Unit, UnitError
+from bench_ctl.units.unit import Unit
 
 from .options import resolve_unit, unit_options
 
@@ -92,7 +92,7 @@ def parse_test(text: str) -> TestDescription:
     try:
         return TestDescription(kind=kind.strip(),  # type: ignore[arg-type]
                                **{_TEST_KEYS[k]: v for k, v in values.items()})
-    except (TypeError, ValueError) as exc:
+    except SpecError as exc:
         raise click.BadParameter(str(exc), param_hint="--test") from None
 
 
@@ -250,25 +250,21 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
     factors, ifd_auto, ifd_from = _scales(scales)
     try:
         window = parse_window(window_text) if window_text is not None else None
-    except ValueError as exc:
+    except SpecError as exc:
         raise click.BadParameter(str(exc), param_hint="--window") from None
     if efd_base is not None and efd_scale is not None:
         raise click.UsageError("give --efd-base or --efd-scale, not both")
     try:
         base = parse_efd_base(efd_base) if efd_base is not None else None
-    except ValueError as exc:
+    except SpecError as exc:
         raise click.BadParameter(str(exc), param_hint="--efd-base") from None
     no_load = None
-    try:
-        # the unit is read for what needs it: an auto base, and what an explicit one becomes
-        if ifd_auto or base is not None or efd_scale is not None or unit_path or overrides or effects \
-                or model or from_dyr or dyr_ignore:
-            no_load = _no_load(resolve_unit(unit_path, overrides, model=model, from_dyr=from_dyr,
-                                            dyr_bus=dyr_bus, dyr_id=dyr_id, effects=effects,
-                                            dyr_ignore=dyr_ignore))
-    except (UnitError, ValueError) as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
+    # the unit is read for what needs it: an auto base, and what an explicit one becomes
+    if ifd_auto or base is not None or efd_scale is not None or unit_path or overrides or effects \
+            or model or from_dyr or dyr_ignore:
+        no_load = _no_load(resolve_unit(unit_path, overrides, model=model, from_dyr=from_dyr,
+                                        dyr_bus=dyr_bus, dyr_id=dyr_id, effects=effects,
+                                        dyr_ignore=dyr_ignore))
     try:
         spec = ImportSpec(
             columns=_pairs(maps, "--map"), time_column=time_column, date_column=date_column,
@@ -278,22 +274,19 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
             efd_base_scale=1.0 if efd_scale is None else efd_scale, efd_base=base, scale=factors,
             ifd_auto=ifd_auto, no_load=no_load, resample_hz=resample_hz, test=test, keep_columns=keep,
             window=window, rate_hz=rate_hz, ifd_from=ifd_from)
-    except ValueError as exc:
+    except SpecError as exc:
         raise click.UsageError(str(exc)) from None
+    if not str(out).lower().endswith(".csv"):
+        raise SpecError(f"-o {out}: a capture file name must end in .csv")
+    outputs.guard_outputs({"-o": out, "-o (its sidecar)": Path(out).with_suffix(".json")},
+                          [src, unit_path, from_dyr, base.path if base is not None and base.mode == "from"
+                           else None, ifd_from],
+                          replace_hint="captures are never overwritten: choose another name")
     try:
-        if not str(out).lower().endswith(".csv"):
-            raise ValueError(f"-o {out}: a capture file name must end in .csv")
-        outputs.guard_outputs({"-o": out, "-o (its sidecar)": Path(out).with_suffix(".json")},
-                              [src, unit_path, from_dyr, base.path if base is not None and base.mode == "from"
-                               else None, ifd_from],
-                              replace_hint="captures are never overwritten: choose another name")
-        capture = run_import(src, spec, out)
-    except (CaptureError, FileExistsError, ValueError) as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: {outputs.why_not_written(exc, out)}", err=True)
-        return ExitCode.ABORTED
+        with outputs.writing(out):
+            capture = run_import(src, spec, out)
+    except FileExistsError as exc:   # (a name taken meanwhile: the guard refused the ones there before)
+        raise outputs.OutputRefused(str(exc)) from None
     for line in summary(capture):
         click.echo(line)
     click.echo(f"wrote {capture.source} ({capture.n} samples at {capture.rate_hz:g} Hz)")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import click
 
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.model.structures import STRUCTURES, StructureError, structure
+from bench_ctl.model.structures import STRUCTURES, structure
 
 
 @click.command("models")
@@ -27,9 +27,5 @@ def models(name: str | None, show_kernel: bool = False) -> int:
         click.echo("\nChoose one with `[avr] model = \"NAME\"` in the unit file or --model NAME; "
                    "`bench-ctl models NAME` shows it.")
         return ExitCode.OK
-    try:
-        click.echo(structure(name).describe(kernel=show_kernel))
-    except StructureError as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
+    click.echo(structure(name).describe(kernel=show_kernel))
     return ExitCode.OK

@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from bench_ctl.exitcodes import BadInput
 from bench_ctl.model.effects import effect
 from bench_ctl.model.structures import STRUCTURES
 from bench_ctl.units.unit import Unit, UnitError, apply_overrides, load_unit, with_model
@@ -56,7 +57,7 @@ def resolve_unit(unit_path: str | None, overrides: Sequence[str], *, model: str 
     if model:
         try:
             unit = with_model(unit, model)
-        except ValueError as exc:
+        except BadInput as exc:
             raise UnitError(f"--model {model}: {exc}") from None
     if dyr_ignore and not from_dyr:
         raise UnitError("--dyr-ignore leaves out a record of --from-dyr: give --from-dyr")
@@ -74,7 +75,7 @@ def resolve_unit(unit_path: str | None, overrides: Sequence[str], *, model: str 
         parsed.setdefault(name, {}).update(params)
     try:
         return unit.with_effects(parsed) if parsed else unit
-    except ValueError as exc:
+    except BadInput as exc:
         raise UnitError(str(exc)) from None
 
 

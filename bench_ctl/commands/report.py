@@ -29,7 +29,7 @@ import click
 
 from bench_ctl import outputs
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.report import ReportError, analyse, claim_report, load_diagnosis, load_result, write_report
+from bench_ctl.report import analyse, claim_report, load_diagnosis, load_result, write_report
 from bench_ctl.report.checks import DEFAULT_NOISE_RATIO_LIMIT, FAIL
 from bench_ctl.report.inputs import resolve_capture_path
 from bench_ctl.report.metrics import DEFAULT_EDGE_WINDOW_S
@@ -72,37 +72,27 @@ def _command_line(result_json: str, diagnosis_json: str | None, out: str, pdf: s
 def report(result_json: str, diagnosis_json: str | None, out: str, pdf: str | None,
            edge_window: float, noise_ratio_limit: float, force: bool = False, allow_outside: bool = False) -> int:
     """Write the validation report for RESULT.json (from `bench-ctl identify --json`)."""
-    try:
-        result = load_result(result_json)
-        # the captures the result names (and their sidecars) are inputs too
-        named = [c.path for c in result.captures]
-        base = Path(result_json).resolve().parent
-        caps = [str(resolve_capture_path(p, base)) for p in named if p]
-        out_set = outputs.Outputs([result_json, diagnosis_json, *caps], force=force, make_folders=True)
-        claim_report(out_set, out, n_captures=max(1, len(named)), pdf=pdf)
-        diagnosis = load_diagnosis(diagnosis_json) if diagnosis_json else None
-        data = analyse(result, diagnosis=diagnosis, base_dir=base,
-                       where=result_json, window_s=edge_window,
-                       noise_ratio_limit=noise_ratio_limit,
-                       report_command=_command_line(result_json, diagnosis_json, out, pdf,
-                                                    edge_window, noise_ratio_limit),
-                       confine=None if allow_outside else [base, Path.cwd()])
-    except (ReportError, outputs.OutputRefused) as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
+    result = load_result(result_json)
+    # the captures the result names (and their sidecars) are inputs too
+    named = [c.path for c in result.captures]
+    base = Path(result_json).resolve().parent
+    caps = [str(resolve_capture_path(p, base)) for p in named if p]
+    out_set = outputs.Outputs([result_json, diagnosis_json, *caps], force=force, make_folders=True)
+    claim_report(out_set, out, n_captures=max(1, len(named)), pdf=pdf)
+    diagnosis = load_diagnosis(diagnosis_json) if diagnosis_json else None
+    data = analyse(result, diagnosis=diagnosis, base_dir=base,
+                   where=result_json, window_s=edge_window,
+                   noise_ratio_limit=noise_ratio_limit,
+                   report_command=_command_line(result_json, diagnosis_json, out, pdf,
+                                                edge_window, noise_ratio_limit),
+                   confine=None if allow_outside else [base, Path.cwd()])
     for c in data.captures:
         click.echo(f"read capture {c.loaded.path} (SHA-256 as in the result)")
     for c in data.checks:
         if c.name == "diagnosis of this record" and c.status == "warn":
             click.echo(f"WARNING: --diagnosis {diagnosis_json}: {c.detail}", err=True)
-    try:
+    with outputs.writing(out, "the report was not written: "):
         written = write_report(data, out, pdf=pdf, outputs=out_set)
-    except outputs.OutputRefused as exc:
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: the report was not written: {outputs.why_not_written(exc, out)}", err=True)
-        return ExitCode.ABORTED
     for path in written:
         click.echo(f"wrote {path}")
     for c in data.checks:

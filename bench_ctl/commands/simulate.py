@@ -12,7 +12,6 @@ from bench_ctl import __version__, outputs
 from bench_ctl.capture import write_capture
 from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, synthetic_record
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.model.dialect import unit_to_std
 from bench_ctl.units.unit import UnitError
 
 from .options import build_unit, unit_options
@@ -39,56 +38,50 @@ MAX_SAMPLES = 1.0e7
 def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, amplitude, width, start, duration,
              rate, noise, lsb, seed, online, output, dyr_ignore=()):
     """Write a synthetic pulse capture (CSV + JSON sidecar) of the unit."""
-    try:
-        unit = build_unit(unit_path, overrides, effects, model=model, from_dyr=from_dyr,
-                          dyr_bus=dyr_bus, dyr_id=dyr_id, dyr_ignore=dyr_ignore)
-        for opt, v in (("--amplitude", amplitude), ("--width", width), ("--start", start),
-                       ("--duration", duration), ("--rate", rate), ("--noise", noise), ("--lsb", lsb)):
-            if not math.isfinite(v):
-                raise UnitError(f"{opt} {v!r} must be a finite number")
-        if noise < 0 or lsb < 0:
-            raise UnitError("--noise and --lsb must not be negative")
-        if not str(output).lower().endswith(".csv"):
-            raise UnitError(f"-o {output}: a capture file name must end in .csv")
-        if rate * duration > MAX_SAMPLES:
-            raise UnitError(f"--rate {rate:g} Hz over --duration {duration:g} s is {rate * duration:.3g} samples, "
-                            f"more than the {MAX_SAMPLES:.0e} a simulated capture may have")
-        if rate * duration < 2:
-            raise UnitError(f"--rate {rate:g} Hz over --duration {duration:g} s gives fewer than 2 samples")
-        if start < 0 or width <= 0 or start + width >= duration:
-            raise UnitError(f"pulse start {start} s + width {width} s must lie inside the record of {duration} s")
-        # the capture and its sidecar, before the simulation: never an input, never an existing
-        # file, never through a link, a folder that can be written
-        outputs.guard_outputs({"-o": output, "-o (its sidecar)": Path(output).with_suffix(".json")},
-                              [unit_path, from_dyr], make_folders=True,
-                              replace_hint="captures are never overwritten: choose another name")
-        t, usetp = pulse_usetp(amplitude=amplitude, width=width, start=start, duration=duration, rate=rate,
-                               usetp0=unit.generator["Vt0"])
-        rec = synthetic_record(unit, t, usetp, RecorderModel(noise, lsb), seed, online=online)
-    except (UnitError, ValueError) as exc:   # OutputRefused is a ValueError
-        click.echo(f"error: {exc}", err=True)
-        return ExitCode.ABORTED
+    unit = build_unit(unit_path, overrides, effects, model=model, from_dyr=from_dyr,
+                      dyr_bus=dyr_bus, dyr_id=dyr_id, dyr_ignore=dyr_ignore)
+    for opt, v in (("--amplitude", amplitude), ("--width", width), ("--start", start),
+                   ("--duration", duration), ("--rate", rate), ("--noise", noise), ("--lsb", lsb)):
+        if not math.isfinite(v):
+            raise UnitError(f"{opt} {v!r} must be a finite number")
+    if noise < 0 or lsb < 0:
+        raise UnitError("--noise and --lsb must not be negative")
+    if not str(output).lower().endswith(".csv"):
+        raise UnitError(f"-o {output}: a capture file name must end in .csv")
+    if rate * duration > MAX_SAMPLES:
+        raise UnitError(f"--rate {rate:g} Hz over --duration {duration:g} s is {rate * duration:.3g} samples, "
+                        f"more than the {MAX_SAMPLES:.0e} a simulated capture may have")
+    if rate * duration < 2:
+        raise UnitError(f"--rate {rate:g} Hz over --duration {duration:g} s gives fewer than 2 samples")
+    if start < 0 or width <= 0 or start + width >= duration:
+        raise UnitError(f"pulse start {start} s + width {width} s must lie inside the record of {duration} s")
+    # the capture and its sidecar, before the simulation: never an input, never an existing
+    # file, never through a link, a folder that can be written
+    outputs.guard_outputs({"-o": output, "-o (its sidecar)": Path(output).with_suffix(".json")},
+                          [unit_path, from_dyr], make_folders=True,
+                          replace_hint="captures are never overwritten: choose another name")
+    t, usetp = pulse_usetp(amplitude=amplitude, width=width, start=start, duration=duration, rate=rate,
+                           usetp0=unit.generator["Vt0"])
+    rec = synthetic_record(unit, t, usetp, RecorderModel(noise, lsb), seed, online=online)
+    entry = unit.entry()
     meta = {
         "test": {"kind": "pulse", "amplitude_pu": amplitude, "start_s": start, "width_s": width,
                  **({"online": True} if online else {})},
         "source": "simulation",
-        "unit": unit_to_std(unit.structure, unit.to_dict()),   # the structure's names
+        "unit": unit.dialect.unit(entry).to_json(),   # the structure's names
         "recorder": {"noise_pu": noise, "lsb_pu": lsb, "seed": seed,
                      "usetp": "the AVR's digital setpoint, recorded exactly",
                      **{name: "measured: noise + quantisation" for name in rec if name not in ("time", "usetp")}},
-        "effects": unit.to_dict()["effects"],  # JSON has no infinity: neutral limits as null
+        "effects": entry.effects,  # JSON has no infinity: neutral limits as null
         "software_version": __version__,
         "command_line": " ".join(["bench-ctl"] + sys.argv[1:]),
     }
     try:
         Path(output).parent.mkdir(parents=True, exist_ok=True)
-        csv_path, json_path = write_capture(Path(output), rec, meta)
-    except FileExistsError as exc:
-        click.echo(f"error: {exc} (captures are never overwritten)", err=True)
-        return ExitCode.ABORTED
-    except OSError as exc:
-        click.echo(f"error: {outputs.why_not_written(exc, output)}", err=True)
-        return ExitCode.ABORTED
+        with outputs.writing(output):
+            csv_path, json_path = write_capture(Path(output), rec, meta)
+    except FileExistsError as exc:   # (a name taken meanwhile: the guard refused the ones there before)
+        raise outputs.OutputRefused(f"{exc} (captures are never overwritten)") from None
     click.echo(f"capture: {csv_path}")
     click.echo(f"sidecar: {json_path}")
     return ExitCode.OK

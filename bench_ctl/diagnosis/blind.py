@@ -31,7 +31,7 @@ from bench_ctl.model.effects import EFFECT_NAMES
 from bench_ctl.units.unit import Bound, Unit, load_unit
 
 from .diagnosis_file import Diagnosis
-from .localize import find_edges
+from .localize import pulse_edges
 from .models import coarse_factor
 from .search import fit, mean
 
@@ -148,9 +148,9 @@ def record_visibility(unit: Unit, cap: Capture, avr: Mapping[str, float], cfg: S
     u = cap.usetp
     dt = float(cap.dt)
     p = make_problem([cap], unit, fit_edges=False)   # the edges act on their samples
-    edges = find_edges(u)
+    edges = pulse_edges(u)
     q = coarse_factor(unit, dt, 0.004)
-    coarse = p.decimated(q, n_max=(edges.k_off or cap.n) + int(round(3.0 / dt)), offset=edges.k_on)
+    coarse = p.decimated(q, n_max=(edges.trail_index or cap.n) + int(round(3.0 / dt)), offset=edges.lead.index)
     x0 = np.array([avr[n] for n in p.names])
     res = fit(coarse, x0=x0, evals=600, seed=seed, polish_evals=150, options=PROFILE)
     f = mean(p, polish(p, res.x, budget=100))
@@ -256,8 +256,8 @@ def run_suite(cases: Sequence[Case], diagnose_fn: Callable[..., Diagnosis], *, s
                     break
         r = CaseResult(case.case_id, case.effect, diag.verdict, gap, dt, cpu,
                        [e.name for e in diag.effects],
-                       [a["effects"] for a in diag.ambiguous],
-                       [q["added"] for q in diag.sequence],
+                       [a.effects for a in diag.ambiguous],
+                       [q.added for q in diag.sequence],
                        [q.name for q in diag.explained_by])
         results.append(r)
         if progress:

@@ -19,7 +19,7 @@ Every regime of the record - the pre-step level, each edge, the plateau, the rec
 the fitted and the judged half, so an effect whose evidence lives in one regime (saturation seen
 only on the plateau, a ceiling reached on one edge) is judged on samples of that regime it was not
 fitted to, where a left-out window would ask it to extrapolate. It is not part of the score; the
-verdict uses it only to accept such an effect (`verdict.significance`).
+verdict uses it only to accept such an effect (`significance.significance`).
 
 Ranking (`score`): BIC on the capture (n ln(mse) + k ln(n), k = added parameters) plus the
 predictive deviance on the check, the sum over its parts of n_i ln(mse_i).
@@ -29,7 +29,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 
@@ -38,6 +37,7 @@ from bench_ctl.identification.problem import Problem
 from bench_ctl.identification.result import Result
 from bench_ctl.identification.space import SearchSpace
 
+from .diagnosis_file import BlocksCheck, CheckDescription, CheckWindow, HoldoutCheck
 from .models import ModelFit, Part, Views, mid
 
 __all__ = ["check_parts", "checked", "check_deviance", "block_deviance", "describe_check", "fit_holdout", "bic",
@@ -245,18 +245,19 @@ def score(m: ModelFit, n: int) -> float:
     return s
 
 
-def describe_check(views: Views) -> dict[str, Any]:
-    """The JSON `check`: what each model was judged on."""
-    return {
-        "kind": ("holdout + windows" if views.holdout is not None else "windows") if views.windows else "holdout",
-        "windows": [{"label": w.label, "t0": w.t0, "t1": w.t1} for w in views.windows],
-        "how": "each window in turn left out of the fit (the simulation runs through it; the re-fit is the "
-               "Gauss-Newton step from the model's fit over the other samples, its linear prediction, damped "
-               "until the simulated step does what the prediction promised) and scored on it; the holdout "
-               "scored with the model held, its edge instants fitted; a recorded Vt the fit did not use "
-               "scored as predicted; beside them, not in the score, the interleaved blocks: each half left out "
-               "of the re-fit in turn and scored",
-        "holdout": (views.holdout.source or "holdout") if views.holdout is not None else None,
-        "vt": bool(views.capture.vt is not None and float(views.unit.weights.get("vt", 0.0)) == 0.0),
-        "blocks": {"seconds": BLOCK_S, "folds": BLOCK_FOLDS},
-    }
+def describe_check(views: Views, holdout: HoldoutCheck | None) -> CheckDescription:
+    """The diagnosis' `check`: what each model was judged on (`holdout`: the holdout capture as the
+    check uses it)."""
+    return CheckDescription(
+        kind=("holdout + windows" if views.holdout is not None else "windows") if views.windows else "holdout",
+        windows=tuple(CheckWindow(w.label, w.t0, w.t1) for w in views.windows),
+        how="each window in turn left out of the fit (the simulation runs through it; the re-fit is the "
+            "Gauss-Newton step from the model's fit over the other samples, its linear prediction, damped "
+            "until the simulated step does what the prediction promised) and scored on it; the holdout "
+            "scored with the model held, its edge instants fitted; a recorded Vt the fit did not use "
+            "scored as predicted; beside them, not in the score, the interleaved blocks: each half left out "
+            "of the re-fit in turn and scored",
+        holdout=holdout,
+        vt=bool(views.capture.vt is not None and float(views.unit.weights.get("vt", 0.0)) == 0.0),
+        blocks=BlocksCheck(BLOCK_S, BLOCK_FOLDS),
+    )

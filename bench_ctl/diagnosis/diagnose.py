@@ -36,37 +36,38 @@ from typing import Any
 import numpy as np
 
 import bench_ctl
-from bench_ctl.capture import Capture
+from bench_ctl.capture import Capture, capture_sha256
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
-from bench_ctl.limits import InputError, sha256_file
-from bench_ctl.model.dialect import diagnosis_to_std
+from bench_ctl.identification.timing import Edge
 from bench_ctl.model.effects import VOCABULARY
-from bench_ctl.records import plain
+from bench_ctl.signals.edges import EdgeSearch
 from bench_ctl.timestamps import utc_now_text
 from bench_ctl.units.unit import Unit
 
 from . import features as F
 from .check import bic, checked, describe_check, fit_holdout
-from .diagnosis_file import DIAGNOSIS_SCHEMA, Diagnosis
+from .diagnosis_file import (
+    DIAGNOSIS_SCHEMA,
+    BaseFit,
+    CaptureRef,
+    Criteria,
+    Diagnosis,
+    HoldoutCheck,
+    NoiseFloorDetail,
+    SequenceEntry,
+    Span,
+    Validation,
+    Vocabulary,
+)
 from .explain import explained_by, sequence
-from .localize import DiagnosisError, Edges, NoiseFloor, find_edges, localization, noise_floor, segments
+from .localize import DiagnosisError, NoiseFloor, localization, noise_floor, pulse_edges, segments
 from .models import Budget, ModelFit, Setup, Views, Window, coarse_factor
 from .search import finish, fit_model, global_search, refine, refine_base
+from .significance import close_to_best, criteria, worth_checking
 from .starts import all_starts, lag_variants
-from .verdict import (
-    AMBIGUOUS,
-    CHECK_GAIN,
-    ONE_REGIME_GAIN,
-    SIGNIFICANT,
-    STRONG,
-    ambiguous_pairs,
-    check_entry,
-    choose_verdict,
-    model_params,
-    rank_entries,
-)
+from .verdict import ambiguous_pairs, check_entry, choose_verdict, model_params, rank_entries
 
 __all__ = ["SCHEMA", "Budget", "diagnose", "prepare", "choose_verdict"]
 
@@ -75,19 +76,10 @@ log = logging.getLogger(__name__)
 SCHEMA = DIAGNOSIS_SCHEMA
 
 
-def _sha256(path: str) -> str | None:
-    """The capture file's SHA-256 (read bounded, as every input is); None when it cannot be read."""
-    try:
-        return sha256_file(path, "a capture")
-    except (OSError, InputError):
-        return None
-
-
-def _capture_ref(c: Capture | None) -> dict | None:
+def _capture_ref(c: Capture | None) -> CaptureRef | None:
     if c is None:
         return None
-    return {"path": c.source or None, "sha256": (_sha256(c.source) if c.source else None)
-            or c.meta.get("csv_sha256")}
+    return CaptureRef(c.source or None, capture_sha256(c.source))
 
 
 #: effects checked after the single-effect fits: those that lower the BIC most
@@ -99,13 +91,13 @@ CHECKED = 4
 CV_SEGMENTS = ("leading_edge", "plateau", "trailing_edge")
 
 
-def _windows(capture: Capture, edges: Edges) -> tuple[Window, ...]:
+def _windows(capture: Capture, edges: EdgeSearch) -> tuple[Window, ...]:
     dt = capture.dt
     return tuple(Window(s.name, s.k0 * dt, (s.k1 - 1) * dt) for s in segments(capture.n, dt, edges)
                  if s.name in CV_SEGMENTS and s.k1 - s.k0 >= 5)
 
 
-def _fit_floor(capture: Capture, unit: Unit, edges: Edges, efd_floor: NoiseFloor, source: str) -> NoiseFloor:
+def _fit_floor(capture: Capture, unit: Unit, edges: EdgeSearch, efd_floor: NoiseFloor, source: str) -> NoiseFloor:
     """The noise floor of the mean objective every fit is ranked by: efd's at its weight, plus
     Vt's at its weight when the unit weights a recorded Vt (the default: efd's alone), plus on line
     Q's at its weight (default 1: `Problem`'s)."""
@@ -120,37 +112,35 @@ def _fit_floor(capture: Capture, unit: Unit, edges: Edges, efd_floor: NoiseFloor
                    rel_se=max(f.rel_se for _, f in weighted))
 
 
-def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: Edges, floor: NoiseFloor,
+def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: EdgeSearch, floor: NoiseFloor,
            budget: Budget) -> Setup:
     windows = _windows(capture, edges)
     if not windows:
         raise DiagnosisError(f"{capture.source or 'capture'}: too short after the setpoint change for a check")
     q = coarse_factor(unit, capture.dt, budget.coarse_dt)
-    if edges.k_off is not None:  # both setpoint edges on the coarse grid, or the trailing one moves
-        q = math.gcd(q, edges.k_off - edges.k_on) or 1
-    n_coarse = capture.n if edges.k_off is None else min(capture.n, edges.k_off + int(round(budget.coarse_tail_s /
-                                                                                            capture.dt)))
-    views = Views(unit, capture, holdout, q, n_coarse, edges.k_on, windows)
+    k_on, k_off = edges.lead.index, edges.trail_index
+    if k_off is not None:  # both setpoint edges on the coarse grid, or the trailing one moves
+        q = math.gcd(q, k_off - k_on) or 1
+    n_coarse = capture.n if k_off is None else min(capture.n, k_off + int(round(budget.coarse_tail_s / capture.dt)))
+    views = Views(unit, capture, holdout, q, n_coarse, edges.lead.index, windows)
     check_floor, check_se = floor.variance, floor.rel_se
     hold = None
     if holdout is not None:
         h_src = holdout.source or "holdout"
-        h_edges = find_edges(holdout.usetp, h_src)
+        h_edges = pulse_edges(holdout.usetp, h_src)
         h_floor = _fit_floor(holdout, unit, h_edges, noise_floor(holdout.efd, holdout.dt, h_edges, h_src), h_src)
         n_w = sum(int(round((w.t1 - w.t0) / capture.dt)) + 1 for w in windows)
         check_floor = (h_floor.variance * holdout.n + floor.variance * n_w) / (holdout.n + n_w)
         check_se = max(h_floor.rel_se, floor.rel_se)
-        hold = {"capture": holdout.source or None, "t0": 0.0, "t1": float(holdout.time[-1] - holdout.time[0]),
-                "noise_floor": h_floor.variance}
+        hold = HoldoutCheck(holdout.source or None, 0.0, float(holdout.time[-1] - holdout.time[0]), h_floor.variance)
     floor_tol = floor.variance * (1.0 + budget.floor_sigmas * math.sqrt(floor.rel_se ** 2 + 2.0 / capture.n))
-    validation = {"kind": "holdout + windows" if holdout is not None else "windows",
-                  "fit": {"t0": 0.0, "t1": (capture.n - 1) * capture.dt},
-                  "check": {**describe_check(views), "holdout": hold}}
+    validation = Validation("holdout + windows" if holdout is not None else "windows",
+                            Span(0.0, (capture.n - 1) * capture.dt), describe_check(views, hold))
     return Setup(views, capture.n, floor, check_floor, check_se, floor_tol, validation)
 
 
 def prepare(capture: Capture, unit: Unit, *, holdout: Capture | None = None, budget: Budget | None = None
-            ) -> tuple[Edges, NoiseFloor, Setup]:
+            ) -> tuple[EdgeSearch, NoiseFloor, Setup]:
     """What every model of `capture` is fitted and checked on: the setpoint edges, efd's noise
     floor (pre-trigger) and the `Setup` (views, the fit's floor, the check's windows)."""
     budget = budget if budget is not None else Budget()
@@ -159,7 +149,7 @@ def prepare(capture: Capture, unit: Unit, *, holdout: Capture | None = None, bud
         kind = {True: "an on-line", False: "a no-load"}
         raise DiagnosisError(f"{holdout.source or 'the holdout'} is {kind[holdout.on_line]} record and {src} "
                              f"{kind[capture.on_line]} one: a holdout is a record of the same test")
-    edges = find_edges(capture.usetp, src)
+    edges = pulse_edges(capture.usetp, src)
     efd_floor = noise_floor(capture.efd, capture.dt, edges, src)
     floor = _fit_floor(capture, unit, edges, efd_floor, src)
     return edges, efd_floor, _setup(capture, holdout, unit, edges, floor, budget)
@@ -180,7 +170,7 @@ def _fit_base(st: Setup, budget: Budget, seed: int, base_params: Mapping[str, fl
     return replace(m, evaluations=m.evaluations + res.nfev)
 
 
-def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: Edges, floor: NoiseFloor,
+def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: EdgeSearch, floor: NoiseFloor,
               unit: Unit, efd0_model: float) -> tuple[list[F.Feature], dict[str, float]]:
     """The feature tests, and the hints they give the effect fits' starting values. On line the
     steady-state ratio is not tested (efd / Vt = 1 + Sat holds at no load only): the pre-trigger
@@ -198,7 +188,7 @@ def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: 
         *(() if on_line else (F.steady_state_ratio(efd_pre, efd_se, vt_pre, values["Vt0"]),)),
         F.pre_trigger_level(efd_pre, efd_se, efd0_model, on_line=on_line),
         F.asymmetry(capture.efd, model, capture.dt, edges, sigma),
-        F.edge_shape(capture.efd, model, capture.dt, edges, sigma, edges.amplitude),
+        F.edge_shape(capture.efd, model, capture.dt, edges, sigma, edges.lead.jump),
     ]
     fv = {f.name: f.values for f in feats}
     hints = {
@@ -252,7 +242,7 @@ def _fit_effects(st: Setup, base: ModelFit, hints: Mapping[str, float], budget: 
     ranked = sorted(fits, key=lambda e: bic(n, fits[e].mse, fits[e].k))
     best = bic(n, fits[ranked[0]].mse, fits[ranked[0]].k)
     polished = [e for j, e in enumerate(ranked)
-                if (j < budget.polish_top or bic(n, fits[e].mse, fits[e].k) - best < 2 * SIGNIFICANT
+                if (j < budget.polish_top or close_to_best(bic(n, fits[e].mse, fits[e].k) - best)
                     or fits[e].mse > base.mse)]
     fits.update(zip(polished, map_fits(lambda e: refine(views, fits[e], polish_fine=budget.effect_polish), polished)))
     return fits
@@ -289,16 +279,16 @@ def _variants(st: Setup, fits: dict[str, ModelFit], budget: Budget, seed: int) -
     return kept
 
 
-def _edges_json(st: Setup, m: ModelFit) -> list[dict[str, Any]]:
+def _edges(st: Setup, m: ModelFit) -> tuple[Edge, ...]:
     """Each setpoint edge of the capture at the base model's fit (nominal and fitted instant, std),
     and of the holdout (its instants fitted with the base model held)."""
     p = st.views.problem((), m.fixed)
     x = SearchSpace(p).vector(m.params)
-    out = [{"capture": "capture", **e} for e in p.edges(x, m.std)[0]]
+    out = [replace(e, capture="capture") for e in p.edges(x, m.std)[0]]
     if st.views.holdout is not None:
         h, res = fit_holdout(st.views, p.values(x))
-        out += [{"capture": "holdout", **e} for e in h.edges(res.x)[0]]
-    return out
+        out += [replace(e, capture="holdout") for e in h.edges(res.x)[0]]
+    return tuple(out)
 
 
 def diagnose(*args: Any, **kwargs: Any) -> Diagnosis:
@@ -347,7 +337,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     # significant or could not lead)
     n = st.n
     gains = sorted(((bic(n, base.mse, 0) - bic(n, m.mse, m.k), e) for e, m in fits.items()), reverse=True)
-    to_check = [e for g, e in gains[:CHECKED] if g > SIGNIFICANT]
+    to_check = [e for g, e in gains[:CHECKED] if worth_checking(g)]
     fits.update(zip(to_check, map_fits(lambda e: checked(views, fits[e]), to_check)))
 
     entries = rank_entries(unit, st, base, fits, variants)
@@ -356,46 +346,44 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     ambiguous = ambiguous_pairs(entries) if verdict != "none" else []
     steps, final = (sequence(st, fits, verdict, hints, budget, seed) if verdict != "none" else ([], None))
     explained, left = explained_by(st, base, steps, final, capture, edges)
-    added = [{"added": s["added"], "mse": s["model"].mse, "mse_holdout": s["model"].mse_check,
-                 "params": s["model"].effect_params(), "dropped": s["dropped"]} for s in steps]
-
-    # the boundary: model parameters in the structure's names (bench_ctl.model.dialect)
-    return Diagnosis.from_json(plain(diagnosis_to_std(unit.structure, {
-        "schema": SCHEMA,
-        "software_version": getattr(bench_ctl, "__version__", "0.1.0"),
-        "command_line": command_line,
-        "created_utc": utc_now_text(),
-        "capture": _capture_ref(capture),
-        "holdout": _capture_ref(holdout),
-        "unit": unit.to_dict(),
-        "validation": st.validation,
-        "check": st.validation["check"],
-        "edges": _edges_json(st, base),
-        "base": {"params": model_params(unit, base), "mse": base.mse, "mse_holdout": base.mse_check,
-                 "check": check_entry(base), "evaluations": base.evaluations, "at_noise_floor": bool(at_floor)},
-        "noise_floor": floor.variance,
-        "noise_floor_detail": {"samples": floor.n, "t0": floor.t0, "t1": floor.t1, "rel_se": floor.rel_se,
-                               "check": st.check_floor,
-                               "holdout": (st.validation["check"]["holdout"] or {}).get("noise_floor")},
-        "localization": loc,
-        "features": [f.to_dict() for f in feats],
-        "effects": entries,
-        "ambiguous": ambiguous,
-        "sequence": added,
-        "explained_by": explained,
-        "left": left,
-        "verdict": verdict,
-        "criteria": {"significant_delta": SIGNIFICANT, "check_gain": CHECK_GAIN, "strong_delta": STRONG,
-                     "one_regime_gain": ONE_REGIME_GAIN,
-                     "ambiguous_delta": AMBIGUOUS, "floor_sigmas": budget.floor_sigmas,
-                     "score": "BIC on the capture + sum over the check's parts of n ln(mse), relative to the base "
-                              "model"},
-        "wall_s": time.perf_counter() - t_start,
-        "vocabulary": _vocabulary(views),
-    })), "the diagnosis")
+    added = [SequenceEntry(s["added"], s["model"].mse, s["model"].mse_check, s["model"].effect_params(),
+                           s["dropped"]) for s in steps]
+    hold = st.validation.check.holdout
+    diagnosis = Diagnosis(
+        schema=SCHEMA,
+        software_version=getattr(bench_ctl, "__version__", "0.1.0"),
+        command_line=command_line,
+        created_utc=utc_now_text(),
+        capture=_capture_ref(capture),
+        holdout=_capture_ref(holdout),
+        unit=unit.entry(),
+        validation=st.validation,
+        check=st.validation.check,
+        edges=_edges(st, base),
+        base=BaseFit(params=model_params(unit, base), mse=base.mse, mse_holdout=base.mse_check,
+                     check=check_entry(base), evaluations=int(base.evaluations), at_noise_floor=bool(at_floor)),
+        noise_floor=floor.variance,
+        noise_floor_detail=NoiseFloorDetail(samples=floor.n, t0=floor.t0, t1=floor.t1, rel_se=floor.rel_se,
+                                            check=st.check_floor, holdout=hold.noise_floor if hold else None),
+        localization=loc,
+        features=tuple(f.entry() for f in feats),
+        effects=tuple(entries),
+        ambiguous=tuple(ambiguous),
+        sequence=tuple(added),
+        explained_by=tuple(explained),
+        left=left,
+        verdict=verdict,
+        criteria=Criteria(**criteria(), floor_sigmas=budget.floor_sigmas,
+                          score="BIC on the capture + sum over the check's parts of n ln(mse), relative to the "
+                                "base model"),
+        wall_s=time.perf_counter() - t_start,
+        vocabulary=_vocabulary(views),
+    )
+    # the boundary: model parameters in the structure's names
+    return diagnosis.renamed(unit.dialect)
 
 
-def _vocabulary(views: Views) -> dict[str, Any]:
+def _vocabulary(views: Views) -> Vocabulary:
     """The JSON `vocabulary`: the effects tried on this record and why the others were not."""
     tried = views.vocabulary
     why = {}
@@ -408,4 +396,4 @@ def _vocabulary(views: Views) -> dict[str, Any]:
             why[name] = "acts on line only"
         else:
             why[name] = "the unit fits " + ", ".join(e.params)
-    return {"on_line": views.on_line, "tried": list(tried), "not_tried": why}
+    return Vocabulary(views.on_line, list(tried), why)

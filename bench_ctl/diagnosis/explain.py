@@ -13,14 +13,16 @@ from bench_ctl.capture import Capture
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
 from bench_ctl.model.effects import VOCABULARY
-from bench_ctl.signals.edges import EDGE_PARAMS
+from bench_ctl.signals.edges import EDGE_PARAMS, EdgeSearch
 
 from .check import bic, check_deviance, checked, score
-from .localize import Edges, localization
+from .diagnosis_file import Left, Step, StepCheck
+from .localize import localization
 from .models import Budget, ModelFit, Setup
 from .search import finish, fit_model, refine
+from .significance import Significance, kept_without_check, significance, step_gain
 from .starts import effect_starts
-from .verdict import SIGNIFICANT, STRONG, check_entry, model_params, significance
+from .verdict import check_entry, model_params
 
 __all__ = ["sequence", "explained_by"]
 
@@ -43,24 +45,17 @@ def combine(st: Setup, current: ModelFit, c: str, single: ModelFit, hints: Mappi
                      polish_coarse=budget.polish_coarse // 2, polish_fine=0, multi=len(starts), profile=False)
 
 
-#: a fit loss this large when an effect is taken out keeps it without consulting the check
-KEEP_WITHOUT_CHECK = 10 * STRONG
-#: an effect added to others must explain at least this share of the error left: below it, the
-#: differences between any plant and any model of it (integration, edge timing, a slightly other
-#: limit rule) are of that size, and a flexible effect fits them (docs/decisions/0010, appendix)
-STEP_REL = 0.01
-
-
 def without(st: Setup, m: ModelFit, e: str, budget: Budget, *, check: bool = True) -> ModelFit:
     """m with effect e taken out (its parameters back to neutral), the rest re-fitted; checked
-    unless the fit loses so much (KEEP_WITHOUT_CHECK) that the check could not change the answer."""
+    unless the fit loses so much (`significance.kept_without_check`) that the check could not change
+    the answer."""
     effects = tuple(x for x in m.effects if x != e)
     fixed = {k: v for k, v in m.fixed.items() if k not in VOCABULARY[e].options}
     extra = tuple(x for x in m.extra if x not in VOCABULARY[e].options)
     p = st.views.problem(effects, fixed, extra=extra)
     out = finish(st.views, effects, fixed, SearchSpace(p).vector(m.params), polish_fine=budget.combo_polish,
                  extra=extra)
-    if not check or bic(st.n, out.mse, out.k) - bic(st.n, m.mse, m.k) > KEEP_WITHOUT_CHECK:
+    if not check or kept_without_check(bic(st.n, out.mse, out.k) - bic(st.n, m.mse, m.k)):
         return out
     return checked(st.views, out)
 
@@ -74,7 +69,7 @@ def sequence(st: Setup, fits: Mapping[str, ModelFit], verdict: str, hints: Mappi
     current = checked(st.views, fits[verdict])
     steps = [{"added": verdict, "model": current, "dropped": [], "fit_gain": None, "check_gain": None}]
     dropped_all: set[str] = set()
-    step_gain = max(SIGNIFICANT, -st.n * math.log(1.0 - STEP_REL))
+    min_gain = step_gain(st.n)
     while len(current.effects) < budget.max_sequence:
         cands = [c for c in st.views.vocabulary if c not in current.effects and c not in dropped_all]
         if not cands:
@@ -92,14 +87,14 @@ def sequence(st: Setup, fits: Mapping[str, ModelFit], verdict: str, hints: Mappi
         accepted, gains, best_score = None, (0.0, 0.0), math.inf
         better_current = None
         # the two best on the coarse screen are polished and checked
-        for m, reduced, judged in map_fits(lambda m, now=current: _judged(st, now, m, budget, step_gain),
+        for m, reduced, judged in map_fits(lambda m, now=current: _judged(st, now, m, budget, min_gain),
                                            screened[:2]):
             if reduced is not None and (better_current is None or reduced.mse < better_current.mse):
                 better_current = reduced
             if judged is not None:
                 g, sc = judged
-                if g[2] and g[0] > step_gain and sc < best_score:
-                    accepted, gains, best_score = m, (g[0], g[1]), sc
+                if g.significant and g.fit > min_gain and sc < best_score:
+                    accepted, gains, best_score = m, (g.fit, g.check), sc
         if accepted is None and better_current is not None:
             current = checked(st.views, better_current)   # the re-fit without the candidate is better
         if accepted is None:
@@ -108,9 +103,9 @@ def sequence(st: Setup, fits: Mapping[str, ModelFit], verdict: str, hints: Mappi
         dropped = []
         for e in current.effects[:-1]:
             reduced = without(st, current, e, budget)
-            g = significance(st, reduced, current) if reduced.checks else (math.inf, math.inf, True)
-            log.info("explained_by: without %s the fit loses %.1f, the check %.1f", e, g[0], g[1])
-            if not g[2]:
+            g = significance(st, reduced, current) if reduced.checks else Significance(math.inf, math.inf, True)
+            log.info("explained_by: without %s the fit loses %.1f, the check %.1f", e, g.fit, g.check)
+            if not g.significant:
                 log.info("explained_by: %s dropped after %s was added", e, current.effects[-1])
                 dropped.append(e)
                 current = reduced
@@ -123,8 +118,8 @@ def sequence(st: Setup, fits: Mapping[str, ModelFit], verdict: str, hints: Mappi
     return steps, current
 
 
-def _judged(st: Setup, current: ModelFit, m: ModelFit, budget: Budget, step_gain: float
-            ) -> tuple[ModelFit, ModelFit | None, tuple[tuple[float, float, bool], float] | None]:
+def _judged(st: Setup, current: ModelFit, m: ModelFit, budget: Budget, min_gain: float
+            ) -> tuple[ModelFit, ModelFit | None, tuple[Significance, float] | None]:
     """One of `sequence`'s two best candidates: polished, and judged against the current model
     and the model re-fitted without the candidate from m's own values (what the joint re-fit gained
     by moving the other parameters further is not the candidate's). Returns m polished (and
@@ -132,11 +127,11 @@ def _judged(st: Setup, current: ModelFit, m: ModelFit, budget: Budget, step_gain
     and the significance and score change when m was judged."""
     m = refine(st.views, m, polish_fine=budget.combo_polish)
     c = m.effects[-1]
-    if bic(st.n, current.mse, current.k) - bic(st.n, m.mse, m.k) <= step_gain:
+    if bic(st.n, current.mse, current.k) - bic(st.n, m.mse, m.k) <= min_gain:
         return m, None, None
     reduced = without(st, m, c, budget, check=False)
     ref = reduced if bic(st.n, reduced.mse, reduced.k) < bic(st.n, current.mse, current.k) else current
-    if bic(st.n, ref.mse, ref.k) - bic(st.n, m.mse, m.k) <= step_gain:
+    if bic(st.n, ref.mse, ref.k) - bic(st.n, m.mse, m.k) <= min_gain:
         log.info("explained_by after %s: + %s gains nothing over the model re-fitted without it",
                  "+".join(current.effects), c)
         return m, (reduced if ref is reduced else None), None
@@ -146,7 +141,7 @@ def _judged(st: Setup, current: ModelFit, m: ModelFit, budget: Budget, step_gain
     # of the significant ones, the best on the fit and the check together
     sc = score(m, st.n) - score(ref, st.n)
     log.info("explained_by after %s: + %s fit gain %.1f check gain %.1f score %.1f -> %s",
-             "+".join(current.effects), c, g[0], g[1], sc, "significant" if g[2] else "refused")
+             "+".join(current.effects), c, g.fit, g.check, sc, "significant" if g.significant else "refused")
     return m, None, (g, sc)
 
 
@@ -156,7 +151,7 @@ LACKS = 2.0
 
 
 def explained_by(st: Setup, base: ModelFit, steps: list[dict], final: ModelFit | None, capture: Capture,
-                 edges: Edges) -> tuple[list[dict], dict]:
+                 edges: EdgeSearch) -> tuple[list[Step], Left]:
     """The effects that together explain the record (in the order added, each re-fitted jointly
     with those before it), and what is left after the last: its error against the noise floor and
     where in the record it lies."""
@@ -168,16 +163,18 @@ def explained_by(st: Setup, base: ModelFit, steps: list[dict], final: ModelFit |
         m: ModelFit = step["model"]
         params = m.effect_params()
         params.update({k: v for k, v in m.fixed.items()})
-        out.append({"name": step["added"], "effects": list(m.effects), "dropped": step["dropped"],
-                    "params": params, "avr_params": model_params(st.views.unit, m),
-                    "mse": m.mse, "mse_over_floor": m.mse / floor,
-                    "gap_closed": (base.mse - m.mse) / span if span > 0 else None,
-                    "edges": {k: v for k, v in m.params.items() if k in EDGE_PARAMS},
-                    "fit_gain": step["fit_gain"] if step["fit_gain"] is not None else
-                    bic(st.n, prev.mse, prev.k) - bic(st.n, m.mse, m.k),
-                    "check": {"on": st.validation["kind"], "mse": m.mse_check, "mse_before": prev.mse_check,
-                              "gain": step["check_gain"] if step["check_gain"] is not None else
-                              check_deviance(prev, m), "parts": (check_entry(m) or {}).get("parts")}})
+        checks = check_entry(m)
+        out.append(Step(
+            name=step["added"], effects=list(m.effects), dropped=step["dropped"],
+            params=params, avr_params=model_params(st.views.unit, m),
+            mse=m.mse, mse_over_floor=m.mse / floor,
+            gap_closed=(base.mse - m.mse) / span if span > 0 else None,
+            edges={k: v for k, v in m.params.items() if k in EDGE_PARAMS},
+            fit_gain=step["fit_gain"] if step["fit_gain"] is not None else
+            bic(st.n, prev.mse, prev.k) - bic(st.n, m.mse, m.k),
+            check=StepCheck(on=st.validation.kind, mse=m.mse_check, mse_before=prev.mse_check,
+                            gain=step["check_gain"] if step["check_gain"] is not None else check_deviance(prev, m),
+                            parts=checks.parts if checks is not None else None)))
         prev = m
     model = final if final is not None else base
     p = st.views.problem(model.effects, model.fixed, extra=model.extra)
@@ -191,6 +188,6 @@ def explained_by(st: Setup, base: ModelFit, steps: list[dict], final: ModelFit |
     else:
         note = (f"{ratio:.1f} x the noise floor: a structure the vocabulary lacks (or an effect it could "
                 "not fit); see where it lies")
-    left = {"mse": model.mse, "mse_over_floor": ratio, "effects": list(model.effects), "note": note,
-            "localization": localization(resid, capture.dt, edges)}
+    left = Left(mse=model.mse, mse_over_floor=ratio, effects=list(model.effects), note=note,
+                localization=localization(resid, capture.dt, edges))
     return out, left

@@ -22,7 +22,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .localize import Edges
+from bench_ctl.signals.edges import EdgeSearch
+
+from .diagnosis_file import FeatureEntry
 
 
 @dataclass(frozen=True)
@@ -32,9 +34,10 @@ class Feature:
     evidence: str
     values: dict[str, float] = field(default_factory=dict)
 
-    def to_dict(self) -> dict:
-        return {"name": self.name, "detected": bool(self.detected), "evidence": self.evidence,
-                "values": {k: _finite(v) for k, v in self.values.items()}}
+    def entry(self) -> FeatureEntry:
+        """The diagnosis' record of the test (non-finite values as None)."""
+        return FeatureEntry(self.name, bool(self.detected), self.evidence,
+                            {k: _finite(v) for k, v in self.values.items()})
 
 
 def _finite(v: float) -> float | None:
@@ -65,14 +68,14 @@ def _dwell(y: np.ndarray, level: float, tol: float, above: bool) -> int:
     return int(np.count_nonzero(y >= level - tol) if above else np.count_nonzero(y <= level + tol))
 
 
-def flat_top(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: float, *,
+def flat_top(meas: np.ndarray, model: np.ndarray, dt: float, edges: EdgeSearch, sigma: float, *,
              vt: np.ndarray | None = None, vt_recorded: bool = False) -> Feature:
     """A limit: the measured extreme is a plateau (long dwell within the noise of the extreme)
     and the base model goes beyond it. With the terminal voltage (`vt`: recorded, else the base
     model's) the plateau is also looked for in efd / Vt: the ceiling of a bus-fed static exciter
     is VRMAX*Vt, so its top rises with Vt and is flat only relative to it."""
-    k0 = edges.k_on
-    k1 = meas.size if edges.k_off is None else min(meas.size, edges.k_off + int(round(1.0 / dt)))
+    k0 = edges.lead.index
+    k1 = meas.size if edges.trail_index is None else min(meas.size, edges.trail_index + int(round(1.0 / dt)))
     m = max(1, int(round(0.005 / dt)))
     cut = slice(m, -m or None)
     ys = _smooth(meas[k0:k1], m)[cut]
@@ -137,14 +140,15 @@ def _onset(y: np.ndarray, k: int, level: float, thresh: float, window: int) -> f
     return (j - 1) + (thresh - a) / (b - a) if b > a else float(j)
 
 
-def delay(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: float) -> Feature:
+def delay(meas: np.ndarray, model: np.ndarray, dt: float, edges: EdgeSearch, sigma: float) -> Feature:
     """Onset of the response after each setpoint edge, measured vs model, and the lag of the
     cross-correlation of their derivatives around the edges."""
     window = int(round(0.25 / dt))
     thresh = 6.0 * sigma + 0.01
     vals: dict[str, float] = {}
     lags = []
-    names = [("leading", edges.k_on)] + ([("trailing", edges.k_off)] if edges.k_off is not None else [])
+    k_off = edges.trail_index
+    names = [("leading", edges.lead.index)] + ([("trailing", k_off)] if k_off is not None else [])
     for label, k in names:
         lvl_m = float(np.mean(meas[max(0, k - 50):k])) if k > 0 else float(meas[0])
         lvl_s = float(np.mean(model[max(0, k - 50):k])) if k > 0 else float(model[0])
@@ -229,20 +233,21 @@ def _slopes(y: np.ndarray, dt: float, k0: int, k1: int, m: int) -> tuple[float, 
     return (float(d.max()), float(-d.min())) if d.size else (math.nan, math.nan)
 
 
-def asymmetry(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: float) -> Feature:
-    if edges.k_off is None:
+def asymmetry(meas: np.ndarray, model: np.ndarray, dt: float, edges: EdgeSearch, sigma: float) -> Feature:
+    k_on, k_off = edges.lead.index, edges.trail_index
+    if k_off is None:
         return Feature("asymmetry", False, "step test: no down edge to compare", {})
-    pre = float(np.mean(meas[:edges.k_on]))
-    pre_m = float(np.mean(model[:edges.k_on]))
-    k_end = min(meas.size, edges.k_off + int(round(1.0 / dt)))
-    up, down = float(meas[edges.k_on:edges.k_off].max() - pre), float(pre - meas[edges.k_off:k_end].min())
-    up_m, down_m = float(model[edges.k_on:edges.k_off].max() - pre_m), float(pre_m - model[edges.k_off:k_end].min())
+    pre = float(np.mean(meas[:k_on]))
+    pre_m = float(np.mean(model[:k_on]))
+    k_end = min(meas.size, k_off + int(round(1.0 / dt)))
+    up, down = float(meas[k_on:k_off].max() - pre), float(pre - meas[k_off:k_end].min())
+    up_m, down_m = float(model[k_on:k_off].max() - pre_m), float(pre_m - model[k_off:k_end].min())
     m = max(1, int(round(0.003 / dt)))
     w = int(round(0.1 / dt))
-    su, _ = _slopes(meas, dt, edges.k_on - 2 * m, edges.k_on + w, m)
-    _, sd = _slopes(meas, dt, edges.k_off - 2 * m, edges.k_off + w, m)
-    su_m, _ = _slopes(model, dt, edges.k_on - 2 * m, edges.k_on + w, 1)
-    _, sd_m = _slopes(model, dt, edges.k_off - 2 * m, edges.k_off + w, 1)
+    su, _ = _slopes(meas, dt, k_on - 2 * m, k_on + w, m)
+    _, sd = _slopes(meas, dt, k_off - 2 * m, k_off + w, m)
+    su_m, _ = _slopes(model, dt, k_on - 2 * m, k_on + w, 1)
+    _, sd_m = _slopes(model, dt, k_off - 2 * m, k_off + w, 1)
     r, r_m = up / down if down > 0 else math.inf, up_m / down_m if down_m > 0 else math.inf
     tol = 4.0 * sigma * (1.0 / max(up, 1e-9) + 1.0 / max(down, 1e-9)) + 0.02
     detected = math.isfinite(r) and math.isfinite(r_m) and abs(r / r_m - 1.0) > tol
@@ -288,7 +293,7 @@ def _rise_text(label: str, tr: float, peak: float, st: float, tr_m: float, st_m:
     return f"{label} edge: {meas} (base model {model})"
 
 
-def edge_shape(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sigma: float,
+def edge_shape(meas: np.ndarray, model: np.ndarray, dt: float, edges: EdgeSearch, sigma: float,
                amplitude: float) -> Feature:
     """Shape of the response to each setpoint edge: a first-order lag rises steepest at once and
     then slower; a setpoint ramp or a slew limit gives a straight rise at a capped slope."""
@@ -296,9 +301,10 @@ def edge_shape(meas: np.ndarray, model: np.ndarray, dt: float, edges: Edges, sig
     vals: dict[str, float] = {}
     parts, straight_edges = [], 0
     sgn = 1.0 if amplitude >= 0 else -1.0
-    names = [("leading", edges.k_on, sgn)] + ([("trailing", edges.k_off, -sgn)] if edges.k_off is not None else [])
+    k_off = edges.trail_index
+    names = [("leading", edges.lead.index, sgn)] + ([("trailing", k_off, -sgn)] if k_off is not None else [])
     for label, k, sg in names:
-        end = meas.size if label == "trailing" or edges.k_off is None else edges.k_off
+        end = meas.size if label == "trailing" or k_off is None else k_off
         w = max(3, min(int(round(0.5 / dt)), end - k))
         tr, peak, st = _rise(meas, k, w, sg, m, dt)
         tr_m, peak_m, st_m = _rise(model, k, w, sg, 1, dt)

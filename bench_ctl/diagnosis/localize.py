@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
+from bench_ctl.exitcodes import BadInput
+from bench_ctl.identification.result_file import BandShare, Localization, SegmentShare
 from bench_ctl.signals import edges as model_edges
+from bench_ctl.signals.edges import EdgeSearch
 
 log = logging.getLogger(__name__)
 
@@ -28,7 +29,7 @@ EDGE_S = 0.2
 BANDS_HZ = (("slow", 0.0, 1.0), ("loop", 1.0, 10.0), ("fast", 10.0, math.inf))
 
 
-class DiagnosisError(ValueError):
+class DiagnosisError(BadInput):
     """A capture the diagnosis cannot use; the message names the capture and what is wrong."""
 
 
@@ -41,30 +42,23 @@ class NoiseFloor:
     rel_se: float        # relative standard error of the variance estimate, sqrt(2 / (n - 2))
 
 
-@dataclass(frozen=True)
-class Edges:
-    """Sample indices of the setpoint changes: the first (leading) and the last return (trailing)."""
-    k_on: int
-    k_off: int | None    # None for a step test
-    amplitude: float     # usetp change at the leading edge (pu)
-
-
-def find_edges(usetp: np.ndarray, source: str = "capture") -> Edges:
-    """The test's leading and trailing setpoint edges, by the one edge finder
-    (`bench_ctl.signals.edges.find_edges`, a setpoint channel on a sample-index axis)."""
+def pulse_edges(usetp: np.ndarray, source: str = "capture") -> EdgeSearch:
+    """The test's setpoint edges, by the one edge finder (`bench_ctl.signals.edges.find_edges`, a
+    setpoint channel on a sample-index axis): its `lead` (always there: a record without one is
+    refused) and `trail` (None for a step test)."""
     u = np.asarray(usetp, float)
-    lead, trail = model_edges.find_edges(np.arange(u.size, dtype=float), u, kind=model_edges.SETPOINT).pulse()
-    if lead is None:
+    found = model_edges.find_edges(np.arange(u.size, dtype=float), u, kind=model_edges.SETPOINT)
+    if found.lead is None:
         raise DiagnosisError(f"{source}: usetp never changes; the diagnosis needs a step or pulse test")
-    return Edges(lead.index, trail.index if trail is not None else None, lead.jump)
+    return found
 
 
-def noise_floor(efd: np.ndarray, dt: float, edges: Edges, source: str = "capture") -> NoiseFloor:
+def noise_floor(efd: np.ndarray, dt: float, edges: EdgeSearch, source: str = "capture") -> NoiseFloor:
     """Variance of the detrended pre-trigger efd samples."""
-    n = edges.k_on - PRE_GUARD
+    n = edges.lead.index - PRE_GUARD
     if n < 20:
         raise DiagnosisError(f"{source}: only {max(n, 0)} pre-trigger samples before the first setpoint "
-                             f"change at t = {edges.k_on * dt:.3f} s; at least 20 are needed for the noise floor")
+                             f"change at t = {edges.lead.index * dt:.3f} s; at least 20 are needed for the noise floor")
     y = np.asarray(efd[:n], float)
     t = np.arange(n) * dt
     coef = np.polyfit(t, y, 1)
@@ -82,27 +76,22 @@ class Segment:
     k1: int  # exclusive
 
 
-def segments(n: int, dt: float, edges: Edges) -> list[Segment]:
+def segments(n: int, dt: float, edges: EdgeSearch) -> list[Segment]:
     """pre_trigger, leading_edge, plateau, trailing_edge, recovery (step test: the first three);
     the edge parts EDGE_S long, at most a quarter of the pulse (`model.edges.record_segments`)."""
-    k_off = edges.k_off if edges.k_off is not None else n
-    w = max(1, int(round(min(EDGE_S, 0.25 * (k_off - edges.k_on) * dt) / dt)))
-    return [Segment(name, a, b) for name, a, b in model_edges.record_segments(n, edges.k_on, edges.k_off, w)]
+    k_on, k_off = edges.lead.index, edges.trail_index
+    w = max(1, int(round(min(EDGE_S, 0.25 * ((k_off if k_off is not None else n) - k_on) * dt) / dt)))
+    return [Segment(name, a, b) for name, a, b in model_edges.record_segments(n, k_on, k_off, w)]
 
 
-def segment_shares(residual: np.ndarray, dt: float, segs: list[Segment]) -> list[dict]:
+def segment_shares(residual: np.ndarray, dt: float, segs: list[Segment]) -> list[SegmentShare]:
     r2 = np.asarray(residual, float) ** 2
     total = float(r2.sum())
-    out = []
-    for s in segs:
-        e = float(r2[s.k0:s.k1].sum())
-        out.append({"name": s.name, "t0": s.k0 * dt, "t1": s.k1 * dt,
-                    "share": e / total if total > 0 else 0.0,
-                    "mse": e / (s.k1 - s.k0)})
-    return out
+    return [SegmentShare(s.name, s.k0 * dt, s.k1 * dt, e / total if total > 0 else 0.0, e / (s.k1 - s.k0))
+            for s, e in ((s, float(r2[s.k0:s.k1].sum())) for s in segs)]
 
 
-def band_shares(residual: np.ndarray, dt: float) -> list[dict]:
+def band_shares(residual: np.ndarray, dt: float) -> list[BandShare]:
     """Share of the residual energy per band from the one-sided power spectrum (Parseval)."""
     r = np.asarray(residual, float)
     n = r.size
@@ -120,27 +109,26 @@ def band_shares(residual: np.ndarray, dt: float) -> list[dict]:
         if f0 >= nyq:
             continue
         sel = (f >= f0) & (f < f1)
-        out.append({"name": name, "f0_hz": f0, "f1_hz": min(f1, nyq),
-                    "share": float(power[sel].sum()) / total if total > 0 else 0.0})
+        out.append(BandShare(name, f0, min(f1, nyq), float(power[sel].sum()) / total if total > 0 else 0.0))
     return out
 
 
-def localization(residual: np.ndarray, dt: float, edges: Edges) -> dict:
+def localization(residual: np.ndarray, dt: float, edges: EdgeSearch) -> Localization:
     segs = segments(residual.size, dt, edges)
-    return {"segments": segment_shares(residual, dt, segs), "bands": band_shares(residual, dt)}
+    return Localization(tuple(segment_shares(residual, dt, segs)), tuple(band_shares(residual, dt)))
 
 
-def where_lines(loc: Mapping[str, Any], floor: float | None, *, indent: str = "  ") -> list[str]:
+def where_lines(loc: Localization, floor: float | None, *, indent: str = "  ") -> list[str]:
     """A residual's `localization` in words: the segments holding at least 5 % of its energy, the
     largest first (their interval, share and error over the noise floor), and its bands."""
-    segs = sorted(loc.get("segments") or [], key=lambda g: -g["share"])
+    segs = sorted(loc.segments, key=lambda g: -g.share)
 
-    def x_floor(g: Mapping[str, Any]) -> str:
-        return f"{g['mse'] / floor:.3g}" if floor else "-"
+    def x_floor(g: SegmentShare) -> str:
+        return f"{g.mse / floor:.3g}" if floor else "-"
     lines = [f"{indent}what is left, where: " + ", ".join(
-        f"{g['name'].replace('_', ' ')} {g['t0']:.2f}-{g['t1']:.2f} s {100 * g['share']:.0f} % ({x_floor(g)}x floor)"
-        for g in segs if g["share"] >= 0.05)]
-    if loc.get("bands"):
+        f"{g.name.replace('_', ' ')} {g.t0:.2f}-{g.t1:.2f} s {100 * g.share:.0f} % ({x_floor(g)}x floor)"
+        for g in segs if g.share >= 0.05)]
+    if loc.bands:
         lines.append(f"{indent}by band: " + ", ".join(
-            f"{b['name']} ({b['f0_hz']:g}-{b['f1_hz']:g} Hz) {100 * b['share']:.0f} %" for b in loc["bands"]))
+            f"{b.name} ({b.f0_hz:g}-{b.f1_hz:g} Hz) {100 * b.share:.0f} %" for b in loc.bands))
     return lines

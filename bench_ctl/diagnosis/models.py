@@ -19,6 +19,7 @@ from bench_ctl.model.effects import VOCABULARY, vocabulary
 from bench_ctl.signals.edges import EDGE_PARAMS
 from bench_ctl.units.unit import Bound, Unit
 
+from .diagnosis_file import Validation
 from .localize import NoiseFloor
 
 __all__ = ["Budget", "Window", "Part", "ModelFit", "Views", "Setup", "edge_names", "mid", "coarse_factor",
@@ -222,7 +223,7 @@ class Setup:
     check_floor: float   # the check's noise floor (pooled: holdout floor and the capture's)
     check_se: float
     floor_tol: float     # base MSE up to this counts as "at the noise floor"
-    validation: dict
+    validation: Validation
 
 
 def edge_names(p: Problem) -> list[str]:

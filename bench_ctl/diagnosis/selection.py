@@ -31,8 +31,10 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.capture import Capture
+from bench_ctl.exitcodes import BadInput
 from bench_ctl.identification.identify import Identification, run_identification
 from bench_ctl.identification.problem import make_problem
+from bench_ctl.identification.result_file import CandidateEntry, Localization, SelectionEntry, Separation
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
 from bench_ctl.model.params import PARAMS
@@ -126,7 +128,7 @@ class Candidate:
     error: str | None = None
     #: per capture, where its residual lies (`localize.localization`: share and mse per segment
     #: of the response, share per frequency band)
-    where: tuple[dict[str, Any], ...] = ()
+    where: tuple[Localization, ...] = ()
     #: identified parameters (the structure's names) that move nothing on any capture at the fitted
     #: values (`_inert`), not counted in k
     inert: tuple[str, ...] = ()
@@ -166,7 +168,7 @@ class Selection:
             return "none_fitted"
         return "explains" if b.mse <= self.floor * (1.0 + FLOOR_SIGMAS * self.floor_rel_se) else "closest"
 
-    def separation(self) -> dict[str, Any] | None:
+    def separation(self) -> Separation | None:
         """Where the best two differ most on the record: the segment of the first capture whose
         mse ratio, weighted by its samples, is largest, and whether that is beyond the noise
         (EQUAL_FIT in n ln mse) where at least one of the two misses the noise floor: two fits that
@@ -178,70 +180,67 @@ class Selection:
             return None
         a, b = fitted[0], fitted[1]
         at_floor = self.floor * (1.0 + FLOOR_SIGMAS * self.floor_rel_se)
-        best: tuple[float, bool, dict, dict] | None = None   # (weight, both at the floor, a's, b's)
-        for sa, sb in zip(a.where[0]["segments"], b.where[0]["segments"]):
-            n = max(1.0, (sa["t1"] - sa["t0"]) / max(self.dt, 1e-12))
-            if sa["mse"] <= 0 or sb["mse"] <= 0:
+        best: tuple[float, bool, Any, Any] | None = None   # (weight, both at the floor, a's, b's)
+        for sa, sb in zip(a.where[0].segments, b.where[0].segments):
+            n = max(1.0, (sa.t1 - sa.t0) / max(self.dt, 1e-12))
+            if sa.mse <= 0 or sb.mse <= 0:
                 continue
-            w = n * abs(math.log(sb["mse"] / sa["mse"]))
-            both = sa["mse"] <= at_floor and sb["mse"] <= at_floor
+            w = n * abs(math.log(sb.mse / sa.mse))
+            both = sa.mse <= at_floor and sb.mse <= at_floor
             # a segment where one misses the floor ranks before any where both are at it
             if best is None or (best[1], -best[0]) > (both, -w):
                 best = (w, both, sa, sb)
         if best is None:
             return None
         w, both, sa, sb = best
-        return {"models": [a.model, b.model], "segment": sa["name"], "t0": sa["t0"], "t1": sa["t1"],
-                "x_floor": [sa["mse"] / self.floor, sb["mse"] / self.floor], "weight": w,
-                "both_at_floor": both, "separated": bool(w > EQUAL_FIT and not both)}
+        return Separation(models=[a.model, b.model], segment=sa.name, t0=sa.t0, t1=sa.t1,
+                          x_floor=[sa.mse / self.floor, sb.mse / self.floor], weight=w,
+                          separated=bool(w > EQUAL_FIT and not both), both_at_floor=both)
 
-    def to_json(self) -> dict[str, Any]:
-        """The result's `selection` (docs/formats.md)."""
+    def entry(self, notes: Sequence[str] = ()) -> SelectionEntry:
+        """The result's `selection` (docs/formats.md), with the notes of the `--set` values some
+        structures lack."""
         best = self.best
         out = []
         for rank, c in enumerate(self.candidates, 1):
-            entry: dict[str, Any] = {
-                "rank": rank, "model": c.model, "k": c.k, "inert": list(c.inert), "n": c.n,
-                "mse": _finite(c.mse), "x_floor": _finite(c.mse / self.floor) if self.floor > 0 else None,
-                "check": {p.label: _finite(p.mse) for p in c.checks},
-                "check_mse": _finite(c.check_mse) if c.check_mse is not None else None,
-                "check_x_floor": _finite(c.check_mse / self.floor)
-                if c.check_mse is not None and self.floor > 0 else None,
-                "score": _finite(c.score),
-                "score_difference": _finite(c.score - best.score) if c is not best else 0.0,
-                "equivalent": c.model in self.equivalent,
-                "wall_s": c.wall_s, "searches": c.searches,
-            }
+            fitted: dict[str, Any] = {}
             if c.ident is not None:
                 r = c.ident.result
-                entry["params"] = dict(r.params)
                 # what re-simulates it (the report's residual of the best two): every kernel value
                 # and the edge instants it fitted on each capture
                 values = c.ident.problem.values(c.ident.best.x)
-                entry["kernel"] = {n: v for n, v in values.items() if n not in EDGE_PARAMS}
-                entry["edges"] = [list(cap.edges or []) for cap in r.captures]
-                entry["constraints_violated"] = r.constraints_violated
-                entry["failed"] = bool(r.failed)
-            if c.error:
-                entry["error"] = c.error
-            if c.where:
-                entry["where"] = [dict(w) for w in c.where]
-                entry["at_bounds"] = c.at_bounds
-            out.append(entry)
-        return {
-            "verdict": self.verdict,
-            "chosen": best.model,
-            "equivalent": list(self.equivalent),
-            "separation": self.separation(),
-            "noise_floor": self.floor,
-            "candidates": out,
-            "rule": "each structure identified on the whole record, then scored as the diagnosis scores a "
-                    "model: BIC on the record (n ln mse + k ln n, k its identified parameters that move the fit: a "
-                    "limit the record never reaches is not counted) plus the "
-                    "check's sum of n_i ln(mse_i) over the leading edge, plateau and trailing edge, each "
-                    f"left out of a re-fit; lower is better. Fits within {EQUAL_FIT:g} (n ln mse) of the best "
-                    "one are equivalent: the one with fewer parameters ranks first",
-        }
+                fitted = dict(params=dict(r.params),
+                              kernel={n: _finite(v) for n, v in values.items() if n not in EDGE_PARAMS},
+                              edges=[tuple(cap.edges or ()) for cap in r.captures],
+                              constraints_violated=r.constraints_violated, failed=bool(r.failed))
+            out.append(CandidateEntry(
+                rank=rank, model=c.model, k=c.k, inert=list(c.inert), n=c.n,
+                mse=_finite(c.mse), x_floor=_finite(c.mse / self.floor) if self.floor > 0 else None,
+                check={p.label: _finite(p.mse) for p in c.checks},
+                check_mse=_finite(c.check_mse) if c.check_mse is not None else None,
+                check_x_floor=_finite(c.check_mse / self.floor) if c.check_mse is not None and self.floor > 0
+                else None,
+                score=_finite(c.score),
+                score_difference=_finite(c.score - best.score) if c is not best else 0.0,
+                equivalent=c.model in self.equivalent,
+                wall_s=c.wall_s, searches=c.searches, **fitted,
+                error=c.error or None,
+                where=c.where or None, at_bounds=c.at_bounds if c.where else None))
+        return SelectionEntry(
+            verdict=self.verdict,
+            chosen=best.model,
+            equivalent=list(self.equivalent),
+            separation=self.separation(),
+            noise_floor=self.floor,
+            candidates=tuple(out),
+            notes=list(notes),
+            rule="each structure identified on the whole record, then scored as the diagnosis scores a "
+                 "model: BIC on the record (n ln mse + k ln n, k its identified parameters that move the fit: a "
+                 "limit the record never reaches is not counted) plus the "
+                 "check's sum of n_i ln(mse_i) over the leading edge, plateau and trailing edge, each "
+                 f"left out of a re-fit; lower is better. Fits within {EQUAL_FIT:g} (n ln mse) of the best "
+                 "one are equivalent: the one with fewer parameters ranks first",
+        )
 
 
 def _finite(v: float | None) -> float | None:
@@ -294,7 +293,7 @@ def _fit(unit: Unit, captures: Sequence[Capture], *, max_evals: int, seed: int,
         # the unit's values (typical, or a planning record's) join the initial swarm
         return run_identification(captures, unit, max_evals=max_evals, seed=seed, command_line=command_line,
                                   problem=problem, x0=problem.x_start())
-    except ValueError as exc:   # a structure the captures cannot constrain (ProblemError, ...)
+    except BadInput as exc:   # a structure the captures cannot constrain (ProblemError, ...)
         return str(exc)
 
 
@@ -332,7 +331,7 @@ def _scored(model: str, unit: Unit, captures: Sequence[Capture], ident: Identifi
         score = math.inf
     return Candidate(model, ident, k, n_total, mse_all, tuple(parts), score, check_nll, time.perf_counter() - t0,
                      where=tuple(where),
-                     inert=tuple(unit.structure.std_name(n) or n for n in ident.problem.names if n in inert))
+                     inert=tuple(unit.dialect.name(n) for n in ident.problem.names if n in inert))
 
 
 def _inert(p: Any, x: np.ndarray) -> set[str]:
@@ -446,31 +445,30 @@ def rank(cands: Sequence[Candidate], floor: float, rel_se: float) -> Selection:
     return Selection(tuple(ordered), floor, rel_se, equivalent)
 
 
-def where_left(sel: dict[str, Any]) -> list[str]:
+def where_left(sel: SelectionEntry) -> list[str]:
     """Where the first candidate leaves its residual (segments and bands of the first capture, in
     x the noise floor and share of the residual energy) and the values it pressed on a bound."""
-    best = sel["candidates"][0]
-    where = (best.get("where") or [None])[0]
-    if not where:
+    best = sel.candidates[0]
+    if not best.where:
         return []
-    lines = where_lines(where, sel.get("noise_floor") or 0.0)
-    if best.get("at_bounds"):
-        lines.append(f"  {best['model']} pressed on a bound: {', '.join(best['at_bounds'])} (it follows "
+    lines = where_lines(best.where[0], sel.noise_floor or 0.0)
+    if best.at_bounds:
+        lines.append(f"  {best.model} pressed on a bound: {', '.join(best.at_bounds)} (it follows "
                      "something it does not have, or the bounds are too narrow for this unit)")
     return lines
 
 
-def separation_text(sel: dict[str, Any]) -> str:
+def separation_text(sel: SelectionEntry) -> str:
     """Whether this record separates the best two, and where."""
-    sep = sel.get("separation")
+    sep = sel.separation
     if not sep:
         return ""
-    a, b = sep["models"]
-    at = f"the {sep['segment'].replace('_', ' ')} ({sep['t0']:.2f}-{sep['t1']:.2f} s: " \
-         f"{_g(sep['x_floor'][0])}x against {_g(sep['x_floor'][1])}x the floor)"
-    if sep["separated"]:
+    a, b = sep.models
+    at = f"the {sep.segment.replace('_', ' ')} ({sep.t0:.2f}-{sep.t1:.2f} s: " \
+         f"{_g(sep.x_floor[0])}x against {_g(sep.x_floor[1])}x the floor)"
+    if sep.separated:
         return f"{a} and {b} differ most at {at}: this record separates them"
-    if sep.get("both_at_floor"):
+    if sep.both_at_floor:
         return (f"{a} and {b} both fit every part of this record at the noise floor (most apart at {at}): this "
                 "record does not separate them; a test at another level (where a limit acts) or a holdout record "
                 "would")

@@ -16,7 +16,7 @@ from bench_ctl.engine.derived import saturation_ab
 from bench_ctl.engine.machines.grid import machine_matrix, unit_machine, with_placeholders
 from bench_ctl.model.params import COL, KERNEL_PARAMS, PARAMS, RECORD_PARAMS, STRUCTURE_PARAMS
 from bench_ctl.signals.edges import EdgeSpec
-from bench_ctl.units.unit import Unit
+from bench_ctl.units.unit import Unit, UnitError
 
 
 def param_matrix(base: Mapping[str, float], names: Sequence[str] = (), X: np.ndarray | None = None, *,
@@ -146,14 +146,18 @@ def synthetic_record(unit: Unit, t: np.ndarray, usetp: np.ndarray, recorder: Rec
     grid (its [grid] data), with P, Q and Ifd measured too."""
     dt = float(t[1] - t[0])
     if online:
+        try:
+            machine = unit_machine(unit)
+        except ValueError as exc:   # the [grid] data the unit lacks, named: the unit's to give
+            raise UnitError(str(exc)) from None
         out = engine.run(param_matrix(unit.values()), usetp, dt, pre_trigger_mean(usetp, dt),
-                         machine=machine_matrix(unit_machine(unit)))
+                         machine=machine_matrix(machine))
         series = {name: out[name][0] for name in ("efd", "vt", "p", "q", "ifd")}
         fail = int(out["fail_step"][0])
     else:
         efd, vt, fail = simulate(unit.values(), usetp, dt)
         series = {"efd": efd, "vt": vt}
     if fail >= 0:
-        raise ValueError(f"the unit {unit.name!r} is unstable with these parameters (failed at t = {fail * dt:.3f} s)")
+        raise UnitError(f"the unit {unit.name!r} is unstable with these parameters (failed at t = {fail * dt:.3f} s)")
     rng = np.random.default_rng(seed)
     return {"time": t, "usetp": usetp, **{name: recorder.apply(x, rng) for name, x in series.items()}}

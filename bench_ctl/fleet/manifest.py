@@ -24,6 +24,7 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench_ctl.exitcodes import BadInput
 from bench_ctl.limits import LIMITS, InputError, read_text
 from bench_ctl.model.structures import StructureError, structure
 
@@ -36,7 +37,7 @@ COLUMNS = ("capture", "holdout", "unit", "model", "set", "steps")
 _KIND = {"capture": "a capture", "holdout": "a capture", "unit": "a unit file"}
 
 
-class ManifestError(ValueError):
+class ManifestError(BadInput):
     """A manifest that cannot be run; the message names file, line and column."""
 
 

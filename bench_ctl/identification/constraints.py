@@ -29,12 +29,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench_ctl.exitcodes import BadInput
+
 logger = logging.getLogger(__name__)
 
 __all__ = ["ConstraintError", "LinearConstraint", "parse_constraint", "parse_constraints"]
 
 
-class ConstraintError(ValueError):
+class ConstraintError(BadInput):
     """A constraint text that cannot be parsed or does not fit the parameter names."""
 
 

@@ -24,21 +24,24 @@ lags TA2 and TA4 against TE, IEEEX1's TA and TE); a declared pair that is not fi
 notes as not examined. Each swapped set is built, checked against the bounds and the constraints,
 simulated, and reported with its MSE and whether it is equivalent (same fit within the noise); a
 swap the constraints or bounds rule out is reported as such.
+
+`analyse` returns the result's `Identifiability` record, its tables keyed by the problem's (kernel)
+names (the result's writer renames them) and its texts in the structure's names (the unit's
+dialect), as a user reads them.
 """
 from __future__ import annotations
 
 import logging
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
-from bench_ctl.model.dialect import namer, std_text
+from bench_ctl.model.dialect import Dialect
 from bench_ctl.model.params import RECORD_PARAMS
-from bench_ctl.model.structures import Structure, structure
 
 from .problem import Problem
+from .result_file import EquivalentSet, Identifiability, IdentifiabilitySettings
 
 logger = logging.getLogger(__name__)
 
@@ -76,13 +79,13 @@ def _active(problem: Problem) -> np.ndarray:
 
 def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
             max_rel_std: float = 0.25, max_corr: float = 0.999, note_corr: float = 0.99, cond_limit: float = 1e-8,
-            equivalence_tol: float | None = None) -> dict[str, Any]:
+            equivalence_tol: float | None = None) -> Identifiability:
     """The `identifiability` block of the result (docs/formats.md) for `problem` at `x`."""
     x = np.asarray(x, dtype=float).reshape(-1)
     names = list(problem.names)
     d = len(names)
-    st = _structure(problem)
-    nm = namer(st)      # texts name parameters as the structure does (bench_ctl.model.dialect)
+    dia = problem.unit.dialect
+    nm = dia.name       # texts name parameters as the structure does
     notes: list[str] = []
     reasons: dict[str, list[str]] = {n: [] for n in names}
     # log steps for positive model parameters; additive (s) for the edge offsets, whose sign is free
@@ -151,14 +154,14 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
             notes.append(f"{nm(n)} = {x[i]:.6g} sits on its bound; the capture may want it beyond")
     for c in problem.constraint_report(x):
         if c["margin"] is not None and c["satisfied"] and abs(c["margin"]) <= 1e-6 * (1 + np.max(np.abs(x))):
-            notes.append(f"constraint {std_text(st, c['expr'])} is active: it, not the capture, fixes the "
+            notes.append(f"constraint {dia.text(c['expr'])} is active: it, not the capture, fixes the "
                          "parameters it links")
 
     mse_opt = float(np.mean(problem.mse(x)))
     n_efd = int(efd_rows.sum())
     tol = equivalence_tol if equivalence_tol is not None else max(1e-3 * mse_opt,
                                                                    3.0 * mse_opt * math.sqrt(2.0 / n_efd))
-    eq_sets = _equivalent_sets(problem, x, mse_opt, tol, reasons, notes, st)
+    eq_sets = _equivalent_sets(problem, x, mse_opt, tol, reasons, notes, dia)
 
     determined = {n: not reasons[n] for n in names}
     undetermined = [n for n in names if not determined[n]]
@@ -166,42 +169,43 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
         notes.append(f"not determined by this capture: {', '.join(map(nm, undetermined))}")
     logger.info("identifiability: s2 %.3g, rel std %s, undetermined %s", s2,
                 dict(zip(names, np.round(rel_std, 4))), undetermined)
-    return {
-        "names": names,
-        "sensitivity": {n: float(v) for n, v in zip(names, sens)},
-        "std": {n: _num(v) for n, v in zip(names, std)},
-        "rel_std": {n: _num(v) for n, v in zip(names, rel_std)},
-        "correlation": [[float(v) for v in row] for row in corr],
-        "determined": determined,
-        "reasons": {n: r for n, r in reasons.items() if r},
-        "singular_values": [float(v) for v in sv],
-        "residual_variance": float(s2),
-        "equivalent_sets": eq_sets,
-        "notes": notes,
-        "settings": {"rel_step": rel_step, "max_rel_std": max_rel_std, "max_corr": max_corr,
-                     "note_corr": note_corr,
-                     "cond_limit": cond_limit, "equivalence_tol_mse": tol},
-    }
+    return Identifiability(
+        names=names,
+        sensitivity={n: float(v) for n, v in zip(names, sens)},
+        std={n: _num(v) for n, v in zip(names, std)},
+        rel_std={n: _num(v) for n, v in zip(names, rel_std)},
+        correlation=[[float(v) for v in row] for row in corr],
+        determined=determined,
+        reasons={n: r for n, r in reasons.items() if r},
+        singular_values=[float(v) for v in sv],
+        residual_variance=float(s2),
+        equivalent_sets=tuple(eq_sets),
+        notes=notes,
+        settings=IdentifiabilitySettings(rel_step=rel_step, max_rel_std=max_rel_std, max_corr=max_corr,
+                                         note_corr=note_corr, cond_limit=cond_limit, equivalence_tol_mse=tol),
+    )
+
+
+def not_analysed(names: Sequence[str]) -> Identifiability:
+    """The block of a fit that failed: nothing determined, said so."""
+    return Identifiability(names=list(names), sensitivity={}, std={}, rel_std={}, correlation=[],
+                           determined={n: False for n in names}, equivalent_sets=(),
+                           notes=["not analysed: the fit failed"])
 
 
 def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-def _structure(problem: Problem) -> Structure:
-    unit = problem.unit
-    return unit.structure if hasattr(unit, "structure") else structure(None)
-
-
-def exchanges(problem: Problem, st: Structure | None = None) -> list[tuple[str, dict[str, str]]]:
+def exchanges(problem: Problem) -> list[tuple[str, dict[str, str]]]:
     """Every exchange to examine, as (note in the structure's names, mapping new_name ->
     source_name, kernel names): the reference AVR's lead-lag symmetries (in a standard structure
     only where all four are fitted) and every pair the structure declares (`Structure.swaps`),
-    fitted or not, so that one left out is said. `st`: the problem's structure by default."""
-    st = _structure(problem) if st is None else st
+    fitted or not, so that one left out is said."""
+    dia = problem.unit.dialect
+    st = dia.structure
     names = list(problem.names)
-    swaps = list(SWAPS) if st.name == "REFERENCE" else \
-        [(std_text(st, n), m) for n, m in SWAPS if set(m) <= set(names)]
+    swaps = list(SWAPS) if dia.plain else [(dia.text(n), m) for n, m in SWAPS if set(m) <= set(names)]
     simulated = [p.kernel for p in st.params if p.kernel is not None]
     for note, a, b in st.kernel_swaps(simulated):
         mapping = {a: b, b: a}
@@ -211,12 +215,12 @@ def exchanges(problem: Problem, st: Structure | None = None) -> list[tuple[str, 
 
 
 def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float,
-                     reasons: dict[str, list[str]], notes: list[str], st: Structure) -> list[dict[str, Any]]:
-    nm = namer(st)
+                     reasons: dict[str, list[str]], notes: list[str], dia: Dialect) -> list[EquivalentSet]:
+    nm = dia.name
     names = list(problem.names)
     values = problem.values(x)
     cands, meta = [], []
-    for note, mapping in exchanges(problem, st):
+    for note, mapping in exchanges(problem):
         if not set(mapping) <= set(names):
             fixed = sorted(set(mapping) - set(names))
             notes.append(f"{note}: not examined, {', '.join(map(nm, fixed))} not fitted")
@@ -232,7 +236,7 @@ def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float
         out = [f"{nm(n)} = {xs[i]:.6g} outside [{lo[i]:g}, {hi[i]:g}]" for i, n in enumerate(names)
                if not lo[i] <= xs[i] <= hi[i]]
         cands.append(xs)
-        meta.append((note, mapping, out, [std_text(st, v) for v in problem.violated(xs)]))
+        meta.append((note, mapping, out, [dia.text(v) for v in problem.violated(xs)]))
     if not cands:
         return []
     mses = problem.mse_many(np.array(cands)).mean(axis=0)
@@ -240,19 +244,18 @@ def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float
     for xs, m, (note, mapping, out, viol) in zip(cands, mses, meta):
         equivalent = bool(math.isfinite(m) and abs(m - mse_opt) <= tol)
         allowed = not out and not viol
-        entry = {"params": problem.params(xs), "mse": _num(float(m)), "note": note,
-                 "equivalent": equivalent, "in_bounds": not out, "outside_bounds": out,
-                 "constraints_violated": viol, "allowed": allowed}
         if equivalent and allowed:
-            entry["verdict"] = "equally good and allowed: the capture cannot choose between them"
+            verdict = "equally good and allowed: the capture cannot choose between them"
             for n in mapping:
                 if not math.isclose(values[n], values[mapping[n]], rel_tol=1e-6):
                     reasons[n].append(f"exchangeable ({note}) within bounds and constraints")
         elif equivalent:
             why = "; ".join(([f"constraints {', '.join(viol)}"] if viol else [])
                             + (["bounds"] if out else []))
-            entry["verdict"] = f"equally good but ruled out by {why}"
+            verdict = f"equally good but ruled out by {why}"
         else:
-            entry["verdict"] = "not equivalent (different response)"
-        sets.append(entry)
+            verdict = "not equivalent (different response)"
+        sets.append(EquivalentSet(params=problem.params(xs), mse=_num(float(m)), note=note, equivalent=equivalent,
+                                  in_bounds=not out, outside_bounds=out, constraints_violated=viol,
+                                  allowed=allowed, verdict=verdict))
     return sets

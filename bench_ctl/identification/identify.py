@@ -14,29 +14,37 @@ import os
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import bench_ctl
 from bench_ctl import engine
-from bench_ctl.capture import Capture
+from bench_ctl.capture import Capture, capture_sha256
 from bench_ctl.engine import optimisation_note
 from bench_ctl.engine.simulate import param_matrix
-from bench_ctl.limits import sha256_file
-from bench_ctl.model.dialect import result_to_std
 from bench_ctl.model.params import GENERATOR_OPTIONAL, RECORD_PARAMS
+from bench_ctl.outputs import path_from
 from bench_ctl.records import plain
 from bench_ctl.timestamps import utc_now_text
 from bench_ctl.units.unit import Unit
 from bench_ctl.units.unit import outside_bounds as values_outside_bounds
 
-from .identifiability import analyse
+from .identifiability import analyse, not_analysed
 from .peers import OPTIMIZERS, Progress, run_optimizer
 from .problem import Problem, make_problem
 from .result import Result
-from .result_file import RESULT_SCHEMA, IdentificationResult
+from .result_file import (
+    RESULT_SCHEMA,
+    CaptureEntry,
+    Comparison,
+    ConstraintEntry,
+    Identifiability,
+    IdentificationResult,
+    ModelEntry,
+    OptimizerEntry,
+)
+from .timing import Edge
 
 logger = logging.getLogger(__name__)
 
@@ -87,14 +95,10 @@ def _none_if_inf(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-def _capture_entry(c: Capture, mse: float, obj: float, weight: float,
-                   edges: list[dict[str, Any]]) -> dict[str, Any]:
-    sha = c.meta.get("csv_sha256") if isinstance(c.meta, Mapping) else None
-    if sha is None and c.source and Path(c.source).is_file():
-        sha = sha256_file(c.source)
-    return {"path": c.source, "sha256": sha, "n": int(c.n), "rate_hz": float(c.rate_hz),
-            "meta": dict(c.meta), "mse": _none_if_inf(mse), "objective": _none_if_inf(obj),
-            "weight": float(weight), "edges": edges}
+def _capture_entry(c: Capture, mse: float, obj: float, weight: float, edges: list[Edge]) -> CaptureEntry:
+    return CaptureEntry(path=c.source, sha256=capture_sha256(c.source), n=int(c.n), rate_hz=float(c.rate_hz),
+                        meta=plain(dict(c.meta)), mse=_none_if_inf(mse), objective=_none_if_inf(obj),
+                        weight=float(weight), edges=tuple(edges))
 
 
 def result_for_file(result: IdentificationResult, result_path: str | os.PathLike[str]) -> IdentificationResult:
@@ -102,46 +106,34 @@ def result_for_file(result: IdentificationResult, result_path: str | os.PathLike
     folder (issue 24 item 14), so the result still finds its captures from any working directory
     and when the folder is moved as a whole. A path with no relative form (another drive) stays
     absolute; a capture held in memory (no path) stays so."""
-    folder = Path(os.path.abspath(result_path)).parent
-    caps = []
-    for c in result.captures:
-        if c.path:
-            absolute = os.path.abspath(c.path)
-            try:
-                c = replace(c, path=Path(os.path.relpath(absolute, folder)).as_posix())
-            except ValueError:
-                c = replace(c, path=absolute)
-        caps.append(c)
-    return replace(result, captures=tuple(caps))
+    return replace(result, captures=tuple(replace(c, path=path_from(result_path, c.path)) if c.path else c
+                                          for c in result.captures))
 
 
-def _model_only(ident: dict[str, Any]) -> dict[str, Any]:
+def _model_only(ident: Identifiability) -> Identifiability:
     """The identifiability block over the model parameters: the edge offsets were analysed with
     them (their std goes to `edges`) but are the record's timing, not parameters of the unit."""
-    names = list(ident.get("names", []))
+    names = list(ident.names)
     keep = [i for i, n in enumerate(names) if n not in RECORD_PARAMS]
     if len(keep) == len(names):
         return ident
-    out = dict(ident)
-    out["names"] = [names[i] for i in keep]
-    for key in ("sensitivity", "std", "rel_std", "determined", "reasons"):
-        if isinstance(out.get(key), Mapping):
-            out[key] = {n: v for n, v in out[key].items() if n not in RECORD_PARAMS}
-    corr = out.get("correlation")
-    if isinstance(corr, list) and len(corr) == len(names):
-        out["correlation"] = [[corr[i][j] for j in keep] for i in keep]
-    out["equivalent_sets"] = [{**e, "params": {n: v for n, v in e.get("params", {}).items()
-                                               if n not in RECORD_PARAMS}}
-                              for e in out.get("equivalent_sets", []) if isinstance(e, Mapping)]
-    return out
+
+    def model(table: dict) -> dict:
+        return {n: v for n, v in table.items() if n not in RECORD_PARAMS}
+    corr = ident.correlation
+    return replace(
+        ident, names=[names[i] for i in keep], sensitivity=model(ident.sensitivity), std=model(ident.std),
+        rel_std=model(ident.rel_std), determined=model(ident.determined),
+        reasons=None if ident.reasons is None else model(ident.reasons),
+        correlation=[[corr[i][j] for j in keep] for i in keep] if len(corr) == len(names) else corr,
+        equivalent_sets=tuple(replace(e, params=model(e.params)) for e in ident.equivalent_sets))
 
 
-def _run_summary(problem: Problem, r: Result) -> dict[str, Any]:
+def _run_summary(problem: Problem, r: Result) -> Comparison:
     mses = problem.mse(r.x)
-    return {"optimizer": r.method, "mse": _none_if_inf(float(np.mean(mses))),
-            "objective": _none_if_inf(r.fun), "evaluations": r.nfev, "wall_s": r.wall_s,
-            "constraints_violated": list(r.violated), "params": problem.model_params(r.x),
-            "failed": not r.success, "message": r.message}
+    return Comparison(optimizer=r.method, mse=_none_if_inf(float(np.mean(mses))), objective=_none_if_inf(r.fun),
+                      evaluations=int(r.nfev), wall_s=r.wall_s, constraints_violated=list(r.violated),
+                      params=problem.model_params(r.x), failed=not r.success, message=r.message)
 
 
 def run_identification(*args: Any, **kwargs: Any) -> Identification:
@@ -155,24 +147,24 @@ def run_identification(*args: Any, **kwargs: Any) -> Identification:
 
 
 def model_entry(unit: Unit, kernel_values: Mapping[str, float], identified: Sequence[str],
-                determined: Mapping[str, bool]) -> dict[str, Any]:
+                determined: Mapping[str, bool]) -> ModelEntry:
     """The result's `model`: the structure, its parameters under their standard names (fitted
     values where identified), which ones were identified and which the captures determined."""
     st = unit.structure
+    name = unit.dialect.name
     values = st.std_values(kernel_values, unit.model_values)
-    ident_std = [unit.std_name(n) for n in identified if n not in RECORD_PARAMS]
-    return {
-        "name": st.name,
-        "title": st.title,
-        "dyr_model": st.dyr_model,
-        "params": {k: _none_if_inf(float(v)) for k, v in values.items()},
-        "units": {p.name: p.unit for p in st.params},
-        "identified": ident_std,
-        "determined": {unit.std_name(n): bool(v) for n, v in determined.items() if n not in RECORD_PARAMS},
-        "simulated": [p.name for p in st.params if p.kernel is not None],
-        "generator": {k: _none_if_inf(float(kernel_values[k])) for k in ("Td0p", "Td0pp", "Vt0", *GENERATOR_OPTIONAL)
-                      if k in kernel_values},
-    }
+    return ModelEntry(
+        name=st.name,
+        title=st.title,
+        dyr_model=st.dyr_model,
+        params={k: _none_if_inf(float(v)) for k, v in values.items()},
+        units={p.name: p.unit for p in st.params},
+        identified=[name(n) for n in identified if n not in RECORD_PARAMS],
+        determined={name(n): bool(v) for n, v in determined.items() if n not in RECORD_PARAMS},
+        simulated=[p.name for p in st.params if p.kernel is not None],
+        generator={k: _none_if_inf(float(kernel_values[k])) for k in ("Td0p", "Td0pp", "Vt0", *GENERATOR_OPTIONAL)
+                   if k in kernel_values},
+    )
 
 
 def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: str = "mvmo",
@@ -210,50 +202,45 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
         logger.warning("identifiability analysis failed: %s", exc)
         ident = None
     if ident is None:
-        ident = {"names": list(prob.names), "sensitivity": {}, "std": {}, "rel_std": {},
-                 "correlation": [], "determined": {n: False for n in prob.names},
-                 "equivalent_sets": [], "notes": ["not analysed: the fit failed"]}
+        ident = not_analysed(prob.names)
     fixed = {k: _none_if_inf(v) for k, v in prob.base.items()
              if k not in prob.names and k not in RECORD_PARAMS and k not in prob.grid_names}
     # [grid] values fitted on line go to the unit's [grid], not among the model's parameters
     params = prob.model_params(x)
-    unit_entry = prob.unit.to_dict()
-    unit_entry["grid"].update({k: params.pop(k) for k in prob.grid_names})
-    edges = prob.edges(x, ident.get("std"))
+    unit_entry = prob.unit.entry()
+    unit_entry = replace(unit_entry, grid={**(unit_entry.grid or {}), **{k: params.pop(k) for k in prob.grid_names}})
+    edges = prob.edges(x, ident.std)
     ident = _model_only(ident)
-    result: dict[str, Any] = {
-        "schema": RESULT_SCHEMA,
-        "software_version": bench_ctl.__version__,
-        "command_line": command_line,
-        "created_utc": utc_now_text(),
-        "unit": unit_entry,
-        "captures": [_capture_entry(c, m, o, w, e) for c, m, o, w, e
-                     in zip(prob.captures, mses, objs, prob.weights, edges)],
-        "params": params,
-        "fixed": fixed,
-        "bounds": {n: [lo, hi] for n, (lo, hi) in zip(prob.names, prob.bounds)
-                   if n not in RECORD_PARAMS and n not in prob.grid_names},
-        "edges": [{"capture": i, **e} for i, es in enumerate(edges) for e in es],
-        "constraints": prob.constraint_report(x),
-        "objective": _none_if_inf(best.fun),
-        "mse": _none_if_inf(float(np.mean(mses))),
-        "evaluations": best.nfev,
-        "wall_s": best.wall_s,
-        "compile_s": compile_s,
-        "optimizer": {"name": best.method, "settings": dict(best.settings), "seed": seed},
-        "history": [[n, _none_if_inf(v)] for n, v in best.history],
-        "identifiability": ident,
-        "fit_window": list(prob.window) if prob.window is not None else None,
-        "failed": not best.success,
-        "message": best.message,
-    }
-    result["model"] = model_entry(prob.unit, {**prob.base, **result["params"]}, prob.names,
-                                  ident.get("determined") or {})
-    if len(runs) > 1:
-        result["comparison"] = [_run_summary(prob, r) for r in runs]
-    result = result_to_std(prob.unit.structure, result)   # the boundary: the structure's names
-    return Identification(result=IdentificationResult.from_json(plain(result), "the identification result"),
-                          problem=prob, best=best, runs=tuple(runs))
+    result = IdentificationResult(
+        schema=RESULT_SCHEMA,
+        software_version=bench_ctl.__version__,
+        command_line=command_line,
+        created_utc=utc_now_text(),
+        unit=unit_entry,
+        captures=tuple(_capture_entry(c, m, o, w, e) for c, m, o, w, e
+                       in zip(prob.captures, mses, objs, prob.weights, edges)),
+        params=params,
+        fixed=fixed,
+        bounds={n: [lo, hi] for n, (lo, hi) in zip(prob.names, prob.bounds)
+                if n not in RECORD_PARAMS and n not in prob.grid_names},
+        edges=tuple(replace(e, capture=i) for i, es in enumerate(edges) for e in es),
+        constraints=tuple(ConstraintEntry(**c) for c in prob.constraint_report(x)),
+        objective=_none_if_inf(best.fun),
+        mse=_none_if_inf(float(np.mean(mses))),
+        evaluations=int(best.nfev),
+        wall_s=best.wall_s,
+        compile_s=compile_s,
+        optimizer=OptimizerEntry(name=best.method, settings=plain(dict(best.settings)), seed=seed),
+        history=[[n, _none_if_inf(v)] for n, v in best.history],
+        identifiability=ident,
+        fit_window=list(prob.window) if prob.window is not None else None,
+        failed=not best.success,
+        message=best.message,
+        model=model_entry(prob.unit, {**prob.base, **params}, prob.names, ident.determined),
+        comparison=tuple(_run_summary(prob, r) for r in runs) if len(runs) > 1 else None,
+    )
+    # the boundary: the structure's names
+    return Identification(result=result.renamed(prob.unit.dialect), problem=prob, best=best, runs=tuple(runs))
 
 
 def identify(captures: Sequence[Capture], unit: Unit, *, optimizer: str = "mvmo",

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench_ctl.capture import Capture
+from bench_ctl.exitcodes import BadInput
 from bench_ctl.signals.edges import EdgeSpec
 
 from .timing import Edge
@@ -15,7 +16,7 @@ from .timing import Edge
 __all__ = ["Record", "apply_window", "decimated", "segment_window", "ProblemError"]
 
 
-class ProblemError(ValueError):
+class ProblemError(BadInput):
     """Names, bounds, weights or a window that cannot define an identification problem."""
 
 

@@ -1,21 +1,33 @@
 """The identification result as a typed value: what `identify --json` writes and `report`, `export`,
 `diagnose --result` and the batch read (docs/formats.md, "Result JSON").
 
-`IdentificationResult.from_json(data, where)` checks every key (a missing or wrong one is a
-`FormatError` naming the file and the key) and the schema tag; `to_json()` gives the same JSON
-back. `read_result(path)` reads a file. The parameter tables (`params`, `fixed`, `bounds`) stay
-plain name -> value mappings; what fills them is identification's business.
+The writer (`identify.run_identification`) builds the records below in the kernel's names and
+renames them once, into the structure's, with the unit's dialect (`IdentificationResult.renamed`,
+`bench_ctl.model.dialect`). `IdentificationResult.from_json(data, where)` checks every key (a
+missing or wrong one is a `FormatError` naming the file and the key) and the schema tag;
+`to_json()` gives the same JSON back. `read_result(path)` reads a file; `kernel_view()` gives its
+values in the kernel's names again (the report's re-simulation, `export`, `diagnose --result`).
+The parameter tables (`params`, `fixed`, `bounds`) are name -> value mappings; a capture's `meta`
+(its sidecar) and an optimizer's `settings` are copied as they are (`JSON`).
 """
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from bench_ctl.limits import read_json
-from bench_ctl.records import FormatError, Record, schema_version
+from bench_ctl.model.dialect import Dialect, dialect_of, kernel_sections
+from bench_ctl.model.structures import StructureError, structure
+from bench_ctl.model.unit_record import UnitEntry
+from bench_ctl.records import JSON, FormatError, Record, schema_version
 
-__all__ = ["RESULT_SCHEMA", "SCHEMA_VERSION", "CaptureEntry", "IdentificationResult", "read_result"]
+from .timing import Edge
+
+__all__ = ["RESULT_SCHEMA", "SCHEMA_VERSION", "CaptureEntry", "ConstraintEntry", "OptimizerEntry",
+           "EquivalentSet", "IdentifiabilitySettings", "Identifiability", "ModelEntry", "Comparison",
+           "ResultKernel", "SegmentShare", "BandShare", "Localization", "Separation", "CandidateEntry",
+           "SelectionEntry", "IdentificationResult", "read_result"]
 
 #: the version of the result format this bench-ctl writes and reads; bump it (and the docs) when
 #: a key changes meaning or goes away
@@ -27,18 +39,219 @@ RESULT_SCHEMA = f"bench-ctl/result/{SCHEMA_VERSION}"
 class CaptureEntry(Record):
     """One capture the result was identified on. `path` is relative to the result file's folder
     once written (None for a capture held in memory); the report refuses a file whose SHA-256
-    differs from `sha256`."""
+    differs from `sha256` (`bench_ctl.capture.capture_sha256`)."""
     path: str | None
     sha256: str | None
     n: int
     rate_hz: float
-    meta: dict[str, Any]
+    meta: dict[str, JSON]
     mse: float | None
     objective: float | None
     weight: float
-    edges: list[dict[str, Any]] | None = None
+    edges: tuple[Edge, ...] | None = None
 
     OMITTED_WHEN_NONE = ("edges",)
+
+
+@dataclass(frozen=True, eq=False)
+class ConstraintEntry(Record):
+    """A constraint at the result: its text, whether it holds, its slack (None: no fitted
+    parameter in it)."""
+    expr: str
+    satisfied: bool
+    margin: float | None
+
+    def renamed(self, d: Dialect) -> ConstraintEntry:
+        return replace(self, expr=d.text(self.expr))
+
+
+@dataclass(frozen=True, eq=False)
+class OptimizerEntry(Record):
+    """The optimizer that gave the result: its settings as it reports them (every option, the
+    search space, the polishes, the swap restarts)."""
+    name: str
+    settings: dict[str, JSON]
+    seed: int | None
+
+
+@dataclass(frozen=True, eq=False)
+class EquivalentSet(Record):
+    """An exchange of equivalent parameters examined at the result (`identifiability`)."""
+    params: dict[str, float]
+    mse: float | None
+    note: str
+    equivalent: bool
+    in_bounds: bool
+    outside_bounds: list[str]
+    constraints_violated: list[str]
+    allowed: bool
+    verdict: str
+
+
+@dataclass(frozen=True, eq=False)
+class IdentifiabilitySettings(Record):
+    rel_step: float
+    max_rel_std: float
+    max_corr: float
+    note_corr: float
+    cond_limit: float
+    equivalence_tol_mse: float
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Identifiability(Record):
+    """What the captures determine at the result (`identifiability.analyse`); a fit that failed
+    has no `reasons`, `singular_values`, `residual_variance` nor `settings` (not analysed). Its
+    texts are written in the structure's names where they are made."""
+    names: list[str]
+    sensitivity: dict[str, float | None]
+    std: dict[str, float | None]
+    rel_std: dict[str, float | None]
+    correlation: list[list[float]]
+    determined: dict[str, bool]
+    reasons: dict[str, list[str]] | None = None
+    singular_values: list[float] | None = None
+    residual_variance: float | None = None
+    equivalent_sets: tuple[EquivalentSet, ...]
+    notes: list[str]
+    settings: IdentifiabilitySettings | None = None
+
+    OMITTED_WHEN_NONE = ("reasons", "singular_values", "residual_variance", "settings")
+
+    def renamed(self, d: Dialect) -> Identifiability:
+        return replace(self, names=[d.name(n) for n in self.names], sensitivity=d.keys(self.sensitivity),
+                       std=d.keys(self.std), rel_std=d.keys(self.rel_std), determined=d.keys(self.determined),
+                       reasons=None if self.reasons is None else d.keys(self.reasons),
+                       equivalent_sets=tuple(replace(e, params=d.keys(e.params)) for e in self.equivalent_sets))
+
+
+@dataclass(frozen=True, eq=False)
+class ModelEntry(Record):
+    """The structure of the result: its parameters under their standard names (fitted values
+    where identified), which were identified and determined, which are simulated; the generator."""
+    name: str
+    title: str
+    dyr_model: str | None
+    params: dict[str, float | None]
+    units: dict[str, str]
+    identified: list[str]
+    determined: dict[str, bool]
+    simulated: list[str]
+    generator: dict[str, float | None]
+
+
+@dataclass(frozen=True, eq=False)
+class Comparison(Record):
+    """One optimizer run on the same problem (`comparison`, when several ran)."""
+    optimizer: str
+    mse: float | None
+    objective: float | None
+    evaluations: int
+    wall_s: float
+    constraints_violated: list[str]
+    params: dict[str, float]
+    failed: bool
+    message: str
+
+    def renamed(self, d: Dialect) -> Comparison:
+        return replace(self, params=d.keys(self.params),
+                       constraints_violated=[d.text(t) for t in self.constraints_violated])
+
+
+@dataclass(frozen=True, eq=False)
+class ResultKernel(Record):
+    """A standard structure's result in the kernel's names (`kernel`, for debugging)."""
+    params: dict[str, float]
+    bounds: dict[str, list[float]]
+    fixed: dict[str, float | None]
+    constraints: tuple[ConstraintEntry, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class SegmentShare(Record):
+    """A part of the record (pre_trigger, leading_edge, plateau, trailing_edge, recovery) and its
+    share of a residual's energy."""
+    name: str
+    t0: float
+    t1: float
+    share: float
+    mse: float
+
+
+@dataclass(frozen=True, eq=False)
+class BandShare(Record):
+    """A frequency band and its share of a residual's energy."""
+    name: str
+    f0_hz: float
+    f1_hz: float
+    share: float
+
+
+@dataclass(frozen=True, eq=False)
+class Localization(Record):
+    """Where a residual lies: per segment of the record and per frequency band."""
+    segments: tuple[SegmentShare, ...]
+    bands: tuple[BandShare, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class Separation(Record):
+    """Where the best two structures differ most (`selection.separation`)."""
+    models: list[str]
+    segment: str
+    t0: float
+    t1: float
+    x_floor: list[float]
+    weight: float
+    separated: bool
+    #: both fit the segment at the noise floor (absent in files written before it was said)
+    both_at_floor: bool | None = None
+
+    OMITTED_WHEN_NONE = ("both_at_floor",)
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class CandidateEntry(Record):
+    """One structure identified and checked by `--model auto`, in rank order."""
+    rank: int
+    model: str
+    k: int
+    inert: list[str]
+    n: int
+    mse: float | None
+    x_floor: float | None
+    check: dict[str, float | None]
+    check_mse: float | None
+    check_x_floor: float | None
+    score: float | None
+    score_difference: float | None
+    equivalent: bool
+    wall_s: float
+    searches: int
+    params: dict[str, float] | None = None
+    kernel: dict[str, float | None] | None = None
+    edges: list[tuple[Edge, ...]] | None = None
+    constraints_violated: list[str] | None = None
+    failed: bool | None = None
+    error: str | None = None
+    where: tuple[Localization, ...] | None = None
+    at_bounds: list[str] | None = None
+
+    OMITTED_WHEN_NONE = ("params", "kernel", "edges", "constraints_violated", "failed", "error", "where",
+                         "at_bounds")
+
+
+@dataclass(frozen=True, eq=False)
+class SelectionEntry(Record):
+    """`identify` / `diagnose --model auto`: every structure's fit and check, ranked."""
+    verdict: str
+    chosen: str
+    equivalent: list[str]
+    separation: Separation | None
+    noise_floor: float
+    candidates: tuple[CandidateEntry, ...]
+    rule: str
+    notes: list[str]
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -51,31 +264,31 @@ class IdentificationResult(Record):
     software_version: str
     command_line: str
     created_utc: str
-    unit: dict[str, Any]
+    unit: UnitEntry
     captures: tuple[CaptureEntry, ...]
     params: dict[str, float]
     fixed: dict[str, float | None]
     bounds: dict[str, list[float]]
-    edges: list[dict[str, Any]] | None = None
-    constraints: list[dict[str, Any]]
+    edges: tuple[Edge, ...] | None = None
+    constraints: tuple[ConstraintEntry, ...]
     objective: float | None
     mse: float | None
     evaluations: int
     wall_s: float
     compile_s: float
-    optimizer: dict[str, Any]
+    optimizer: OptimizerEntry
     history: list[list[float | None]]
-    identifiability: dict[str, Any] | None = None
+    identifiability: Identifiability | None = None
     fit_window: list[float] | None
     failed: bool | None = None
     message: str | None = None
-    model: dict[str, Any] | None = None
-    comparison: list[dict[str, Any]] | None = None
+    model: ModelEntry | None = None
+    comparison: tuple[Comparison, ...] | None = None
     #: a standard structure's result: params, bounds, fixed and constraints in the kernel's names
     #: (the other keys speak the structure's own; docs/formats.md)
-    kernel: dict[str, Any] | None = None
+    kernel: ResultKernel | None = None
     #: `identify --model auto`: every structure's fit and check, ranked (docs/formats.md)
-    selection: dict[str, Any] | None = None
+    selection: SelectionEntry | None = None
 
     OMITTED_WHEN_NONE = ("edges", "identifiability", "failed", "message", "model", "comparison", "kernel",
                          "selection")
@@ -94,15 +307,47 @@ class IdentificationResult(Record):
         except FormatError as exc:
             raise FormatError(f"{exc} (the file has no 'schema' key: read as {RESULT_SCHEMA})") from None
 
+    def renamed(self, d: Dialect) -> IdentificationResult:
+        """The result built in the kernel's names, in the structure's (`params`, `bounds`, `fixed`,
+        `constraints`, `identifiability`, `unit`, `comparison`, the optimizer's settings); the
+        kernel's view under `kernel`. `model` is in the structure's names already. The reference
+        structure speaks the kernel's names: the result as it is."""
+        if d.plain:
+            return self
+        params = d.keys(self.params)
+        std_values = self.model.params if self.model is not None else {}
+        return replace(
+            self, unit=d.unit(self.unit), params=params, bounds=d.keys(self.bounds),
+            fixed=d.fixed(self.fixed, std_values, set(params)),
+            constraints=tuple(c.renamed(d) for c in self.constraints),
+            identifiability=None if self.identifiability is None else self.identifiability.renamed(d),
+            comparison=None if self.comparison is None else tuple(c.renamed(d) for c in self.comparison),
+            optimizer=replace(self.optimizer, settings=d.deep(self.optimizer.settings)),
+            kernel=ResultKernel(dict(self.params), dict(self.bounds), dict(self.fixed), self.constraints))
+
+    @property
+    def dialect(self) -> Dialect:
+        """The names of the result's structure (a structure this version lacks: the kernel's)."""
+        try:
+            st = structure(self.model_name)
+        except StructureError:
+            st = structure(None)
+        return dialect_of(st)
+
+    def kernel_view(self) -> dict[str, dict[str, Any]]:
+        """`fixed` and `params` in the kernel's names, values as written (None: an open limit);
+        see `bench_ctl.model.dialect.kernel_sections`."""
+        return kernel_sections(self.to_json())
+
     @property
     def model_name(self) -> str:
         """The structure's name (`REFERENCE` when the result names none)."""
-        return str((self.model or {}).get("name") or "REFERENCE")
+        return (self.model.name if self.model is not None else None) or "REFERENCE"
 
     @property
     def constraints_violated(self) -> list[str]:
         """The texts of the constraints the result reports as not satisfied."""
-        return [str(c.get("expr")) for c in self.constraints if c.get("satisfied") is not True]
+        return [c.expr for c in self.constraints if c.satisfied is not True]
 
 
 def read_result(path: str | os.PathLike[str]) -> IdentificationResult:

@@ -3,41 +3,54 @@
 Every fit (identification, the diagnosis' base and effect fits) carries the instant of each
 setpoint edge as a parameter: `EDGE1`.. hold the fitted instant minus the nominal one (s).
 
-- Recorded setpoint: a change first seen at sample k happened in (t[k-1], t[k]]: the offset is
-  searched in [-dt, 0].
+- Recorded setpoint: a change first seen at sample k (the one edge finder's,
+  `bench_ctl.signals.edges.find_setpoint_edges`) happened in (t[k-1], t[k]]: the offset is searched
+  in [-dt, 0].
 - Setpoint described by the user (`import --test`, no setpoint channel): the edge is known to
   within the test's `edge_tolerance_s` when given, else one sample of the source recorder (the
   import's median source step, the capture's step when it was not resampled): the offset is
   searched in [-tol, +tol].
 
-`edges_entry` / `edge_spec_of` write and read the per-capture `edges` list of the result and
-diagnosis JSON ({index, jump_pu, nominal_s, fitted_s, offset_s, std_s, lo_s, hi_s, how,
-fitted}), so a report re-simulates with the instants the fit found.
+`Edge` is one edge as a fit carries it and as the result and diagnosis JSON write it (a
+capture's `edges`: {index, jump_pu, nominal_s, fitted_s, offset_s, std_s, lo_s, hi_s, how,
+fitted}); `record_edges` gives them unfitted, `edges_entry` with the instants a fit found, and
+`edge_spec_of` reads them back for the kernel, so a report re-simulates with those instants.
 """
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from bench_ctl.capture import Capture
+from bench_ctl.records import Record
 from bench_ctl.signals.edges import EDGE_PARAMS, EdgeSpec, find_setpoint_edges
 
 __all__ = ["Edge", "record_edges", "edge_spec", "edges_entry", "edge_spec_of", "EDGE_PARAMS"]
 
 
-@dataclass(frozen=True)
-class Edge:
-    """One setpoint edge of a capture and the interval its instant is searched in."""
-    index: int          # first sample showing the new setpoint
-    jump: float         # pu
-    nominal_s: float    # t[index] - t[0]
-    lo_s: float         # offset bounds (s) relative to nominal_s
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Edge(Record):
+    """One setpoint edge of a capture, the interval its instant is searched in and, once fitted,
+    the instant found (the JSON's keys; docs/formats.md, "Result JSON")."""
+    #: which capture it belongs to, in a list of several captures' edges (a result's: the index;
+    #: a diagnosis': "capture" / "holdout"); absent in a capture's own list
+    capture: int | str | None = None
+    index: int                  # first sample showing the new setpoint
+    jump_pu: float              # usetp[index] - usetp[index - 1]
+    nominal_s: float            # index * dt, s from the record's first sample
+    fitted_s: float             # the instant the fit found (nominal_s when not fitted)
+    offset_s: float             # fitted_s - nominal_s
+    std_s: float | None         # the offset's standard deviation, when known
+    lo_s: float                 # offset bounds (s) relative to nominal_s
     hi_s: float
-    how: str            # "recorded" (usetp channel) or "described" (user's test description)
+    how: str                    # "recorded" (usetp channel) or "described" (user's test description)
+    fitted: bool                # its instant was fitted (at most four edges over a fit's captures)
+
+    OMITTED_WHEN_NONE = ("capture",)
 
 
 def _described_tolerance(capture: Capture) -> float | None:
@@ -66,48 +79,48 @@ def record_edges(capture: Capture) -> list[Edge]:
     out = []
     for k in idx.tolist():
         lo, hi, how = (-dt, 0.0, "recorded") if tol is None else (-tol, tol, "described")
-        out.append(Edge(int(k), float(u[k] - u[k - 1]), float(k * dt), lo, hi, how))
+        nominal = float(k * dt)
+        out.append(Edge(index=int(k), jump_pu=float(u[k] - u[k - 1]), nominal_s=nominal, fitted_s=nominal,
+                        offset_s=0.0, std_s=None, lo_s=lo, hi_s=hi, how=how, fitted=False))
     # neighbouring edges may not swap order: each searches at most half the gap to the next
     for i in range(len(out) - 1):
         gap = (out[i + 1].index - out[i].index) * dt
         half = 0.45 * gap
         a, b = out[i], out[i + 1]
-        out[i] = Edge(a.index, a.jump, a.nominal_s, max(a.lo_s, -half), min(a.hi_s, half), a.how)
-        out[i + 1] = Edge(b.index, b.jump, b.nominal_s, max(b.lo_s, -half), min(b.hi_s, half), b.how)
+        out[i] = replace(a, lo_s=max(a.lo_s, -half), hi_s=min(a.hi_s, half))
+        out[i + 1] = replace(b, lo_s=max(b.lo_s, -half), hi_s=min(b.hi_s, half))
     return out
 
 
 def edge_spec(edges: Sequence[Edge], slots: Sequence[int]) -> EdgeSpec:
     """The kernel's view of `edges`, whose offsets sit in the EDGE columns `slots`."""
     return EdgeSpec(np.array([e.index for e in edges], dtype=np.int64),
-                    np.array([e.jump for e in edges]), np.array([e.nominal_s for e in edges]),
+                    np.array([e.jump_pu for e in edges]), np.array([e.nominal_s for e in edges]),
                     np.array(list(slots), dtype=np.int64))
 
 
 def edges_entry(edges: Sequence[Edge], slots: Sequence[int | None], values: Mapping[str, float],
-                std: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
-    """The JSON list of a capture's edges: nominal and fitted instants (s from the record's first
-    sample), the offset's std (s) when known, its search interval, recorded or described. An edge
-    without a slot was not fitted (fitted_s = nominal_s)."""
+                std: Mapping[str, Any] | None = None) -> list[Edge]:
+    """A capture's edges with the fit's instants: nominal and fitted instants (s from the record's
+    first sample), the offset's std (s) when known, its search interval, recorded or described.
+    An edge without a slot was not fitted (fitted_s = nominal_s)."""
     out = []
     for e, slot in zip(edges, slots):
         name = EDGE_PARAMS[slot] if slot is not None else None
         off = float(values.get(name, 0.0)) if name else 0.0
         sd = (std or {}).get(name) if name else None
-        out.append({"index": e.index, "jump_pu": e.jump, "nominal_s": e.nominal_s,
-                    "fitted_s": e.nominal_s + off, "offset_s": off,
-                    "std_s": float(sd) if isinstance(sd, (int, float)) and math.isfinite(sd) else None,
-                    "lo_s": e.lo_s, "hi_s": e.hi_s, "how": e.how, "fitted": name is not None})
+        out.append(replace(e, fitted_s=e.nominal_s + off, offset_s=off,
+                           std_s=float(sd) if isinstance(sd, (int, float)) and math.isfinite(sd) else None,
+                           fitted=name is not None))
     return out
 
 
-def edge_spec_of(entries: Sequence[Mapping[str, Any]] | None, n: int) -> tuple[EdgeSpec, dict[str, float]]:
-    """(EdgeSpec, {EDGEi: offset}) from a JSON `edges` list (as `edges_entry` writes it), for a
-    record of `n` samples; edges beyond the record or not fitted are left out."""
-    rows = [e for e in (entries or []) if isinstance(e, Mapping) and e.get("fitted")
-            and isinstance(e.get("index"), int) and 1 <= e["index"] < n]
+def edge_spec_of(entries: Sequence[Edge] | None, n: int) -> tuple[EdgeSpec, dict[str, float]]:
+    """(EdgeSpec, {EDGEi: offset}) from a capture's edges as a result or diagnosis holds them
+    (`edges_entry`), for a record of `n` samples; edges beyond the record or not fitted are left
+    out."""
+    rows = [e for e in (entries or []) if e.fitted and 1 <= e.index < n]
     rows = rows[: len(EDGE_PARAMS)]
-    spec = EdgeSpec(np.array([e["index"] for e in rows], dtype=np.int64),
-                    np.array([float(e["jump_pu"]) for e in rows]),
-                    np.array([float(e["nominal_s"]) for e in rows]), np.arange(len(rows)))
-    return spec, {EDGE_PARAMS[i]: float(e["fitted_s"]) - float(e["nominal_s"]) for i, e in enumerate(rows)}
+    spec = EdgeSpec(np.array([e.index for e in rows], dtype=np.int64), np.array([e.jump_pu for e in rows]),
+                    np.array([e.nominal_s for e in rows]), np.arange(len(rows)))
+    return spec, {EDGE_PARAMS[i]: e.fitted_s - e.nominal_s for i, e in enumerate(rows)}

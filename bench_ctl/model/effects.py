@@ -16,7 +16,13 @@ import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+from bench_ctl.exitcodes import BadInput
+
 from .params import PARAMS
+
+
+class EffectError(BadInput):
+    """An effect or an effect's parameter that does not exist, or values that break its constraint."""
 
 _SCALED = re.compile(r"^\s*(\w+)\s*(>=|<=)\s*([0-9.]+)\s*\*\s*(\w+)\s*$")  # "S12 >= 1.44*S10"
 
@@ -82,7 +88,7 @@ class Effect:
     def check(self, values: dict[str, float]) -> None:
         unknown = set(values) - set(self.params) - set(self.options)
         if unknown:
-            raise ValueError(
+            raise EffectError(
                 f"effect {self.name!r} has no parameter {sorted(unknown)}; it has "
                 f"{list(self.params + self.options)}"
             )
@@ -94,11 +100,11 @@ class Effect:
         for text in self.constraints:
             m = _SCALED.match(text)
             if m is None:  # only the "A >= k*B" form exists; a new form must be taught here
-                raise ValueError(f"effect {self.name}: cannot read its constraint {text!r}")
+                raise EffectError(f"effect {self.name}: cannot read its constraint {text!r}")
             a, op, k, b = m.group(1), m.group(2), float(m.group(3)), m.group(4)
             lhs, rhs = float(values[a]), k * float(values[b])
             if not (lhs >= rhs if op == ">=" else lhs <= rhs):
-                raise ValueError(f"effect {self.name}: {a} = {lhs:g} breaks {text} "
+                raise EffectError(f"effect {self.name}: {a} = {lhs:g} breaks {text} "
                                  f"({k:g}*{b} = {rhs:g}); give both parameters")
 
 
@@ -234,4 +240,4 @@ def effect(name: str) -> Effect:
     try:
         return EFFECTS[name]
     except KeyError:
-        raise ValueError(f"unknown effect {name!r}; known effects: {', '.join(EFFECT_NAMES)}") from None
+        raise EffectError(f"unknown effect {name!r}; known effects: {', '.join(EFFECT_NAMES)}") from None

@@ -9,6 +9,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from bench_ctl.exitcodes import BadInput
+
+
+class ParamError(BadInput):
+    """A parameter value outside its physical range; the message names it, its unit and range."""
+
 
 @dataclass(frozen=True)
 class ParamInfo:
@@ -21,7 +27,7 @@ class ParamInfo:
 
     def check(self, value: float, where: str = "") -> None:
         if not (self.lo <= value <= self.hi) and not (self.neutral is not None and value == self.neutral):
-            raise ValueError(
+            raise ParamError(
                 f"{where}{self.name} = {value!r} {self.unit} is outside its physical range "
                 f"[{self.lo}, {self.hi}] ({self.info})"
             )

@@ -32,13 +32,14 @@ from bench_ctl.report.inputs import (
 from bench_ctl.report.metrics import (
     DEFAULT_EDGE_WINDOW_S,
     ErrorFigures,
-    PulseEdges,
+    edge_times,
     error_figures,
-    find_edges,
+    setpoint_edges,
     trapezoid_sq,
     window_slice,
 )
 from bench_ctl.signals.acceptance import Acceptance, AcceptanceError, acceptance_limits, evaluate
+from bench_ctl.signals.edges import EdgeSearch
 from bench_ctl.timestamps import utc_now_text
 from bench_ctl.units.unit import outside_bounds
 
@@ -51,7 +52,7 @@ class CaptureAnalysis:
     efd_sim: np.ndarray
     vt_sim: np.ndarray
     fail_step: int
-    edges: PulseEdges
+    edges: EdgeSearch       # the setpoint's edges (`metrics.setpoint_edges`)
     figures: ErrorFigures
     suffix: str  # "" for a single capture, else "_<1-based index>"
     fit_mse: float        # MSE over the fit window (= figures.mse without a window)
@@ -105,37 +106,37 @@ def analyse(result: IdentificationResult, *, diagnosis: Diagnosis | None = None,
     Raises `ReportError` (see `inputs`) for input that cannot be reported on.
     """
     check_result(result, where)
-    values = model_values(*_kernel_view(result), where)
+    view = result.kernel_view()   # the result's values in the kernel's names
+    values = model_values(view["params"], view["fixed"], where)
     loaded = load_captures(result, where, base_dir, confine)
     unit = result.unit
-    weights = unit.get("weights") if isinstance(unit.get("weights"), Mapping) else {}
-    w_efd, w_vt = _num(weights.get("efd"), 1.0), _num(weights.get("vt"), 0.0)
+    w_efd, w_vt = _num(unit.weights.get("efd"), 1.0), _num(unit.weights.get("vt"), 0.0)
     window = _fit_window(result.fit_window, where)
     try:
-        limits = acceptance_limits(unit.get("acceptance"), f"{where}: unit")
+        limits = acceptance_limits(unit.acceptance.to_json() if unit.acceptance else None, f"{where}: unit")
     except AcceptanceError as exc:
         raise ReportError(str(exc)) from None
-    grid = unit.get("grid") if isinstance(unit.get("grid"), Mapping) else {}
+    grid = unit.grid or {}
     analyses = [_analyse_capture(lc, values, window, where, window_s=window_s, w_efd=w_efd,
                                  w_vt=w_vt, single=len(loaded) == 1, limits=limits, grid=grid) for lc in loaded]
     failures = [f"{a.loaded.path.name}: the model blew up at t = "
                 f"{a.loaded.capture.time[a.fail_step]:.3f} s" for a in analyses if a.fail_step >= 0]
     mse = float(np.mean([a.fit_mse for a in analyses]))
     objective = float(sum(a.loaded.entry.weight * a.fit_objective for a in analyses))
-    constraints = chk.recheck_constraints(result.constraints, values)
-    unit_cons = unit.get("constraints")
-    if not constraints and isinstance(unit_cons, list) and unit_cons:
+    constraints = chk.recheck_constraints([c.to_json() for c in result.constraints], values)
+    unit_cons = unit.constraints
+    if not constraints and unit_cons:
         failures.append(f"the unit has constraints ({', '.join(map(str, unit_cons))}) but the result "
                         "reports none: they cannot be checked")
     other = _diagnosis_of_another(diagnosis, loaded)
     noise_floor, noise_source = _noise_floor(None if other else diagnosis, analyses)
-    ident = result.identifiability or {}
+    ident = result.identifiability
     if result.failed is True:
         failures.insert(0, f"identification reported a failed fit: {result.message or ''}")
     checks = chk.summary_checks(
         sim_failures=failures, mse_recomputed=mse, mse_reported=result.mse,
         constraints=constraints, noise_floor=noise_floor, noise_source=noise_source,
-        noise_ratio_limit=noise_ratio_limit, determined=ident.get("determined"),
+        noise_ratio_limit=noise_ratio_limit, determined=ident.determined if ident else None,
         at_bounds=chk.params_at_bounds(result.params, result.bounds),
         outside_bounds=outside_bounds(result.params, result.bounds),
         n_captures=len(analyses))
@@ -163,7 +164,7 @@ def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
         raise ReportError(f"{where}: captures[{lc.index}].edges: unreadable edge entry ({exc})") from None
     sim = simulate_record({**values, **offsets}, cap, grid or {}, spec, where)
     efd, vt, fail = sim["efd"], sim["vt"], sim["fail_step"]
-    edges = find_edges(cap.time, cap.usetp)
+    edges = setpoint_edges(cap.time, cap.usetp)
     figs = error_figures(cap.time, cap.efd, efd, edges, window_s=window_s, w_efd=w_efd,
                          vt_meas=cap.vt, vt_sim=vt, w_vt=w_vt)
     sl = window_slice(cap.time, window)
@@ -179,7 +180,7 @@ def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
         if w_vt and cap.vt is not None:
             fit_obj += w_vt * trapezoid_sq(cap.vt[sl] - vt[sl], cap.dt)
     suffix = "" if single else f"_{lc.index + 1}"
-    acc = evaluate(cap.time, cap.efd, efd, edges.leading_s, edges.trailing_s, limits)
+    acc = evaluate(cap.time, cap.efd, efd, *edge_times(edges), limits)
     online = {k: sim[k] for k in ("p", "q", "ifd")} if "p" in sim else None
     return CaptureAnalysis(lc, efd, vt, fail, edges, figs, suffix, fit_mse, fit_obj, acc, online)
 
@@ -216,8 +217,8 @@ def _diagnosis_of_another(diagnosis: Diagnosis | None, loaded: list[LoadedCaptur
     cap = diagnosis.capture
     if any(same_file(cap, lc) for lc in loaded):
         return ""
-    sha = str(cap.get("sha256", "?"))
-    return (f"the diagnosis was made on {cap.get('path', '?')} (SHA-256 {sha[:16]}...), not on a capture "
+    sha = cap.sha256 or "?"
+    return (f"the diagnosis was made on {cap.path or '?'} (SHA-256 {sha[:16]}...), not on a capture "
             "of this result: its verdict and effects describe another record, and its noise floor is "
             "not used here")
 
@@ -232,14 +233,6 @@ def _noise_floor(diagnosis: Diagnosis | None,
     if own and all(v is not None for v in own):
         return float(np.mean(own)), "variance of the measured efd before the trigger"
     return None, "not available"
-
-
-def _kernel_view(result: Any) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The result's `params` and `fixed` in the kernel's names (bench_ctl.model.dialect)."""
-    from bench_ctl.model.dialect import kernel_sections
-
-    sections = kernel_sections(result.to_json())
-    return sections["params"], sections["fixed"]
 
 
 def simulate_record(values: Mapping[str, float], cap: Any, grid: Mapping[str, float], spec: Any,

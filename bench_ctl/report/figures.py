@@ -14,8 +14,9 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure, SubFigure
 
-from bench_ctl.diagnosis.diagnosis_file import EffectEntry, Step
-from bench_ctl.report.metrics import ErrorFigures, PulseEdges
+from bench_ctl.diagnosis.diagnosis_file import EffectEntry, Left, Step
+from bench_ctl.report.metrics import ErrorFigures, edge_times
+from bench_ctl.signals.edges import EdgeSearch
 
 DPI = 110
 FIGSIZE = (9.6, 5.2)  # inches: 1056 x 572 px at DPI, fits an A4 page width when printed
@@ -50,7 +51,7 @@ def png_bytes(draw: Callable[[Canvas], None], figsize: tuple[float, float] = FIG
 
 
 def draw_response(fig: Canvas, time: np.ndarray, usetp: np.ndarray, meas: np.ndarray,
-                  sim: np.ndarray, edges: PulseEdges, title: str) -> None:
+                  sim: np.ndarray, edges: EdgeSearch, title: str) -> None:
     ax, axu = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     ax.plot(time, meas, color=COLORS["measured"], lw=0.8, label="efd measured")
     ax.plot(time, sim, color=COLORS["simulated"], lw=1.4, label="efd simulated")
@@ -59,7 +60,7 @@ def draw_response(fig: Canvas, time: np.ndarray, usetp: np.ndarray, meas: np.nda
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     axu.plot(time, usetp, color=COLORS["usetp"], lw=1.2, label="usetp (setpoint)")
-    for t_edge in (edges.leading_s, edges.trailing_s):
+    for t_edge in edge_times(edges):
         if t_edge is not None:
             for a in (ax, axu):
                 a.axvline(t_edge, color="0.5", ls=":", lw=0.8)
@@ -70,14 +71,14 @@ def draw_response(fig: Canvas, time: np.ndarray, usetp: np.ndarray, meas: np.nda
 
 
 def draw_online(fig: Canvas, time: np.ndarray, meas: Mapping[str, np.ndarray], sim: Mapping[str, np.ndarray],
-                edges: PulseEdges) -> None:
+                edges: EdgeSearch) -> None:
     """An on-line record: efd, Vt, P and Q measured vs simulated, one panel each, dotted lines at
     the setpoint edges."""
     axes = fig.subplots(4, 1, sharex=True)
     for ax, (name, unit) in zip(axes, (("efd", "pu"), ("vt", "pu"), ("p", "pu"), ("q", "pu"))):
         ax.plot(time, meas[name], color=COLORS["measured"], lw=0.8, label=f"{name} measured")
         ax.plot(time, sim[name], color=COLORS["simulated"], lw=1.3, label=f"{name} simulated")
-        for t_edge in (edges.leading_s, edges.trailing_s):
+        for t_edge in edge_times(edges):
             if t_edge is not None:
                 ax.axvline(t_edge, color="0.5", ls=":", lw=0.8)
         ax.set_ylabel(f"{name} ({unit})")
@@ -85,9 +86,10 @@ def draw_online(fig: Canvas, time: np.ndarray, meas: Mapping[str, np.ndarray], s
         ax.legend(loc="upper right", fontsize=7)
     axes[0].set_title("On line: measured vs simulated", fontsize=10)
     axes[-1].set_xlabel("time (s)")
-    if edges.leading_s is not None:   # zoomed on the test: from before the step to after its return
-        end = edges.trailing_s if edges.trailing_s is not None else edges.leading_s
-        axes[-1].set_xlim(max(float(time[0]), edges.leading_s - ONLINE_BEFORE_S),
+    lead_s, trail_s = edge_times(edges)
+    if lead_s is not None:   # zoomed on the test: from before the step to after its return
+        end = trail_s if trail_s is not None else lead_s
+        axes[-1].set_xlim(max(float(time[0]), lead_s - ONLINE_BEFORE_S),
                           min(float(time[-1]), end + ONLINE_AFTER_S))
 
 
@@ -151,8 +153,8 @@ def _zoom(ax: Any, time: np.ndarray, usetp: np.ndarray, meas: np.ndarray, sim: n
 
 
 def draw_edges(fig: Canvas, time: np.ndarray, usetp: np.ndarray, meas: np.ndarray,
-               sim: np.ndarray, edges: PulseEdges) -> None:
-    zooms = [("Leading edge", edges.leading_s), ("Trailing edge", edges.trailing_s)]
+               sim: np.ndarray, edges: EdgeSearch) -> None:
+    zooms = list(zip(("Leading edge", "Trailing edge"), edge_times(edges)))
     zooms = [(name, t) for name, t in zooms if t is not None]
     axes = np.atleast_1d(fig.subplots(1, len(zooms)))
     for ax, (name, t_edge) in zip(axes, zooms):
@@ -185,11 +187,11 @@ def draw_effects(fig: Canvas, effects: Sequence[EffectEntry]) -> None:
     ax.grid(alpha=0.3, axis="x")
     ax.legend(loc="lower right", fontsize=8)
 def draw_staircase(fig: Canvas, base_mse: float, floor: float, steps: Sequence[Step],
-                   left: Mapping[str, Any] | None = None, base_check: float | None = None) -> None:
+                   left: Left | None = None, base_check: float | None = None) -> None:
     """The error after each effect added (explained_by), over the noise floor, down to it."""
     labels = ["base model"] + [f"+ {s.name}" for s in steps]
     vals = [base_mse / floor] + [(s.mse if s.mse is not None else math.nan) / floor for s in steps]
-    checks = [base_check] + [s.check.get("mse") for s in steps]
+    checks = [base_check] + [s.check.mse for s in steps]
     ax = fig.subplots()
     x = np.arange(len(labels))
     ax.step(x, vals, where="mid", color=COLORS["bar"], lw=2, label="MSE on the capture / noise floor")
@@ -202,7 +204,7 @@ def draw_staircase(fig: Canvas, base_mse: float, floor: float, steps: Sequence[S
     ax.set_yscale("log")
     ax.set_xticks(x, labels)
     ax.set_ylabel("MSE / noise floor")
-    note = f" - left: {left.get('note')}" if left and left.get("note") else ""
+    note = f" - left: {left.note}" if left and left.note else ""
     ax.set_title("Diagnosis: the error after each effect added" + note[:90], fontsize=10)
     ax.grid(alpha=0.3, which="both", axis="y")
     ax.legend(loc="upper right", fontsize=8)

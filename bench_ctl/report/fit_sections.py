@@ -4,17 +4,15 @@ metadata and provenance sections are in `record_sections`; `outline` orders them
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
 from functools import partial
 from typing import Any
 
 import numpy as np
 
 from bench_ctl.diagnosis.selection import separation_text, where_left
-from bench_ctl.engine.simulate import simulate
-from bench_ctl.identification.result_file import IdentificationResult
+from bench_ctl.engine.simulate import pre_trigger_mean, simulate
+from bench_ctl.identification.result_file import CandidateEntry, EquivalentSet, Identifiability, IdentificationResult
 from bench_ctl.identification.timing import edge_spec_of
-from bench_ctl.model.dialect import describe
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
@@ -34,6 +32,7 @@ from bench_ctl.report.blocks import (
     table,
 )
 from bench_ctl.report.inputs import ReportError, model_values
+from bench_ctl.report.metrics import edge_times
 from bench_ctl.signals.acceptance import SOURCE
 from bench_ctl.signals.mode import electromechanical_mode
 
@@ -49,7 +48,7 @@ def summary(d: ReportData) -> Section:
     opt = r.optimizer
     diag = d.diagnosis
     rows = [
-        ("unit", str(unit.get("name", NOT_AVAILABLE)), "", ""),
+        ("unit", unit.name, "", ""),
         ("captures", ", ".join(a.loaded.path.name for a in d.captures), "",
          "SHA-256 verified; see Metadata"),
         *([("fit window", f"{fmt(d.fit_window[0])} … {fmt(d.fit_window[1])}", "s",
@@ -61,8 +60,8 @@ def summary(d: ReportData) -> Section:
          "trapezoidal integral of the weighted squared error"),
         ("objective (reported)", Num(num(r.objective), "objective-reported"), "pu² s", ""),
         ("noise floor", Num(d.noise_floor, "noise-floor"), "pu²", d.noise_source),
-        ("optimizer", str(opt.get("name", NOT_AVAILABLE)), "",
-         f"seed {fmt(opt.get('seed'))}, {fmt(r.evaluations)} evaluations"),
+        ("optimizer", opt.name, "",
+         f"seed {fmt(opt.seed)}, {fmt(r.evaluations)} evaluations"),
         *_single_capture_rows(d),
         ("diagnosis verdict", diag.verdict if diag else NOT_AVAILABLE,
          "", "see Diagnosis" if diag else "no diagnosis given"),
@@ -85,13 +84,15 @@ def _single_capture_rows(d: ReportData) -> list[tuple[str, Num, str, str]]:
 
 
 def _edge_text(a: CaptureAnalysis) -> str:
-    e = a.edges
-    if e.leading_s is None:
+    lead, (lead_s, trail_s) = a.edges.lead, edge_times(a.edges)
+    if lead is None or lead_s is None:
         return "No setpoint change found in usetp: no edge zooms, the whole record is one segment."
-    trail = f", trailing edge at t = {e.trailing_s:.4f} s" if e.trailing_s is not None else \
+    trail = f", trailing edge at t = {trail_s:.4f} s" if trail_s is not None else \
         " (a step: no trailing edge)"
-    return (f"Setpoint change of {e.amplitude:+.4g} pu from {e.usetp_pre:.4g} pu; leading edge at "
-            f"t = {e.leading_s:.4f} s{trail}. Edges are where usetp crosses half its largest "
+    cap = a.loaded.capture
+    pre = pre_trigger_mean(np.asarray(cap.usetp, float), float(cap.time[1] - cap.time[0]))
+    return (f"Setpoint change of {lead.jump:+.4g} pu from {pre:.4g} pu; leading edge at "
+            f"t = {lead_s:.4f} s{trail}. Edges are where usetp crosses half its largest "
             "excursion from the pre-trigger mean.")
 
 
@@ -102,13 +103,11 @@ def _edge_timing_table(a: CaptureAnalysis) -> Table | None:
         return None
     rows = []
     for i, e in enumerate(entries, 1):
-        if not isinstance(e, Mapping):
-            continue
-        nominal, fitted, std = num(e.get("nominal_s")), num(e.get("fitted_s")), num(e.get("std_s"))
+        nominal, fitted, std = num(e.nominal_s), num(e.fitted_s), num(e.std_s)
         rows.append((str(i), Num(nominal, digits=7), Num(fitted, digits=7),
                      Num(None if fitted is None or nominal is None else 1e3 * (fitted - nominal), digits=3),
                      Num(None if std is None else 1e3 * std, digits=2),
-                     str(e.get("how", "")) + ("" if e.get("fitted", True) else " (not fitted)")))
+                     e.how + ("" if e.fitted else " (not fitted)")))
     return table(("edge", "nominal (s)", "fitted (s)", "offset (ms)", "std (ms)", "setpoint"), rows,
                  id=f"edge-timing{a.suffix}",
                  caption="Setpoint edge instants: nominal = the first sample showing the change; fitted = "
@@ -132,7 +131,7 @@ def response(d: ReportData) -> Section:
                           "Residual r = measured − simulated efd; shading marks the segments, the "
                           "legend gives each segment's share of the residual energy Σr².",
                           partial(F.draw_residual, time=cap.time, residual=a.residual, figs=a.figures)))
-        if a.edges.leading_s is not None:
+        if a.edges.lead is not None:
             blocks.append(Fig(f"edges{a.suffix}",
                               f"Zooms on the setpoint edges ({F.ZOOM_BEFORE_S:g} s before to "
                               f"{F.ZOOM_AFTER_S:g} s after), usetp on the right axis.",
@@ -162,7 +161,8 @@ def online(d: ReportData) -> Section | None:
                           partial(F.draw_online, time=cap.time, meas=meas, sim=sim, edges=a.edges), size=(7.5, 8.0)))
         rows = []
         for name, p in (("measured", meas["p"]), ("simulated", sim["p"])):
-            m = None if a.edges.leading_s is None else electromechanical_mode(cap.time, p, a.edges.leading_s)
+            lead_s = edge_times(a.edges)[0]
+            m = None if lead_s is None else electromechanical_mode(cap.time, p, lead_s)
             key = f"mode-{name}{a.suffix}"
             rows.append((name, "n/a" if m is None else Num(m.frequency_hz, f"{key}-hz", 3),
                          "n/a" if m is None else Num(m.damping, f"{key}-zeta", 3),
@@ -249,13 +249,10 @@ def acceptance(d: ReportData) -> Section:
     return Section("acceptance", "Numeric acceptance", tuple(blocks))
 
 
-def _strong_pairs(ident: Mapping[str, Any]) -> list[tuple[str, float]]:
-    names, corr = ident.get("names"), ident.get("correlation")
-    try:
-        c = np.asarray(corr, float)
-    except (TypeError, ValueError):
-        return []
-    if not isinstance(names, list) or c.shape != (len(names), len(names)):
+def _strong_pairs(ident: Identifiability) -> list[tuple[str, float]]:
+    names = ident.names
+    c = np.asarray(ident.correlation, float)
+    if c.shape != (len(names), len(names)):
         return []
     out = []
     for i in range(len(names)):
@@ -265,17 +262,10 @@ def _strong_pairs(ident: Mapping[str, Any]) -> list[tuple[str, float]]:
     return out
 
 
-def _allowed(s: Mapping[str, Any]) -> str:
-    allowed = s.get("allowed")
-    return fmt(allowed) if isinstance(allowed, bool) else NOT_AVAILABLE
-
-
-def _set_verdict(s: Mapping[str, Any]) -> str:
-    if s.get("verdict"):
-        return str(s["verdict"])
-    why = [*map(str, s.get("outside_bounds") or []),
-           *(f"violates {c}" for c in s.get("constraints_violated") or [])]
-    return "; ".join(why)
+def _set_verdict(s: EquivalentSet) -> str:
+    if s.verdict:
+        return s.verdict
+    return "; ".join([*s.outside_bounds, *(f"violates {c}" for c in s.constraints_violated)])
 
 
 def _determined(det: Any, reasons: Any) -> str:
@@ -293,15 +283,15 @@ def _model_blocks(r: IdentificationResult) -> list[Block]:
     """The structure by name and its parameters under their standard names: value, unit, meaning,
     identified (and determined by the capture) or fixed, simulated or kept for the record."""
     model = r.model
-    if model is None or not model.get("name"):
+    if model is None or not model.name:
         return [Para("AVR / exciter model: the reference structure (this result names no model).", "note")]
     try:
-        st = structure(str(model["name"]))
+        st = structure(model.name)
     except StructureError:
-        return [Para(f"AVR / exciter model: {model['name']} (not in this version's library).", "na")]
-    values = model.get("params") if isinstance(model.get("params"), Mapping) else {}
-    ident = set(model.get("identified") or [])
-    det = model.get("determined") if isinstance(model.get("determined"), Mapping) else {}
+        return [Para(f"AVR / exciter model: {model.name} (not in this version's library).", "na")]
+    values = model.params
+    ident = set(model.identified)
+    det = model.determined
     rows = []
     for p in st.params:
         if p.name in ident:
@@ -311,7 +301,7 @@ def _model_blocks(r: IdentificationResult) -> list[Block]:
         else:
             role = "fixed"
         rows.append((p.name, Num(num(values.get(p.name)), f"model-{p.name}"), p.unit, p.info, role))
-    gen = model.get("generator") if isinstance(model.get("generator"), Mapping) else {}
+    gen = model.generator
     text = (f"AVR / exciter model: {st.name} — {st.title}. PSS/E record: {st.dyr_model or 'none'} "
             f"(bench-ctl export --dyr). Block diagram: " + "; ".join(st.diagram) + ".")
     blocks: list[Block] = [Para(text, "model"),
@@ -329,26 +319,20 @@ def parameters(d: ReportData) -> Section:
     params = r.params
     bounds = r.bounds
     ident = r.identifiability
-    get = (lambda key, name: (ident.get(key) or {}).get(name)) if ident else (lambda k, n: None)
     rows = []
-    model = r.model or {}
-    try:
-        st = structure(str(model.get("name"))) if model.get("name") else None
-    except StructureError:
-        st = None
-    st = st or structure(None)
+    describe = r.dialect.describe   # the result speaks the structure's names
     for name, value in params.items():
-        info = describe(st, name)   # the result speaks the structure's names (bench_ctl.model.dialect)
-        b = bounds.get(name) if isinstance(bounds.get(name), (list, tuple)) else (None, None)
-        rel = num(get("rel_std", name))
-        det = get("determined", name)
+        info = describe(name)
+        b = bounds.get(name) or (None, None)
+        rel = num(ident.rel_std.get(name)) if ident else None
+        det = ident.determined.get(name) if ident else None
         rows.append((name, Num(num(value), f"param-{name}"),
                      info[0] if info else "?",
                      info[1] if info else "", Num(num(b[0])), Num(num(b[1])),
-                     Num(num(get("std", name)), f"std-{name}", 3),
+                     Num(num(ident.std.get(name) if ident else None), f"std-{name}", 3),
                      Num(None if rel is None else 100.0 * rel, digits=3),
-                     Num(num(get("sensitivity", name)), digits=3),
-                     _determined(det, get("reasons", name))))
+                     Num(num(ident.sensitivity.get(name) if ident else None), digits=3),
+                     _determined(det, (ident.reasons or {}).get(name) if ident else None)))
     blocks: list[Block] = _model_blocks(r) + [table(("parameter", "value", "unit", "meaning", "lower bound",
                                   "upper bound", "std", "rel. std (%)", "sensitivity",
                                   "determined"), rows, id="params",
@@ -360,11 +344,11 @@ def parameters(d: ReportData) -> Section:
         blocks.append(Para("std from the Fisher information (Gauss–Newton) at the optimum; "
                            "sensitivity = relative sensitivity norm of efd to the parameter.",
                            "note"))
-        sets = [s for s in (ident.get("equivalent_sets") or []) if isinstance(s, Mapping)]
+        sets = ident.equivalent_sets
         if sets:
             blocks.append(table(("#", "parameters", "MSE (pu²)", "note", "allowed", "verdict"),
-                                [(str(i + 1), fmt(s.get("params"), 5), Num(num(s.get("mse"))),
-                                  str(s.get("note", "")), _allowed(s), _set_verdict(s))
+                                [(str(i + 1), fmt(s.params, 5), Num(num(s.mse)),
+                                  s.note, fmt(s.allowed), _set_verdict(s))
                                  for i, s in enumerate(sets)],
                                 id="equivalent-sets",
                                 caption="Equivalent parameter sets (same response within noise)"))
@@ -375,12 +359,12 @@ def parameters(d: ReportData) -> Section:
             blocks.append(table(("pair", "correlation"), [(p, Num(c, digits=3)) for p, c in pairs],
                                 id="correlations",
                                 caption=f"Strongly correlated estimates (|r| ≥ {STRONG_CORRELATION:g})"))
-        for note in ident.get("notes") or []:
-            blocks.append(Para(str(note), "note"))
+        for note in ident.notes:
+            blocks.append(Para(note, "note"))
     fixed = r.fixed
     frows = []
     for name, value in fixed.items():
-        info = describe(st, name)
+        info = describe(name)
         if value is None:
             neutral = info[2] if info and info[2] is not None else float("inf")
             text: Any = f"{fmt(neutral)} (effect off)"
@@ -425,7 +409,7 @@ def convergence(d: ReportData) -> Section:
     h = np.asarray(pts, float).reshape(-1, 2)
     ok = h.shape[0] > 0
     if ok:
-        name = str(opt.get("name", "optimizer"))
+        name = opt.name
         left_out = len(r.history) - h.shape[0]
         blocks.append(Fig("convergence", "Best objective found vs number of objective "
                           "evaluations (log scale)." + (f" {left_out} history entries without a "
@@ -437,13 +421,13 @@ def convergence(d: ReportData) -> Section:
     else:
         blocks.append(Para(f"Convergence history: {NOT_AVAILABLE}.", "na"))
         best, reached = None, None
-    rows = [("optimizer", str(opt.get("name", NOT_AVAILABLE))), ("seed", fmt(opt.get("seed"))),
+    rows = [("optimizer", opt.name), ("seed", fmt(opt.seed)),
             ("evaluations", Num(num(r.evaluations), "evaluations")),
             ("best objective in history", Num(best)),
             ("best reached after (evaluations)", Num(reached, "best-reached")),
             ("optimizer wall time (s)", Num(num(r.wall_s), "wall-s", 4)),
             ("compile time (s), excluded", Num(num(r.compile_s), digits=4))]
-    for key, value in dict(opt.get("settings") or {}).items():
+    for key, value in opt.settings.items():
         rows.append((f"setting: {key}", fmt(value)))
     blocks.append(table(("item", "value"), rows, id="optimizer", kind="kv"))
     return Section("convergence", "Convergence", tuple(blocks))
@@ -455,14 +439,14 @@ def comparison(d: ReportData) -> Section:
     if not comp:
         return Section("comparison", "Optimizer comparison", (
             Para(f"Optimizer comparison: {NOT_AVAILABLE} (one optimizer was run).", "na"),))
-    main = str(r.optimizer.get("name", "this result"))
-    rows = [(str(c.get("optimizer", "?")) + (" (this result)" if c.get("optimizer") == main else ""),
-             Num(num(c.get("mse"))), Num(num(c.get("objective"))), Num(num(c.get("evaluations"))),
-             Num(num(c.get("wall_s")), digits=4),
-             ", ".join(map(str, c.get("constraints_violated") or [])) or "none",
-             f"failed: {c.get('message', '')}" if c.get("failed") is True else "")
+    main = r.optimizer.name
+    rows = [(c.optimizer + (" (this result)" if c.optimizer == main else ""),
+             Num(num(c.mse)), Num(num(c.objective)), Num(num(c.evaluations)),
+             Num(num(c.wall_s), digits=4),
+             ", ".join(c.constraints_violated) or "none",
+             f"failed: {c.message}" if c.failed else "")
             for c in comp]
-    if not any(c.get("optimizer") == main for c in comp):  # the chosen run is not listed: add it
+    if not any(c.optimizer == main for c in comp):  # the chosen run is not listed: add it
         violated = [str(c.get("expr")) for c in d.constraints if c.get("satisfied") is not True]
         rows.insert(0, (main + " (this result)", Num(num(r.mse)),
                         Num(num(r.objective)), Num(num(r.evaluations)),
@@ -480,26 +464,26 @@ def selection(d: ReportData) -> Section | None:
     if not sel:
         return None
     rows = []
-    for c in sel.get("candidates", []):
-        note = "fits as well, more parameters" if c.get("equivalent") else str(c.get("error") or "")
-        if c.get("constraints_violated"):
-            note = "constraint violated: " + ", ".join(map(str, c["constraints_violated"]))
-        if c.get("inert"):
+    for c in sel.candidates:
+        note = "fits as well, more parameters" if c.equivalent else (c.error or "")
+        if c.constraints_violated:
+            note = "constraint violated: " + ", ".join(c.constraints_violated)
+        if c.inert:
             note = "; ".join(filter(None, [note, "not counted (moves nothing on this record): "
-                                           + ", ".join(map(str, c["inert"]))]))
-        if num(c.get("searches")) == 2:
+                                           + ", ".join(c.inert)]))
+        if c.searches == 2:
             note = "; ".join(filter(None, [note, "searched twice (its first search ended on its bounds)"]))
-        rows.append((Num(num(c.get("rank"))), str(c.get("model")) + (" (this result)" if c.get("rank") == 1 else ""),
-                     Num(num(c.get("k"))), Num(num(c.get("x_floor")), digits=4),
-                     Num(num(c.get("check_x_floor")), digits=4), Num(num(c.get("score_difference")), digits=5),
+        rows.append((Num(num(c.rank)), c.model + (" (this result)" if c.rank == 1 else ""),
+                     Num(num(c.k)), Num(num(c.x_floor), digits=4),
+                     Num(num(c.check_x_floor), digits=4), Num(num(c.score_difference), digits=5),
                      note))
-    verdict = str(sel.get("verdict"))
-    best = (sel.get("candidates") or [{}])[0]
-    text = (f"{sel.get('chosen')} explains the record: its fit is at the noise floor." if verdict == "explains"
-            else f"{sel.get('chosen')} fits best, but leaves {fmt(num(best.get('x_floor')), 3)}x the noise floor: "
-                 "no structure of the library explains the record.")
-    if sel.get("equivalent"):
-        text += f" As good on this record: {', '.join(map(str, sel['equivalent']))}."
+    verdict = sel.verdict
+    best = sel.candidates[0] if sel.candidates else None
+    text = (f"{sel.chosen} explains the record: its fit is at the noise floor." if verdict == "explains"
+            else f"{sel.chosen} fits best, but leaves {fmt(num(best.x_floor if best else None), 3)}x the noise "
+                 "floor: no structure of the library explains the record.")
+    if sel.equivalent:
+        text += f" As good on this record: {', '.join(sel.equivalent)}."
     blocks: list[Block] = [Para(text)]
     for line in [*(where_left(sel) if verdict == "closest" else []), separation_text(sel)]:
         if line:
@@ -507,17 +491,17 @@ def selection(d: ReportData) -> Section | None:
     blocks += [
         table(("rank", "structure", "parameters counted", "fit × noise floor", "check × noise floor",
                "score − best", "note"), rows, id="selection",
-              caption="Every structure identified on the record and ranked: " + str(sel.get("rule", ""))),
+              caption="Every structure identified on the record and ranked: " + sel.rule),
     ]
-    for note in sel.get("notes", []) or []:
-        blocks.append(Para(str(note), "note"))
-    two = [c for c in sel.get("candidates", []) if isinstance(c.get("kernel"), Mapping)][:2]
+    for note in sel.notes:
+        blocks.append(Para(note, "note"))
+    two = [c for c in sel.candidates if c.kernel is not None][:2]
     for a in d.captures:
         residuals = []
         for c in two:
             r = _residual_of(a, c)
             if r is not None:
-                residuals.append((str(c.get("model")), r))
+                residuals.append((c.model, r))
         if len(residuals) == 2:
             cap = a.loaded.capture
             blocks.append(Fig(f"selection-residual{a.suffix}",
@@ -526,12 +510,12 @@ def selection(d: ReportData) -> Section | None:
     return Section("selection", "Structure selection", tuple(blocks))
 
 
-def _residual_of(a: CaptureAnalysis, c: Mapping[str, Any]) -> np.ndarray | None:
+def _residual_of(a: CaptureAnalysis, c: CandidateEntry) -> np.ndarray | None:
     """The residual of a selection candidate on capture a, re-simulated from its stored values."""
     cap = a.loaded.capture
-    edges = c.get("edges") or []
+    edges = c.edges or []
     try:
-        values = model_values({}, c["kernel"], f"selection candidate {c.get('model')}")
+        values = model_values({}, c.kernel or {}, f"selection candidate {c.model}")
         spec, offsets = edge_spec_of(edges[a.loaded.index] if a.loaded.index < len(edges) else None, cap.n)
         efd, _, fail = simulate({**values, **offsets}, cap.usetp, cap.dt, edges=spec)
     except (KeyError, TypeError, ValueError, ReportError):

@@ -16,17 +16,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench_ctl.capture import Capture, CaptureError, read_capture
+from bench_ctl.capture import Capture, CaptureError, capture_sha256, read_capture
 from bench_ctl.capture.plausible import implausible
-from bench_ctl.diagnosis.diagnosis_file import Diagnosis, read_diagnosis
+from bench_ctl.diagnosis.diagnosis_file import CaptureRef, Diagnosis, read_diagnosis
+from bench_ctl.exitcodes import BadInput
 from bench_ctl.identification.result_file import CaptureEntry, IdentificationResult, read_result
-from bench_ctl.limits import InputError, sha256_file
+from bench_ctl.limits import InputError
 from bench_ctl.model.params import KERNEL_PARAMS, PARAMS, neutral_values
 from bench_ctl.records import FormatError
 
 log = logging.getLogger(__name__)
 
-class ReportError(ValueError):
+class ReportError(BadInput):
     """Input a report cannot be made from; the message names the file and key."""
 
 
@@ -132,10 +133,7 @@ def load_captures(result: IdentificationResult, where: str,
             raise ReportError(f"{key}.sha256: the result records no SHA-256 for {path}, so the "
                               "capture cannot be verified")
         expected = entry.sha256.lower()
-        try:
-            actual = sha256_file(path, "a capture")
-        except InputError as exc:
-            raise ReportError(f"{key}.path: {exc}") from None
+        actual = capture_sha256(path)
         if actual != expected:
             raise ReportError(f"{key}.sha256: capture {path} is not the file identified: its SHA-256 is not the "
                               f"result's {expected}")
@@ -158,6 +156,6 @@ def load_captures(result: IdentificationResult, where: str,
     return out
 
 
-def same_file(a: Mapping[str, Any] | None, b: LoadedCapture) -> bool:
-    """Whether a diagnosis' {path, sha256} refers to this capture (by hash)."""
-    return bool(a) and str(a.get("sha256", "")).lower() == b.sha256
+def same_file(a: CaptureRef | None, b: LoadedCapture) -> bool:
+    """Whether a diagnosis' capture refers to this capture (by hash)."""
+    return a is not None and (a.sha256 or "").lower() == b.sha256

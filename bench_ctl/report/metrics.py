@@ -16,37 +16,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench_ctl.engine.simulate import pre_trigger_mean
 from bench_ctl.signals import edges as edge_finder
+from bench_ctl.signals.edges import EdgeSearch
 
 DEFAULT_EDGE_WINDOW_S = 0.2
 MIN_NOISE_SAMPLES = 20
 
 
-@dataclass(frozen=True)
-class PulseEdges:
-    """Setpoint edges found in usetp by the shared finder (`bench_ctl.signals.edges.find_edges`):
-    the first sample showing the first change (leading), the first showing the change back
-    (trailing; None for a step); `amplitude` the settled change at the leading edge."""
-    usetp_pre: float
-    amplitude: float
-    leading_index: int | None
-    trailing_index: int | None
-    leading_s: float | None
-    trailing_s: float | None
+def setpoint_edges(time: np.ndarray, usetp: np.ndarray) -> EdgeSearch:
+    """The test's edges in the recorded setpoint, by the one finder (`bench_ctl.signals.edges`):
+    its `lead` and `trail` (None: a step), each first showing at sample `index`, time `hi_s`."""
+    return edge_finder.find_edges(np.asarray(time, float), np.asarray(usetp, float), kind=edge_finder.SETPOINT)
 
 
-def find_edges(time: np.ndarray, usetp: np.ndarray) -> PulseEdges:
-    time = np.asarray(time, float)
-    usetp = np.asarray(usetp, float)
-    dt = float(time[1] - time[0])
-    pre = pre_trigger_mean(usetp, dt)
-    lead, trail = edge_finder.find_edges(time, usetp, kind=edge_finder.SETPOINT).pulse()
-    if lead is None:
-        return PulseEdges(pre, 0.0, None, None, None, None)
-    k0, k1 = lead.index, None if trail is None else trail.index
-    return PulseEdges(pre, lead.jump, k0, k1, float(time[k0]),
-                      None if k1 is None else float(time[k1]))
+def edge_times(edges: EdgeSearch) -> tuple[float | None, float | None]:
+    """The instants of the first samples showing the leading and the trailing edge (None: none)."""
+    lead, trail = edges.pulse()
+    return (None if lead is None else lead.hi_s), (None if trail is None else trail.hi_s)
 
 
 @dataclass(frozen=True)
@@ -91,21 +77,21 @@ def window_slice(time: np.ndarray, window: tuple[float, float] | None) -> slice:
     return slice(i0, i1)
 
 
-def segment_bounds(time: np.ndarray, edges: PulseEdges,
+def segment_bounds(time: np.ndarray, edges: EdgeSearch,
                    window_s: float = DEFAULT_EDGE_WINDOW_S) -> list[tuple[str, float, float]]:
     """(name, t0, t1) of each segment (`model.edges.record_segments`, the edge parts `window_s`
     long); samples with t0 <= t < t1 belong to it (the last one includes the final sample)."""
     time = np.asarray(time, float)
     n = time.size
-    if edges.leading_index is None:
+    if edges.lead is None:
         return [("whole record", float(time[0]), float(time[-1]))]
     dt = float(time[-1] - time[0]) / (n - 1)
-    parts = edge_finder.record_segments(n, edges.leading_index, edges.trailing_index,
+    parts = edge_finder.record_segments(n, edges.lead.index, edges.trail_index,
                                         int(round(window_s / dt)), keep_empty=True)
     return [(name, float(time[a]), float(time[b]) if b < n else float(time[-1])) for name, a, b in parts]
 
 
-def error_figures(time: np.ndarray, efd_meas: np.ndarray, efd_sim: np.ndarray, edges: PulseEdges,
+def error_figures(time: np.ndarray, efd_meas: np.ndarray, efd_sim: np.ndarray, edges: EdgeSearch,
                   *, window_s: float = DEFAULT_EDGE_WINDOW_S, w_efd: float = 1.0,
                   vt_meas: np.ndarray | None = None, vt_sim: np.ndarray | None = None,
                   w_vt: float = 0.0) -> ErrorFigures:
@@ -131,8 +117,8 @@ def error_figures(time: np.ndarray, efd_meas: np.ndarray, efd_sim: np.ndarray, e
         segments.append(Segment(name, t0, t1, n, seg_sq / total if total > 0 else 0.0,
                                 seg_sq / n if n else float("nan")))
     noise, n_pre = None, 0
-    if edges.leading_index is not None:
-        n_pre = edges.leading_index
+    if edges.lead is not None:
+        n_pre = edges.lead.index
         if n_pre >= MIN_NOISE_SAMPLES:
             noise = float(np.var(meas[:n_pre], ddof=1))
     return ErrorFigures(mse=mse, rmse=float(np.sqrt(mse)),

@@ -10,6 +10,7 @@ from typing import Any
 
 import bench_ctl
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis
+from bench_ctl.model.unit_record import UnitEntry
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import ReportData
 from bench_ctl.report.blocks import NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section, flatten, fmt, num, table
@@ -20,10 +21,6 @@ NO_GAP = "n/a: base model at the noise floor"
 PDF_METHOD = "matplotlib PdfPages (text pages with the tables, then the figures, A4)"
 
 
-def _objs(value: Any) -> list[Mapping[str, Any]]:
-    return [v for v in (value or []) if isinstance(v, Mapping)] if isinstance(value, list) else []
-
-
 def diagnosis(d: ReportData) -> Section | None:
     g = d.diagnosis
     if g is None:
@@ -31,20 +28,20 @@ def diagnosis(d: ReportData) -> Section | None:
     blocks: list[Block] = []
     cap = g.capture
     if not any(same_file(cap, a.loaded) for a in d.captures):
-        blocks.append(Para(f"Note: the diagnosis was made on {cap.get('path', '?')} (SHA-256 "
-                           f"{cap.get('sha256', '?')}), not on a capture of this result.", "note"))
+        blocks.append(Para(f"Note: the diagnosis was made on {cap.path or '?'} (SHA-256 "
+                           f"{cap.sha256 or '?'}), not on a capture of this result.", "note"))
     base = g.base
     hold = g.holdout
     rows = [("verdict", g.verdict),
             ("noise floor (pu²)", Num(num(g.noise_floor), "diag-noise-floor")),
             ("base model MSE (pu²)", Num(num(base.mse), "diag-base-mse")),
             ("base model MSE on hold-out (pu²)", Num(num(base.mse_holdout))),
-            ("capture", f"{cap.get('path', '?')} (SHA-256 {cap.get('sha256', '?')})"),
-            ("hold-out capture", f"{hold.get('path', '?')} (SHA-256 {hold.get('sha256', '?')})"
+            ("capture", f"{cap.path or '?'} (SHA-256 {cap.sha256 or '?'})"),
+            ("hold-out capture", f"{hold.path or '?'} (SHA-256 {hold.sha256 or '?'})"
              if hold else "none")]
     rows.insert(3, ("base model at the noise floor", fmt(base.at_noise_floor)))
-    rows.append(("validation (fit / check records)", fmt(g.validation, 5)))
-    rows.append(("decision criteria", fmt(g.criteria, 5)))
+    rows.append(("validation (fit / check records)", fmt(g.validation.to_json(), 5)))
+    rows.append(("decision criteria", fmt(g.criteria.to_json(), 5)))
     blocks.append(table(("item", "value"), rows, id="diagnosis-summary", kind="kv"))
     effects = g.effects
     at_floor = base.at_noise_floor
@@ -70,37 +67,34 @@ def diagnosis(d: ReportData) -> Section | None:
                               size=(F.FIGSIZE[0], 1.6 + 0.45 * len(effects))))
     else:
         blocks.append(Para(f"Effects: {NOT_AVAILABLE}.", "na"))
-    loc = g.localization
-    segs, bands = _objs(loc.get("segments")), _objs(loc.get("bands"))
+    segs, bands = g.localization.segments, g.localization.bands
     if segs:
         blocks.append(table(("segment", "from (s)", "to (s)", "share", "MSE (pu²)"),
-                            [(str(s.get("name", "?")), Num(num(s.get("t0")), digits=5),
-                              Num(num(s.get("t1")), digits=5), Num(num(s.get("share")), digits=3),
-                              Num(num(s.get("mse")))) for s in segs],
+                            [(s.name, Num(num(s.t0), digits=5), Num(num(s.t1), digits=5),
+                              Num(num(s.share), digits=3), Num(num(s.mse))) for s in segs],
                             id="diagnosis-segments", caption="Localization: residual share per "
                             "segment (as computed by the diagnosis)"))
     if bands:
         blocks.append(table(("band", "from (Hz)", "to (Hz)", "share"),
-                            [(str(b.get("name", "?")), Num(num(b.get("f0_hz")), digits=4),
-                              Num(num(b.get("f1_hz")), digits=4), Num(num(b.get("share")), digits=3))
-                             for b in bands], id="diagnosis-bands",
+                            [(b.name, Num(num(b.f0_hz), digits=4), Num(num(b.f1_hz), digits=4),
+                              Num(num(b.share), digits=3)) for b in bands], id="diagnosis-bands",
                             caption="Localization: residual share per frequency band"))
     if not segs and not bands:
         blocks.append(Para(f"Localization: {NOT_AVAILABLE}.", "na"))
-    feats = _objs(g.features)
+    feats = g.features
     blocks.append(table(("feature", "detected", "evidence"),
-                        [(str(f.get("name", "?")), fmt(f.get("detected")), str(f.get("evidence", "")))
-                         for f in feats], id="diagnosis-features", caption="Features of the residual")
+                        [(f.name, fmt(f.detected), f.evidence) for f in feats],
+                        id="diagnosis-features", caption="Features of the residual")
                   if feats else Para(f"Features: {NOT_AVAILABLE}.", "na"))
-    amb = _objs(g.ambiguous)
+    amb = g.ambiguous
     blocks.append(table(("effects", "test that would separate them"),
-                        [(", ".join(map(str, a.get("effects") or [])), str(a.get("separating_test", "")))
-                         for a in amb], id="diagnosis-ambiguous", caption="Ambiguities")
+                        [(", ".join(a.effects), a.separating_test) for a in amb],
+                        id="diagnosis-ambiguous", caption="Ambiguities")
                   if amb else Para("Ambiguities: none reported.", "note"))
-    seq = _objs(g.sequence)
+    seq = g.sequence
     blocks.append(table(("step", "effect added", "MSE hold-out (pu²)"),
-                        [(str(i + 1), str(s.get("added", "?")), Num(num(s.get("mse_holdout"))))
-                         for i, s in enumerate(seq)], id="diagnosis-sequence",
+                        [(str(i + 1), s.added, Num(num(s.mse_holdout))) for i, s in enumerate(seq)],
+                        id="diagnosis-sequence",
                         caption="Greedy sequence: effects added one after another")
                   if seq else Para(f"Greedy sequence: {NOT_AVAILABLE}.", "na"))
     blocks += _check(g)
@@ -121,7 +115,7 @@ def _explained_by(g: Diagnosis) -> list[Block]:
         params = ", ".join(f"{k} {fmt(v, 4)}" for k, v in s.params.items())
         rows.append((f"+ {s.name}", params, Num(num(s.mse), digits=4),
                      Num(num(s.mse_over_floor), digits=3), Num(num(s.gap_closed), digits=3),
-                     Num(num(s.check.get("mse")), digits=4)))
+                     Num(num(s.check.mse), digits=4)))
     out: list[Block] = [table(("model", "effect parameters", "MSE (pu²)", "MSE / noise floor", "gap closed",
                                "check MSE (pu²)"), rows, id="diagnosis-explained-by",
                               caption="The effects that together explain the record, in the order added "
@@ -132,22 +126,22 @@ def _explained_by(g: Diagnosis) -> list[Block]:
         out.append(Fig("diagnosis_staircase", "The staircase: the error after each effect added, over the noise "
                        "floor (log scale), down to it; squares: the same on the check.",
                        partial(F.draw_staircase, base_mse=base_mse, floor=floor, steps=steps, left=left,
-                               base_check=num((base.check or {}).get("mse")))))
-    out.append(Para(f"What is left: {left.get('note', '')}.", "note"))
+                               base_check=num(base.check.mse if base.check else None))))
+    out.append(Para(f"What is left: {left.note}.", "note"))
     return out
 
 
 def _check(g: Diagnosis) -> list[Block]:
     """What every model was judged on: the holdout and the cross-validation windows."""
     chk = g.check
-    parts_in = [("holdout", f"holdout capture {h.get('capture') or ''}", h) for h in (chk.get("holdout"),)
-                if isinstance(h, Mapping)]
-    parts_in += [(str(w.get("label", "?")), str(w.get("label", "?")), w) for w in _objs(chk.get("windows"))]
-    mse = {str(p.get("label")): num(p.get("mse")) for p in _objs((g.base.check or {}).get("parts"))}
-    rows = [(name, Num(num(w.get("t0")), digits=4), Num(num(w.get("t1")), digits=4), Num(mse.get(key), digits=4))
+    parts_in: list[tuple[str, str, Any]] = [("holdout", f"holdout capture {chk.holdout.capture or ''}",
+                                             chk.holdout)] if chk.holdout else []
+    parts_in += [(w.label, w.label, w) for w in chk.windows]
+    mse = {p.label: num(p.mse) for p in (g.base.check.parts if g.base.check else ())}
+    rows = [(name, Num(num(w.t0), digits=4), Num(num(w.t1), digits=4), Num(mse.get(key), digits=4))
             for key, name, w in parts_in]
     return [table(("check part", "from (s)", "to (s)", "base model MSE there (pu²)"), rows, id="diagnosis-check",
-                  caption=f"The check ({chk.get('kind', '?')}): {chk.get('how', '')}")]
+                  caption=f"The check ({chk.kind}): {chk.how}")]
 
 
 def _user_view(x: Any) -> Any:
@@ -160,10 +154,10 @@ def _user_view(x: Any) -> Any:
     return x
 
 
-def _unit_rows(unit: Mapping[str, Any]) -> list[tuple[str, str]]:
-    """Unit.to_dict() as rows: one per identified parameter, the rest as flattened keys."""
+def _unit_rows(unit: UnitEntry) -> list[tuple[str, str]]:
+    """The result's unit as rows: one per identified parameter, the rest as flattened keys."""
     rows = []
-    for key, value in _user_view(unit).items():
+    for key, value in _user_view(unit.to_json()).items():
         if key == "identify" and isinstance(value, Mapping):
             for name, spec in value.items():
                 spec = spec if isinstance(spec, Mapping) else {}
@@ -178,12 +172,7 @@ def _unit_rows(unit: Mapping[str, Any]) -> list[tuple[str, str]]:
 
 
 def metadata(d: ReportData) -> Section:
-    unit = d.result.unit
-    blocks: list[Block] = [Heading("Unit")]
-    if unit:
-        blocks.append(table(("key", "value"), _unit_rows(unit), id="unit", kind="kv"))
-    else:
-        blocks.append(Para(f"Unit description: {NOT_AVAILABLE}.", "na"))
+    blocks: list[Block] = [Heading("Unit"), table(("key", "value"), _unit_rows(d.result.unit), id="unit", kind="kv")]
     for a in d.captures:
         cap = a.loaded.capture
         blocks.append(Heading(f"Capture {a.loaded.index + 1}: test, recorder and bench"))

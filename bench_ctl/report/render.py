@@ -61,7 +61,7 @@ def claim_report(outputs: Outputs, out_html: str | os.PathLike[str], *, n_captur
 
 
 def _titles(d: ReportData) -> tuple[str, str]:
-    title = f"AVR model validation report: {d.result.unit.get('name', 'unit not named')}"
+    title = f"AVR model validation report: {d.result.unit.name or 'unit not named'}"
     caps = ", ".join(a.loaded.path.name for a in d.captures)
     sub = (f"Capture(s) {caps}; result of {d.result.created_utc}; "
            f"report generated {d.generated_utc}; overall {d.verdict}")

@@ -68,13 +68,14 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from bench_ctl.exitcodes import BadInput
 from bench_ctl.limits import InputError, read_text
 from drivers.link import Endpoint
 from drivers.profile import load_profile
 from drivers.roles import role_problems
 
 
-class ConfigError(ValueError):
+class ConfigError(BadInput):
     """A bench config that cannot be used; the message names the file and the key."""
 
 

@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from bench_ctl.exitcodes import BadInput
+
 FIGURES = ("MXE", "ME", "MAE")
 WINDOWS = ("before", "during", "after")
 DEFAULT_LIMITS: dict[str, dict[str, float]] = {
@@ -70,7 +72,7 @@ class Acceptance:
         return all(w.ok is not False for w in self.windows) and any(w.n for w in self.windows)
 
 
-class AcceptanceError(ValueError):
+class AcceptanceError(BadInput):
     """Limits that cannot be used; the message names the key."""
 
 

@@ -9,15 +9,20 @@ seconds) and the kernel moves the jump there, splitting the RK4 step at that ins
 `EdgeSpec` is what the kernel needs of a record: where its usetp jumps (sample index in that
 record), by how much, the nominal instant (s from the record's first sample, which stays the same
 on a decimated copy of the record), and which `EDGE` column of the parameter matrix holds the
-offset. `find_setpoint_edges` finds the isolated jumps of a recorded setpoint (each one a kernel
+offset.
+
+`find_edges` is the one finder of a test's edges, in any channel: a recorded setpoint (the fits'
+edge instants, the report's segments, the plausibility checks, the diagnosis' windows, a run's
+recorded pulse) or, when a record has no setpoint channel, the channel that responds first (the
+regulator output, efd, Vt: the import). It returns each edge's first showing sample, the steady
+levels around it and the interval its instant lies in (`FoundEdge`, docs/model.md "Edge timing");
+`EdgeSearch.pulse()` (`lead`, `trail`) picks the leading and the trailing edge of a pulse or step.
+`find_setpoint_edges` gives the first samples of a setpoint's edges it finds (each one a kernel
 edge with its own offset).
 
-`find_edges` is the one finder of a test's edges, in any channel: a recorded setpoint (the report's
-segments, the plausibility checks, the diagnosis' windows, a run's recorded pulse) or, when a record
-has no setpoint channel, the channel that responds first (the regulator output, efd, Vt: the
-import). It returns each edge's first showing sample, the steady levels around it and the interval
-its instant lies in (`FoundEdge`, docs/model.md "Edge timing"); `EdgeSearch.pulse()` picks the
-leading and the trailing edge of a pulse or step.
+The edges' types: `FoundEdge` (an edge as the finder found it, with the `EdgeSearch` that holds
+them), `EdgeSpec` (the kernel's view of a record's edges) and
+`bench_ctl.identification.timing.Edge` (an edge as a fit carries it and a result writes it).
 """
 from __future__ import annotations
 
@@ -30,11 +35,6 @@ from bench_ctl.model.params import RECORD_PARAMS
 
 #: kernel parameter columns that hold edge offsets (one per edge a fit can move)
 EDGE_PARAMS: tuple[str, ...] = RECORD_PARAMS
-
-#: a change of the recorded setpoint counts as an edge when larger than this share of the largest
-#: change and this many times the median change (a noisy recorded setpoint jitters every sample)
-_EDGE_SHARE = 0.2
-_EDGE_OVER_MEDIAN = 20.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,17 +79,11 @@ class EdgeSpec:
 
 
 def find_setpoint_edges(usetp: np.ndarray) -> np.ndarray:
-    """Sample indices k (>= 1) where the setpoint jumps: usetp[k] differs from usetp[k-1] by more
-    than a fifth of the largest change and twenty times the median change. Empty for a flat record."""
+    """The first sample k (>= 1) showing each edge of a recorded setpoint, as `find_edges` finds
+    them (a setpoint channel, on the samples' axis). Empty for a flat record."""
     u = np.asarray(usetp, float)
-    if u.size < 2:
-        return np.zeros(0, dtype=np.int64)
-    d = np.abs(np.diff(u))
-    big = float(d.max())
-    if big <= 0.0:
-        return np.zeros(0, dtype=np.int64)
-    thr = max(_EDGE_SHARE * big, _EDGE_OVER_MEDIAN * float(np.median(d)))
-    return (np.flatnonzero(d > thr) + 1).astype(np.int64)
+    found = find_edges(np.arange(u.size, dtype=float), u, kind=SETPOINT)
+    return np.array([e.index for e in found.edges], dtype=np.int64)
 
 
 # ------------------------------------------------------------------ the test's edges, any channel
@@ -184,6 +178,22 @@ class EdgeSearch:
                 + "; the instant lies between the sample before it, less the time a front of order "
                 f"{FRONT_ORDER[self.kind]:g} climbing as fast as seen from 1 to {RISE_LEVELS:g} thresholds "
                 "spends below the first, and that sample")
+
+    @property
+    def lead(self) -> FoundEdge | None:
+        """The leading edge of the pulse or step (`pulse`)."""
+        return self.pulse()[0]
+
+    @property
+    def trail(self) -> FoundEdge | None:
+        """The pulse's trailing edge (None: a step, or nothing)."""
+        return self.pulse()[1]
+
+    @property
+    def trail_index(self) -> int | None:
+        """The first sample showing the trailing edge (None: a step, or nothing)."""
+        trail = self.trail
+        return None if trail is None else trail.index
 
     def pulse(self, sign: int | None = None) -> tuple[FoundEdge | None, FoundEdge | None]:
         """(leading, trailing): the first edge (of `sign` when given) and the first later edge

@@ -46,6 +46,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bench_ctl.exitcodes import BadInput
+
 FIELDS: dict[str, tuple[str, ...]] = {
     "GENROU": ("T'do", "T''do", "T'qo", "T''qo", "H", "D", "Xd", "Xq", "X'd", "X'q", "X''d", "Xl",
                "S(1.0)", "S(1.2)"),
@@ -92,7 +94,7 @@ _ID = re.compile(r"[A-Za-z0-9_&*#.+-]{1,2}")
 BUS_MIN, BUS_MAX = 1, 999_997
 
 
-class DyrError(ValueError):
+class DyrError(BadInput):
     """A record that cannot be read or written; the message names the file and line."""
 
 

@@ -55,7 +55,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from bench_ctl.model.dialect import describe, kernel_sections, std_name
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import GENERATOR_OPTIONAL, MACHINE_DEFAULTS, PARAMS
 from bench_ctl.model.structures import STRUCTURES, Structure, structure
 from bench_ctl.units import dyr_kinds
@@ -461,7 +461,7 @@ def _kernel_value(name: str, v: Any) -> float:
     if v is None:
         neutral = PARAMS[name].neutral if name in PARAMS else None
         if neutral is None:
-            raise ValueError(f"{name} = null: only an open limit may be null")
+            raise DyrError(f"{name} = null: only an open limit may be null")
         return float(neutral)
     return float(v)
 
@@ -495,14 +495,14 @@ _NOT_EXCITER = ("Td0p", "Td0pp", "Vt0", "KPP", "KDA", "SATEQ", "S10", "S12", "GA
                 "EDGE3", "EDGE4")
 
 
-def not_carried(result: Mapping[str, Any], st: Structure, std: Mapping[str, float]) -> list[str]:
-    """What the result's model has that the record `std` (of structure `st`, as `dyr_values_of`
-    gives it) does not give back when read with `--from-dyr`: 'NAME = value (read back: value;
-    what it is)'."""
+def not_carried(sections: Mapping[str, Mapping[str, Any]], st: Structure, std: Mapping[str, float]) -> list[str]:
+    """What the result's model (its values in kernel names, `IdentificationResult.kernel_view`) has
+    that the record `std` (of structure `st`, as `dyr_values_of` gives it) does not give back when
+    read with `--from-dyr`: 'NAME = value (read back: value; what it is)'."""
     from bench_ctl.model.params import neutral_values
 
     have = dict(neutral_values())
-    sections = kernel_sections(result)
+    d = dialect_of(st)
     for section in ("fixed", "params"):
         for k, v in sections[section].items():
             if k in PARAMS:
@@ -519,8 +519,8 @@ def not_carried(result: Mapping[str, Any], st: Structure, std: Mapping[str, floa
         b = back[k]
         if a == b or (math.isfinite(a) and math.isfinite(b) and math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-15)):
             continue
-        name = std_name(st, k)
-        what = describe(st, name) or (PARAMS[k].unit, PARAMS[k].info, None)
+        name = d.name(k)
+        what = d.describe(name) or (PARAMS[k].unit, PARAMS[k].info, None)
         unit = "" if what[0] in ("", "1") else f" {what[0]}"
         out.append(f"{name} = {a:g}{unit} (read back: {b:g}; {what[1]})")
     return out

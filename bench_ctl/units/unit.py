@@ -22,8 +22,9 @@ from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 
+from bench_ctl.exitcodes import BadInput
 from bench_ctl.limits import InputError, read_text
-from bench_ctl.model.dialect import kernel_text, refusal, shared_names, std_name
+from bench_ctl.model.dialect import Dialect, dialect_of
 from bench_ctl.model.effects import EFFECTS, effect
 from bench_ctl.model.params import (
     AVR_PARAMS,
@@ -36,10 +37,11 @@ from bench_ctl.model.params import (
 )
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
 from bench_ctl.model.structures import Structure, StructureError, structure
+from bench_ctl.model.unit_record import AcceptanceEntry, BoundEntry, UnitEntry
 from bench_ctl.signals.acceptance import AcceptanceError, acceptance_limits
 
 
-class UnitError(ValueError):
+class UnitError(BadInput):
     """A unit file or override that cannot be used; the message names the file and key."""
 
 
@@ -74,14 +76,16 @@ class Unit:
     def structure(self) -> Structure:
         return structure(self.model)
 
+    @property
+    def dialect(self) -> Dialect:
+        """The structure's names, as its user reads them (`bench_ctl.model.dialect`)."""
+        return dialect_of(self.structure)
+
     def standard_values(self, kernel: Mapping[str, float] | None = None) -> dict[str, float]:
         """The structure's parameters under their standard names, from `kernel` values (default:
         the unit's own), the unit's standard values where the kernel does not simulate them."""
         return self.structure.std_values(self.values() if kernel is None else kernel, self.model_values)
 
-    def std_name(self, kernel_name: str) -> str:
-        """The standard name of a kernel parameter in this unit's structure (itself if none)."""
-        return self.structure.std_name(kernel_name) or kernel_name
 
     @property
     def identified_names(self) -> tuple[str, ...]:
@@ -116,22 +120,25 @@ class Unit:
                 eff.check_constraints(merged[name])
         return replace(self, effects=merged)
 
-    def to_dict(self) -> dict:
-        return {
-            "name": self.name,
-            "source": self.source,
-            "generator": dict(self.generator),
-            "identify": {k: {"value": b.value, "min": b.min, "max": b.max} for k, b in self.identify.items()},
-            "fixed": dict(self.fixed),
-            "constraints": list(self.constraints),
-            "weights": dict(self.weights),
-            "effects": {k: {p: _finite_or_none(v) for p, v in ps.items()} for k, ps in self.effects.items()},
-            "model": self.model,
-            "model_values": {k: _finite_or_none(v) for k, v in self.standard_values().items()},
-            "acceptance": acceptance_limits(self.acceptance, self.source),
-            "grid": dict(self.grid),
-            "grid_identify": {k: {"value": b.value, "min": b.min, "max": b.max} for k, b in self.grid_identify.items()},
-        }
+    def entry(self) -> UnitEntry:
+        """The unit as records write it, in the kernel's names (`bench_ctl.model.dialect` gives the
+        structure's): a neutral limit (+-inf) is None."""
+        acceptance = acceptance_limits(self.acceptance, self.source)
+        return UnitEntry(
+            name=self.name,
+            source=self.source,
+            generator=dict(self.generator),
+            identify={k: BoundEntry(b.value, b.min, b.max) for k, b in self.identify.items()},
+            fixed={k: _finite_or_none(v) for k, v in self.fixed.items()},
+            constraints=list(self.constraints),
+            weights=dict(self.weights),
+            effects={k: {p: _finite_or_none(v) for p, v in ps.items()} for k, ps in self.effects.items()},
+            model=self.model,
+            model_values={k: _finite_or_none(v) for k, v in self.standard_values().items()},
+            acceptance=AcceptanceEntry(**acceptance),
+            grid=dict(self.grid),
+            grid_identify={k: BoundEntry(b.value, b.min, b.max) for k, b in self.grid_identify.items()},
+        )
 
 
 def bounded_values(values: Mapping[str, object],
@@ -166,17 +173,17 @@ def check_unit(unit: Unit, source: str) -> Unit:
     """What a whole unit must satisfy, once every override is in: every AVR parameter given,
     identified values finite and inside their bounds, bounds and fixed values inside the
     physical ranges, fixed names apart from the generator's."""
-    st = unit.structure
+    d = unit.dialect
     for name in AVR_PARAMS:
         if name not in unit.identify and name not in unit.fixed:
             raise UnitError(f"{source}: AVR parameter {name} is neither under [identify] nor [fixed]")
     for name, b in unit.identify.items():
-        shown = std_name(st, name)   # messages in the structure's names (bench_ctl.model.dialect)
+        shown = d.name(name)   # messages in the structure's names
         for what, v in (("min", b.min), ("max", b.max), ("value", b.value)):
             if not math.isfinite(v):
                 raise UnitError(f"{source}: identify.{shown}.{what} = {v!r} must be finite")
             try:
-                _check_value(st, name, v, where=f"{source}: identify.{shown}.{what}: ")
+                _check_value(d, name, v, where=f"{source}: identify.{shown}.{what}: ")
             except ValueError as exc:
                 raise UnitError(str(exc)) from None
         if not b.min <= b.value <= b.max:
@@ -191,19 +198,19 @@ def check_unit(unit: Unit, source: str) -> Unit:
         if name in unit.generator:
             raise UnitError(f"{source}: fixed.{name}: a generator constant; set it under [generator]")
         try:
-            _check_value(st, name, v, where=f"{source}: fixed.")
+            _check_value(d, name, v, where=f"{source}: fixed.")
         except ValueError as exc:
             raise UnitError(str(exc)) from None
     return unit
 
 
-def _check_value(st: Structure, kernel_name: str, value: float, where: str) -> None:
+def _check_value(d: Dialect, kernel_name: str, value: float, where: str) -> None:
     """The kernel parameter's physical range check, its message naming the parameter as the
     structure does (ESST1A's `TA`, not the kernel's `TE`)."""
     info = PARAMS[kernel_name]
-    name = std_name(st, kernel_name)
+    name = d.name(kernel_name)
     if name != kernel_name:
-        p = st.param(name)
+        p = d.structure.param(name)
         info = replace(info, name=name, unit=p.unit, info=p.info)
     info.check(value, where=where)
 _WEIGHT_KEYS = {"efd", "vt", "q"}
@@ -218,10 +225,11 @@ def _num(value: object, where: str) -> float:
     return v
 
 
-def _translate(st: Structure, data: Mapping, source: str) -> tuple[dict, dict[str, float]]:
+def _translate(d: Dialect, data: Mapping, source: str) -> tuple[dict, dict[str, float]]:
     """A unit file of a standard structure in the kernel's names: [identify], [fixed] and the
     constraints renamed, the structure's settings fixed, its typical values where the file is
     silent. Returns (data, the standard values the file gave or implied)."""
+    st = d.structure
     ident_raw = dict(data.get("identify", {}) or {})
     fixed_raw = dict(data.get("fixed", {}) or {})
     if "identify" not in data:
@@ -240,8 +248,8 @@ def _translate(st: Structure, data: Mapping, source: str) -> tuple[dict, dict[st
     for name, v in fixed_raw.items():
         if name in st.names:
             std_vals[name] = _num(v, f"{source}: fixed.{name}")
-        elif refusal(st, name):
-            raise UnitError(f"{source}: fixed.{name}: {refusal(st, name)}")
+        elif d.refusal(name):
+            raise UnitError(f"{source}: fixed.{name}: {d.refusal(name)}")
         elif name in PARAMS:
             fixed[name] = v      # a kernel parameter the structure does not name (TD, ...)
         else:
@@ -254,24 +262,24 @@ def _translate(st: Structure, data: Mapping, source: str) -> tuple[dict, dict[st
     for k, v in kern.items():
         if k not in identify:
             fixed[k] = v
-    constraints = [_rename(c, st, source) for c in data.get("constraints", list(st.constraints)) or []] \
+    constraints = [_rename(c, d, source) for c in data.get("constraints", list(st.constraints)) or []] \
         if isinstance(data.get("constraints", []), list) else data.get("constraints")
     out = {k: v for k, v in data.items() if k != "avr"}
     out.update(identify=identify, fixed=fixed, constraints=constraints)
     return out, std_vals
 
 
-def _rename(text: object, st: Structure, source: str) -> object:
+def _rename(text: object, d: Dialect, source: str) -> object:
     """A constraint's standard names in the kernel's ("TB1 <= TC1" -> "TA4 <= TA3"); a kernel
     name the structure calls otherwise is refused, naming the standard one."""
     if not isinstance(text, str):
         return text
     import re
     for word in re.findall(r"[A-Za-z_][A-Za-z0-9_]*", text):
-        why = refusal(st, word)
+        why = d.refusal(word)
         if why:
             raise UnitError(f"{source}: constraint {text!r}: {why}")
-    return kernel_text(st, text)
+    return d.kernel_text(text)
 
 
 def _acceptance(raw: object, source: str) -> dict | None:
@@ -299,8 +307,9 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     except StructureError as exc:
         raise UnitError(f"{source}: avr.model: {exc}") from None
     std_vals: dict[str, float] = {}
-    if st.name != DEFAULT_MODEL:
-        data, std_vals = _translate(st, data, source)
+    d = dialect_of(st)   # the file speaks the structure's names: the kernel's from here on
+    if not d.plain:
+        data, std_vals = _translate(d, data, source)
     for name, ps in data.get("effects", {}).items():
         if not isinstance(ps, Mapping):
             raise UnitError(f"{source}: effects.{name} must be a table of its parameters, got {ps!r}")
@@ -321,7 +330,7 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
 
     identify: dict[str, Bound] = {}
     for name, spec in data.get("identify", {}).items():
-        where = f"{source}: identify.{std_name(st, name)}"
+        where = f"{source}: identify.{d.name(name)}"
         if name not in PARAMS:
             raise UnitError(f"{where}: unknown parameter; known: {', '.join(PARAMS)}")
         if not isinstance(spec, Mapping) or set(spec) - {"value", "min", "max"} or not {"min", "max"} <= set(spec):
@@ -337,8 +346,8 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
         if name not in PARAMS:
             raise UnitError(f"{source}: fixed.{name}: unknown parameter; known: {', '.join(PARAMS)}")
         if name in identify:
-            raise UnitError(f"{source}: fixed.{std_name(st, name)}: also listed under [identify]")
-        fixed[name] = _num(v, f"{source}: fixed.{std_name(st, name)}")
+            raise UnitError(f"{source}: fixed.{d.name(name)}: also listed under [identify]")
+        fixed[name] = _num(v, f"{source}: fixed.{d.name(name)}")
 
     weights = {"efd": 1.0, "vt": 0.0}
     for name, v in data.get("weights", {}).items():
@@ -497,7 +506,7 @@ def _std_to_kernel(unit: Unit, key: str, item: str) -> str:
             return st.kernel_name(base) + dot + attr
         except StructureError as exc:
             raise UnitError(f"--set {item!r}: {exc}") from None
-    why = refusal(st, base)
+    why = unit.dialect.refusal(base)
     if why:
         raise UnitError(f"--set {item!r}: {why}")
     return key
@@ -526,9 +535,9 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     if "." in key:
         name, attr = key.split(".", 1)
         if name not in unit.identify or attr not in ("min", "max", "value"):
-            shown = std_name(unit.structure, name)
+            shown = unit.dialect.name(name)
             raise UnitError(f"--set {item!r}: {shown!r} is not an identified parameter with min/max/value"
-                            f" (identified: {', '.join(std_name(unit.structure, n) for n in unit.identify)})")
+                            f" (identified: {', '.join(unit.dialect.name(n) for n in unit.identify)})")
         b = replace(unit.identify[name], **{attr: value})
         if not b.min < b.max:
             raise UnitError(f"--set {item!r}: min {b.min} must be below max {b.max}")
@@ -539,7 +548,7 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     if key in unit.identify:
         return replace(unit, identify={**unit.identify, key: replace(unit.identify[key], value=value)})
     if key in unit.fixed:
-        _check_value(unit.structure, key, value, where="--set ")
+        _check_value(unit.dialect, key, value, where="--set ")
         return replace(unit, fixed={**unit.fixed, key: value})
     for eff in EFFECTS.values():
         if key in eff.params:
@@ -550,7 +559,5 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     if key in PARAMS:
         PARAMS[key].check(value, where="--set ")
         return replace(unit, fixed={**unit.fixed, key: value})
-    known = list(PARAMS) if unit.model == DEFAULT_MODEL else \
-        [*unit.structure.names, *(n for n in shared_names() if n not in unit.structure.names)]
-    known += list(MACHINE_PARAMS)
+    known = unit.dialect.names() + list(MACHINE_PARAMS)
     raise UnitError(f"--set {item!r}: unknown name {key!r}; known: {', '.join(known)}")

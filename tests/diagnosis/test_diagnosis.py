@@ -12,7 +12,8 @@ from bench_ctl.capture import Capture, write_capture
 from bench_ctl.diagnosis import SCHEMA, Budget, DiagnosisError, diagnose
 from bench_ctl.diagnosis import features as F
 from bench_ctl.diagnosis.blind import SuiteConfig, make_case
-from bench_ctl.diagnosis.localize import BANDS_HZ, band_shares, find_edges, localization, noise_floor, segments
+from bench_ctl.diagnosis.localize import BANDS_HZ, band_shares, localization, noise_floor, segments
+from bench_ctl.diagnosis.localize import pulse_edges as find_edges
 from bench_ctl.diagnosis.starts import lag_variants
 from bench_ctl.diagnosis.verdict import choose_verdict
 from bench_ctl.diagnosis.verdict import gap as _gap
@@ -39,11 +40,11 @@ def pulse():
 def test_find_edges_pulse_and_step(pulse):
     _, u = pulse
     e = find_edges(u)
-    assert (e.k_on, e.k_off) == (1000, 2000)
-    assert e.amplitude == pytest.approx(0.05)
+    assert (e.lead.index, e.trail_index) == (1000, 2000)
+    assert e.lead.jump == pytest.approx(0.05)
     step = np.where(np.arange(3000) >= 500, 1.05, 1.0)
     s = find_edges(step)
-    assert s.k_on == 500 and s.k_off is None
+    assert s.lead.index == 500 and s.trail_index is None
     with pytest.raises(DiagnosisError, match="never changes"):
         find_edges(np.ones(100))
 
@@ -74,10 +75,10 @@ def test_segment_shares_sum_to_one_and_locate_the_residual(pulse):
     rng = np.random.default_rng(2)
     r = rng.normal(0, 0.01, u.size)
     loc = localization(r, DT, e)
-    names = [s["name"] for s in loc["segments"]]
+    names = [s.name for s in loc.segments]
     assert names == ["pre_trigger", "leading_edge", "plateau", "trailing_edge", "recovery"]
-    assert sum(s["share"] for s in loc["segments"]) == pytest.approx(1.0)
-    assert sum(b["share"] for b in loc["bands"]) == pytest.approx(1.0)
+    assert sum(s.share for s in loc.segments) == pytest.approx(1.0)
+    assert sum(b.share for b in loc.bands) == pytest.approx(1.0)
     # segments tile the record
     segs = segments(u.size, DT, e)
     assert segs[0].k0 == 0 and segs[-1].k1 == u.size
@@ -85,7 +86,7 @@ def test_segment_shares_sum_to_one_and_locate_the_residual(pulse):
     # a residual only in the trailing edge segment
     r2 = np.zeros(u.size)
     r2[2000:2100] = 0.1
-    shares = {s["name"]: s["share"] for s in localization(r2, DT, e)["segments"]}
+    shares = {s.name: s.share for s in localization(r2, DT, e).segments}
     assert shares["trailing_edge"] == pytest.approx(1.0)
     assert shares["plateau"] == 0.0
 
@@ -93,7 +94,7 @@ def test_segment_shares_sum_to_one_and_locate_the_residual(pulse):
 @pytest.mark.parametrize("freq, band", [(0.3, "slow"), (4.0, "loop"), (40.0, "fast")])
 def test_band_shares_put_a_sine_in_its_band(freq, band):
     t = np.arange(8000) * DT
-    shares = {b["name"]: b["share"] for b in band_shares(np.sin(2 * np.pi * freq * t), DT)}
+    shares = {b.name: b.share for b in band_shares(np.sin(2 * np.pi * freq * t), DT)}
     assert set(shares) == {name for name, _, _ in BANDS_HZ}
     assert shares[band] > 0.95
 
@@ -162,9 +163,12 @@ def test_asymmetry_and_edge_shape(unit, traces, pulse):
 # ---------------------------------------------------------------- gap, lag variants
 
 def test_verdict_is_the_best_significant_effect_not_the_best_scored():
+    from bench_ctl.diagnosis.diagnosis_file import EffectEntry
+    from records import effect_json
+
     def e(name, score, d_bic, d_check, significant):
-        return {"name": name, "score": score, "delta_bic": d_bic, "delta_check": d_check,
-                "significant": significant}
+        return EffectEntry.from_json(effect_json(name, score=score, delta_bic=d_bic, delta_check=d_check,
+                                                 significant=significant))
     # A fits the fit record far better but is worse on the check record: not significant
     entries = [e("A", -195.0, 200.0, -5.0, False), e("B", -80.0, 50.0, 30.0, True),
                e("C", 3.0, -3.0, 0.0, False)]
@@ -183,7 +187,7 @@ def test_an_effect_the_windows_cannot_judge_is_accepted_on_the_interleaved_block
     from types import SimpleNamespace
 
     from bench_ctl.diagnosis.models import ModelFit, Part
-    from bench_ctl.diagnosis.verdict import ONE_REGIME_GAIN, SIGNIFICANT, significance
+    from bench_ctl.diagnosis.significance import ONE_REGIME_GAIN, SIGNIFICANT, significance
 
     n = 5000
     st = SimpleNamespace(n=n)
@@ -204,9 +208,12 @@ def test_an_effect_the_windows_cannot_judge_is_accepted_on_the_interleaved_block
     # a constraint broken: refused whatever the blocks say
     assert not significance(st, base, fit(5e-4, 2, (1.1e-3, 2.2e-3), (5e-4, 5e-4), violated=("TA",)))[2]
 
+    from bench_ctl.diagnosis.diagnosis_file import EffectEntry
+    from records import effect_json
+
     def e(name, d_bic, d_check, d_blocks):
-        return {"name": name, "score": -d_bic, "delta_bic": d_bic, "delta_check": d_check,
-                "delta_blocks": d_blocks, "significant": True}
+        return EffectEntry.from_json(effect_json(name, score=-d_bic, delta_bic=d_bic, delta_check=d_check,
+                                                 delta_blocks=d_blocks, significant=True))
     assert choose_verdict([e("saturation", 300.0, -19.0, 3466.0)], at_floor=True, has_check=True) == "saturation"
     assert choose_verdict([e("saturation", 300.0, -19.0, 50.0)], at_floor=True, has_check=True) == "none"
 
@@ -215,28 +222,30 @@ def test_what_is_left_is_said_where_it_lies():
     """The residual's localization in words: segments holding >= 5 % of the energy, largest first,
     each over the noise floor; then the bands."""
     from bench_ctl.diagnosis.localize import where_lines
+    from bench_ctl.identification.result_file import Localization
 
     loc = {"segments": [{"name": "pre_trigger", "t0": 0.0, "t1": 1.0, "share": 0.03, "mse": 1e-4},
                         {"name": "leading_edge", "t0": 1.0, "t1": 1.2, "share": 0.6, "mse": 5e-3},
                         {"name": "trailing_edge", "t0": 2.0, "t1": 2.2, "share": 0.37, "mse": 2e-3}],
            "bands": [{"name": "slow", "f0_hz": 0.0, "f1_hz": 1.0, "share": 0.1},
                      {"name": "fast", "f0_hz": 10.0, "f1_hz": 100.0, "share": 0.9}]}
-    where, bands = where_lines(loc, 1e-4)
+    where, bands = where_lines(Localization.from_json(loc), 1e-4)
     assert where == ("  what is left, where: leading edge 1.00-1.20 s 60 % (50x floor), "
                      "trailing edge 2.00-2.20 s 37 % (20x floor)")
     assert bands == "  by band: slow (0-1 Hz) 10 %, fast (10-100 Hz) 90 %"
 
 
 def test_ambiguity_is_judged_around_the_verdict_not_the_best_score():
+    from bench_ctl.diagnosis.diagnosis_file import EffectEntry
     from bench_ctl.diagnosis.verdict import ambiguous_pairs
+    from records import effect_json
 
-    entries = [{"name": "time_skew", "score": -195.0, "significant": False},
-               {"name": "dead_time", "score": -80.0, "significant": True},
-               {"name": "transducer_lag", "score": -78.0, "significant": True},
-               {"name": "saturation", "score": -20.0, "significant": True}]
+    entries = [EffectEntry.from_json(effect_json(name, score=score, significant=sig)) for name, score, sig in
+               (("time_skew", -195.0, False), ("dead_time", -80.0, True), ("transducer_lag", -78.0, True),
+                ("saturation", -20.0, True))]
     pairs = ambiguous_pairs(entries)
-    assert [p["effects"] for p in pairs] == [["dead_time", "transducer_lag"]]
-    assert pairs[0]["score_difference"] == 2.0
+    assert [p.effects for p in pairs] == [["dead_time", "transducer_lag"]]
+    assert pairs[0].score_difference == 2.0
 
 
 def test_gap_closed_formula():
@@ -329,28 +338,28 @@ def test_diagnosis_finds_the_ceiling_and_reports_the_gap(diag, ceiling_case):
     top = diag.effects[0]
     assert top.params["VRMAX"] == pytest.approx(ceiling_case.effect_params["VRMAX"], abs=0.03)
     # gap_closed on the holdout, recomputed from the reported figures (the holdout part of the check)
-    floor_h = diag.noise_floor_detail["holdout"]
-    hold = {e: next(p["mse"] for p in c.check["parts"] if p["label"] == "holdout") for e, c in
+    floor_h = diag.noise_floor_detail.holdout
+    hold = {e: next(p.mse for p in c.check.parts if p.label == "holdout") for e, c in
             (("base", diag.base), ("top", top))}
     expect = (hold["base"] - hold["top"]) / (hold["base"] - floor_h)
     assert top.gap_closed_holdout == pytest.approx(expect)
     assert top.gap_closed_holdout > 0.8
-    assert diag.sequence[0]["added"] == "ceiling_limit"
+    assert diag.sequence[0].added == "ceiling_limit"
     assert [s.name for s in diag.explained_by] == ["ceiling_limit"]
     # the last step is the model `left` speaks of (polished as far as the sequence went), with its
     # own parameters: the model an engineer takes away
-    assert diag.explained_by[-1].mse == diag.left["mse"]
+    assert diag.explained_by[-1].mse == diag.left.mse
     last = diag.explained_by[-1].avr_params
     assert set(last) == set(diag.base.params) and last != diag.base.params
     # the check: the holdout and the capture's windows, each window left out of a re-fit
-    labels = [p["label"] for p in top.check["parts"]]
+    labels = [p.label for p in top.check.parts]
     assert labels == ["holdout", "leading_edge", "plateau", "trailing_edge", "vt"]  # vt: recorded, not fitted
-    assert diag.validation["kind"] == "holdout + windows"
+    assert diag.validation.kind == "holdout + windows"
     # beside the check, the interleaved blocks: two halves of the record, each scored left out
-    blocks = top.check["blocks"]
-    assert [b["label"] for b in blocks] == ["blocks_1", "blocks_2"]
-    assert sum(b["samples"] for b in blocks) == pytest.approx(ceiling_case.capture.n, abs=2)
-    assert top.delta_blocks > 0 and diag.check["blocks"] == {"seconds": 0.05, "folds": 2}
+    blocks = top.check.blocks
+    assert [b.label for b in blocks] == ["blocks_1", "blocks_2"]
+    assert sum(b.samples for b in blocks) == pytest.approx(ceiling_case.capture.n, abs=2)
+    assert top.delta_blocks > 0 and diag.check.blocks.to_json() == {"seconds": 0.05, "folds": 2}
 
 
 def test_a_left_out_part_is_scored_on_the_linear_prediction_only_where_it_holds(unit, ceiling_case, monkeypatch):
@@ -398,16 +407,16 @@ def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling
     d = diagnose(ceiling_case.capture, unit, budget=FAST)
     v = d.validation
     cap = ceiling_case.capture
-    assert v["kind"] == "windows" and d.holdout is None
-    assert v["fit"] == {"t0": 0.0, "t1": pytest.approx((cap.n - 1) * cap.dt)}
-    wins = {w["label"]: (w["t0"], w["t1"]) for w in v["check"]["windows"]}
+    assert v.kind == "windows" and d.holdout is None
+    assert v.fit.to_json() == {"t0": 0.0, "t1": pytest.approx((cap.n - 1) * cap.dt)}
+    wins = {w.label: (w.t0, w.t1) for w in v.check.windows}
     assert list(wins) == ["leading_edge", "plateau", "trailing_edge"]
     assert wins["leading_edge"][0] == pytest.approx(1.0, abs=cap.dt) and wins["trailing_edge"][0] == pytest.approx(
         2.0, abs=cap.dt)
     assert d.verdict == "ceiling_limit"
     top = d.effect("ceiling_limit")
-    base_parts = {p["label"]: p["mse"] for p in d.base.check["parts"]}
-    top_parts = {p["label"]: p["mse"] for p in top.check["parts"]}
+    base_parts = {p.label: p.mse for p in d.base.check.parts}
+    top_parts = {p.label: p.mse for p in top.check.parts}
     gain = {k: base_parts[k] / top_parts[k] for k in base_parts}
     assert gain["leading_edge"] > 2.0 and gain["trailing_edge"] > 2.0, gain
     # the report re-simulates the base fit over the whole record with the fitted edge instants
@@ -431,7 +440,7 @@ def test_effect_free_capture_gives_none(unit):
     case = make_case("none", 12, SMALL)
     d = diagnose(case.capture, unit, holdout=case.holdout, budget=FAST)
     assert d.verdict == "none"
-    assert d.sequence == [] and d.ambiguous == []
+    assert d.sequence == () and d.ambiguous == ()
     assert d.base.mse < 1.2 * d.noise_floor
     # no gap to close: the headline fraction is withheld, the raw figures stay for the record
     assert d.base.at_noise_floor is True
@@ -471,13 +480,17 @@ def test_capture_without_pre_trigger_is_refused(unit):
 
 
 def test_ambiguous_pairs_name_the_separating_test():
-    from bench_ctl.diagnosis.verdict import AMBIGUOUS, ambiguous_pairs
-    entries = [{"name": "dead_time", "score": -500.0, "significant": True},
-               {"name": "time_skew", "score": -500.0 + AMBIGUOUS / 2, "significant": True},
-               {"name": "setpoint_ramp", "score": -500.0 + AMBIGUOUS / 3, "significant": False},
-               {"name": "rate_limit", "score": -400.0, "significant": True}]
+    from dataclasses import replace
+
+    from bench_ctl.diagnosis.diagnosis_file import EffectEntry
+    from bench_ctl.diagnosis.significance import AMBIGUOUS
+    from bench_ctl.diagnosis.verdict import ambiguous_pairs
+    from records import effect_json
+    entries = [EffectEntry.from_json(effect_json(name, score=score, significant=sig)) for name, score, sig in
+               (("dead_time", -500.0, True), ("time_skew", -500.0 + AMBIGUOUS / 2, True),
+                ("setpoint_ramp", -500.0 + AMBIGUOUS / 3, False), ("rate_limit", -400.0, True))]
     amb = ambiguous_pairs(entries)
-    assert [a["effects"] for a in amb] == [["dead_time", "time_skew"]]
-    assert "second channel" in amb[0]["separating_test"]
-    entries[0]["significant"] = False
+    assert [a.effects for a in amb] == [["dead_time", "time_skew"]]
+    assert "second channel" in amb[0].separating_test
+    entries[0] = replace(entries[0], significant=False)
     assert ambiguous_pairs(entries) == []

@@ -9,7 +9,14 @@ import numpy as np
 
 from bench_ctl.commands.options import fmt_value
 from bench_ctl.diagnosis import features as F
-from bench_ctl.diagnosis.localize import Edges
+from bench_ctl.diagnosis.localize import pulse_edges
+
+
+def Edges(k_on: int, k_off: int | None, amplitude: float, n: int = 3000):   # noqa: N802 - reads as a record
+    """The setpoint edges the one finder finds in a setpoint stepping at k_on (and back at k_off)."""
+    usetp = np.ones(n)
+    usetp[k_on:(k_off if k_off is not None else n)] += amplitude
+    return pulse_edges(usetp)
 
 
 def _flat(n: int = 3000, seed: int = 0) -> np.ndarray:
@@ -26,7 +33,7 @@ def test_edge_shape_says_what_it_cannot_measure():
     falling = np.concatenate([np.ones(1000), np.linspace(1.0, 0.5, 2000)])   # goes the other way
     f = F.edge_shape(falling, falling, 1e-3, Edges(1000, None, 0.05), 0.01, 0.05)
     assert "nan" not in f.evidence and "rise not measurable (no rise to a first peak within 500 ms" in f.evidence
-    assert f.to_dict()["values"]["leading_rise_s"] is None        # and null in the JSON
+    assert f.entry().values["leading_rise_s"] is None        # and null in the JSON
 
 
 def test_delay_and_asymmetry_say_what_they_cannot_measure():

@@ -29,6 +29,7 @@ from bench_ctl.diagnosis.selection import (
     where_left,
 )
 from bench_ctl.identification.problem import make_problem
+from bench_ctl.identification.result_file import Localization, SegmentShare, SelectionEntry
 from bench_ctl.identification.threads import set_fit_threads
 from bench_ctl.model.structures import STRUCTURES
 from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
@@ -47,7 +48,7 @@ def test_rank_puts_the_simplest_of_equal_fits_first_and_names_the_others():
     assert [c.model for c in sel.candidates] == ["SMALL", "BIG", "WORSE"]
     assert sel.equivalent == ("BIG",)
     assert sel.verdict == "explains"
-    j = sel.to_json()
+    j = sel.entry().to_json()
     assert j["chosen"] == "SMALL" and j["candidates"][1]["equivalent"] is True
     assert j["candidates"][2]["score_difference"] > 0
 
@@ -66,7 +67,7 @@ def test_rank_puts_failed_candidates_last():
     failed = Candidate("BROKEN", None, 0, 0, math.inf, (), math.inf, math.inf, 0.0, error="no")
     sel = rank([failed, _cand("OK", 4, 1.0e-4, 1.0e-4)], 1.0e-4, 0.05)
     assert [c.model for c in sel.candidates] == ["OK", "BROKEN"]
-    assert sel.to_json()["candidates"][1]["error"] == "no"
+    assert sel.entry().to_json()["candidates"][1]["error"] == "no"
 
 
 def test_free_limits_fits_the_typical_limits_but_keeps_the_given_ones():
@@ -123,9 +124,9 @@ def test_the_true_structure_of_an_andes_record_ranks_first(fixture, truth, other
     assert loser.model == other and loser.mse > 2.0 * sel.best.mse and loser.score > sel.best.score + 100
     # where the two differ: a segment of the response, beyond the noise
     sep = sel.separation()
-    assert sep["models"] == [truth, other] and sep["separated"] and sep["x_floor"][1] > sep["x_floor"][0]
-    assert "this record separates them" in separation_text(sel.to_json())
-    shares = [g["share"] for g in sel.best.where[0]["segments"]]
+    assert sep.models == [truth, other] and sep.separated and sep.x_floor[1] > sep.x_floor[0]
+    assert "this record separates them" in separation_text(sel.entry())
+    shares = [g.share for g in sel.best.where[0].segments]
     assert abs(sum(shares) - 1.0) < 1e-9
 
 
@@ -135,7 +136,7 @@ def test_candidates_fitted_side_by_side_rank_as_on_one_thread():
     for n in (2, 1):
         set_fit_threads(n)
         try:
-            runs.append(select_structure([cap], cands, max_evals=300, seed=0).to_json())
+            runs.append(select_structure([cap], cands, max_evals=300, seed=0).entry().to_json())
         finally:
             set_fit_threads(None)
     for c in (*runs[0]["candidates"], *runs[1]["candidates"]):
@@ -149,9 +150,13 @@ def test_what_is_left_is_said_where_and_in_the_structures_names():
                           {"name": "plateau", "t0": 0.7, "t1": 1.5, "share": 0.28, "mse": 4e-4}],
              "bands": [{"name": "slow", "f0_hz": 0.0, "f1_hz": 1.0, "share": 0.1},
                        {"name": "loop", "f0_hz": 1.0, "f1_hz": 10.0, "share": 0.9}]}
-    sel = {"noise_floor": 1e-4, "candidates": [{"model": "ESST5B", "where": [where], "at_bounds": ["KR"]}],
-           "separation": {"models": ["ESST5B", "ESST1A"], "segment": "plateau", "t0": 0.7, "t1": 1.5,
-                          "x_floor": [4.0, 4.1], "weight": 2.0, "separated": False}}
+    candidate = {"rank": 1, "model": "ESST5B", "k": 4, "inert": [], "n": 1500, "mse": 4e-4, "x_floor": 4.0,
+                 "check": {}, "check_mse": None, "check_x_floor": None, "score": 0.0, "score_difference": 0.0,
+                 "equivalent": False, "wall_s": 1.0, "searches": 1, "where": [where], "at_bounds": ["KR"]}
+    sel = SelectionEntry.from_json({
+        "verdict": "closest", "chosen": "ESST5B", "equivalent": [], "noise_floor": 1e-4, "candidates": [candidate],
+        "separation": {"models": ["ESST5B", "ESST1A"], "segment": "plateau", "t0": 0.7, "t1": 1.5,
+                       "x_floor": [4.0, 4.1], "weight": 2.0, "separated": False}, "rule": "", "notes": []})
     text = "\n".join(where_left(sel))
     assert "leading edge 0.50-0.70 s 70 % (30x floor)" in text and "pre trigger" not in text
     assert "loop (1-10 Hz) 90 %" in text and "pressed on a bound: KR" in text
@@ -252,7 +257,7 @@ def test_the_score_charges_only_the_parameters_the_record_informs():
     for c in sel.candidates:
         fitted = [n for n in c.ident.result.params if n not in c.inert]
         assert c.k == len(fitted) and c.inert
-        entry = next(e for e in sel.to_json()["candidates"] if e["model"] == c.model)
+        entry = next(e for e in sel.entry().to_json()["candidates"] if e["model"] == c.model)
         assert entry["inert"] == list(c.inert) and set(c.inert) <= set(entry["params"])
     sexs = next(c for c in sel.candidates if c.model == "SEXS")
     assert "EMAX" in sexs.inert
@@ -266,17 +271,17 @@ def test_a_search_caught_in_a_corner_of_the_box_gets_a_second_one_and_the_better
     assert first.searches == second.searches == 1
     monkeypatch.setattr(selection, "SUSPECT_AT_BOUNDS", 0)     # every fit suspect
     both = select_structure([cap], cands, max_evals=300, seed=0)
-    assert both.best.searches == 2 and both.to_json()["candidates"][0]["searches"] == 2
-    assert "searched twice" in selection_summary(both.to_json())
+    assert both.best.searches == 2 and both.entry().to_json()["candidates"][0]["searches"] == 2
+    assert "searched twice" in selection_summary(both.entry())
     assert both.best.ident.best.fun == min(first.ident.best.fun, second.ident.best.fun)
 
 
-def _where(mse_by_segment: dict[str, float]) -> tuple[dict, ...]:
+def _where(mse_by_segment: dict[str, float]) -> tuple[Localization, ...]:
     t, segs = 0.0, []
     for name, mse in mse_by_segment.items():
-        segs.append({"name": name, "t0": t, "t1": t + 1.0, "share": 0.2, "mse": mse})
+        segs.append(SegmentShare(name, t, t + 1.0, 0.2, mse))
         t += 1.0
-    return ({"segments": segs, "bands": []},)
+    return (Localization(tuple(segs), ()),)
 
 
 def test_a_separation_is_claimed_only_beyond_the_noise_floor():
@@ -290,13 +295,13 @@ def test_a_separation_is_claimed_only_beyond_the_noise_floor():
     b = replace(_cand("ESST1A", 6, 0.61e-4, 0.61e-4), where=_where(twin))
     sel = replace(rank([a, b], floor, 0.05), dt=1e-3)
     sep = sel.separation()
-    assert sep["weight"] > EQUAL_FIT and sep["both_at_floor"] is True and sep["separated"] is False
-    text = separation_text(sel.to_json())
+    assert sep.weight > EQUAL_FIT and sep.both_at_floor is True and sep.separated is False
+    text = separation_text(sel.entry())
     assert "both fit every part of this record at the noise floor" in text and "separates them" not in text
     # one of them misses the floor where they differ: separated, and said where
     miss = {**same, "leading_edge": 5.0e-4}
     c = replace(_cand("ESST1A", 6, 0.9e-4, 0.9e-4), where=_where(miss))
     sel = replace(rank([a, c], floor, 0.05), dt=1e-3)
     sep = sel.separation()
-    assert sep["separated"] is True and sep["segment"] == "leading_edge"
-    assert "differ most at the leading edge" in separation_text(sel.to_json())
+    assert sep.separated is True and sep.segment == "leading_edge"
+    assert "differ most at the leading edge" in separation_text(sel.entry())

@@ -33,7 +33,7 @@ def test_well_determined_set_all_flags_true_and_std_matches_monte_carlo(unit):
         p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=100 + seed)], truth, fit_edges=False)
         # start at the truth: the Monte Carlo measures the noise's effect, not the optimizer
         fits.append(run_optimizer("local", p, max_evals=150, seed=0).x)
-    a = analyse(p, _x(p, TRUTH))
+    a = analyse(p, _x(p, TRUTH)).to_json()
     assert all(a["determined"].values()), a["reasons"]
     spread = np.std(np.log(np.array(fits)), axis=0, ddof=1)
     pred = np.array([a["rel_std"][n] for n in p.names])
@@ -50,7 +50,7 @@ def test_pole_zero_cancellation_is_flagged_as_a_singular_direction(unit):
     vals = {**TRUTH, "TA1": 1.5, "TA4": 1.5}
     truth = _unit_with(unit, vals)
     p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=1)], unit, fit_edges=False)
-    a = analyse(p, _x(p, vals))
+    a = analyse(p, _x(p, vals)).to_json()
     assert a["determined"]["TA1"] is False and a["determined"]["TA4"] is False
     assert any("singular direction" in r for r in a["reasons"]["TA1"])
     assert a["determined"]["TE"] and a["determined"]["TA2"]
@@ -62,7 +62,7 @@ def test_record_too_short_to_see_the_slow_lag(unit):
     truth = unit
     cap = synthetic_capture(truth, duration=1.5, rate=500.0, seed=2, width=None)
     p = make_problem([cap], unit, fit_edges=False)
-    a = analyse(p, p.x_start())
+    a = analyse(p, p.x_start()).to_json()
     assert a["determined"]["TA4"] is False and a["determined"]["KAVR"] is False
     assert a["rel_std"]["TA4"] is None or a["rel_std"]["TA4"] > 0.25
     # TE is well fixed by the record; only its exchange with TA2 (0.2 s <-> 0.02 s, both inside
@@ -73,14 +73,14 @@ def test_record_too_short_to_see_the_slow_lag(unit):
     assert "TA4" in a["notes"][-1]
     # the same unit over a 10 s record does determine the lag better
     long = make_problem([synthetic_capture(truth, duration=10.0, rate=500.0, seed=2)], unit, fit_edges=False)
-    b = analyse(long, long.x_start())
+    b = analyse(long, long.x_start()).to_json()
     assert b["rel_std"]["TA4"] < (a["rel_std"]["TA4"] or np.inf)
 
 
 def test_reference_unit_lead_swap_is_equivalent_and_allowed(unit):
     cap = synthetic_capture(unit, duration=3.0, rate=500.0, seed=3)
     p = make_problem([cap], unit, fit_edges=False)
-    a = analyse(p, p.x_start())
+    a = analyse(p, p.x_start()).to_json()
     sets = {e["note"]: e for e in a["equivalent_sets"]}
     lead = sets["leads TA1 <-> TA3 swapped"]
     assert lead["params"]["TA1"] == 0.5 and lead["params"]["TA3"] == 1.0
@@ -98,7 +98,7 @@ def test_reference_unit_lead_swap_is_equivalent_and_allowed(unit):
 def test_constraints_rule_out_the_lead_swap_when_ta3_is_below_ta2(unit):
     truth = _unit_with(unit, TRUTH)  # TA3 = 0.1 < TA2 = 0.3: the swap would break TA2 <= TA1
     p = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit, fit_edges=False)
-    a = analyse(p, _x(p, TRUTH))
+    a = analyse(p, _x(p, TRUTH)).to_json()
     lead = {e["note"]: e for e in a["equivalent_sets"]}["leads TA1 <-> TA3 swapped"]
     assert lead["equivalent"] and not lead["allowed"]
     assert lead["constraints_violated"] == ["TA2 <= TA1"]
@@ -112,7 +112,7 @@ def test_a_changed_response_is_not_called_equivalent(unit):
     x = _x(p, TRUTH)
     y = x.copy()
     y[1], y[2] = x[2], x[1]
-    a = analyse(p, x)
+    a = analyse(p, x).to_json()
     tol = a["settings"]["equivalence_tol_mse"]
     assert np.mean(p.mse(y)) - np.mean(p.mse(x)) > 10 * tol
 
@@ -123,9 +123,10 @@ def test_a_capture_of_weight_zero_changes_nothing(unit):
     truth = _unit_with(unit, TRUTH)
     cap = synthetic_capture(truth, duration=3.0, rate=500.0, seed=7)
     other = synthetic_capture(truth, duration=3.0, rate=500.0, seed=8)
-    alone = analyse(make_problem([cap], truth, fit_edges=False), _x(make_problem([cap], truth, fit_edges=False), TRUTH))
+    single = make_problem([cap], truth, fit_edges=False)
+    alone = analyse(single, _x(single, TRUTH)).to_json()
     p = make_problem([cap, other], truth, weights=[1.0, 0.0], fit_edges=False)
-    both = analyse(p, _x(p, TRUTH))
+    both = analyse(p, _x(p, TRUTH)).to_json()
     for key in ("sensitivity", "rel_std"):
         for n in p.names:
             assert both[key][n] == pytest.approx(alone[key][n], rel=1e-9), (key, n)
@@ -145,7 +146,7 @@ def test_every_declared_exchange_of_every_structure_is_examined():
         cap = synthetic_capture(u, duration=3.0, rate=500.0, seed=11)
         for fitted in (u, free_limits(u)):
             p = make_problem([cap], fitted, fit_edges=False)
-            a = analyse(p, p.x_start())
+            a = analyse(p, p.x_start()).to_json()
             reported = {e["note"] for e in a["equivalent_sets"]}
             for note, pair in st.swaps:
                 if not {st.kernel_name(n) for n in pair} <= set(p.names):
@@ -159,7 +160,7 @@ def test_every_declared_exchange_of_every_structure_is_examined():
     u = reference_unit()
     p = make_problem([synthetic_capture(u, duration=3.0, rate=500.0, seed=11)], u, fit_edges=False,
                      names=["KAVR", "TA1", "TA2", "TA3", "TA4"])
-    notes = analyse(p, p.x_start())["notes"]
+    notes = analyse(p, p.x_start()).to_json()["notes"]
     for note, _pair in u.structure.swaps:
         assert f"{note}: not examined, TE not fitted" in notes
 
@@ -168,7 +169,7 @@ def test_reference_lag_exchanged_with_te_is_equivalent_and_within_the_bounds(uni
     # the unit's values: TA2 = 0.2 s and TE = 0.02 s can trade places inside their bounds and
     # constraints; TA4 = 10 s cannot become TE (<= 0.2 s)
     p = make_problem([synthetic_capture(unit, duration=3.0, rate=500.0, seed=3)], unit, fit_edges=False)
-    a = analyse(p, p.x_start())
+    a = analyse(p, p.x_start()).to_json()
     sets = {e["note"][:12]: e for e in a["equivalent_sets"]}
     ta2 = sets["lag TA2 <-> "]
     assert ta2["params"]["TA2"] == 0.02 and ta2["params"]["TE"] == 0.2
@@ -180,7 +181,7 @@ def test_reference_lag_exchanged_with_te_is_equivalent_and_within_the_bounds(uni
     # at the identification tests' truth (TA2 = 0.3 s, TE = 0.03 s) the bounds tell them apart
     truth = _unit_with(unit, TRUTH)
     q = make_problem([synthetic_capture(truth, duration=3.0, rate=500.0, seed=4)], unit, fit_edges=False)
-    b = analyse(q, _x(q, TRUTH))
+    b = analyse(q, _x(q, TRUTH)).to_json()
     e = {s["note"][:12]: s for s in b["equivalent_sets"]}["lag TA2 <-> "]
     assert e["equivalent"] and e["outside_bounds"] == ["TE = 0.3 outside [0.002, 0.2]"]
     assert b["determined"]["TA2"] and b["determined"]["TE"]

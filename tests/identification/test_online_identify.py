@@ -98,9 +98,9 @@ def test_the_grid_reactance_is_fitted_on_line_when_unknown():
     cap = _capture(0.005)
     unit = apply_overrides(_unit(), ["XE=0.6", "XE.min=0.05", "XE.max=0.8", "TE=0.08"])
     ident = run_identification([cap], unit, max_evals=600, seed=2)
-    xe = ident.result.unit["grid"]["XE"]
+    xe = ident.result.unit.grid["XE"]
     assert xe == pytest.approx(TYPICAL_MACHINE["XE"], rel=0.05), xe
-    assert "XE" not in ident.result.params and ident.result.unit["grid_identify"]["XE"]["max"] == 0.8
+    assert "XE" not in ident.result.params and ident.result.unit.grid_identify["XE"].max == 0.8
     assert ident.problem.mse(ident.best.x)[0] < 1.1 * 0.005 ** 2
     no_load = Capture(time=cap.time, usetp=cap.usetp, efd=cap.efd, vt=cap.vt, source="no_load.csv")
     with pytest.raises(ProblemError, match="XE fitted .*only an on-line record"):

@@ -86,9 +86,9 @@ def test_the_unit_file_carries_its_limits_into_the_result(tmp_path: Path) -> Non
     good.write_text(text + "\n[acceptance]\nexclusion_s = 0.03\n[acceptance.during]\nMXE = 0.1\n",
                     encoding="utf-8")
     unit = load_unit(good)
-    acc = unit.to_dict()["acceptance"]
+    acc = unit.entry().acceptance.to_json()
     assert acc["during"]["MXE"] == 0.1 and acc["exclusion_s"] == 0.03 and acc["after"] == DEFAULT_LIMITS["after"]
-    assert load_unit(None).to_dict()["acceptance"]["during"] == DEFAULT_LIMITS["during"]
+    assert load_unit(None).entry().acceptance.during == DEFAULT_LIMITS["during"]
     bad = tmp_path / "bad.toml"
     bad.write_text(text + "\n[acceptance.during]\nMAE = \"small\"\n", encoding="utf-8")
     with pytest.raises(UnitError, match=r"bad\.toml: acceptance\.during\.MAE = 'small'"):

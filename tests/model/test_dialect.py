@@ -8,10 +8,12 @@ import re
 import pytest
 
 from bench_ctl.cli import main
-from bench_ctl.model.dialect import hidden_kernel_names, kernel_sections, result_to_std, std_text
+from bench_ctl.identification.result_file import IdentificationResult
+from bench_ctl.model.dialect import dialect_of, kernel_sections
 from bench_ctl.model.effects import EFFECTS, separating_test
 from bench_ctl.model.structures import STRUCTURES, structure
 from bench_ctl.units.unit import UnitError, apply_overrides, reference_unit, unit_from_dict, with_model
+from records import model_json, result_json
 
 STANDARD = [n for n in STRUCTURES if n != "REFERENCE"]
 
@@ -64,21 +66,21 @@ def test_blocks_generate_the_same_kernel_mapping_and_settings(name):
     # the diagram is the blocks', in their order, in the structure's names
     assert len(st.diagram) >= len(st.blocks)
     for line in st.diagram:
-        assert not set(re.findall(r"[A-Za-z_]\w*", line)) & set(hidden_kernel_names(st)), line
+        assert not set(re.findall(r"[A-Za-z_]\w*", line)) & set(dialect_of(st).hidden_kernel_names()), line
 
 
 def test_texts_translate_at_once_both_ways():
-    x1 = structure("IEEEX1")     # kernel TE is its TA, kernel TEX its TE: no chaining
-    assert std_text(x1, "TE <= TEX") == "TA <= TE"
-    st = structure("ESST1A")
-    assert std_text(st, "TE <= TA4") == "TA <= TB1"
+    x1 = dialect_of(structure("IEEEX1"))     # kernel TE is its TA, kernel TEX its TE: no chaining
+    assert x1.text("TE <= TEX") == "TA <= TE" and x1.kernel_text("TA <= TE") == "TE <= TEX"
+    st = dialect_of(structure("ESST1A"))
+    assert st.text("TE <= TA4") == "TA <= TB1" and st.kernel_text("TA <= TB1") == "TE <= TA4"
 
 
 @pytest.mark.parametrize("name", STANDARD)
 def test_set_and_unit_files_refuse_kernel_names_naming_the_standard_one(name):
     st = structure(name)
     unit = with_model(reference_unit(), name)
-    for kern in hidden_kernel_names(st):
+    for kern in dialect_of(st).hidden_kernel_names():
         drivers = [p.name for p in st.params if p.kernel == kern]
         with pytest.raises(UnitError) as exc:
             apply_overrides(unit, [f"{kern}=1.0"])
@@ -118,13 +120,13 @@ def test_effects_carry_their_starts_variants_and_separating_tests():
 
 
 def test_an_old_result_in_kernel_names_is_still_read():
-    st = structure("ESST1A")
-    old = {"model": {"name": "ESST1A", "params": {}}, "params": {"KAVR": 210.0, "TE": 0.03},
-           "fixed": {"TA1": 1.0}, "bounds": {"KAVR": [20, 800], "TE": [0.002, 0.2]}, "constraints": []}
-    assert kernel_sections(old)["params"] == {"KAVR": 210.0, "TE": 0.03}
-    new = result_to_std(st, old)
-    assert new["params"] == {"KA": 210.0, "TA": 0.03} and "kernel" in new
-    assert kernel_sections(new)["params"] == {"KAVR": 210.0, "TE": 0.03}
+    old = IdentificationResult.from_json(result_json(
+        model=model_json(name="ESST1A"), params={"KAVR": 210.0, "TE": 0.03}, fixed={"TA1": 1.0},
+        bounds={"KAVR": [20, 800], "TE": [0.002, 0.2]}))
+    assert old.kernel_view()["params"] == {"KAVR": 210.0, "TE": 0.03}
+    new = old.renamed(dialect_of(structure("ESST1A")))
+    assert new.params == {"KA": 210.0, "TA": 0.03} and new.kernel is not None
+    assert new.kernel_view()["params"] == {"KAVR": 210.0, "TE": 0.03}
 
 
 def _words(text: str) -> set[str]:
@@ -145,7 +147,7 @@ def test_no_kernel_name_on_any_surface_of_a_standard_structure(name, tmp_path, c
     console table, the report's HTML and the .dyr comments: none names a kernel parameter that
     the structure calls otherwise."""
     st = structure(name)
-    hidden = set(hidden_kernel_names(st))
+    hidden = set(dialect_of(st).hidden_kernel_names())
     cap, res, html, dyr = (tmp_path / f for f in ("cap.csv", "r.json", "r.html", "u.dyr"))
     assert main(["simulate", "--model", name, "-o", str(cap), "--duration", "4", "--seed", "3"]) == 0
     capsys.readouterr()
@@ -181,12 +183,13 @@ def test_a_result_in_standard_names_reads_back_to_the_kernel_values_it_was_made_
     unit = with_model(reference_unit(), name).with_effects(effects)
     values = unit.values()
     none = lambda v: v if math.isfinite(v) else None  # noqa: E731
-    kernel = {"model": {"name": name, "params": {k: none(v) for k, v in unit.standard_values().items()}},
-              "unit": unit.to_dict(),
-              "params": {k: values[k] for k in unit.identify},
-              "fixed": {k: none(v) for k, v in values.items() if k not in unit.identify and k not in RECORD_PARAMS},
-              "bounds": {k: [b.min, b.max] for k, b in unit.identify.items()}, "constraints": []}
-    std = result_to_std(structure(name), kernel)
+    kernel = IdentificationResult.from_json(result_json(
+        model=model_json(name=name, params={k: none(v) for k, v in unit.standard_values().items()}),
+        unit=unit.entry().to_json(),
+        params={k: values[k] for k in unit.identify},
+        fixed={k: none(v) for k, v in values.items() if k not in unit.identify and k not in RECORD_PARAMS},
+        bounds={k: [b.min, b.max] for k, b in unit.identify.items()}))
+    std = kernel.renamed(unit.dialect).to_json()
     back = kernel_sections(json.loads(json.dumps(std)))
     got = dict(neutral_values())
     for section in ("fixed", "params"):
@@ -195,4 +198,4 @@ def test_a_result_in_standard_names_reads_back_to_the_kernel_values_it_was_made_
         if k not in RECORD_PARAMS:
             assert got[k] == values[k], (k, got[k], values[k])
     if name != "REFERENCE":
-        assert not set(std["fixed"]) & set(hidden_kernel_names(structure(name)))
+        assert not set(std["fixed"]) & set(unit.dialect.hidden_kernel_names())

@@ -184,8 +184,10 @@ def test_the_export_command_refuses_a_bad_id_before_writing(tmp_path, capsys):
 
 
 def test_the_identify_header_names_the_unit_used():
-    assert unit_line({"name": "plant.dyr bus 101 ID 1 (GENSAL + ESST5B)"}, {"name": "ESST5B"}, [True]) == \
+    from types import SimpleNamespace as NS
+
+    assert unit_line(NS(name="plant.dyr bus 101 ID 1 (GENSAL + ESST5B)", model=None), NS(name="ESST5B"), [True]) == \
         "unit: plant.dyr bus 101 ID 1 (GENSAL + ESST5B); structure ESST5B; on line (the captures hold P and Q)"
-    assert unit_line({"name": "reference unit (1500 MW hydro)"}, {}, [False]).endswith("structure REFERENCE; "
-                                                                                       "at no load")
+    ref = NS(name="reference unit (1500 MW hydro)", model=None)
+    assert unit_line(ref, None, [False]).endswith("structure REFERENCE; at no load")
     assert "no load" not in reference_unit().name

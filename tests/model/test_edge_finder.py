@@ -10,7 +10,7 @@ import pytest
 
 from bench_ctl.capture.plausible import setpoint_edges
 from bench_ctl.engine.simulate import pulse_usetp
-from bench_ctl.report.metrics import find_edges as report_edges
+from bench_ctl.report.metrics import edge_times
 from bench_ctl.signals.edges import EXCITER, SETPOINT, VOLTAGE, find_edges, find_setpoint_edges
 from edge_exports import fine_response, sampled
 
@@ -43,9 +43,9 @@ def test_a_noisy_recorded_setpoint_and_its_one_sample_blip():
 
 def test_the_views_on_it_keep_their_meaning():
     t, u = pulse_usetp(amplitude=-0.02, width=0.3, start=0.5, duration=2.0, rate=1000.0)
-    e = report_edges(t, u)
-    assert (e.leading_index, e.trailing_index, e.leading_s, e.trailing_s) == (500, 800, 0.5, 0.8)
-    assert e.amplitude == pytest.approx(-0.02)
+    e = find_edges(t, u, kind=SETPOINT)     # as the report finds them
+    assert (e.lead.index, e.trail_index, *edge_times(e)) == (500, 800, 0.5, 0.8)
+    assert e.lead.jump == pytest.approx(-0.02)
     assert setpoint_edges(u).tolist() == [500, 800]
     ramp = u.copy()
     ramp[500:503] = [0.995, 0.99, 0.985]     # a change spread over adjacent samples is one edge

@@ -58,7 +58,8 @@ def test_identify_finds_edges_between_samples_and_reaches_the_noise_floor(seed, 
     t, u, efd = _fine_record(on, off, 1000.0, 4.0, seed=seed)
     cap = Capture(time=t, usetp=u, efd=efd)
     unit = reference_unit()
-    r = identify([cap], unit, max_evals=1000, seed=0).to_json()
+    result = identify([cap], unit, max_evals=1000, seed=0)
+    r = result.to_json()
     fitted = [e["fitted_s"] for e in r["edges"]]
     np.testing.assert_allclose(fitted, [on, off], atol=1.5e-4)  # within 0.15 of a sample
     assert all(e["std_s"] is not None and 0 < e["std_s"] < 3e-4 for e in r["edges"])
@@ -69,7 +70,7 @@ def test_identify_finds_edges_between_samples_and_reaches_the_noise_floor(seed, 
     x = np.array([r["params"][n] for n in nominal.names])
     assert nominal.mse(x)[0] > 1.15 * r["mse"]  # 1.2x and more here; the floor is known to ~2 %
     # the result's edges re-simulate what the fit found
-    spec, offsets = edge_spec_of(r["captures"][0]["edges"], cap.n)
+    spec, offsets = edge_spec_of(result.captures[0].edges, cap.n)
     sim = run_engine(param_matrix({**unit.values(), **r["params"], **offsets}), u, cap.dt, 1.0,
                      edges=spec)["efd"][0]
     assert np.mean((sim - efd) ** 2) == pytest.approx(r["mse"], rel=1e-9)

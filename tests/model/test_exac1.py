@@ -95,7 +95,7 @@ def test_exac1_record_reads_into_a_unit(tmp_path):
     assert unit.model == "EXAC1"
     v = unit.values()
     assert (v["ACEX"], v["KD"], v["KC"], v["TEX"], v["KE"]) == (1.0, 0.38, 0.2, 0.8, 1.0)
-    assert unit.std_name("TEX") == "TE" and unit.std_name("TE") == "TA"
+    assert unit.dialect.name("TEX") == "TE" and unit.dialect.name("TE") == "TA"
     assert rec.values["KA"] == 400.0 and rec.values["VRMIN"] == -5.43
 
 

@@ -263,7 +263,7 @@ def test_identifiability_examines_the_structures_declared_exchange():
     noise = np.random.default_rng(5).normal(0.0, 0.01, base.n)
     prob = make_problem([Capture(time=base.time, usetp=base.usetp, efd=base.efd + noise)], unit)
     x = prob.x_start()
-    out = analyse(prob, x)
+    out = analyse(prob, x).to_json()
     sets = [s for s in out["equivalent_sets"] if s["note"].startswith("regulator lag TA")]
     assert len(sets) == 1 and sets[0]["equivalent"] and not sets[0]["in_bounds"]
     assert sets[0]["verdict"] == "equally good but ruled out by bounds"

@@ -134,7 +134,7 @@ def test_grid_table_set_and_dyr_give_the_machine_on_the_grid(tmp_path):
     assert unit.grid == {"XE": 0.25, "H": 4.0}
     unit = apply_overrides(unit, ["XE=0.3", "P0=0.8"])
     assert with_model(unit, "SEXS").grid == {"XE": 0.3, "H": 4.0, "P0": 0.8}
-    assert unit.to_dict()["grid"]["XE"] == 0.3
+    assert unit.entry().grid["XE"] == 0.3
     for bad, msg in (("XE = 9.0", "grid.XE = 9.0 pu is outside"), ("XX = 1.0", "[grid] unknown key(s) ['XX']")):
         ref.write_text(text + f"\n[grid]\n{bad}\n")
         with pytest.raises(UnitError) as e:

@@ -30,8 +30,9 @@ from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate, synt
 from bench_ctl.limits import sha256_file
 from bench_ctl.model.params import AVR_PARAMS, PARAMS, REFERENCE_BOUNDS, REFERENCE_VALUES
 from bench_ctl.report import figures as F
+from bench_ctl.signals.acceptance import acceptance_limits
 from bench_ctl.units.unit import load_unit
-from records import diagnosis_json, effect_json, step_json
+from records import diagnosis_json, effect_json, localization_json, step_json
 
 START_S, WIDTH_S, RATE_HZ, EDGE_WINDOW_S = 1.0, 1.0, 1000.0, 0.2
 FIT = {**{k: REFERENCE_VALUES[k] for k in AVR_PARAMS}, "KAVR": 185.0, "TE": 0.024}
@@ -151,7 +152,7 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> dict:
         "schema": "bench-ctl/result/1", "software_version": "0.1.0",
         "command_line": "bench-ctl identify pulse.csv --json result.json --seed 3",
         "created_utc": "2025-01-01T00:00:00+00:00",
-        "unit": {**unit.to_dict(), "acceptance": LIMITS},
+        "unit": {**unit.entry().to_json(), "acceptance": acceptance_limits(LIMITS, "test")},
         "captures": [cap_entry], "params": FIT, "fixed": fixed,
         "bounds": {k: list(v) for k, v in REFERENCE_BOUNDS.items()},
         "constraints": [{"expr": "TA2 <= TA1", "satisfied": True, "margin": 0.8},
@@ -165,10 +166,13 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> dict:
             "correlation": (np.eye(6) + 0.95 * (np.eye(6, k=2) + np.eye(6, k=-2))).tolist(),
             "names": names, "determined": {k: k not in ("TA3", "TA4") for k in names},
             "equivalent_sets": [{"params": {"TA1": 0.5, "TA3": 1.0}, "mse": exp["mse"],
-                                 "note": "(TA1,TA2) <-> (TA3,TA4) swapped"}],
+                                 "note": "(TA1,TA2) <-> (TA3,TA4) swapped", "equivalent": True,
+                                 "in_bounds": True, "outside_bounds": [], "constraints_violated": [],
+                                 "allowed": True, "verdict": ""}],
             "notes": ["lead/lag pairs are interchangeable"]},
         "comparison": [{"optimizer": "de", "mse": 2 * exp["mse"], "objective": 0.5,
-                        "evaluations": 1000, "wall_s": 1.5, "constraints_violated": ["TA2 <= TA1"]}],
+                        "evaluations": 1000, "wall_s": 1.5, "constraints_violated": ["TA2 <= TA1"],
+                        "params": {}, "failed": False, "message": ""}],
         "fit_window": None,
     }
     diagnosis = diagnosis_json(
@@ -180,15 +184,15 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> dict:
         localization={"segments": [{"name": "leading_edge", "t0": 1.0, "t1": 1.2,
                                     "share": 0.61, "mse": 1e-3}],
                       "bands": [{"name": "high", "f0_hz": 5.0, "f1_hz": 50.0, "share": 0.3}]},
-        features=[{"name": "flat_top", "detected": True, "evidence": HOSTILE}],
+        features=[{"name": "flat_top", "detected": True, "evidence": HOSTILE, "values": {}}],
         effects=[effect_json("rate_limit", params={"RATE": 40.0}, mse=1.1e-4,
                              mse_holdout=1.2e-4, gap_closed=0.93, score=2.0, aic=-100.0),
                  effect_json("dead_time", params={"TD": 0.004}, mse=1.5e-4,
                              mse_holdout=1.6e-4, gap_closed=0.4, score=1.0, aic=-90.0)],
-        ambiguous=[{"effects": ["rate_limit", "ceiling_limit"],
+        ambiguous=[{"effects": ["rate_limit", "ceiling_limit"], "score_difference": 1.0,
                     "separating_test": "a 2 % pulse stays below the ceiling"}],
-        sequence=[{"added": "rate_limit", "mse_holdout": 1.2e-4},
-                  {"added": "dead_time", "mse_holdout": 1.15e-4}],
+        sequence=[{"added": "rate_limit", "mse": None, "mse_holdout": 1.2e-4, "params": {}, "dropped": []},
+                  {"added": "dead_time", "mse": None, "mse_holdout": 1.15e-4, "params": {}, "dropped": []}],
         verdict="rate_limit",
     )
     (d / "result.json").write_text(json.dumps(result), encoding="utf-8")
@@ -252,7 +256,8 @@ def test_default_acceptance_limits_fail_the_off_fit(bench: dict, tmp_path: Path,
     assert "during: MXE" in page.text_of["checks"] and "> 0.08" in page.text_of["checks"]
     assert "FAIL: numeric acceptance" in printed
     # bad limits in the result's unit: refused, the key named
-    result["unit"]["acceptance"] = {"during": {"MXE": -1}}
+    limits = acceptance_limits(None, "test")
+    result["unit"]["acceptance"] = {**limits, "during": {**limits["during"], "MXE": -1}}
     path = _write_result(tmp_path, result)
     assert main(["report", str(path), "-o", str(tmp_path / "r2.html"), "--allow-outside"]) == 2
     assert "acceptance.during.MXE = -1" in capsys.readouterr().err
@@ -347,7 +352,7 @@ def test_minimal_result_not_available_and_failed_constraint(bench: dict, tmp_pat
     shutil.copy(bench["csv"], d / "pulse.csv")
     shutil.copy(bench["csv"].with_suffix(".json"), d / "pulse.json")
     result = {k: v for k, v in bench["result"].items() if k not in ("identifiability", "comparison")}
-    result["history"], result["unit"] = [], {}
+    result["history"] = []
     result["captures"] = [{**result["captures"][0], "path": "pulse.csv"}]  # relative to the result
     result["constraints"] = [{"expr": "TA2 <= TA1", "satisfied": True, "margin": 0.8},
                              {"expr": "TA4 <= 5", "satisfied": False, "margin": -5.0}]
@@ -360,8 +365,7 @@ def test_minimal_result_not_available_and_failed_constraint(bench: dict, tmp_pat
     assert "FAIL" in page.text_of["verdict"]
     assert page.text_of["constraints"].count("fail") == 1
     html_text = (d / "r.html").read_text(encoding="utf-8")
-    for what in ("Identifiability", "Convergence history", "Optimizer comparison",
-                 "Unit description"):
+    for what in ("Identifiability", "Convergence history", "Optimizer comparison"):
         assert f"{what} (uncertainty" in html_text or f"{what}: not available" in html_text, what
     assert "fig-convergence" not in page.by_id and not (d / "r_convergence.png").exists()
     assert (d / "r_response.png").exists()  # <stem>_<name>.png
@@ -391,19 +395,24 @@ def test_diagnosis_staircase_and_check_windows(bench: dict, tmp_path: Path) -> N
     """Several effects: the staircase (error after each, down to the floor) as a table and a figure,
     and what the models were judged on (the check's windows and holdout, with the base model's MSE)."""
     diag = json.loads(json.dumps(bench["diagnosis"]))
-    diag["check"] = {"kind": "holdout + windows", "how": "each window left out of a re-fit",
-                     "holdout": {"capture": "hold.csv", "t0": 0.0, "t1": 8.0},
+    diag["check"] = {"kind": "holdout + windows",
                      "windows": [{"label": "leading_edge", "t0": 1.0, "t1": 1.199},
-                                 {"label": "plateau", "t0": 1.2, "t1": 1.999}]}
-    diag["base"]["check"] = {"mse": 3e-4, "parts": [{"label": "holdout", "mse": 2.5e-4},
-                                                    {"label": "leading_edge", "mse": 9.1e-4},
-                                                    {"label": "plateau", "mse": 1.7e-4}]}
+                                 {"label": "plateau", "t0": 1.2, "t1": 1.999}],
+                     "how": "each window left out of a re-fit",
+                     "holdout": {"capture": "hold.csv", "t0": 0.0, "t1": 8.0, "noise_floor": None}, "vt": False}
+    diag["base"]["check"] = {"mse": 3e-4, "parts": [{"label": "holdout", "samples": 8000, "mse": 2.5e-4},
+                                                    {"label": "leading_edge", "samples": 200, "mse": 9.1e-4},
+                                                    {"label": "plateau", "samples": 800, "mse": 1.7e-4}]}
+
+    def check(mse):
+        return {"on": "holdout + windows", "mse": mse, "mse_before": None, "gain": None, "parts": None}
     diag["explained_by"] = [
         step_json("rate_limit", params={"RATE": 40.0}, mse=1.6e-4, mse_over_floor=1.6, gap_closed=0.8,
-                  check={"mse": 1.8e-4}),
+                  check=check(1.8e-4)),
         step_json("dead_time", params={"RATE": 41.0, "TD": 0.004}, mse=1.02e-4, mse_over_floor=1.02,
-                  gap_closed=0.99, check={"mse": 1.1e-4})]
-    diag["left"] = {"mse": 1.02e-4, "mse_over_floor": 1.02, "note": "at the noise floor: nothing left to explain"}
+                  gap_closed=0.99, check=check(1.1e-4))]
+    diag["left"] = {"mse": 1.02e-4, "mse_over_floor": 1.02, "effects": ["rate_limit", "dead_time"],
+                    "note": "at the noise floor: nothing left to explain", "localization": localization_json()}
     (tmp_path / "diag.json").write_text(json.dumps(diag), encoding="utf-8")
     rc = main(["report", str(bench["dir"] / "result.json"), "--diagnosis", str(tmp_path / "diag.json"),
                "-o", str(tmp_path / "r.html")])

@@ -10,14 +10,15 @@ import numpy as np
 import pytest
 
 from bench_ctl.capture import write_capture
-from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
+from bench_ctl.engine.simulate import RecorderModel, pre_trigger_mean, pulse_usetp, simulate, synthetic_record
 from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.model.params import AVR_PARAMS, REFERENCE_VALUES, neutral_values
 from bench_ctl.report import ReportError, analyse
 from bench_ctl.report.blocks import Fig
 from bench_ctl.report.checks import constraint_margin
 from bench_ctl.report.inputs import model_values
-from bench_ctl.report.metrics import error_figures, find_edges, segment_bounds
+from bench_ctl.report.metrics import edge_times, error_figures, segment_bounds
+from bench_ctl.report.metrics import setpoint_edges as find_edges
 from bench_ctl.report.outline import sections
 from bench_ctl.units.unit import load_unit
 from records import capture_entry, result_json, result_of
@@ -26,18 +27,18 @@ from records import capture_entry, result_json, result_of
 def test_edges_of_a_pulse_a_negative_pulse_a_step_and_nothing() -> None:
     t, u = pulse_usetp(amplitude=0.05, width=1.0, start=1.5, duration=5.0, rate=200.0)
     e = find_edges(t, u)
-    assert (e.leading_s, e.trailing_s, e.leading_index) == (1.5, 2.5, 300)
-    assert e.amplitude == pytest.approx(0.05) and e.usetp_pre == 1.0
+    assert (*edge_times(e), e.lead.index) == (1.5, 2.5, 300)
+    assert e.lead.jump == pytest.approx(0.05) and pre_trigger_mean(u, t[1] - t[0]) == 1.0
     t, u = pulse_usetp(amplitude=-0.02, width=0.3, start=0.5, duration=2.0, rate=1000.0)
     e = find_edges(t, u)
-    assert (e.leading_s, e.trailing_s) == (0.5, 0.8) and e.amplitude == pytest.approx(-0.02)
+    assert edge_times(e) == (0.5, 0.8) and e.lead.jump == pytest.approx(-0.02)
     t = np.arange(1000) / 1000.0
     u = np.where(t >= 0.25, 1.05, 1.0)
     e = find_edges(t, u)
-    assert e.leading_s == 0.25 and e.trailing_s is None
+    assert edge_times(e) == (0.25, None)
     assert [s[0] for s in segment_bounds(t, e)] == ["pre_trigger", "leading_edge", "plateau"]
     e = find_edges(t, np.ones_like(t))
-    assert e.leading_s is None and segment_bounds(t, e) == [("whole record", 0.0, 0.999)]
+    assert e.lead is None and segment_bounds(t, e) == [("whole record", 0.0, 0.999)]
 
 
 def test_segments_cover_every_sample_once_and_shares_sum_to_one() -> None:

@@ -6,7 +6,7 @@ bounds (`blocks.Param`), its blocks in diagram order (`blocks.Transducer`, `Lead
 `RegulatorLag`, ...) and its PSS/E dynamic data record; `declare` generates from the blocks the
 kernel column each parameter drives, the kernel settings the structure implies and its block
 diagram in words, so that they cannot drift. All structures run on the one compiled kernel
-(`bench_ctl.model.kernel`): its blocks are a superset (two lead-lags, a regulator lag whose
+(`bench_ctl.engine`): its blocks are a superset (two lead-lags, a regulator lag whose
 ceilings scale with Vt and drop by KC*Ifd, non-windup or output clamp, rate feedback, a DC
 exciter with quadratic saturation, a potential-source stage with PI regulators and the output
 VB VM), a structure picks and names the ones it has. The effects of
@@ -22,11 +22,13 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from bench_ctl.exitcodes import BadInput
+
 from ..params import PARAMS
 from .blocks import Block, Param, generate
 
 
-class StructureError(ValueError):
+class StructureError(BadInput):
     """An unknown structure or a parameter it does not have; the message names both."""
 
 
