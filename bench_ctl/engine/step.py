@@ -29,9 +29,9 @@ from .machines import noload as _noload
 from .stabilisers import none as _none
 
 #: the rows of a chunk's state array (the exciter's six, the largest machine's seven, the largest
-#: stabiliser's), of its readout array (field voltage, stabiliser output, the largest machine
-#: algebra), and of its step-input array U (u0, u1, v0, vm, v1)
-N_ROWS = 16
+#: stabiliser's: PSS2A / PSS2B's seventeen), of its readout array (field voltage, stabiliser
+#: output, the largest machine algebra), and of its step-input array U (u0, u1, v0, vm, v1)
+N_ROWS = 30
 N_READOUT = 10
 N_INPUT = 5
 

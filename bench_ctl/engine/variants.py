@@ -24,17 +24,18 @@ from .exciter import ST4_ALL, ST4_NONE, ST4_SOME
 from .jit import prune_stale, specialise
 from .layout import X_FULL, X_REF, X_ST4, X_ST4_ONLY
 from .machines import grid, noload, recorded
-from .stabilisers import ieeest, none
+from .stabilisers import ieeest, none, pss2
 
 log = logging.getLogger(__name__)
 
 MACHINES = {"noload": noload, "grid": grid, "recorded": recorded}
-STABILISERS = {"none": none, "ieeest": ieeest}
+STABILISERS = {"none": none, "ieeest": ieeest, "pss2": pss2}
 EXCITERS = {X_REF: "ref", X_FULL: "full", X_ST4: "st4", X_ST4_ONLY: "st4only"}
 #: in words, for what a command says while it compiles
 _WORDS = {"noload": "no-load", "grid": "on-line", "recorded": "open-loop",
           "ref": "reference blocks", "full": "standard-structure blocks", "st4": "standard-structure blocks with "
-          "ESST4B's stage", "st4only": "ESST4B", "none": "", "ieeest": "with an IEEEST stabiliser"}
+          "ESST4B's stage", "st4only": "ESST4B", "none": "", "ieeest": "with an IEEEST stabiliser",
+          "pss2": "with a PSS2A/PSS2B stabiliser"}
 #: seconds a variant's first compilation took on a 2-core machine of this project's CI (measured:
 #: docs/benchmarks.md, "Compile"), what a command says before it waits
 ESTIMATE_S = {"ref": 20.0, "full": 30.0, "st4": 35.0, "st4only": 30.0}
