@@ -17,10 +17,9 @@ from .options import build_unit, unit_options
 def unit_keys(unit: Unit) -> list:
     """The engine variants `unit`'s records run: at no load, and on the grid when the unit has the
     machine's data."""
-    from bench_ctl.engine import Key, classify, derive
+    from bench_ctl.engine import Key, classify, derive, grid_key
     from bench_ctl.engine.machines import grid
     from bench_ctl.engine.simulate import param_matrix
-    from bench_ctl.engine.stabilisers import ieeest
 
     P = param_matrix(unit.values())
     keys = [Key("noload", classify(derive(P)))]
@@ -29,7 +28,7 @@ def unit_keys(unit: Unit) -> list:
     except ValueError:   # no machine data: the unit runs at no load only
         return keys
     D = grid.derive_grid(P, M)
-    return keys + [Key("grid", classify(D), "ieeest" if ieeest.present(D) else "none")]
+    return keys + [grid_key(D)]
 
 
 @click.command("warm-up")

@@ -54,11 +54,11 @@ from .layout import (
 from .machines import grid
 from .runner import N_KEEP, Drive, Edges, Out, Switches
 from .span import W_FAILED, W_SSE
-from .stabilisers import ieeest
+from .stabilisers import kind
 from .variants import Key, variant
 
 __all__ = ["run", "derive", "layout", "Key", "variant", "compiling", "optimisation_note", "CHUNK",
-           "SIGNALS", "classify", "edge_window"]
+           "SIGNALS", "classify", "grid_key", "edge_window"]
 
 #: below this many candidate-steps a call runs on one thread: waking the worker threads costs more
 #: than it saves for the small batches of a polish, several times more when the machine is busy
@@ -74,6 +74,18 @@ def classify(D: np.ndarray) -> int:
         return X_FULL if np.any(bits & B_FULL) else X_REF
     valid = D[:, D_VALID] != 0.0
     return X_ST4_ONLY if np.all(bits[valid] & B_ST4_ONLY) else X_ST4
+
+
+def grid_key(D: np.ndarray) -> Key:
+    """The variant the candidates of the derived matrix D run on the grid: their excitation
+    system's class and their stabiliser (`stabilisers.kind`). A PSS2A / PSS2B runs on the
+    standard-structure blocks or wider (the reference blocks' candidates on the full blocks, an
+    ESST4B alone on the potential-source stage selected per candidate: the same results), so
+    that it adds one variant to compile, two with an ESST4B."""
+    x, pss = classify(D), kind(D)
+    if pss == "pss2":
+        x = {X_REF: X_FULL, X_ST4_ONLY: X_ST4}.get(x, x)
+    return Key("grid", x, pss)
 
 
 def edge_window(D: np.ndarray, edges: EdgeSpec, dt: float, T: int) -> np.ndarray:
@@ -147,7 +159,7 @@ def run(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *, machin
         if P.shape[0] != n_asked:
             M = np.vstack([M, np.repeat(M[-1:], P.shape[0] - n_asked, axis=0)])
         D = grid.derive_grid(P, M)
-        key = Key("grid", classify(D), "ieeest" if ieeest.present(D) else "none")
+        key = grid_key(D)
     else:
         D = derive(P)
         key = Key("recorded" if ext is not None else "noload", classify(D))

@@ -101,13 +101,29 @@ GRID: tuple[tuple[str, int, str], ...] = (
     ("KQ", 1, "the q-axis circuit's coupling: Xq - X''d (GENSAL) or X'q - Xl"),
 )
 
-#: the stabiliser (`stabilisers.ieeest`): IEEEST on the rotor speed, without its notch filters
+#: the stabilisers: IEEEST on the rotor speed, without its notch filters (`stabilisers.ieeest`),
+#: PSS2A / PSS2B on the speed and the electrical power (`stabilisers.pss2`); a candidate has the
+#: columns of the one its PSS_MODEL picks, the other's gain 0
 STABILISER: tuple[tuple[str, int, str], ...] = (
     ("PSS_KS", 1, "gain KS (0: no stabiliser)"),
     ("PSS_IT2", 1, "1 / T2"), ("PSS_R1", 1, "T1 / T2"),
     ("PSS_IT4", 1, "1 / T4"), ("PSS_R3", 1, "T3 / T4"),
     ("PSS_ITW", 1, "1 / TW (the washout)"),
     ("PSS_LIM", 1, "output limit +-LSMAX"),
+    ("P2_KS1", 1, "PSS2A/PSS2B: gain KS1 (0: no such stabiliser)"),
+    ("P2_KS2", 1, "KS2, input 2's gain"), ("P2_KS3", 1, "KS3, input 2's gain into the ramp-tracking filter"),
+    ("P2_IW", 4, "1 / TW1 .. 1 / TW4, column D_P2_IW + i (0: that washout bypassed)"),
+    ("P2_I6", 1, "1 / T6 (0 without that lag)"), ("P2_ON6", 1, "1 with the T6 lag"),
+    ("P2_I7", 1, "1 / T7 (0 without that lag: the gain KS2 alone)"), ("P2_ON7", 1, "1 with the T7 lag"),
+    ("P2_RA", 8, "ramp-tracking filter: state k's 1 / T9 (0 for k >= M N: unused), column D_P2_RA + k"),
+    ("P2_RC", 8, "ramp-tracking filter: state k's weight in its output (1 - T8 / T9 for a section's last lag, "
+                 "1 for the others, 0 unused: the input passes)"),
+    ("P2_R", 3, "lead-lags T1/T2, T3/T4, T10/T11 (1: bypassed)"),
+    ("P2_IT", 3, "lead-lags 1/T2, 1/T4, 1/T11 (0: bypassed)"),
+    ("P2_V1MAX", 1, "input 1's upper limit (+inf: none)"), ("P2_V1MIN", 1, "input 1's lower limit (-inf: none)"),
+    ("P2_V2MAX", 1, "input 2's upper limit (+inf: none)"), ("P2_V2MIN", 1, "input 2's lower limit (-inf: none)"),
+    ("P2_U10", 1, "input 1 (limited) at the operating point"), ("P2_U20", 1, "input 2 (limited) there"),
+    ("P2_VSTMAX", 1, "output upper limit"), ("P2_VSTMIN", 1, "output lower limit"),
 )
 
 COLUMNS = EXCITER + GRID + STABILISER

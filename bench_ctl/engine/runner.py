@@ -50,6 +50,7 @@ from .step import (
     N_INPUT,
     N_READOUT,
     N_ROWS,
+    ROWS,
     exc_load,
     exc_park,
     exc_store,
@@ -331,7 +332,7 @@ def park_blown(w, out, k, ext):
             if w.W[W_FAILED, c] == 0.0:
                 w.W[W_FAILED, c] = 1.0
                 out.fail_step[lo + c] = k
-            for q in range(N_ROWS):
+            for q in range(ROWS):
                 w.S[q, c] = w.X0[q, c]
             _readout(w, c, ext, k * 1.0)
 
@@ -349,7 +350,7 @@ def after_step(w, out, k, sw, ext):
     blown = 0
     for c in range(m):
         mag = 0.0
-        for q in range(N_ROWS):
+        for q in range(ROWS):
             mag += abs(S[q, c])
         W[W_MAG, c] = mag
         blown += 0 if mag < BLOWUP else 1
@@ -435,7 +436,7 @@ def advance(w, drive, edges, out, k0, n, last, sw):
                 w.skh[K_KF, c, k % w.meta[3]] = 0.0
         redo = sw.any_delay or inwin
         if redo:
-            for q in range(N_ROWS):
+            for q in range(ROWS):
                 for c in range(m):
                     w.S0[q, c] = w.S[q, c]
             for q in range(N_READOUT):

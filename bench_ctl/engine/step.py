@@ -29,9 +29,12 @@ from .machines import noload as _noload
 from .stabilisers import none as _none
 
 #: the rows of a chunk's state array (the exciter's six, the largest machine's seven, the largest
-#: stabiliser's), of its readout array (field voltage, stabiliser output, the largest machine
-#: algebra), and of its step-input array U (u0, u1, v0, vm, v1)
-N_ROWS = 16
+#: stabiliser's: PSS2A / PSS2B's seventeen), of its readout array (field voltage, stabiliser
+#: output, the largest machine algebra), and of its step-input array U (u0, u1, v0, vm, v1)
+N_ROWS = 30
+#: the rows a variant's states use (the runner's copies and blow-up test read no more): a slot
+#: (`variants`), all of them until bound
+ROWS = N_ROWS
 N_READOUT = 10
 N_INPUT = 5
 

@@ -2,8 +2,8 @@
 stabiliser, bound into the seam's slots of the generic step and runner (`step`, `substep`,
 `runner`), each compiled on first use into numba's disk cache (docs/decisions/0023).
 
-A variant's functions are copies of the generic ones whose slot globals (ST4, SPAN, exc_*, gen_*,
-pss_*) name its plug-ins; numba prunes what those constants rule out before typing, so a variant
+A variant's functions are copies of the generic ones whose slot globals (ST4, SPAN, ROWS, exc_*,
+gen_*, pss_*) name its plug-ins; numba prunes what those constants rule out before typing, so a variant
 compiles its own blocks only. A command compiles the variants its records need, and says so while
 it does (`compiling`): a fresh machine pays that once.
 """
@@ -24,22 +24,23 @@ from .exciter import ST4_ALL, ST4_NONE, ST4_SOME
 from .jit import prune_stale, specialise
 from .layout import X_FULL, X_REF, X_ST4, X_ST4_ONLY
 from .machines import grid, noload, recorded
-from .stabilisers import ieeest, none
+from .stabilisers import ieeest, none, pss2
 
 log = logging.getLogger(__name__)
 
 MACHINES = {"noload": noload, "grid": grid, "recorded": recorded}
-STABILISERS = {"none": none, "ieeest": ieeest}
+STABILISERS = {"none": none, "ieeest": ieeest, "pss2": pss2}
 EXCITERS = {X_REF: "ref", X_FULL: "full", X_ST4: "st4", X_ST4_ONLY: "st4only"}
 #: in words, for what a command says while it compiles
 _WORDS = {"noload": "no-load", "grid": "on-line", "recorded": "open-loop",
           "ref": "reference blocks", "full": "standard-structure blocks", "st4": "standard-structure blocks with "
-          "ESST4B's stage", "st4only": "ESST4B", "none": "", "ieeest": "with an IEEEST stabiliser"}
+          "ESST4B's stage", "st4only": "ESST4B", "none": "", "ieeest": "with an IEEEST stabiliser",
+          "pss2": "with a PSS2A/PSS2B stabiliser"}
 #: seconds a variant's first compilation took on a 2-core machine of this project's CI (measured:
 #: docs/benchmarks.md, "Compile"), what a command says before it waits
 ESTIMATE_S = {"ref": 20.0, "full": 30.0, "st4": 35.0, "st4only": 30.0}
 
-_SLOT = ("ST4", "SPAN")
+_SLOT = ("ST4", "SPAN", "ROWS")
 _SLOT_PREFIX = ("exc_", "gen_", "pss_")
 
 
@@ -65,7 +66,10 @@ def _bindings(key: Key) -> dict[str, object]:
     pss = STABILISERS[key.stabiliser]
     ref = key.exciter == X_REF
     st4 = {X_REF: ST4_NONE, X_FULL: ST4_NONE, X_ST4: ST4_SOME, X_ST4_ONLY: ST4_ALL}[key.exciter]
-    out: dict[str, object] = {"ST4": st4, "SPAN": key.machine == "noload" and ref and key.stabiliser == "none"}
+    out: dict[str, object] = {"ST4": st4, "SPAN": key.machine == "noload" and ref and key.stabiliser == "none",
+                              # the state rows in use: the exciter's six, the machine's, the stabiliser's
+                              # (after the largest machine's seven)
+                              "ROWS": max(6 + machine.N_STATES, pss.FIRST + pss.N_STATES if pss.N_STATES else 0)}
     for slot in ("load", "store", "axpy", "combine", "rhs", "limit", "output", "clamp", "slope", "vr", "park"):
         out[f"exc_{slot}"] = getattr(exciter, f"{'ref' if ref else 'full'}_{slot}")
     for slot in ("load", "store", "axpy", "combine", "algebra", "alg_load", "alg_store", "signals", "speed", "power",

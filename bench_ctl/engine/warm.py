@@ -28,10 +28,13 @@ from .variants import EXCITERS, Key, cached, variant
 
 log = logging.getLogger(__name__)
 
-#: every variant: each machine under each class of blocks, on the grid with and without a stabiliser
+#: every variant: each machine under each class of blocks, on the grid with and without an IEEEST;
+#: a PSS2A / PSS2B on the standard-structure blocks (`engine.grid_key`; with an ESST4B it compiles
+#: its own variant on first use)
 ALL: tuple[Key, ...] = tuple(
     [Key("noload", x) for x in (X_REF, X_FULL, X_ST4, X_ST4_ONLY)]
     + [Key("grid", x, s) for s in ("none", "ieeest") for x in (X_REF, X_FULL, X_ST4, X_ST4_ONLY)]
+    + [Key("grid", X_FULL, "pss2")]
     + [Key("recorded", x) for x in (X_REF, X_FULL, X_ST4, X_ST4_ONLY)])
 _BY_NAME = {k.name: k for k in ALL}
 

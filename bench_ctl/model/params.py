@@ -165,6 +165,39 @@ MACHINE_CATALOGUE: tuple[ParamInfo, ...] = (
     ParamInfo("PSS_T4", "s", "stabiliser second lead-lag, lag T4", 0.001, 10.0),
     ParamInfo("PSS_TW", "s", "stabiliser washout T5 = T6", 0.1, 60.0),
     ParamInfo("PSS_LSMAX", "pu", "stabiliser output limit, +-LSMAX", 0.0, 0.5),
+    # which stabiliser the unit carries (bench_ctl.model.stabilisers: `bench-ctl models PSS2B`); a
+    # unit file or --set may give its name
+    ParamInfo("PSS_MODEL", "1", "the stabiliser's model: 1 IEEEST (the PSS_* values), 2 PSS2A, 3 PSS2B "
+                                "(the PSS2_* values)", 1.0, 3.0),
+    # PSS2A / PSS2B: input 1 the rotor speed deviation, input 2 the electrical power (PSS/E's names)
+    ParamInfo("PSS2_KS1", "pu", "PSS2A/PSS2B gain KS1 (0: no stabiliser)", 0.0, 200.0),
+    ParamInfo("PSS2_TW1", "s", "PSS2A/PSS2B input 1 (speed), first washout TW1 (0: bypassed)", 0.0, 60.0),
+    ParamInfo("PSS2_TW2", "s", "PSS2A/PSS2B input 1 (speed), second washout TW2 (0: bypassed)", 0.0, 60.0),
+    ParamInfo("PSS2_T6", "s", "PSS2A/PSS2B input 1 (speed), transducer lag T6 (0: none)", 0.0, 10.0),
+    ParamInfo("PSS2_TW3", "s", "PSS2A/PSS2B input 2 (power), first washout TW3 (0: bypassed)", 0.0, 60.0),
+    ParamInfo("PSS2_TW4", "s", "PSS2A/PSS2B input 2 (power), second washout TW4 (0: bypassed)", 0.0, 60.0),
+    ParamInfo("PSS2_T7", "s", "PSS2A/PSS2B input 2 (power), integrator lag T7 (0: the gain KS2 alone)", 0.0, 20.0),
+    ParamInfo("PSS2_KS2", "pu", "PSS2A/PSS2B input 2 gain KS2 (typically T7 / 2H)", 0.0, 20.0),
+    ParamInfo("PSS2_KS3", "pu", "PSS2A/PSS2B gain KS3 of input 2 into the ramp-tracking filter", 0.0, 20.0),
+    ParamInfo("PSS2_T8", "s", "PSS2A/PSS2B ramp-tracking filter [(1 + s T8)/(1 + s T9)^M]^N: lead T8", 0.0, 10.0),
+    ParamInfo("PSS2_T9", "s", "PSS2A/PSS2B ramp-tracking filter: lag T9 (> 0 when M N > 0)", 0.0, 10.0),
+    ParamInfo("PSS2_M", "1", "PSS2A/PSS2B ramp-tracking filter: lags per section M (an integer, M N <= 8; "
+                             "M = 0 or N = 0: no filter)", 0.0, 8.0),
+    ParamInfo("PSS2_N", "1", "PSS2A/PSS2B ramp-tracking filter: sections N (an integer, M N <= 8)", 0.0, 8.0),
+    ParamInfo("PSS2_T1", "s", "PSS2A/PSS2B first lead-lag, lead T1", 0.0, 10.0),
+    ParamInfo("PSS2_T2", "s", "PSS2A/PSS2B first lead-lag, lag T2 (0 with T1 = 0: bypassed)", 0.0, 10.0),
+    ParamInfo("PSS2_T3", "s", "PSS2A/PSS2B second lead-lag, lead T3", 0.0, 10.0),
+    ParamInfo("PSS2_T4", "s", "PSS2A/PSS2B second lead-lag, lag T4 (0 with T3 = 0: bypassed)", 0.0, 10.0),
+    ParamInfo("PSS2_T10", "s", "PSS2B third lead-lag, lead T10", 0.0, 10.0),
+    ParamInfo("PSS2_T11", "s", "PSS2B third lead-lag, lag T11 (0 with T10 = 0: bypassed, as PSS2A)", 0.0, 10.0),
+    ParamInfo("PSS2_VS1MAX", "pu", "PSS2B input 1 upper limit VS1MAX (on the speed deviation)", -1000.0, 1000.0,
+              INF),
+    ParamInfo("PSS2_VS1MIN", "pu", "PSS2B input 1 lower limit VS1MIN", -1000.0, 1000.0, -INF),
+    ParamInfo("PSS2_VS2MAX", "pu", "PSS2B input 2 upper limit VS2MAX (on the electrical power itself)", -1000.0,
+              1000.0, INF),
+    ParamInfo("PSS2_VS2MIN", "pu", "PSS2B input 2 lower limit VS2MIN", -1000.0, 1000.0, -INF),
+    ParamInfo("PSS2_VSTMAX", "pu", "PSS2A/PSS2B output upper limit VSTMAX", 0.0, 1.0),
+    ParamInfo("PSS2_VSTMIN", "pu", "PSS2A/PSS2B output lower limit VSTMIN", -1.0, 0.0),
 )
 MACHINE_PARAMS: tuple[str, ...] = tuple(p.name for p in MACHINE_CATALOGUE)
 MCOL: dict[str, int] = {name: i for i, name in enumerate(MACHINE_PARAMS)}
@@ -172,7 +205,16 @@ MCOL: dict[str, int] = {name: i for i, name in enumerate(MACHINE_PARAMS)}
 #: what a machine on the grid takes when not given
 MACHINE_DEFAULTS: dict[str, float] = {"RA": 0.0, "RE": 0.0, "DAMP": 0.0, "FN": 50.0, "PSS_KS": 0.0,
                                       "PSS_T1": 1.0, "PSS_T2": 1.0, "PSS_T3": 1.0, "PSS_T4": 1.0, "PSS_TW": 10.0,
-                                      "PSS_LSMAX": 0.1}
+                                      "PSS_LSMAX": 0.1, "PSS_MODEL": 1.0,
+                                      # PSS2A/PSS2B: off (KS1 0); the rest typical values (OpenIPSL's
+                                      # PSS2B defaults but KS2 1 and T10 = T11 = 0), no input limits
+                                      "PSS2_KS1": 0.0, "PSS2_TW1": 10.0, "PSS2_TW2": 10.0, "PSS2_T6": 0.0,
+                                      "PSS2_TW3": 10.0, "PSS2_TW4": 0.0, "PSS2_T7": 10.0, "PSS2_KS2": 1.0,
+                                      "PSS2_KS3": 1.0, "PSS2_T8": 0.5, "PSS2_T9": 0.1, "PSS2_M": 5.0, "PSS2_N": 1.0,
+                                      "PSS2_T1": 0.15, "PSS2_T2": 0.025, "PSS2_T3": 0.15, "PSS2_T4": 0.025,
+                                      "PSS2_T10": 0.0, "PSS2_T11": 0.0, "PSS2_VS1MAX": INF, "PSS2_VS1MIN": -INF,
+                                      "PSS2_VS2MAX": INF, "PSS2_VS2MIN": -INF, "PSS2_VSTMAX": 0.1,
+                                      "PSS2_VSTMIN": -0.1}
 #: what a unit needs in [grid] (or a .dyr generator record, --set) to run on line, beside P0, Q0 of the record
 MACHINE_DATA = ("XD", "XQ", "XDP", "XQP", "XDPP", "XLS", "Tq0p", "Tq0pp", "H")
 

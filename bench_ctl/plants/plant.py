@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench_ctl import engine
-from bench_ctl.engine import classify, variant
+from bench_ctl.engine import classify, grid_key, variant
 from bench_ctl.engine.derived import derive
 from bench_ctl.engine.layout import D_GVALID, D_SKEW, D_TD, D_TM, D_UREF0, D_VALID, R_FLD, SIGNALS
 from bench_ctl.engine.machines import grid
@@ -56,7 +56,6 @@ from bench_ctl.engine.runner import (
     Switches,
 )
 from bench_ctl.engine.simulate import param_matrix
-from bench_ctl.engine.stabilisers import ieeest
 from bench_ctl.engine.variants import Key
 from bench_ctl.units.unit import Unit, load_unit
 
@@ -461,7 +460,7 @@ class OnlinePlant(Plant):
         if D[0, D_GVALID] == 0.0:
             raise ValueError(f"unit {self.unit.name!r}: the machine's reactances are out of order "
                              "(Xd > X'd > X''d > Xl, Xq >= X'q >= X''d) or H, T''q0 not positive")
-        return D, Key("grid", classify(D), "ieeest" if ieeest.present(D) else "none")
+        return D, grid_key(D)
 
     def _signal_rows(self) -> tuple[int | None, ...]:
         return 2, 3, 6, 7

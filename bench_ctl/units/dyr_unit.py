@@ -57,6 +57,7 @@ from typing import Any
 
 from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import GENERATOR_OPTIONAL, MACHINE_DEFAULTS, PARAMS
+from bench_ctl.model.stabilisers import IEEEST, stabiliser
 from bench_ctl.model.structures import STRUCTURES, Structure, structure
 from bench_ctl.units import dyr_kinds
 
@@ -415,8 +416,14 @@ def pss_from_record(rec: DyrRecord) -> dict[str, float]:
 
 def pss_record(grid: Mapping[str, Any], bus: int, ident: str) -> DyrRecord | None:
     """The IEEEST record of the stabiliser in a unit's [grid] (None without one: PSS_KS 0 or
-    absent): speed input, no filter, T5 = T6 = TW, no cut-off."""
-    g = {**MACHINE_DEFAULTS, **{k: float(x) for k, x in grid.items() if k.startswith("PSS_")}}
+    absent): speed input, no filter, T5 = T6 = TW, no cut-off. A unit's PSS2A / PSS2B (PSS_MODEL)
+    has no record yet: an error, not a file without it."""
+    g = {**MACHINE_DEFAULTS, **{k: float(x) for k, x in grid.items() if k.startswith("PSS")}}
+    if g["PSS_MODEL"] != IEEEST:
+        if g["PSS2_KS1"] == 0.0:
+            return None
+        raise ValueError(f"the unit's stabiliser is a {stabiliser(g['PSS_MODEL']).name} ([grid] PSS_MODEL): "
+                         "export writes no PSS2A / PSS2B record yet")
     if g["PSS_KS"] == 0.0:
         return None
     values = dict.fromkeys(("A1", "A2", "A3", "A4", "A5", "A6"), 0.0)

@@ -35,6 +35,7 @@ from bench_ctl.model.params import (
     PARAMS,
     neutral_values,
 )
+from bench_ctl.model.stabilisers import check_stabiliser, model_code
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
 from bench_ctl.model.structures import Structure, StructureError, structure
 from bench_ctl.model.unit_record import AcceptanceEntry, BoundEntry, UnitEntry
@@ -201,6 +202,10 @@ def check_unit(unit: Unit, source: str) -> Unit:
             _check_value(d, name, v, where=f"{source}: fixed.")
         except ValueError as exc:
             raise UnitError(str(exc)) from None
+    try:
+        check_stabiliser(unit.grid, where=f"{source}: grid.")
+    except ValueError as exc:
+        raise UnitError(str(exc)) from None
     return unit
 
 
@@ -386,12 +391,15 @@ def grid_values(raw: Mapping, source: str) -> dict[str, float]:
     bad = set(raw) - set(MACHINE_PARAMS)
     if bad:
         raise UnitError(f"{source}: [grid] unknown key(s) {sorted(bad)}; allowed: {list(MACHINE_PARAMS)}")
-    grid = {k: _num(v, f"{source}: grid.{k}") for k, v in raw.items()}
-    for k, v in grid.items():
-        try:
+    grid = {k: _num(v, f"{source}: grid.{k}") for k, v in raw.items() if k != "PSS_MODEL"}
+    try:
+        if "PSS_MODEL" in raw:   # the stabiliser's name ("PSS2B") or its code
+            grid["PSS_MODEL"] = model_code(raw["PSS_MODEL"])
+        for k, v in grid.items():
             _MACHINE_INFO[k].check(v, where=f"{source}: grid.")
-        except ValueError as exc:
-            raise UnitError(str(exc)) from None
+        check_stabiliser(grid, where=f"{source}: grid.")
+    except ValueError as exc:
+        raise UnitError(str(exc)) from None
     return grid
 
 
@@ -427,9 +435,10 @@ def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
             raise UnitError(f"--set {item!r}: expected NAME=VALUE")
         key, raw = (s.strip() for s in item.split("=", 1))
         try:
-            value = float(raw)
-        except ValueError:
-            raise UnitError(f"--set {item!r}: {raw!r} is not a number") from None
+            value = model_code(raw) if key == "PSS_MODEL" else float(raw)   # PSS_MODEL=PSS2B
+        except ValueError as exc:
+            raise UnitError(f"--set {item!r}: " + (str(exc) if key == "PSS_MODEL" else f"{raw!r} is not a number")) \
+                from None
         if math.isnan(value):
             raise UnitError(f"--set {item!r}: NaN is not a value")
         try:
@@ -453,8 +462,9 @@ def _bypass_lead_lags(unit: Unit) -> Unit:
     return replace(unit, fixed=fixed) if fixed != unit.fixed else unit
 
 
-#: [grid] values an on-line record can determine (not the operating point, the frequency)
-GRID_FITTABLE = tuple(n for n in MACHINE_PARAMS if n not in ("P0", "Q0", "FN"))
+#: [grid] values an on-line record can determine (not the operating point, the frequency, the
+#: stabiliser's model and its ramp-tracking filter's integers M, N)
+GRID_FITTABLE = tuple(n for n in MACHINE_PARAMS if n not in ("P0", "Q0", "FN", "PSS_MODEL", "PSS2_M", "PSS2_N"))
 
 
 def _grid_bound(unit: Unit, name: str, attr: str, value: float, item: str) -> Unit:

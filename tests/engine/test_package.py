@@ -162,7 +162,8 @@ def _object_code(dispatcher) -> bytes:
 
 @pytest.mark.skipif(shutil.which("objdump") is None, reason="no objdump")
 @pytest.mark.parametrize("key", [variants.Key("noload", layout.X_REF), variants.Key("noload", layout.X_FULL),
-                                 variants.Key("grid", layout.X_FULL, "ieeest")], ids=lambda k: k.name)
+                                 variants.Key("grid", layout.X_FULL, "ieeest"),
+                                 variants.Key("grid", layout.X_FULL, "pss2")], ids=lambda k: k.name)
 def test_the_rk4_loops_are_vectorised(key, tmp_path):
     """The loop over candidates (`step.step_all`) runs in packed vector instructions (registers
     holding several doubles): a change that leaves it scalar (a call in the loop, a branch, an

@@ -160,3 +160,47 @@ def resources_reference_text(grid: bool = False) -> str:
     from importlib import resources
     text = resources.files("bench_ctl.data").joinpath("reference_unit.toml").read_text("utf-8")
     return text if grid else re.sub(r"\n\[grid\]\n(?:\w+ = .*\n)+", "\n", text)
+
+
+def test_the_units_stabiliser_is_picked_by_name_in_grid_and_by_set(tmp_path, capsys):
+    """[grid] PSS_MODEL (issue 49): a stabiliser's name or code in the unit file and with --set, its
+    PSS2_* values beside it, values that do not go together refused with the name; without it the
+    IEEEST of the PSS_* values, as before; `models PSS2B` lists its parameters."""
+    from bench_ctl.cli import main
+    from bench_ctl.units.unit import GRID_FITTABLE
+
+    ref = tmp_path / "ref.toml"
+    text = resources_reference_text()
+    ref.write_text(text + '\n[grid]\nXE = 0.25\nPSS_MODEL = "PSS2B"\nPSS2_KS1 = 12.0\nPSS2_M = 2\nPSS2_N = 4\n')
+    unit = load_unit(ref)
+    assert unit.grid == {"XE": 0.25, "PSS_MODEL": 3.0, "PSS2_KS1": 12.0, "PSS2_M": 2.0, "PSS2_N": 4.0}
+    assert apply_overrides(unit, ["PSS_MODEL=pss2a"]).grid["PSS_MODEL"] == 2.0
+    assert apply_overrides(unit, ["PSS_MODEL=1"]).grid["PSS_MODEL"] == 1.0
+    for bad, msg in (('PSS_MODEL = "PSS4B"', "unknown stabiliser 'PSS4B'"),
+                     ('PSS_MODEL = "PSS2A"\nPSS2_M = 3\nPSS2_N = 3', "grid.PSS2_M = 3, PSS2_N = 3: M N = 9 lags"),
+                     ('PSS_MODEL = 3\nPSS2_T9 = 0', "grid.PSS2_T9 = 0"),
+                     ("PSS2_VSTMAX = 2.0", "PSS2_VSTMAX = 2.0 pu is outside")):
+        ref.write_text(text + f"\n[grid]\n{bad}\n")
+        with pytest.raises(UnitError, match=re.escape(msg)):
+            load_unit(ref)
+    with pytest.raises(UnitError, match="M N = 12 lags"):
+        apply_overrides(unit, ["PSS2_M=3"])
+    with pytest.raises(UnitError, match="unknown stabiliser"):
+        apply_overrides(unit, ["PSS_MODEL=ST2CUT"])
+    assert "PSS2_KS1" in GRID_FITTABLE and not {"PSS_MODEL", "PSS2_M", "PSS2_N"} & set(GRID_FITTABLE)
+    assert "PSS_MODEL" not in reference_unit().grid   # IEEEST when absent: the PSS_* values, unchanged
+    assert main(["models", "PSS2B"]) == 0
+    out = capsys.readouterr().out
+    for words in ("PSS2_KS1", "PSS2_VS2MAX", "PSS2_T11", "[(1 + s T8)/(1 + s T9)^M]^N", "OpenIPSL"):
+        assert words in out
+    assert main(["models", "PSS2A"]) == 0
+    assert "PSS2_T10" not in capsys.readouterr().out
+    assert main(["models"]) == 0
+    assert "PSS2B" in capsys.readouterr().out
+    # export: an IEEEST record only for an IEEEST; a PSS2B is not dropped in silence
+    from bench_ctl.units.dyr_unit import pss_record
+
+    assert pss_record({"PSS_MODEL": 3.0, "PSS_KS": 10.0}, 1, "1") is None   # KS1 0: no stabiliser
+    with pytest.raises(ValueError, match="PSS2B .*no PSS2A / PSS2B record yet"):
+        pss_record({"PSS_MODEL": 3.0, "PSS2_KS1": 10.0}, 1, "1")
+    assert pss_record({"PSS_KS": 10.0}, 1, "1").model == "IEEEST"

@@ -45,6 +45,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from bench_ctl.model.params import COL, MACHINE_CATALOGUE, MACHINE_DATA, MACHINE_DEFAULTS, MACHINE_PARAMS, MCOL
+from bench_ctl.model.stabilisers import check_stabiliser
 
 from .. import derived as _derived
 from ..jit import njit
@@ -99,7 +100,8 @@ TYPICAL_MACHINE: dict[str, float] = {"XD": 1.8, "XQ": 1.7, "XDP": 0.3, "XQP": 0.
 def machine_matrix(values: Mapping[str, float] | Sequence[Mapping[str, float]]) -> np.ndarray:
     """The machine matrix (n, len(MACHINE_PARAMS)) of one or more parameter mappings; every name is
     needed but RA, RE, DAMP (0), FN (50) and the stabiliser's (`params.MACHINE_DEFAULTS`). A name
-    outside its range is an error that names it."""
+    outside its range, or a stabiliser's values that do not go together (`check_stabiliser`), is
+    an error that names it."""
     rows = [values] if isinstance(values, Mapping) else list(values)
     M = np.empty((len(rows), len(MACHINE_PARAMS)))
     for r, row in enumerate(rows):
@@ -116,6 +118,7 @@ def machine_matrix(values: Mapping[str, float] | Sequence[Mapping[str, float]]) 
                 raise ValueError(f"machine parameter {info.name} ({info.info}) is missing")
             info.check(value, "on-line machine: ")
             M[r, MCOL[info.name]] = value
+        check_stabiliser(dict(zip(MACHINE_PARAMS, M[r])), "on-line machine: ")
     return M
 
 
@@ -148,10 +151,10 @@ def derive_grid(P: np.ndarray, M: np.ndarray) -> np.ndarray:
     """The derived matrix (n, N_DERIVED) of the candidates P on the grid M: the machine's columns
     (D_GD1 ..) and the field voltage XadIfd0 of the steady state at the operating point (P0, Q0,
     Vt0) as ANDES initialises a GENROU, the excitation system's steady state at that field voltage
-    (`derive`), the stabiliser's columns (`stabilisers.ieeest.derive_columns`). A candidate whose
+    (`derive`), the stabilisers' columns (`stabilisers.derive_columns`). A candidate whose
     reactances are out of order (Xd > X'd > X''d > Xl, Xq >= X'q >= X''d) gets D_GVALID 0 and
     field voltage 1."""
-    from ..stabilisers import ieeest
+    from ..stabilisers import derive_columns
 
     P = np.atleast_2d(np.asarray(P, float))
     M = np.atleast_2d(np.asarray(M, float))
@@ -161,7 +164,7 @@ def derive_grid(P: np.ndarray, M: np.ndarray) -> np.ndarray:
     D = _derived.derive(P, field0=fld0)
     for name, values in cols.items():
         D[:, name] = values
-    ieeest.derive_columns(D, M)
+    derive_columns(D, M)
     return D
 
 

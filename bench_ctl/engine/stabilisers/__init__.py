@@ -3,5 +3,32 @@ states (a tuple), its output added to the exciter's reference, its derivatives, 
 rotor speed and the electrical power the machine gives.
 
 - `none`: no stabiliser (no states, output 0);
-- `ieeest`: IEEEST on the rotor speed, without its notch filters.
+- `ieeest`: IEEEST on the rotor speed, without its notch filters;
+- `pss2`: PSS2A and PSS2B on the rotor speed and the electrical power.
+
+A candidate's stabiliser is its machine matrix's PSS_MODEL (`bench_ctl.model.stabilisers`); each
+plug-in fills its own derived columns and leaves its gain 0 for a candidate of another
+(`derive_columns`), and `kind` names the plug-in a derived matrix needs.
 """
+from __future__ import annotations
+
+import numpy as np
+
+from . import ieeest, pss2
+
+
+def derive_columns(D: np.ndarray, M: np.ndarray) -> None:
+    """Every stabiliser's derived columns of D from the machine matrix M."""
+    ieeest.derive_columns(D, M)
+    pss2.derive_columns(D, M)
+
+
+def kind(D: np.ndarray) -> str:
+    """The stabiliser plug-in (`variants.STABILISERS`' key) the candidates of the derived matrix D
+    need: "none", "ieeest" or "pss2". One call runs one plug-in: candidates with different
+    stabilisers are refused."""
+    on = [name for name, module in (("ieeest", ieeest), ("pss2", pss2)) if module.present(D)]
+    if len(on) > 1:
+        raise ValueError("candidates with an IEEEST and candidates with a PSS2A/PSS2B in one run: "
+                         "simulate them apart")
+    return on[0] if on else "none"

@@ -4,13 +4,15 @@
     vs = clamp(KS (1 + s T1)/(1 + s T2) (1 + s T3)/(1 + s T4) s TW/(1 + s TW) (omega - 1), +-LSMAX)
 
 added to the exciter's reference. Three states, 0 at the operating point (the speed nominal);
-KS = 0 gives 0. Its parameters are the unit's [grid] PSS_* values (`params.MACHINE_CATALOGUE`).
+KS = 0 gives 0. Its parameters are the unit's [grid] PSS_* values (`params.MACHINE_CATALOGUE`),
+read when its PSS_MODEL is IEEEST (the default).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from bench_ctl.model.params import MCOL
+from bench_ctl.model.stabilisers import IEEEST
 
 from ..jit import njit
 from ..layout import D_PSS_IT2, D_PSS_IT4, D_PSS_ITW, D_PSS_KS, D_PSS_LIM, D_PSS_R1, D_PSS_R3
@@ -21,9 +23,10 @@ FIRST = 13
 
 
 def derive_columns(D: np.ndarray, M: np.ndarray) -> None:
-    """The stabiliser's derived columns of D from the machine matrix M (its PSS_* values)."""
+    """The stabiliser's derived columns of D from the machine matrix M (its PSS_* values); KS 0
+    for a candidate whose PSS_MODEL is another."""
     m = {name: M[:, j] for name, j in MCOL.items()}
-    D[:, D_PSS_KS], D[:, D_PSS_LIM] = m["PSS_KS"], m["PSS_LSMAX"]
+    D[:, D_PSS_KS], D[:, D_PSS_LIM] = np.where(m["PSS_MODEL"] == IEEEST, m["PSS_KS"], 0.0), m["PSS_LSMAX"]
     D[:, D_PSS_IT2], D[:, D_PSS_R1] = 1.0 / m["PSS_T2"], m["PSS_T1"] / m["PSS_T2"]
     D[:, D_PSS_IT4], D[:, D_PSS_R3] = 1.0 / m["PSS_T4"], m["PSS_T3"] / m["PSS_T4"]
     D[:, D_PSS_ITW] = 1.0 / m["PSS_TW"]
