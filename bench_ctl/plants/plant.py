@@ -32,6 +32,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from bench_ctl import engine
@@ -56,7 +57,7 @@ from bench_ctl.engine.runner import (
     Switches,
 )
 from bench_ctl.engine.simulate import param_matrix
-from bench_ctl.engine.variants import Key
+from bench_ctl.engine.variants import Key, cached
 from bench_ctl.units.unit import Unit, load_unit
 
 from . import realtime as RT
@@ -82,6 +83,9 @@ from .realtime import (
     SP_RING,
     STAT_RING,
 )
+
+#: the real-time loop's compile time (s of one core, measured: `bench-ctl warm-up` with an empty cache)
+RT_LOOP_ESTIMATE_S = 10.0
 
 log = logging.getLogger(__name__)
 
@@ -357,8 +361,16 @@ class Plant:
         ctrl[C_STOP] = 1
         clock = (ctrl, self._sp_step.copy(), self._sp_val.copy(), self._fst.copy(), np.zeros((4, self._n_out)),
                  np.zeros(4), np.zeros(4))
-        with engine.compiling(f"real-time loop of the {self._variant.key.words()}", 5.0):
-            self._loop()(*self._rt_args(work, clock))
+        loop, args = self._loop(), self._rt_args(work, clock)
+        drive, edges, out, sw, (one, last) = args[1]
+        # the variant's step first (said while it compiles), which the loop then calls as compiled
+        self._variant.call("advance", work, drive, edges, out, self.step, one, last, sw)
+        sig = tuple(nb.typeof(a) for a in args)
+        if sig in loop.overloads or cached(loop, sig):   # in memory, or loaded from numba's disk cache
+            loop(*args)
+            return
+        with engine.compiling(f"real-time loop of the {self._variant.key.words()}", RT_LOOP_ESTIMATE_S):
+            loop(*args)
 
     def _raise_priority(self) -> None:
         """Best effort: SCHED_FIFO for this thread (Linux; needs CAP_SYS_NICE, e.g. root).
