@@ -428,3 +428,34 @@ def test_the_benchmarks_page_is_reference_not_a_lab_log():
     dated = re.findall(r"(?im)^.*\b(?:measured|recorded)(?: again)?(?: on)? \(?20\d\d-\d\d-\d\d.*$", text)
     assert dated == []
     assert list((ROOT / "docs" / "lab").glob("*.md")), "the dated notes have a home"
+
+
+MODULE_ROOTS = ("bench_ctl", "drivers", "simulators", "procedures")
+
+
+def module_list_findings(root: Path) -> list[str]:
+    """Modules of the four packages that docs/architecture.md's "Every module" list lacks, and
+    entries of that list that are no module."""
+    text = (root / "docs" / "architecture.md").read_text(encoding="utf-8")
+    section = text.split("## Every module", 1)[1].split("\n## ", 1)[0]
+    listed = set(re.findall(r"^\| `([\w/]+\.py)` \|", section, flags=re.M))
+    present = {p.relative_to(root).as_posix() for r in MODULE_ROOTS for p in (root / r).rglob("*.py")
+               if "__pycache__" not in p.parts}
+    return ([f"{m}: not in docs/architecture.md's module list" for m in sorted(present - listed)]
+            + [f"{m}: listed in docs/architecture.md, no such module" for m in sorted(listed - present)])
+
+
+def test_the_architecture_lists_every_module():
+    assert module_list_findings(ROOT) == []
+
+
+def test_a_module_missing_from_the_list_fails(tmp_path):
+    for r in MODULE_ROOTS:
+        (tmp_path / r).mkdir()
+        (tmp_path / r / "__init__.py").write_text("")
+    (tmp_path / "docs").mkdir()
+    listed = "".join(f"| `{r}/__init__.py` | x |\n" for r in MODULE_ROOTS)
+    (tmp_path / "docs" / "architecture.md").write_text(f"# A\n\n## Every module\n\n{listed}| `gone.py` | x |\n")
+    (tmp_path / "bench_ctl" / "new.py").write_text("")
+    assert module_list_findings(tmp_path) == ["bench_ctl/new.py: not in docs/architecture.md's module list",
+                                             "gone.py: listed in docs/architecture.md, no such module"]
