@@ -440,8 +440,11 @@ def _with_stabiliser(unit: Unit, records: Sequence[DyrRecord], bus: int, ident: 
         raise UnitError(f"several stabiliser records at bus {bus} ID {ident}: "
                         f"{', '.join(r.source for r in hits)}")
     rec = hits[0]
-    return replace(unit, grid={**unit.grid, **(pss2_from_record(rec) if rec.model in PSS2_MODELS
-                                               else pss_from_record(rec))})
+    if rec.model in PSS2_MODELS:
+        return replace(unit, grid={**unit.grid, **pss2_from_record(rec)})
+    # an IEEEST record: the unit's own PSS_MODEL (a PSS2A / PSS2B of its file) would hide it
+    grid = {k: v for k, v in unit.grid.items() if k != "PSS_MODEL"}
+    return replace(unit, grid={**grid, **pss_from_record(rec)})
 
 
 def _with_generator(unit: Unit, gen: DyrRecord) -> Unit:

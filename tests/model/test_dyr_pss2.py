@@ -51,6 +51,20 @@ def test_the_records_read_in_psse_field_order(tmp_path):
         parse_dyr("1 'PSS2A' 1  1 0 3 0 5 1  " + "1 " * 16 + "/\n", "short.dyr")
 
 
+def test_the_records_stabiliser_replaces_the_units_own(tmp_path):
+    """A unit file's PSS2B must not hide the record's IEEEST (IEEEST is PSS_MODEL absent), nor its
+    IEEEST the record's PSS2A."""
+    from dataclasses import replace
+
+    own = replace(reference_unit(), grid={**reference_unit().grid, "PSS_MODEL": 3.0, "PSS2_KS1": 4.0})
+    ieeest = "  101 'IEEEST' 1   1 0  0 0 0 0 0 0  0.2 0.02 0.15 0.03 5 10  30  0.1 -0.1  0 0 /\n"
+    g = unit_from_dyr(own, _file(tmp_path, ieeest)).grid
+    assert "PSS_MODEL" not in g and g["PSS_KS"] == 15.0
+    g = unit_from_dyr(replace(reference_unit(), grid={**reference_unit().grid, "PSS_KS": 9.0}),
+                      _file(tmp_path, PSS2A, "a.dyr")).grid
+    assert g["PSS_MODEL"] == 2.0 and g["PSS2_KS1"] == 8.5
+
+
 @pytest.mark.parametrize("model", ["PSS2A", "PSS2B"])
 def test_a_written_record_reads_back_the_same_values(tmp_path, model):
     grid = {"PSS_MODEL": {"PSS2A": 2.0, "PSS2B": 3.0}[model], "PSS2_KS1": 17.25, "PSS2_TW1": 4.5,
