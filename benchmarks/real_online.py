@@ -69,7 +69,7 @@ def main_(argv: list[str] | None = None) -> int:
     ap.add_argument("--dyr", help="the unit's planning record (GENSAL/GENROU and its exciter)")
     ap.add_argument("--dyr-ignore", action="append", default=[], metavar="MODEL",
                     help="leave this record of the unit out (--from-dyr stops at a stabiliser or limiter it cannot "
-                         "model, e.g. PSS2B, unless left out)")
+                         "model, e.g. PSS3B or OEL1B, unless left out; PSS2A / PSS2B are read)")
     ap.add_argument("--efd-base", default="0.33869rf")
     ap.add_argument("--test", default="step:amplitude=0.05")
     ap.add_argument("--resample", type=float, default=200.0)

@@ -51,7 +51,7 @@ def main_bench(argv: list[str] | None = None) -> int:
     ap.add_argument("--dyr", type=Path, default=None, help="planning record whose values are run as they are")
     ap.add_argument("--dyr-ignore", action="append", default=[], metavar="MODEL",
                     help="leave this record of the unit out (a stabiliser or limiter bench-ctl cannot model, e.g. "
-                         "PSS2B, stops the reading unless left out)")
+                         "PSS3B or OEL1B, stops the reading unless left out; PSS2A / PSS2B are read)")
     ap.add_argument("--models", default="all",
                     help="structures whose rows are reported (identify --model auto fits every one)")
     ap.add_argument("--evals", type=int, default=1000)

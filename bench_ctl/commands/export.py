@@ -11,7 +11,8 @@ for no limit; `--from-dyr` reads it back as open), every value in full precision
 `--from-dyr` on the export simulates what the result does. What the model has and the record
 cannot hold (a dead time, a rate limit, ...) is named on the console and in the record's
 comment. A unit with a power system stabiliser (its [grid] PSS_KS > 0, given or fitted on line)
-gets its IEEEST record after the exciter's, at the same bus and ID. The bus must be a PSS/E bus
+gets its IEEEST record after the exciter's, at the same bus and ID; a unit whose PSS_MODEL is PSS2A
+or PSS2B (PSS2_KS1 > 0) gets that record, in PSS/E's field order (`dyr_pss2`). The bus must be a PSS/E bus
 number (1 .. 999997) and the ID one or two characters that read back the same (no blank, quote or
 `/`, not empty): anything else is refused, as PSS/E would not read it. Exit codes: 0 written, 2 bad
 input (file, key or value named) or an output refused.
@@ -85,14 +86,19 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
     icons = {"UEL": 1, "VOS": 1} if st.dyr_model == "ESST1A" else {}
     rec = DyrRecord(bus, st.dyr_model, str(machine_id), values, icons)  # type: ignore[arg-type]
     records = [(rec, "\n".join(notes))]
-    if pss is not None:
+    if pss is not None and pss.model == "IEEEST":
         records.append((pss, "the unit's power system stabiliser ([grid] PSS_*): speed input, no filter, "
                              "washout T5 = T6 = PSS_TW, no cut-off"))
+    elif pss is not None:
+        records.append((pss, f"the unit's power system stabiliser ([grid] PSS_MODEL {pss.model}, PSS2_*): input 1 "
+                             "the speed (ICS1 1), input 2 the electrical power (ICS2 3), no remote bus; an open "
+                             "input limit written as +-999"))
     with outputs.writing(dyr_out):
         out.write_text(dyr_out, dyr_text(records, header=header))
     click.echo(f"wrote {dyr_out}: {st.dyr_model} at bus {bus}, ID {machine_id} "
                f"({len(identified)} identified, {len(fields) - len(identified)} fixed or default)"
-               + (f", and its stabiliser as IEEEST (KS {pss.values['KS']:g})" if pss is not None else ""))
+               + (f", and its stabiliser as {pss.model} (KS{'' if pss.model == 'IEEEST' else '1'} "
+                  f"{pss.values.get('KS', pss.values.get('KS1')):g})" if pss is not None else ""))
     if missing:
         click.echo(f"warning: the {st.dyr_model} record does not hold: {'; '.join(missing)}; a simulation "
                    "from it differs from the result where these act", err=True)

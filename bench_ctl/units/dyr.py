@@ -27,6 +27,10 @@ cross-checked with ANDES' andes/io/psse-dyr.yaml, the InterPSS reader and publis
 - IEEEST: ICONs MODE BUSR; A1 A2 A3 A4 A5 A6 T1 T2 T3 T4 T5 T6 KS LSMAX LSMIN VCU VCL (the IEEE ST
   stabiliser: MODE 1 the rotor speed deviation; filter (1 + A5 s + A6 s^2)/((1 + A1 s + A2 s^2)
   (1 + A3 s + A4 s^2)), two lead-lags, KS, washout T5 s/(1 + T6 s), output limits, cut-off by Vt)
+- PSS2A:  ICONs ICS1 IB1 ICS2 IB2 M N; TW1 TW2 T6 TW3 TW4 T7 KS2 KS3 T8 T9 KS1 T1 T2 T3 T4 VSTMAX VSTMIN
+- PSS2B:  the same ICONs; TW1 .. T4 as PSS2A, then T10 T11 VS1MAX VS1MIN VS2MAX VS2MIN VSTMAX VSTMIN
+  (ICS the input's code, 1 the rotor speed deviation, 3 the electrical power; IB a remote bus, 0
+  the machine's own; M N the ramp-tracking filter's orders. Confirmed in docs/decisions/0024.)
 
 Records of other models are kept with positional names (CON1..), never refused here: real files
 hold hundreds of governors and stabilisers (`--from-dyr` names those of the unit it leaves out:
@@ -48,6 +52,8 @@ from pathlib import Path
 
 from bench_ctl.exitcodes import BadInput
 
+#: PSS2A's and PSS2B's CONs up to the second lead-lag (the same in both records)
+_PSS2 = ("TW1", "TW2", "T6", "TW3", "TW4", "T7", "KS2", "KS3", "T8", "T9", "KS1", "T1", "T2", "T3", "T4")
 FIELDS: dict[str, tuple[str, ...]] = {
     "GENROU": ("T'do", "T''do", "T'qo", "T''qo", "H", "D", "Xd", "Xq", "X'd", "X'q", "X''d", "Xl",
                "S(1.0)", "S(1.2)"),
@@ -72,8 +78,12 @@ FIELDS: dict[str, tuple[str, ...]] = {
     "ESAC8B": ("TR", "KPR", "KIR", "KDR", "TDR", "KA", "TA", "VRMAX", "VRMIN", "TE", "KE", "E1", "SE1", "E2", "SE2"),
     "IEEEST": ("A1", "A2", "A3", "A4", "A5", "A6", "T1", "T2", "T3", "T4", "T5", "T6", "KS", "LSMAX", "LSMIN", "VCU",
                "VCL"),
+    "PSS2A": _PSS2 + ("VSTMAX", "VSTMIN"),
+    "PSS2B": _PSS2 + ("T10", "T11", "VS1MAX", "VS1MIN", "VS2MAX", "VS2MIN", "VSTMAX", "VSTMIN"),
 }
-ICONS: dict[str, tuple[str, ...]] = {"ESST1A": ("UEL", "VOS"), "IEEEST": ("MODE", "BUSR")}
+ICONS: dict[str, tuple[str, ...]] = {"ESST1A": ("UEL", "VOS"), "IEEEST": ("MODE", "BUSR"),
+                                     "PSS2A": ("ICS1", "IB1", "ICS2", "IB2", "M", "N"),
+                                     "PSS2B": ("ICS1", "IB1", "ICS2", "IB2", "M", "N")}
 DESCRIPTION = {
     "GENROU": "round-rotor generator", "GENSAL": "salient-pole generator",
     "SEXS": "simplified excitation system", "EXST1": "IEEE ST1 static exciter",
@@ -85,6 +95,8 @@ DESCRIPTION = {
     "ESAC1A": "IEEE 421.5 AC1A rotating exciter",
     "ESAC8B": "IEEE 421.5 AC8B exciter (PID regulator)",
     "IEEEST": "IEEE ST power system stabiliser",
+    "PSS2A": "IEEE dual-input power system stabiliser PSS2A",
+    "PSS2B": "IEEE dual-input power system stabiliser PSS2B",
 }
 
 _TOKEN = re.compile(r"'[^']*'|\"[^\"]*\"|[^\s']+")

@@ -4,7 +4,7 @@
 A planning record holds more of a unit than bench-ctl models: its governor and turbine, its
 stabiliser, its over- and under-excitation limiters, a load-drop compensator. `--from-dyr` reads
 the generator (GENROU / GENSAL), the exciter (the structures of the model library, and the aliases
-below) and the IEEEST stabiliser; every other record of the unit is named. What changes the
+below) and the IEEEST, PSS2A and PSS2B stabilisers; every other record of the unit is named. What changes the
 excitation system's response in a test - a stabiliser, a limiter, a compensator, an exciter or a
 generator model bench-ctl does not have - stops the command unless the user leaves it out by name
 (`--dyr-ignore MODEL`); the rest (governors, turbines, anything else) is named and left out.

@@ -35,9 +35,10 @@ item 9, issue 49 item 6; the unit's records are those at the exciter's bus and m
   its own generator constants, said too. The unit's name becomes the record's (file, bus, ID,
   generator and exciter models) and its `source` lists what was left out.
 
-A stabiliser record (IEEEST, at the exciter's bus and ID) gives the machine on the grid its PSS
-(`[grid]` PSS_*, `pss_from_record`), and `export --dyr` writes one when the result's unit has a
-PSS (`pss_record`). bench-ctl's stabiliser is the IEEEST on the rotor speed without its filter: a
+A stabiliser record (IEEEST, PSS2A or PSS2B, at the exciter's bus and ID) gives the machine on the
+grid its PSS (`[grid]` PSS_* or PSS_MODEL and PSS2_*: `pss_from_record`, `dyr_pss2`), and `export
+--dyr` writes one when the result's unit has a PSS (`pss_record`). The IEEEST is run on the rotor
+speed without its filter: a
 record with another input (MODE), a filter (A1..A6 not 0), limits that are not symmetric or a
 cut-off that switches it off at 1 pu is refused, naming the field. The washout T5 s/(1 + T6 s)
 is KS T5/T6 times the unity washout of TW = T6; VCU, VCL (the cut-off by the terminal voltage
@@ -57,15 +58,16 @@ from typing import Any
 
 from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import GENERATOR_OPTIONAL, MACHINE_DEFAULTS, PARAMS
-from bench_ctl.model.stabilisers import IEEEST, stabiliser
+from bench_ctl.model.stabilisers import IEEEST
 from bench_ctl.model.structures import STRUCTURES, Structure, structure
 from bench_ctl.units import dyr_kinds
 
 from .dyr import FIELDS, DyrError, DyrRecord, find, read_dyr
+from .dyr_pss2 import PSS2_MODELS, pss2_from_record, pss2_record
 from .unit import Bound, Unit, UnitError, grid_values, with_model
 
 GENERATORS = ("GENROU", "GENSAL")
-STABILISERS = ("IEEEST",)
+STABILISERS = ("IEEEST", *PSS2_MODELS)
 #: exciter models read as a structure of the library with the same equations: model -> (the
 #: structure's record model, values from the record, why)
 ALIASES: dict[str, tuple[str, Any, str]] = {
@@ -415,15 +417,12 @@ def pss_from_record(rec: DyrRecord) -> dict[str, float]:
 
 
 def pss_record(grid: Mapping[str, Any], bus: int, ident: str) -> DyrRecord | None:
-    """The IEEEST record of the stabiliser in a unit's [grid] (None without one: PSS_KS 0 or
-    absent): speed input, no filter, T5 = T6 = TW, no cut-off. A unit's PSS2A / PSS2B (PSS_MODEL)
-    has no record yet: an error, not a file without it."""
+    """The record of the stabiliser in a unit's [grid] (None without one: PSS_KS, or PSS2_KS1 for
+    a PSS2A / PSS2B, 0 or absent): an IEEEST with speed input, no filter, T5 = T6 = TW, no cut-off,
+    or the unit's PSS2A / PSS2B (`dyr_pss2.pss2_record`)."""
     g = {**MACHINE_DEFAULTS, **{k: float(x) for k, x in grid.items() if k.startswith("PSS")}}
     if g["PSS_MODEL"] != IEEEST:
-        if g["PSS2_KS1"] == 0.0:
-            return None
-        raise ValueError(f"the unit's stabiliser is a {stabiliser(g['PSS_MODEL']).name} ([grid] PSS_MODEL): "
-                         "export writes no PSS2A / PSS2B record yet")
+        return pss2_record(grid, bus, ident)
     if g["PSS_KS"] == 0.0:
         return None
     values = dict.fromkeys(("A1", "A2", "A3", "A4", "A5", "A6"), 0.0)
@@ -433,14 +432,19 @@ def pss_record(grid: Mapping[str, Any], bus: int, ident: str) -> DyrRecord | Non
 
 
 def _with_stabiliser(unit: Unit, records: Sequence[DyrRecord], bus: int, ident: str) -> Unit:
-    """`unit` with the PSS of the IEEEST record at `bus`, machine `ident` (unchanged without one)."""
+    """`unit` with the PSS of the stabiliser record at `bus`, machine `ident` (unchanged without one)."""
     hits = [r for r in records if r.model in STABILISERS and r.bus == bus and r.id == ident]
     if not hits:
         return unit
     if len(hits) > 1:
         raise UnitError(f"several stabiliser records at bus {bus} ID {ident}: "
                         f"{', '.join(r.source for r in hits)}")
-    return replace(unit, grid={**unit.grid, **pss_from_record(hits[0])})
+    rec = hits[0]
+    if rec.model in PSS2_MODELS:
+        return replace(unit, grid={**unit.grid, **pss2_from_record(rec)})
+    # an IEEEST record: the unit's own PSS_MODEL (a PSS2A / PSS2B of its file) would hide it
+    grid = {k: v for k, v in unit.grid.items() if k != "PSS_MODEL"}
+    return replace(unit, grid={**grid, **pss_from_record(rec)})
 
 
 def _with_generator(unit: Unit, gen: DyrRecord) -> Unit:

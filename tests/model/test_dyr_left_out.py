@@ -81,38 +81,39 @@ def test_a_saturation_the_curve_cannot_hold_is_refused_naming_the_line(tmp_path,
 
 
 def test_a_stabiliser_or_limiter_it_cannot_model_stops_unless_left_out_by_name(tmp_path, capsys):
+    """PSS3B: a stabiliser bench-ctl does not model (PSS2B is read since issue 49: test_dyr_pss2.py)."""
     path = _file(tmp_path, f"  101 'IEEEX1' 1 {DC1} /\n",
-                 "  101 'PSS2B' 1  1 1 2 1  10 10 10 0 0.1 0.5 1 1 1 2 0.1 0.1 0.02 0.1 0.02 0.1 0.05 1 0 /\n",
+                 "  101 'PSS3B' 1  1 1 2 1  10 10 10 0 0.1 0.5 1 1 1 2 0.1 0.1 0.02 0.1 0.02 0.1 0.05 1 0 /\n",
                  "  101 'OEL1B' 1  1 2 3 4 5 6 /\n",
                  "  101 'HYGOV' 1  0.05 0.02 5 0.04 0.5 0.2 1 0 1.2 1 0.5 0.08 /\n",
                  "  101 'XYZ9' 1  1 2 /\n",
-                 "  102 'PSS2B' 1  1 1 2 1 /\n")
+                 "  102 'PSS3B' 1  1 1 2 1 /\n")
     with pytest.raises(UnitError) as info:
         unit_from_dyr(reference_unit(), path)
     msg = str(info.value)
-    assert "PSS2B (stabiliser) at " in msg and "plant.dyr:4" in msg and "OEL1B (limiter) at " in msg
-    assert "--dyr-ignore PSS2B --dyr-ignore OEL1B" in msg and "HYGOV" not in msg
+    assert "PSS3B (stabiliser) at " in msg and "plant.dyr:4" in msg and "OEL1B (limiter) at " in msg
+    assert "--dyr-ignore PSS3B --dyr-ignore OEL1B" in msg and "HYGOV" not in msg
     notes: list[str] = []
-    u = unit_from_dyr(reference_unit(), path, ignore=("PSS2B", "oel1b"), notes=notes)
+    u = unit_from_dyr(reference_unit(), path, ignore=("PSS3B", "oel1b"), notes=notes)
     assert u.model == "IEEEX1" and "PSS_KS" not in u.grid
     said = "\n".join(notes)
-    for what in ("PSS2B (stabiliser) at", "as --dyr-ignore PSS2B asks", "OEL1B (limiter)",
+    for what in ("PSS3B (stabiliser) at", "as --dyr-ignore PSS3B asks", "OEL1B (limiter)",
                  "HYGOV (governor or turbine) at", "XYZ9 (a model bench-ctl does not know)"):
         assert what in said, said
     assert "plant.dyr:9" not in said                       # another machine's record is not the unit's
-    assert "left out: PSS2B (stabiliser)" in u.source and "HYGOV" in u.source
+    assert "left out: PSS3B (stabiliser)" in u.source and "HYGOV" in u.source
     assert u.name == "plant.dyr bus 101 ID 1 (GENROU + IEEEX1)"
-    with pytest.raises(UnitError, match=r"--dyr-ignore PSS3B: no such record"):
-        unit_from_dyr(reference_unit(), path, ignore=("PSS3B",))
+    with pytest.raises(UnitError, match=r"--dyr-ignore PSS4B: no such record"):
+        unit_from_dyr(reference_unit(), path, ignore=("PSS4B",))
     # the command line: refused (exit 2) without the option, the notes on stderr with it
     out = tmp_path / "c.csv"
     assert main(["simulate", "--from-dyr", str(path), "--model", "IEEEX1", "--duration", "4", "-o", str(out)]) == 2
-    assert "--dyr-ignore PSS2B" in capsys.readouterr().err and not out.exists()
-    assert main(["simulate", "--from-dyr", str(path), "--dyr-ignore", "PSS2B", "--dyr-ignore", "OEL1B",
+    assert "--dyr-ignore PSS3B" in capsys.readouterr().err and not out.exists()
+    assert main(["simulate", "--from-dyr", str(path), "--dyr-ignore", "PSS3B", "--dyr-ignore", "OEL1B",
                  "--duration", "4", "-o", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "note: --from-dyr: PSS2B (stabiliser) at" in err and "HYGOV (governor or turbine)" in err
-    assert main(["simulate", "--dyr-ignore", "PSS2B", "-o", str(tmp_path / "d.csv")]) == 2
+    assert "note: --from-dyr: PSS3B (stabiliser) at" in err and "HYGOV (governor or turbine)" in err
+    assert main(["simulate", "--dyr-ignore", "PSS3B", "-o", str(tmp_path / "d.csv")]) == 2
 
 
 def test_the_ieeest_stays_accepted_and_a_unit_without_generator_record_says_so(tmp_path):

@@ -197,10 +197,9 @@ def test_the_units_stabiliser_is_picked_by_name_in_grid_and_by_set(tmp_path, cap
     assert "PSS2_T10" not in capsys.readouterr().out
     assert main(["models"]) == 0
     assert "PSS2B" in capsys.readouterr().out
-    # export: an IEEEST record only for an IEEEST; a PSS2B is not dropped in silence
+    # export: an IEEEST record for an IEEEST, a PSS2B record for a PSS2B (tests/model/test_dyr_pss2.py)
     from bench_ctl.units.dyr_unit import pss_record
 
     assert pss_record({"PSS_MODEL": 3.0, "PSS_KS": 10.0}, 1, "1") is None   # KS1 0: no stabiliser
-    with pytest.raises(ValueError, match="PSS2B .*no PSS2A / PSS2B record yet"):
-        pss_record({"PSS_MODEL": 3.0, "PSS2_KS1": 10.0}, 1, "1")
+    assert pss_record({"PSS_MODEL": 3.0, "PSS2_KS1": 10.0}, 1, "1").model == "PSS2B"
     assert pss_record({"PSS_KS": 10.0}, 1, "1").model == "IEEEST"
