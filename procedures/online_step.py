@@ -72,6 +72,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
@@ -220,8 +221,37 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
                 vt_margin_pu: float = 0.005, q_margin: float = 0.1, poll_s: float = 0.05,
                 steady_timeout_s: float = 30.0) -> ProcedureResult:
     """The on-line step; see the module docstring (the test sheet)."""
+    given = locals()
+    params = {name: given[name] for name in PARAMETERS}
+    return step_on_line(bench, run, params)
+
+
+@dataclass(frozen=True)
+class StepPart:
+    """One record of a test of several (procedures/pss_step.py): its name (the files' suffix,
+    `RunContext.part`), what to do once remote is taken and before the steady state is awaited
+    (e.g. switch the PSS; the safe state of the release undoes it), what to add to the capture's
+    test, a line for the plan, whether this part asks the operator (the first does), and what to
+    call with the record's data and test once its capture is saved."""
+
+    name: str
+    after_remote: Callable[[], None]
+    test: dict[str, Any]
+    plan: str
+    confirm: bool
+    saved: Callable[[dict[str, Any], dict[str, Any]], None]
+
+
+def step_on_line(bench: ProcedureBench, run: RunContext, params: dict[str, Any],
+                 part: StepPart | None = None) -> ProcedureResult:
+    """The on-line step with `params` (PARAMETERS' names, all given), the whole test or one `part`
+    of a longer one (its record saved under the part's name before the next part starts)."""
+    (amplitude_pu, hold_s, pre_trigger_s, record_s, rate_hz, hold_tolerance_s, amplitude_tolerance_pu,
+     recovery_tolerance_pu, recovery_timeout_s, vt_margin_pu, q_margin, poll_s,
+     steady_timeout_s) = (params[name] for name in PARAMETERS)
     ex, rec = bench.exciter, bench.recorder
     lim = run.limits
+    run.part = part.name if part is not None else ""
 
     with run.step("preconditions"):
         p_mw = ex.read("p")
@@ -283,7 +313,7 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
                  p_range_mw=list(band.p), p_swing_mw=band.p_swing_mw, steady_bands=bands,
                  steady_time_s=lim.steady_time_s, record=settings.__dict__)
 
-    run.confirm("\n".join((
+    plan_text = "\n".join((
         f"{run.procedure} on the exciter {ex.endpoint_url} (unit {ex.unit_id}), the unit ON LINE:",
         f"  setpoint  {plan.setpoint_pu:.4f} pu -> {plan.pulse_setpoint_pu:.4f} pu held {hold_s:.3f} s, "
         f"then back to {plan.setpoint_pu:.4f} pu",
@@ -294,7 +324,12 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
         f"  watchdog  {run.watchdog_text()}",
         f"  link      {run.link_text()}",
         f"  recorder  {rate_hz:g} Hz, pre-trigger {pre_trigger_s:.3f} s, record {record_s:.3f} s, "
-        f"channels {', '.join(rec.channels)}")))
+        f"channels {', '.join(rec.channels)}",
+        *((part.plan,) if part is not None else ())))
+    if part is None or part.confirm:
+        run.confirm(plan_text)
+    else:
+        run.note("plan_confirmed", part=part.name, summary=plan_text)
 
     sample = _sampler(run, bench, ex, steady, poll_s)
     with run.step("arm recorder"):
@@ -304,6 +339,8 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
 
     with run.step("take remote"):
         ex.take_remote()
+        if part is not None:
+            part.after_remote()
         _wait_steady(run, bench, ex, steady, steady_timeout_s, poll_s, before="the step")
 
     with run.step("step", amplitude_pu=amplitude_pu, hold_s=hold_s):
@@ -355,8 +392,11 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
             "setpoint_pu": plan.setpoint_pu, "commanded_width_s": held_s, "recorded": step.__dict__,
             "operating_point": {"p_mw": p_mw, "q_mvar": q0, "vt_pu": vt0},
             "band": {"vt_pu": list(band.vt), "q_mvar": list(band.q), "p_mw": list(band.p),
-                     "p_swing_mw": band.p_swing_mw, "left": band.worst}}
+                     "p_swing_mw": band.p_swing_mw, "left": band.worst},
+            **(part.test if part is not None else {})}
         run.save_record(raw, data, test)
+        if part is not None:
+            part.saved(data, test)
 
     hold_err = step.width_s - hold_s
     amp_err = step.amplitude_pu - amplitude_pu
