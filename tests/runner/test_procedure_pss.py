@@ -1,7 +1,8 @@
 """The stabiliser test (procedures/pss_step.py, issue 49 item 3): the on-line step with the PSS off,
 then on, end to end as a dry run (two captures, the mode damped more with the PSS on); and the PSS
-switch as found whatever ends the run (Ctrl-C, SIGTERM, a lost reply to the switch's write, a
-refusal after the switch was written, a step ended by a loss of load), against a simulated bench
+switch as found whatever ends the run (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT, a link cut during the step,
+a lost reply to the switch's write, a refusal after the switch was written, a step ended by a loss
+of load), against a simulated bench
 in this process so that the device's own switch is read at the end."""
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from procedures.pss_step import SIMULATED_BENCH
 from pulse_bench import ROOT
 from simulators.bench import SimBench
 from simulators.faults import Fault
+from wire_proxy import WireProxy
 
 #: a short test: a 3 % step held 4.5 s (the mode fitted over 4 s of it), 7 s recorded, steady over 0.5 s
 FAST = {"amplitude_pu": 0.03, "hold_s": 4.5, "pre_trigger_s": 0.5, "record_s": 7.0, "steady_timeout_s": 5.0,
@@ -63,12 +65,12 @@ def pss_bench():
     sim.stop()
 
 
-def _run(sim, tmp_path, *faults: Fault, params=None, **kwargs):
+def _run(sim, tmp_path, *faults: Fault, params=None, url=None, **kwargs):
     for f in faults:
         sim.faults.add(f)
     doc = _doc()
     host, port = sim.endpoints.exciter_tcp
-    doc["exciter"]["url"] = f"tcp://{host}:{port}"
+    doc["exciter"]["url"] = url or f"tcp://{host}:{port}"
     doc["recorder"]["url"] = sim.endpoints.recorder_serial
     return run_procedure("pss_step", config_from_dict(doc, source="test-bench.toml"), tmp_path / "run", yes=True,
                          params={**FAST, **(params or {})}, **kwargs)
@@ -80,13 +82,28 @@ def _as_found(sim, out) -> None:
     assert out.safe, out.message
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=lambda s: signal.Signals(s).name)
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT],
+                         ids=lambda s: signal.Signals(s).name)
 def test_a_signal_during_the_step_with_the_pss_off_leaves_it_as_found(pss_bench, tmp_path, sig):
     out = _run(pss_bench, tmp_path, hooks={"step_applied": lambda run: os.kill(os.getpid(), sig)})
     assert out.exit_code == ExitCode.ABORTED, out.message
-    why = "interrupted by the operator (Ctrl-C)" if sig == signal.SIGINT else "terminated by SIGTERM"
+    why = ("interrupted by the operator (Ctrl-C)" if sig == signal.SIGINT
+           else f"terminated by {signal.Signals(sig).name}")
     assert pss_writes(out) == ["PSS off for the step (pss_off)", f"restore pre-test PSS switch ({why})"]
     assert "PSS switch restored to on by host" in out.safe_state[0].detail
+    _as_found(pss_bench, out)
+
+
+def test_a_link_cut_during_the_step_with_the_pss_off_leaves_it_as_found(pss_bench, tmp_path):
+    """The exciter's link is cut for 0.6 s during the step: the safe state reconnects, restores
+    the setpoint, then switches the PSS back on."""
+    proxy = WireProxy(pss_bench.endpoints.exciter_tcp)
+    try:
+        out = _run(pss_bench, tmp_path, url=proxy.url, hooks={"step_applied": lambda run: proxy.cut(0.6)})
+    finally:
+        proxy.close()
+    assert out.exit_code in (ExitCode.ABORTED, ExitCode.COMMS), out.message
+    assert "PSS switch restored to on by host" in out.safe_state[0].detail, out.safe_state[0]
     _as_found(pss_bench, out)
 
 
