@@ -71,7 +71,7 @@ PARTS = (("pss_off", False), ("pss_on", True))
 
 def check_parameters(params: dict[str, Any]) -> list[str]:
     """Every problem with the test's parameters (empty when fine): online_step's, and the mode's span
-    inside the record after the step."""
+    within the hold."""
     problems = online.check_parameters({k: v for k, v in params.items() if k in STEP_PARAMETERS})
     for name in ("min_damping_gain", "span_s"):
         lo, hi, unit = PARAMETERS[name]
