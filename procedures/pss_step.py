@@ -8,8 +8,9 @@ PURPOSE
 
 PARAMETERS
     Those of online_step (the same names, bounds and defaults; see PARAMETERS there), the same for
-    both steps; min_damping_gain 0..1 (how much the damping ratio must rise with the PSS on) and
-    span_s 1..20 s, at most hold_s (how long after the step the mode is fitted: while it is held).
+    both steps, hold_s at least MODE_SPAN_S (4 s: the mode is fitted over that long after the step,
+    while it is held, as the report fits it); min_damping_gain 0..1 (how much the damping ratio
+    must rise with the PSS on).
 
 PRECONDITIONS
     Everything online_step checks, before each step (the unit steady again after the first: the
@@ -24,7 +25,7 @@ SEQUENCE
        (capture_pss_off.csv, raw download first) before anything else happens.
     2. Record the same step with the PSS ON (the switch written on only where it was found off; the
        release puts it back), saved as capture_pss_on.csv.
-    3. The mode in P of each record over span_s after the step's edge (bench_ctl.signals.mode), from
+    3. The mode in P of each record over MODE_SPAN_S after the step's edge (bench_ctl.signals.mode), from
        the converted record once it is saved.
 
 HAZARDS
@@ -63,23 +64,22 @@ CAPTURES = True
 SIMULATED_BENCH = {"online": True, "noise_pu": 0.002,
                    "unit_set": ("PSS_MODEL=IEEEST", "PSS_KS=5", "PSS_T1=0.2", "PSS_T2=0.05", "PSS_T3=0.2",
                                 "PSS_T4=0.05", "PSS_TW=5", "PSS_LSMAX=0.1")}
-PARAMETERS: dict[str, tuple[float, float, str]] = {**STEP_PARAMETERS, "min_damping_gain": (0.0, 1.0, ""),
-                                                   "span_s": (1.0, 20.0, "s")}
+PARAMETERS: dict[str, tuple[float, float, str]] = {**STEP_PARAMETERS, "min_damping_gain": (0.0, 1.0, "")}
+#: how long after the step the mode in P is fitted (s; the report's on-line section fits 4 s too)
+MODE_SPAN_S = 4.0
 #: the parts, in order: (name, the PSS switch during the step)
 PARTS = (("pss_off", False), ("pss_on", True))
 
 
 def check_parameters(params: dict[str, Any]) -> list[str]:
-    """Every problem with the test's parameters (empty when fine): online_step's, and the mode's span
-    within the hold."""
+    """Every problem with the test's parameters (empty when fine): online_step's, and a hold long
+    enough for the mode's span."""
     problems = online.check_parameters({k: v for k, v in params.items() if k in STEP_PARAMETERS})
-    for name in ("min_damping_gain", "span_s"):
-        lo, hi, unit = PARAMETERS[name]
-        if not lo <= params[name] <= hi:
-            problems.append(f"{name} = {params[name]:g} {unit} outside {lo:g}..{hi:g} {unit}".rstrip())
-    if not problems and params["span_s"] > params["hold_s"]:
-        problems.append(f"span_s = {params['span_s']:g} s longer than hold_s = {params['hold_s']:g} s: the mode is "
-                        "measured while the step is held, before the step back")
+    if not 0.0 <= params["min_damping_gain"] <= 1.0:
+        problems.append(f"min_damping_gain = {params['min_damping_gain']:g} outside 0..1")
+    if not problems and params["hold_s"] < MODE_SPAN_S:
+        problems.append(f"hold_s = {params['hold_s']:g} s shorter than the {MODE_SPAN_S:g} s the mode is fitted over "
+                        "after the step (it is measured while the step is held, before the step back)")
     return problems
 
 
@@ -88,8 +88,7 @@ def pss_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float = 0.
              hold_tolerance_s: float = 0.02, amplitude_tolerance_pu: float = 0.001,
              recovery_tolerance_pu: float = 0.01, recovery_timeout_s: float = 30.0,
              vt_margin_pu: float = 0.005, q_margin: float = 0.1, poll_s: float = 0.05,
-             steady_timeout_s: float = 30.0, min_damping_gain: float = 0.02,
-             span_s: float = 4.0) -> ProcedureResult:
+             steady_timeout_s: float = 30.0, min_damping_gain: float = 0.02) -> ProcedureResult:
     """The stabiliser test; see the module docstring (the test sheet)."""
     given = locals()
     params = {name: given[name] for name in STEP_PARAMETERS}
@@ -108,7 +107,7 @@ def pss_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float = 0.
                 ex.write_pss(on, purpose=f"PSS {'on' if on else 'off'} for the step ({name})")
 
         def saved(data: dict[str, Any], test: dict[str, Any], name: str = name) -> None:
-            modes.append(_mode(run, name, data, float(test["start_s"]), span_s))
+            modes.append(_mode(run, name, data, float(test["start_s"]), MODE_SPAN_S))
 
         plan = (f"  PSS       step {i + 1} of 2 with the PSS {'ON' if on else 'OFF'}"
                 + ("; then the same step with it on, the switch as found at the end" if i == 0 else ""))

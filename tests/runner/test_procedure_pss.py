@@ -15,7 +15,7 @@ import pytest
 from bench_ctl.capture import read_capture
 from bench_ctl.exitcodes import ExitCode
 from bench_ctl.runner.audit import read_audit
-from bench_ctl.runner.config import config_from_dict
+from bench_ctl.runner.config import ConfigError, config_from_dict
 from bench_ctl.runner.runner import run_procedure
 from procedures.pss_step import SIMULATED_BENCH
 from pulse_bench import ROOT
@@ -24,8 +24,7 @@ from simulators.faults import Fault
 from wire_proxy import WireProxy
 
 #: a short test: a 3 % step held 4.5 s (the mode fitted over 4 s of it), 7 s recorded, steady over 0.5 s
-FAST = {"amplitude_pu": 0.03, "hold_s": 4.5, "pre_trigger_s": 0.5, "record_s": 7.0, "steady_timeout_s": 5.0,
-        "span_s": 4.0}
+FAST = {"amplitude_pu": 0.03, "hold_s": 4.5, "pre_trigger_s": 0.5, "record_s": 7.0, "steady_timeout_s": 5.0}
 
 
 def _doc(**limits):
@@ -55,6 +54,12 @@ def test_pss_step_dry_run_end_to_end(tmp_path):
     assert 1.0 < modes["pss_off"]["frequency_hz"] < 2.5
     assert all(c.passed for c in out.criteria), [c.text() for c in out.criteria if not c.passed]
     print(f"modes {modes}, run {out.duration_s:.1f} s")
+
+
+def test_a_hold_shorter_than_the_modes_span_is_refused_before_anything_starts(tmp_path):
+    with pytest.raises(ConfigError, match="hold_s = 3 s shorter than the 4 s the mode is fitted over"):
+        run_procedure("pss_step", config_from_dict(_doc(), source="online-bench.toml"), tmp_path / "run",
+                      dry_run=True, params={**FAST, "hold_s": 3.0})
 
 
 @pytest.fixture
