@@ -9,7 +9,8 @@ The test sequence it supports, in order:
 2. `take_remote()` - start the heartbeat (refused when it is too slow for the watchdog read),
    then set the profile's `remote` mode bit (when the profile has one);
 3. `write_setpoint(value, at_mono=...)` - timed, read back and compared;
-4. `safe_state(reason)` - restore the pre-test setpoint, give remote back, stop the heartbeat;
+4. `safe_state(reason)` - restore the pre-test setpoint (then the PSS switch, `write_pss`, when this
+   run wrote it: drivers.pss), give remote back, stop the heartbeat;
    reconnecting and retrying within a deadline when the link is lost. It reports which way the
    setpoint got back (host write, already there, device watchdog) or that it did NOT.
 
@@ -26,14 +27,14 @@ from dataclasses import dataclass
 
 from drivers.device import TIMED_WRITE_GUARD_S, RegisterDevice, SafeStateReport, WriteGuard, WriteListener, WriteRecord
 from drivers.errors import CommError, DeviceError, ExceptionReply, WriteUncertain
-from drivers.link import HEARTBEAT as HEARTBEAT_PRIORITY
+from drivers.heartbeat import HEARTBEAT, Heartbeat, HeartbeatStats
 from drivers.link import ModbusLink
 from drivers.profile import Profile, a_device
+from drivers.pss import PSS_ON, PssSwitch
 
 log = logging.getLogger(__name__)
 
 SETPOINT = "setpoint"
-HEARTBEAT = "heartbeat"
 MODE = "mode"
 STATUS = "status"
 
@@ -45,83 +46,6 @@ class PreTest:
     setpoint_words: tuple[int, ...]
     setpoint_pu: float
     mode: int | None  # None when the profile has no mode register
-
-
-@dataclass(frozen=True)
-class HeartbeatStats:
-    """How the heartbeat went: beats written, beats that failed, the longest gap between two
-    good beats (s)."""
-
-    beats: int
-    failures: int
-    max_gap_s: float
-
-
-class Heartbeat:
-    """Background thread keeping the device's heartbeat register changing."""
-
-    def __init__(self, device: RegisterDevice, period_s: float) -> None:
-        self.device = device
-        self.period_s = period_s
-        self.beats = 0
-        self.failures = 0
-        self.last_error: DeviceError | None = None
-        self.last_failed = False   # the most recent beat failed
-        self.max_gap_s = 0.0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> None:
-        if self._thread is not None:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"{self.device.name}-heartbeat",
-                                        daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=self.period_s + 5 * self.device.link.endpoint.timeout_s)
-            self._thread = None
-
-    @property
-    def running(self) -> bool:
-        return self._thread is not None
-
-    def stats(self) -> HeartbeatStats:
-        return HeartbeatStats(self.beats, self.failures, self.max_gap_s)
-
-    def _run(self) -> None:
-        # the beats get the link before the procedure's reads (never after a burst of them)
-        with self.device.link.priority(HEARTBEAT_PRIORITY):
-            self._beat()
-
-    def _beat(self) -> None:
-        try:
-            counter = int(self.device.read_words(HEARTBEAT)[0])
-        except DeviceError:
-            counter = 0  # the first beat then tells whether the link works
-        last_ok = time.monotonic()
-        while not self._stop.is_set():
-            counter = (counter + 1) & 0xFFFF
-            try:
-                self.device.write(HEARTBEAT, counter, purpose="heartbeat")
-                now = time.monotonic()
-                self.max_gap_s = max(self.max_gap_s, now - last_ok)
-                last_ok = now
-                self.beats += 1
-                self.last_failed = False
-            except Exception as exc:  # noqa: BLE001 - a beat failure must not kill the thread
-                if not isinstance(exc, DeviceError):
-                    exc = DeviceError(f"heartbeat write failed: {exc!r}", device=self.device.name,
-                                      register=HEARTBEAT, value=counter)
-                self.failures += 1
-                self.last_error = exc
-                self.last_failed = True
-                log.warning("%s: heartbeat %d failed: %s", self.device.name, counter,
-                            exc.message)
-            self._stop.wait(self.period_s)
 
 
 #: profile setting naming the register that holds the device's heartbeat watchdog period
@@ -209,6 +133,7 @@ class Exciter(RegisterDevice):
         self._last_setpoint: tuple[tuple[int, ...], str] | None = None
         self._setpoint_attempted = False  # this run sent (or began to send) a setpoint write
         self.watchdog: WatchdogReading | None = None   # read by read_watchdog()
+        self.pss = PssSwitch(self)   # the profile's pss_on (none: nothing read or restored)
 
     # -- reads -------------------------------------------------------------------------------
     def bit(self, register: str, name: str) -> bool | None:
@@ -287,7 +212,17 @@ class Exciter(RegisterDevice):
         self.pretest = PreTest(setpoint_words=words,
                                setpoint_pu=self.profile[SETPOINT].decode(list(words)), mode=mode)
         self._setpoint_attempted = False
+        self.pss.snapshot()
         return self.pretest
+
+    def read_pss(self) -> bool | None:
+        """The PSS switch now (True: the stabiliser's output on); None when the profile has none."""
+        return self.pss.read() if self.pss.present else None
+
+    def write_pss(self, on: bool, *, purpose: str, at_mono: float | None = None) -> WriteRecord:
+        """Switch the stabiliser's output (pss_on), read back and compared; the safe state puts
+        the pre-test switch back."""
+        return self.pss.write(on, purpose=purpose, at_mono=at_mono)
 
     def _remote_mode_value(self) -> int | None:
         reg = self.profile.registers.get(MODE)
@@ -395,11 +330,13 @@ class Exciter(RegisterDevice):
                               f"host's restore ({refused.message})")
                 elif not action:
                     action = self._how_restored(reconnected)
+                pss = self.pss.restore(reason, writes)
                 self._give_back_remote(writes, reason)
                 self._took_remote = False
                 return SafeStateReport(self.name, True, action,
                                        detail=f"setpoint read {list(words)}, pre-test "
-                                       f"{list(pre.setpoint_words)} = {pre.setpoint_pu:.6g} pu",
+                                       f"{list(pre.setpoint_words)} = {pre.setpoint_pu:.6g} pu"
+                                       + (f"; {pss}" if pss else ""),
                                        reason=reason, attempts=attempts,
                                        reconnected=reconnected, writes=tuple(writes))
             except CommError as exc:
@@ -434,7 +371,7 @@ class Exciter(RegisterDevice):
             try:
                 return super().write(name, value, purpose=purpose, at_mono=at_mono)
             except ExceptionReply as exc:
-                if name != MODE:
+                if name not in (MODE, PSS_ON):
                     raise
                 raise self._explained(exc) from None
         words = tuple(self.encode(name, value))
@@ -469,7 +406,7 @@ class Exciter(RegisterDevice):
             if self.bit(STATUS, OTHER_MASTER_BIT):
                 hints.append(f"remote is owned by another master (status.{OTHER_MASTER_BIT})")
             if not hints and self.bit(MODE, "remote") is False and exc.register \
-                    and exc.register.startswith(SETPOINT):
+                    and exc.register.startswith((SETPOINT, PSS_ON)):
                 hints.append("the exciter is not in remote (mode bit remote = 0)")
         except DeviceError:
             return exc

@@ -72,12 +72,14 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from bench_ctl.runner.context import Criterion, ProcedureResult, RunContext
 from bench_ctl.runner.devices import DeviceError, RecordSettings, hold_gc
 from bench_ctl.runner.protocols import ExcitationSystem, ProcedureBench
 from bench_ctl.runner.safety import BenchBusy, LimitViolation, PreconditionFailed, check_pulse
+from procedures.online_band import Band, Steady
 from procedures.recorded import (
     RECOVERY_READ_ATTEMPTS,
     Carried,
@@ -139,80 +141,6 @@ def check_parameters(params: dict[str, Any]) -> list[str]:
     return problems
 
 
-class Band:
-    """What ends the step when left (limits.vt_*, q_*, p_*; the limiters): Vt and Q in their bands,
-    P in the unit's on-line range and within `p_swing_mw` of its value at the start, no limiter
-    acting. `worst` keeps the first excursion seen."""
-
-    def __init__(self, vt: tuple[float, float], q: tuple[float, float], p: tuple[float, float],
-                 p_swing_mw: float, p0_mw: float) -> None:
-        self.vt, self.q, self.p = vt, q, p
-        self.p_swing_mw, self.p0_mw = p_swing_mw, p0_mw
-        self.worst: str | None = None    # the first excursion seen
-
-    def outside(self, seen: dict[str, float], limiters: list[str] | None = None) -> str | None:
-        """What is outside (None when all are in), and remember the first."""
-        vt, q, p = seen["vt"], seen["q"], seen["p"]
-        why = None
-        if limiters:
-            why = f"limiter acting: {', '.join(limiters)} (status bit set)"
-        elif not (math.isfinite(p) and self.p[0] <= p <= self.p[1]):
-            kind = "reverse power" if p < 0 else "a trip or a load rejection" if p < self.p[0] else "overload"
-            why = f"p {p:.2f} MW outside the unit's range {self.p[0]:.2f}..{self.p[1]:.2f} MW ({kind})"
-        elif abs(p - self.p0_mw) > self.p_swing_mw:
-            why = (f"p {p:.2f} MW moved {signed(p - self.p0_mw, 2)} MW from {self.p0_mw:.2f} MW at the start, "
-                   f"more than {self.p_swing_mw:.2f} MW (a load rejection or a load change)")
-        elif not (math.isfinite(vt) and self.vt[0] <= vt <= self.vt[1]):
-            why = f"vt {vt:.4f} pu outside {self.vt[0]:.4f}..{self.vt[1]:.4f} pu"
-        elif not (math.isfinite(q) and self.q[0] <= q <= self.q[1]):
-            why = f"q {q:.2f} Mvar outside {self.q[0]:.2f}..{self.q[1]:.2f} Mvar"
-        if why is not None and self.worst is None:
-            self.worst = why
-        return why
-
-    def text(self) -> str:
-        return (f"vt {self.vt[0]:.4f}..{self.vt[1]:.4f} pu, q {self.q[0]:.2f}..{self.q[1]:.2f} Mvar, "
-                f"p {self.p[0]:.2f}..{self.p[1]:.2f} MW and within {self.p_swing_mw:.2f} MW of "
-                f"{self.p0_mw:.2f} MW, no limiter acting")
-
-
-class Steady:
-    """Samples of P, Q and Vt before the step: steady when they cover the last `time_s` without a
-    gap longer than `max_gap_s` and each moved less than its band (max - min)."""
-
-    def __init__(self, bands: dict[str, float], time_s: float, max_gap_s: float) -> None:
-        self.bands, self.time_s, self.max_gap_s = bands, time_s, max_gap_s
-        self._samples: list[tuple[float, dict[str, float]]] = []
-
-    def add(self, t: float, seen: dict[str, float]) -> None:
-        if self._samples and t - self._samples[-1][0] > self.max_gap_s:
-            self._samples.clear()      # a gap (the operator's question): the window starts again
-        self._samples.append((t, {k: seen[k] for k in self.bands}))
-        start = t - self.time_s
-        while len(self._samples) > 1 and self._samples[1][0] <= start:
-            self._samples.pop(0)
-
-    def moved(self) -> dict[str, float]:
-        """max - min of each quantity over the window."""
-        return {k: max(v[k] for _, v in self._samples) - min(v[k] for _, v in self._samples)
-                for k in self.bands} if self._samples else {}
-
-    def verdict(self) -> str | None:
-        """None when steady; else what is not (not yet covered, or what moved more than its band)."""
-        if not self._samples:
-            return "not observed yet"
-        span = self._samples[-1][0] - self._samples[0][0]
-        moved = self.moved()
-        units = {"p": "MW", "q": "Mvar", "vt": "pu"}
-        over = [f"{k} moved {moved[k]:.4g} {units[k]} (band {self.bands[k]:g} {units[k]})"
-                for k in self.bands if not moved[k] <= self.bands[k]]
-        if over:
-            return "; ".join(over) + f" over the last {span:.1f} s"
-        if span < self.time_s:
-            return f"observed {span:.1f} s of {self.time_s:g} s"
-        return None
-
-
 def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float = 0.02, hold_s: float = 10.0,
                 pre_trigger_s: float = 2.0, record_s: float = 20.0, rate_hz: int = 200,
                 hold_tolerance_s: float = 0.02, amplitude_tolerance_pu: float = 0.001,
@@ -220,8 +148,37 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
                 vt_margin_pu: float = 0.005, q_margin: float = 0.1, poll_s: float = 0.05,
                 steady_timeout_s: float = 30.0) -> ProcedureResult:
     """The on-line step; see the module docstring (the test sheet)."""
+    given = locals()
+    params = {name: given[name] for name in PARAMETERS}
+    return step_on_line(bench, run, params)
+
+
+@dataclass(frozen=True)
+class StepPart:
+    """One record of a test of several (procedures/pss_step.py): its name (the files' suffix,
+    `RunContext.part`), what to do once remote is taken and before the steady state is awaited
+    (e.g. switch the PSS; the safe state of the release undoes it), what to add to the capture's
+    test, a line for the plan, whether this part asks the operator (the first does), and what to
+    call with the record's data and test once its capture is saved."""
+
+    name: str
+    after_remote: Callable[[], None]
+    test: dict[str, Any]
+    plan: str
+    confirm: bool
+    saved: Callable[[dict[str, Any], dict[str, Any]], None]
+
+
+def step_on_line(bench: ProcedureBench, run: RunContext, params: dict[str, Any],
+                 part: StepPart | None = None) -> ProcedureResult:
+    """The on-line step with `params` (PARAMETERS' names, all given), the whole test or one `part`
+    of a longer one (its record saved under the part's name before the next part starts)."""
+    (amplitude_pu, hold_s, pre_trigger_s, record_s, rate_hz, hold_tolerance_s, amplitude_tolerance_pu,
+     recovery_tolerance_pu, recovery_timeout_s, vt_margin_pu, q_margin, poll_s,
+     steady_timeout_s) = (params[name] for name in PARAMETERS)
     ex, rec = bench.exciter, bench.recorder
     lim = run.limits
+    run.part = part.name if part is not None else ""
 
     with run.step("preconditions"):
         p_mw = ex.read("p")
@@ -283,7 +240,7 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
                  p_range_mw=list(band.p), p_swing_mw=band.p_swing_mw, steady_bands=bands,
                  steady_time_s=lim.steady_time_s, record=settings.__dict__)
 
-    run.confirm("\n".join((
+    plan_text = "\n".join((
         f"{run.procedure} on the exciter {ex.endpoint_url} (unit {ex.unit_id}), the unit ON LINE:",
         f"  setpoint  {plan.setpoint_pu:.4f} pu -> {plan.pulse_setpoint_pu:.4f} pu held {hold_s:.3f} s, "
         f"then back to {plan.setpoint_pu:.4f} pu",
@@ -294,7 +251,12 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
         f"  watchdog  {run.watchdog_text()}",
         f"  link      {run.link_text()}",
         f"  recorder  {rate_hz:g} Hz, pre-trigger {pre_trigger_s:.3f} s, record {record_s:.3f} s, "
-        f"channels {', '.join(rec.channels)}")))
+        f"channels {', '.join(rec.channels)}",
+        *((part.plan,) if part is not None else ())))
+    if part is None or part.confirm:
+        run.confirm(plan_text)
+    else:
+        run.note("plan_confirmed", part=part.name, summary=plan_text)
 
     sample = _sampler(run, bench, ex, steady, poll_s)
     with run.step("arm recorder"):
@@ -304,6 +266,8 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
 
     with run.step("take remote"):
         ex.take_remote()
+        if part is not None:
+            part.after_remote()
         _wait_steady(run, bench, ex, steady, steady_timeout_s, poll_s, before="the step")
 
     with run.step("step", amplitude_pu=amplitude_pu, hold_s=hold_s):
@@ -355,8 +319,11 @@ def online_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float =
             "setpoint_pu": plan.setpoint_pu, "commanded_width_s": held_s, "recorded": step.__dict__,
             "operating_point": {"p_mw": p_mw, "q_mvar": q0, "vt_pu": vt0},
             "band": {"vt_pu": list(band.vt), "q_mvar": list(band.q), "p_mw": list(band.p),
-                     "p_swing_mw": band.p_swing_mw, "left": band.worst}}
+                     "p_swing_mw": band.p_swing_mw, "left": band.worst},
+            **(part.test if part is not None else {})}
         run.save_record(raw, data, test)
+        if part is not None:
+            part.saved(data, test)
 
     hold_err = step.width_s - hold_s
     amp_err = step.amplitude_pu - amplitude_pu

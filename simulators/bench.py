@@ -15,6 +15,8 @@ Embedding (tests, `bench-ctl run --dry-run`, `bench-ctl demo`)::
 
     SimBench(online=True, recorder_profile="sim-recorder-online")   # the unit on the grid: P, Q
         # follow the machine (its [grid] data), the recorder records p, q and ifd too
+    SimBench(online=True, unit_set=("PSS_MODEL=IEEEST", "PSS_KS=5"))  # the unit with `--set`
+        # overrides (here a stabiliser, switched by the exciter's pss_on)
 
 `start()` returns once both servers listen and the plant runs (no sleeps to guess); `stop()`
 (or leaving the `with`) shuts everything down. The servers run on an asyncio loop in a
@@ -44,7 +46,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench_ctl.plants import OnlinePlant, Plant
-from bench_ctl.units.unit import Unit, load_unit
+from bench_ctl.units.unit import Unit, apply_overrides, load_unit
 from drivers.profile import Profile, load_profile
 
 from .control import start_control
@@ -134,12 +136,20 @@ async def _drain_tasks(rounds: int = 3) -> None:
     await asyncio.gather(*pending, return_exceptions=True)
 
 
+def bench_unit(unit: Unit | str | Path | None, unit_set: Iterable[str] = ()) -> Unit:
+    """The bench's unit: a Unit, a unit file or the reference unit (None), with `unit_set`'s
+    `--set NAME=VALUE` overrides applied."""
+    unit = unit if isinstance(unit, Unit) else load_unit(unit)
+    unit_set = tuple(unit_set)
+    return apply_overrides(unit, unit_set) if unit_set else unit
+
+
 def warm_plant(unit: Unit | str | Path | None = None, *, online: bool = False, mva: float = 100.0,
-               **_options: object) -> None:
+               unit_set: Iterable[str] = (), **_options: object) -> None:
     """Compile (or load from numba's cache) the plant a `SimBench` of these options steps: its
     engine variant and real-time loop. A dry run calls it before it starts the bench in a child
     process, so that a first run compiles in the process whose console says so."""
-    unit = unit if isinstance(unit, Unit) else load_unit(unit)
+    unit = bench_unit(unit, unit_set)
     plant = OnlinePlant(unit, rt_priority=None, mva=mva) if online else Plant(unit, rt_priority=None)
     plant.warm()
 
@@ -158,8 +168,8 @@ class SimBench:
                  noise_pu: float = 0.01, seed: int | None = 0,
                  faults: Iterable[Fault] = (), switch_interval_s: float | None = 0.0005,
                  control: tuple[str, int] | None = None, rt_priority: int | None = 10,
-                 online: bool = False, mva: float = 100.0) -> None:
-        self.unit = unit if isinstance(unit, Unit) else load_unit(unit)
+                 online: bool = False, mva: float = 100.0, unit_set: Iterable[str] = ()) -> None:
+        self.unit = bench_unit(unit, unit_set)
         self.tcp = tcp
         self.recorder_tcp = recorder_tcp
         self.serial = serial

@@ -4,7 +4,9 @@ Works on register names (see docs/devices.md); any exciter profile that names th
 registers below can be served. Required: setpoint, active_setpoint, vt, efd, ifd, p, mode,
 status, heartbeat. Optional: watchdog_timeout, device_code, firmware, q, mech_power (on line: P and
 Q are the machine's in MW / Mvar on its base, mech_power sets the turbine; at no load p reads the
-set load, q 0, and a mech_power write is refused with exception 01). Other writable registers
+set load, q 0, and a mech_power write is refused with exception 01), pss_on (the stabiliser's output
+switch, 1 at power-up: written in remote only, as the setpoint; on line it switches the plant's
+stabiliser output, `OnlinePlant.set_pss`; 0 or 1 only, else exception 03). Other writable registers
 a vendor profile adds are stored and read back as written.
 
 Behaviour:
@@ -13,7 +15,7 @@ Behaviour:
   default) -> else exception 01; out of the register's min/max -> exception 03 (register image);
 - local -> remote remembers the pre-remote setpoint and starts the watchdog; while remote the
   heartbeat must change within `heartbeat_timeout_s`, else the setpoint reverts to the
-  pre-remote value, the mode drops to local and status.watchdog_tripped latches (until the
+  pre-remote value (the PSS switch too), the mode drops to local and status.watchdog_tripped latches (until the
   next local -> remote); the watchdog period is served in the profile's watchdog register
   (settings.watchdog_register), and a period that register cannot hold exactly is refused;
 - remote belongs to the master that took it, known by its address as many devices know their
@@ -51,7 +53,7 @@ DEFAULT_MODE_BITS = {"auto": 0, "remote": 1}
 DEFAULT_STATUS_BITS = {"ceiling_limit": 0, "rate_limit": 1, "watchdog_tripped": 2,
                        "setpoint_ramping": 3, OTHER_MASTER_BIT: 4}
 #: registers only the master holding remote may write
-MASTER_ONLY = ("setpoint", "heartbeat", "mode")
+MASTER_ONLY = ("setpoint", "heartbeat", "mode", "pss_on")
 DEVICE_CODE = 0x4543
 FIRMWARE = 0x0100
 
@@ -98,6 +100,9 @@ class ExciterDevice:
         self.heartbeat = 0
         self._hb_changed = time.monotonic()
         self.pre_remote_setpoint = self.setpoint
+        #: the stabiliser's output switch (pss_on), and its value when remote was taken
+        self.pss_on = True
+        self.pre_remote_pss = True
         self.watchdog_tripped = False
         self._owner: str | None = None   # the master (address) holding remote (None: anyone)
         self.load_mw = float(load_mw)
@@ -134,7 +139,8 @@ class ExciterDevice:
                 flags |= 1 << sb[name]
         with self._lock:
             snap = dict(self._extra)
-            snap.update(setpoint=self.setpoint, heartbeat=self.heartbeat, mode=self.mode_word())
+            snap.update(setpoint=self.setpoint, heartbeat=self.heartbeat, mode=self.mode_word(),
+                        pss_on=float(self.pss_on))
         on_line = self.plant.on_line
         snap.update(active_setpoint=st.active_setpoint, vt=st.vt, efd=st.efd, ifd=st.ifd,
                     p=st.p * self.plant.mva if on_line else self.load_mw,
@@ -172,8 +178,10 @@ class ExciterDevice:
         return None
 
     def _check(self, name: str, value: float) -> ExcCodes | None:
-        if name == "setpoint" and self.require_remote and not self.remote:
+        if name in ("setpoint", "pss_on") and self.require_remote and not self.remote:
             return ExcCodes.ILLEGAL_FUNCTION
+        if name == "pss_on" and value not in (0.0, 1.0):
+            return ExcCodes.ILLEGAL_VALUE
         if name == "mech_power":
             if not self.plant.on_line:
                 return ExcCodes.ILLEGAL_FUNCTION   # no turbine to set at no load
@@ -193,6 +201,9 @@ class ExciterDevice:
             self.last_setpoint_step = self.plant.write_setpoint(value)
             self.events.append((now, "setpoint", value))
             log.debug("setpoint %.6f from plant step %d", value, self.last_setpoint_step)
+        elif name == "pss_on":
+            self._switch_pss(bool(value))
+            self.events.append((now, "pss_on", value))
         elif name == "heartbeat":
             if int(value) != self.heartbeat:
                 self._hb_changed = now
@@ -201,6 +212,7 @@ class ExciterDevice:
             remote = bool(int(value) & (1 << self._mode_bits["remote"]))
             if remote and not self.remote:
                 self.pre_remote_setpoint = self.setpoint
+                self.pre_remote_pss = self.pss_on
                 self.watchdog_tripped = False
                 self._hb_changed = now
                 self._owner = client
@@ -213,6 +225,13 @@ class ExciterDevice:
             self.set_load_mw(value)
         else:
             self._extra[name] = value
+
+    def _switch_pss(self, on: bool) -> None:
+        """The stabiliser's output switch; on line the plant's (its states run either way)."""
+        self.pss_on = on
+        set_pss = getattr(self.plant, "set_pss", None)
+        if set_pss is not None:
+            set_pss(on)
 
     def set_load_mw(self, p_mw: float) -> None:
         """Change the simulated active power (e.g. to test a no-load precondition); on line, the
@@ -259,6 +278,8 @@ class ExciterDevice:
                 self.watchdog_tripped = True
                 self.setpoint = self.pre_remote_setpoint
                 self.last_setpoint_step = self.plant.write_setpoint(self.setpoint)
+                if self.pss_on != self.pre_remote_pss:
+                    self._switch_pss(self.pre_remote_pss)
                 self.events.append((now, "watchdog", self.setpoint))
                 log.warning("exciter watchdog: heartbeat unchanged for %.3f s; setpoint reverted "
                             "to %.6f pu, mode local", now - self._hb_changed, self.setpoint)

@@ -33,7 +33,7 @@ MODELLING = ("bench_ctl.model", "bench_ctl.signals", "bench_ctl.units", "bench_c
 ANALYSIS = (*MODELLING, "bench_ctl.capture", "bench_ctl.identification", "bench_ctl.diagnosis", "bench_ctl.report")
 #: the pure analysis helpers a procedure may use on what it recorded: numpy on arrays, no engine,
 #: no plant, no files, no device (the shared edge finder)
-PURE_ANALYSIS = ("bench_ctl.signals.edges",)
+PURE_ANALYSIS = ("bench_ctl.signals.edges", "bench_ctl.signals.mode")
 
 #: layer -> what it may import besides itself and SHARED (a name stands for its sub-modules)
 LAYERS: dict[str, tuple[str, ...]] = {

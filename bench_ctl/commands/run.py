@@ -66,6 +66,9 @@ def _print_outcome(outcome: RunOutcome) -> None:
                         ("log", outcome.log_path)):
         if _on_disk(path):
             click.echo(f"  {label}: {path}")
+    earlier = [p for p in outcome.data.get("captures", []) if Path(p) != outcome.capture_path and _on_disk(Path(p))]
+    for path in earlier:   # a test of several records (pss_step): the ones before the last
+        click.echo(f"  earlier capture: {path}")
 
 
 def _on_disk(path: Path | None) -> bool:

@@ -57,6 +57,7 @@ from bench_ctl.engine.runner import (
     Switches,
 )
 from bench_ctl.engine.simulate import param_matrix
+from bench_ctl.engine.stabilisers import OUTPUT_LIMIT_ROWS
 from bench_ctl.engine.variants import Key, cached
 from bench_ctl.units.unit import Unit, load_unit
 
@@ -452,7 +453,9 @@ class OnlinePlant(Plant):
     state; `unit` needs the machine's data, XE and the operating point P0, Q0 in its [grid]. The
     turbine is a mechanical power (`set_mech_power`, pu on the machine base): the electrical P
     follows it through the swing equation; Q follows the excitation. Powers read in MW and Mvar on
-    the device through `mva`, the machine base."""
+    the device through `mva`, the machine base. The unit's stabiliser ([grid] PSS_MODEL) has an
+    output switch (`set_pss`, on at the start): off, its output is held at 0 while its states keep
+    running on the speed and power, as a real PSS whose output is switched."""
 
     on_line = True
     channels = {"usetp": O_USETP, "efd": O_EFD_REC, "vt": O_VT, "p": O_P, "q": O_Q, "ifd": O_IFD}
@@ -464,6 +467,9 @@ class OnlinePlant(Plant):
         #: the machine base (MVA): P and Q in MW and Mvar on the device
         self.mva = float(mva)
         super().__init__(unit, dt=dt, usetp0=usetp0, rt_priority=rt_priority)
+        self._pss_limits = self._work.D[list(OUTPUT_LIMIT_ROWS), 0].copy()
+        #: the stabiliser's output switch (True: its output reaches the exciter's reference)
+        self.pss_on = True
 
     def _derived(self, P: np.ndarray) -> tuple[np.ndarray, Key]:
         D = grid.derive_grid(P, grid.machine_matrix(grid.unit_machine(self.unit)))
@@ -487,6 +493,13 @@ class OnlinePlant(Plant):
         if not math.isfinite(pu) or not TURBINE_PU[0] <= pu <= TURBINE_PU[1]:
             raise ValueError(f"mechanical power {pu!r} pu outside {TURBINE_PU[0]:g}..{TURBINE_PU[1]:g} pu")
         self._work.D[D_TM, 0] = float(pu)
+
+    def set_pss(self, on: bool) -> None:
+        """Switch the stabiliser's output on or off, from the next step: off holds its output
+        limits at 0 (`OUTPUT_LIMIT_ROWS`), so it adds nothing to the reference while its states
+        keep running; on puts the unit's limits back. A unit without a stabiliser is unchanged."""
+        self._work.D[list(OUTPUT_LIMIT_ROWS), 0] = self._pss_limits if on else 0.0
+        self.pss_on = bool(on)
 
 
 def warm_up(unit: Unit | None = None, *, online: bool = False) -> float:

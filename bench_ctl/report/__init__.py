@@ -9,7 +9,9 @@ each figure as a PNG beside it, and optionally a PDF made with matplotlib's PdfP
 Contents: pass / fail summary; measured vs simulated efd with the setpoint, residual, zooms on
 both pulse edges; MSE / RMSE / NRMSE / peak error / segment shares; parameter table with units,
 bounds, uncertainty, identifiability and equivalent sets; constraints; convergence; optimizer
-comparison; diagnosis (when given); unit, test and capture metadata; software and command lines.
+comparison; on line, P, Q, Vt and the electromechanical mode, and the stabiliser test (PSS off vs on,
+`stabiliser`) when the result holds a pss_step's two captures; diagnosis (when given); unit, test
+and capture metadata; software and command lines.
 """
 from bench_ctl.report.analysis import ReportData, analyse
 from bench_ctl.report.inputs import ReportError, load_diagnosis, load_result

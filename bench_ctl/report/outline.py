@@ -1,4 +1,5 @@
-"""The whole report in order: the fit's sections (`fit_sections`), then the diagnosis when given,
+"""The whole report in order: the fit's sections (`fit_sections`; after the on-line one the
+stabiliser test's when the result holds a `pss_step`'s two captures), then the diagnosis when given,
 the metadata and the provenance (`record_sections`)."""
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from bench_ctl.report import fit_sections as fit
 from bench_ctl.report.analysis import ReportData
 from bench_ctl.report.blocks import Section
 from bench_ctl.report.record_sections import diagnosis, metadata, provenance
+from bench_ctl.report.stabiliser import stabiliser
 
 
 def sections(d: ReportData, *, pdf: bool = False) -> list[Section]:
@@ -13,6 +15,9 @@ def sections(d: ReportData, *, pdf: bool = False) -> list[Section]:
     on_line = fit.online(d)
     if on_line is not None:
         out.append(on_line)
+    pss = stabiliser(d)
+    if pss is not None:
+        out.append(pss)
     out += [fit.errors(d), fit.acceptance(d), fit.parameters(d)]
     chosen = fit.selection(d)
     if chosen is not None:

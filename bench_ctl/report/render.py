@@ -31,7 +31,7 @@ def figure_path(out_html: Path, name: str) -> Path:
 #: the figures of one capture (named with the capture's suffix when a result has several) and of
 #: the report as a whole
 CAPTURE_FIGURES = ("response", "residual", "edges")
-REPORT_FIGURES = ("convergence", "diagnosis_effects", "diagnosis_staircase")
+REPORT_FIGURES = ("convergence", "diagnosis_effects", "diagnosis_staircase", "stabiliser")
 
 
 def possible_figure_paths(out_html: str | os.PathLike[str], n_captures: int = 1) -> list[Path]:

@@ -98,6 +98,14 @@ class ProcedureResult:
         return all(c.passed for c in self.criteria)
 
 
+def part_name(name: str, part: str) -> str:
+    """A run file's name for a part of a test of several records: capture.csv -> capture_<part>.csv."""
+    if not part:
+        return name
+    stem, dot, suffix = name.partition(".")
+    return f"{stem}_{part}{dot}{suffix}"
+
+
 class RunContext:
     """The run a procedure is part of (see the module docstring)."""
 
@@ -128,6 +136,10 @@ class RunContext:
         self.bench_lock: Any = None             # runner.lock.BenchLock once taken (writing runs)
         self.download_tried = False             # the procedure asked for the record
         self.kept_raw: Path | None = None       # the record of an aborted test, kept by the runner
+        #: the part of a test of several records the next one belongs to ("": the only one); its
+        #: files are then capture_<part>.csv, recorder_raw_<part>.bin (`part_name`)
+        self.part = ""
+        self.captures: list[Path] = []          # every capture saved, in order
         self._confirm = confirm
         self._hooks = dict(hooks or {})
 
@@ -301,7 +313,7 @@ class RunContext:
     def save_raw(self, raw: RawRecord) -> Path:
         """The recorder download exactly as received (before any conversion); OutputLost when
         it cannot be written (whatever was written whole is kept and named)."""
-        target = self.out_dir / RAW_NAME
+        target = self.out_dir / part_name(RAW_NAME, self.part)
         payload = raw.payload()
         try:
             path, head = raw.save(target)
@@ -319,10 +331,12 @@ class RunContext:
     def save_capture(self, data: Mapping[str, Any], meta: Mapping[str, Any]) -> Path:
         """capture.csv and its sidecar, both or neither; OutputLost when they cannot be written."""
         try:
-            csv_path, json_path = write_capture(self.out_dir / CAPTURE_NAME, dict(data), dict(meta))
+            csv_path, json_path = write_capture(self.out_dir / part_name(CAPTURE_NAME, self.part), dict(data),
+                                                dict(meta))
         except OSError as exc:
-            self._lost(f"{CAPTURE_NAME} and its sidecar", exc, "the capture is not on disk")
+            self._lost(f"{part_name(CAPTURE_NAME, self.part)} and its sidecar", exc, "the capture is not on disk")
         self.capture_path, self.sidecar_path = csv_path, json_path
+        self.captures.append(csv_path)
         self.audit.event("capture_saved", path=str(csv_path), sidecar=str(json_path))
         return csv_path
 

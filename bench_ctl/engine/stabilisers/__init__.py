@@ -8,13 +8,19 @@ rotor speed and the electrical power the machine gives.
 
 A candidate's stabiliser is its machine matrix's PSS_MODEL (`bench_ctl.model.stabilisers`); each
 plug-in fills its own derived columns and leaves its gain 0 for a candidate of another
-(`derive_columns`), and `kind` names the plug-in a derived matrix needs.
+(`derive_columns`), and `kind` names the plug-in a derived matrix needs. `OUTPUT_LIMIT_ROWS` are
+the derived rows that bound a stabiliser's output: 0 in all of them holds its output at 0 while its
+states keep running (a real PSS's output switch; the on-line plant's `set_pss`).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from ..layout import D_P2_VSTMAX, D_P2_VSTMIN, D_PSS_LIM
 from . import ieeest, pss2
+
+#: the derived rows bounding a stabiliser's output (IEEEST's +-LSMAX, PSS2's VSTMAX and VSTMIN)
+OUTPUT_LIMIT_ROWS = (D_PSS_LIM, D_P2_VSTMAX, D_P2_VSTMIN)
 
 
 def derive_columns(D: np.ndarray, M: np.ndarray) -> None:
