@@ -57,6 +57,7 @@ def main_bench(argv: list[str] | None = None) -> int:
     out: dict = {"model": args.model, "seeds": _seeds(args.seeds), "rows": [], "fit_threads": fit_threads()}
     if args.path is None:
         print("no export given: nothing run (python benchmarks/diagnose_seeds.py PATH --dyr PLANT.dyr)")
+        _save(args.json_out, out)
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         row = import_one(args.path, args, Path(tmp))
@@ -96,10 +97,14 @@ def main_bench(argv: list[str] | None = None) -> int:
                 "within_x": args.within})
     print(f"left within {args.within:g}x at {within}/{len(rows)} seeds; first effect {first} at "
           f"{n_first}/{len(rows)} ({dict(firsts)}); {sum(r['wall_s'] for r in rows) / len(rows):.1f} s a run")
-    if args.json_out:
-        Path(args.json_out).write_text(json.dumps(out, indent=1))
-        print(f"saved {args.json_out}")
+    _save(args.json_out, out)
     return 0
+
+
+def _save(path: str | None, out: dict) -> None:
+    if path:
+        Path(path).write_text(json.dumps(out, indent=1))
+        print(f"saved {path}")
 
 
 if __name__ == "__main__":
