@@ -16,7 +16,9 @@ identified parameters, the effects' parameters and the instant of every setpoint
    current, with the commutation drop KC*Ifd; ranked by BIC plus the predictive deviance on the
    check (`check`); `none` when no effect is significant, or when the base model fits to the
    noise floor and no effect brings a strong gain; near-equal effects listed in `ambiguous` with
-   the test that separates them (`verdict`).
+   the test that separates them (`verdict`). A verdict whose effect was not among the leaders
+   searched (they lead on BIC, the verdict on BIC and the check) gets that search, and the
+   effects are ranked again: it must not rest on a local fit (docs/lab/benchmarks-2026-11.md).
 4. Several effects at once (`explained_by`, `explain`), and what is left.
 
 The check (`check.check_parts`): the cross-validation windows of the capture (leading edge,
