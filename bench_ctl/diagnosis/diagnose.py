@@ -16,7 +16,9 @@ identified parameters, the effects' parameters and the instant of every setpoint
    current, with the commutation drop KC*Ifd; ranked by BIC plus the predictive deviance on the
    check (`check`); `none` when no effect is significant, or when the base model fits to the
    noise floor and no effect brings a strong gain; near-equal effects listed in `ambiguous` with
-   the test that separates them (`verdict`).
+   the test that separates them (`verdict`). A verdict whose effect was not among the leaders
+   searched (they lead on BIC, the verdict on BIC and the check) gets that search, and the
+   effects are ranked again: it must not rest on a local fit (docs/lab/benchmarks-2026-11.md).
 4. Several effects at once (`explained_by`, `explain`), and what is left.
 
 The check (`check.check_parts`): the cross-validation windows of the capture (leading edge,
@@ -206,8 +208,9 @@ def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: 
 
 
 def _fit_effects(st: Setup, base: ModelFit, hints: Mapping[str, float], budget: Budget,
-                 seed: int) -> dict[str, ModelFit]:
-    """Every effect: local fits from the starts (coarse), MVMO for the leaders, polish of the leaders."""
+                 seed: int) -> tuple[dict[str, ModelFit], set[str]]:
+    """Every effect: local fits from the starts (coarse), MVMO for the leaders, polish of the leaders;
+    and the effects that had the MVMO searches (not at the floor after their local fits)."""
     views, n = st.views, st.n
     avr = {**base.params}
     starts = all_starts(views, lag_variants(st.views.unit, avr), hints)
@@ -236,6 +239,7 @@ def _fit_effects(st: Setup, base: ModelFit, hints: Mapping[str, float], budget: 
     ranked = sorted(fits, key=lambda e: bic(n, fits[e].mse, fits[e].k))
     leaders = [(i, e) for i, e in enumerate(ranked[:budget.global_top]) if fits[e].mse > st.floor_tol]
     fits.update(zip((e for _, e in leaders), map_fits(search, leaders)))
+    searched = {e for _, e in leaders}
     # the leaders (and every effect close to the best) get the least-squares polish on the full
     # record, edge instants free; so does a nested model worse than the base model there: its
     # coarse-record solution did not carry over (e.g. a lag near the coarse step)
@@ -245,7 +249,7 @@ def _fit_effects(st: Setup, base: ModelFit, hints: Mapping[str, float], budget: 
                 if (j < budget.polish_top or close_to_best(bic(n, fits[e].mse, fits[e].k) - best)
                     or fits[e].mse > base.mse)]
     fits.update(zip(polished, map_fits(lambda e: refine(views, fits[e], polish_fine=budget.effect_polish), polished)))
-    return fits
+    return fits, searched
 
 
 def _variants(st: Setup, fits: dict[str, ModelFit], budget: Budget, seed: int) -> dict[str, str]:
@@ -322,7 +326,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     # at the record's P, Q, Vt), against the recorded pre-trigger efd
     feats, hints = _features(capture, sim, traces["vt"], edges, efd_floor, unit, p0.steady_efd(p0.x_start()))
 
-    fits = _fit_effects(st, base, hints, budget, seed)
+    fits, searched = _fit_effects(st, base, hints, budget, seed)
     variants = _variants(st, fits, budget, seed)
     # the base fit may sit in a worse basin than the model parameters an effect fit reached
     better = refine_base(views, base, [m.params for m in fits.values()], polish_evals=budget.base_polish)
@@ -343,6 +347,16 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
     entries = rank_entries(unit, st, base, fits, variants)
     at_floor = base.mse <= st.floor_tol
     verdict = choose_verdict(entries, at_floor=at_floor, has_check=True)
+    if verdict != "none" and verdict not in searched and fits[verdict].mse > st.floor_tol:
+        # the verdict rests on a local fit (it led only on the check): it gets the leaders' search
+        m = global_search(views, fits[verdict], evals=budget.effect, profile_evals=budget.profile, seed=seed + 31,
+                          polish_coarse=budget.polish_coarse, floor_tol=st.floor_tol)
+        m = refine(views, m, polish_fine=budget.effect_polish)
+        log.info("verdict %s searched: mse %.4g -> %.4g", verdict, fits[verdict].mse, m.mse)
+        if m.mse < fits[verdict].mse:
+            fits[verdict] = checked(views, m)
+            entries = rank_entries(unit, st, base, fits, variants)
+            verdict = choose_verdict(entries, at_floor=at_floor, has_check=True)
     ambiguous = ambiguous_pairs(entries) if verdict != "none" else []
     steps, final = (sequence(st, fits, verdict, hints, budget, seed) if verdict != "none" else ([], None))
     explained, left = explained_by(st, base, steps, final, capture, edges)
