@@ -37,7 +37,7 @@ _WORDS = {"noload": "no-load", "grid": "on-line", "recorded": "open-loop",
           "ESST4B's stage", "st4only": "ESST4B", "none": "", "ieeest": "with an IEEEST stabiliser",
           "pss2": "with a PSS2A/PSS2B stabiliser"}
 #: seconds a variant's first compilation took on a 2-core machine of this project's CI (measured:
-#: docs/benchmarks.md, "Compile"), what a command says before it waits
+#: docs/benchmarks.md, "The engine"), what a command says before it waits
 ESTIMATE_S = {"ref": 20.0, "full": 30.0, "st4": 35.0, "st4only": 30.0}
 
 _SLOT = ("ST4", "SPAN", "ROWS")
