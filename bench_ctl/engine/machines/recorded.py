@@ -9,6 +9,11 @@ step (re-applied at every step's end). No states.
 from __future__ import annotations
 
 from ..jit import njit
+from ..stateless import axpy, combine, load, store
+from .noload import alg_load, alg_store, power, signals, speed  # the same algebra slots (Vt, Ifd)
+
+__all__ = ["N_ALG", "N_STATES", "algebra", "alg_load", "alg_store", "axpy", "combine", "end", "flux", "load",
+           "park", "power", "rhs", "signals", "speed", "store", "valid"]
 
 N_STATES = 0
 N_ALG = 2
@@ -26,24 +31,8 @@ def _at(y, t):
     return y[j] + f * (y[j + 1] - y[j])
 
 
-@njit
-def load(S, c):
-    return ()
 
 
-@njit
-def store(S, c, x):
-    pass
-
-
-@njit
-def axpy(x, k, h):
-    return ()
-
-
-@njit
-def combine(x, a, b, c, d, h6):
-    return ()
 
 
 @njit
@@ -51,30 +40,9 @@ def algebra(D, c, t, x, ext):
     return _at(ext[0], t), _at(ext[1], t)
 
 
-@njit
-def alg_load(R, c):
-    return R[2, c], R[3, c]
 
 
-@njit
-def alg_store(R, c, a):
-    R[2, c] = a[0]
-    R[3, c] = a[1]
 
-
-@njit
-def signals(a):
-    return a[0], a[1], 0.0, 0.0
-
-
-@njit
-def speed(x):
-    return 1.0
-
-
-@njit
-def power(a):
-    return 0.0
 
 
 @njit

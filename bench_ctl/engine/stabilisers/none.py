@@ -2,28 +2,15 @@
 from __future__ import annotations
 
 from ..jit import njit
+from ..stateless import axpy, combine, load, store
+
+__all__ = ["N_STATES", "axpy", "combine", "load", "output", "park", "rhs", "store"]
 
 N_STATES = 0
 
 
-@njit
-def load(S, c):
-    return ()
 
 
-@njit
-def store(S, c, x):
-    pass
-
-
-@njit
-def axpy(x, k, h):
-    return ()
-
-
-@njit
-def combine(x, a, b, c, d, h6):
-    return ()
 
 
 @njit
