@@ -26,6 +26,14 @@ that late; and replies 0.02-0.1 s late, which the link's check accepts), a slow 
 three reads lost after the pulse or the step (and every q read lost after the step), and every
 terminal signal during the on-line step (a 3 s hold under a 3.5 s cap, limits.step_hold_max_s).
 
+Faults of issue 49 (group `issue49`): the stabiliser test `pss_step` (the step with the PSS off,
+then on; a 4.5 s hold under a 5 s cap) on the simulated bench with the unit's stabiliser: every
+terminal signal and a 3 s link cut during the PSS-off step, the reply to the PSS-off write lost,
+the device refusing it (exception 4) or refusing the write that puts the PSS back, a loss of load
+during the PSS-off step, a slow exciter. Beside the columns above: the PSS found as it was before
+the run (% of runs; the device's own switch, read from the simulator) and the worst time the
+switch stayed off after the fault hit (`pss_*` keys).
+
 Per fault: setpoint restored (% of runs whose device setpoint is back at the pre-test value),
 worst time to the pre-test setpoint after the fault hit (the signal sent, the cut, the faulty
 reply; from the pulse on for faults without a moment: a full disk, a second run; 0 when the
@@ -79,6 +87,10 @@ PARAMS = {"pre_trigger_s": 0.3, "record_s": 2.0, "width_s": 0.5, "recovery_timeo
 STEP_PARAMS = {"hold_s": 3.0, "pre_trigger_s": 0.5, "record_s": 6.0, "recovery_timeout_s": 5.0,
                "steady_timeout_s": 5.0}
 STEP_CAP_S = 3.5
+#: the stabiliser test: a 3 % step held 4.5 s (its mode is fitted over 4 s), 7 s recorded, under a 5 s cap
+PSS_PARAMS = {"amplitude_pu": 0.03, "hold_s": 4.5, "pre_trigger_s": 0.5, "record_s": 7.0,
+              "recovery_timeout_s": 5.0, "steady_timeout_s": 5.0}
+PSS_CAP_S = 5.0
 ONLINE_SIM = {"online": True, "recorder_profile": "sim-recorder-online"}
 #: the example bench's host side: a 0.5 s request timeout, a beat every 0.25 s (cli_runs' 0.3 s and
 #: 0.1 s would time out the slow devices' replies before any check)
@@ -99,17 +111,25 @@ class Case:
     action: str | None = None                 # SIGINT.. | cut
     disk: str | None = None                   # full-12k | full-56k | read-only
     setup: str | None = None                  # second-master | second-run
-    procedure: str = "no_load_pulse"          # or online_step (the bench on line)
+    procedure: str = "no_load_pulse"          # or online_step / pss_step (the bench on line)
     recorder: dict[str, Any] = field(default_factory=dict)
     group: str = "issue24"
 
     @property
     def online(self) -> bool:
-        return self.procedure == "online_step"
+        return self.procedure in ("online_step", "pss_step")
+
+    @property
+    def pss(self) -> bool:
+        return self.procedure == "pss_step"
 
     @property
     def cap_s(self) -> float:
-        return STEP_CAP_S if self.online else WIDTH_CAP_S
+        return PSS_CAP_S if self.pss else STEP_CAP_S if self.online else WIDTH_CAP_S
+
+    @property
+    def params(self) -> dict[str, Any]:
+        return PSS_PARAMS if self.pss else STEP_PARAMS if self.online else PARAMS
 
 
 def cases() -> list[Case]:
@@ -141,7 +161,7 @@ def cases() -> list[Case]:
             out.append(Case(f"{sig}_{moment.replace('-', '_')}", moment=moment, action=sig))
     out += [Case("disk_full_12k_free", disk="full-12k"), Case("disk_full_56k_free", disk="full-56k"),
             Case("read_only_out", disk="read-only")]
-    return out + issue48_cases()
+    return out + issue48_cases() + issue49_cases()
 
 
 def issue48_cases() -> list[Case]:
@@ -166,6 +186,27 @@ def issue48_cases() -> list[Case]:
            Case("lost_q_reads_for_good_step", (f"no_reply:{after},register=q,count=inf",), **step)]
     for sig in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGKILL"):
         out.append(Case(f"{sig}_mid_step", moment="mid-pulse", action=sig, **step))
+    return out
+
+
+def issue49_cases() -> list[Case]:
+    """The stabiliser test with the unit's PSS: signals, a link cut, the switch's writes lost or
+    refused, a loss of load, a slow exciter (issue 49)."""
+    from procedures.pss_step import SIMULATED_BENCH
+
+    pss = {"procedure": "pss_step", "sim": {**ONLINE_SIM, "unit_set": SIMULATED_BENCH["unit_set"]},
+           "group": "issue49"}
+    switch = "device=exciter,op=write,register=pss_on"
+    out = [Case("pss_off_write_lost", (f"no_reply:{switch},skip=0",), **pss),
+           Case("pss_off_write_refused", (f"exception:{switch},skip=0,code=4",), **pss),
+           Case("pss_restore_write_refused", (f"exception:{switch},skip=1,code=4",), **pss),
+           Case("pss_loss_of_load", ("load:device=exciter,op=write,register=setpoint,count=1,delay_s=0.3,mw=0",),
+                **pss),
+           Case("pss_slow_exciter", ("late_reply:device=exciter,count=inf,delay_s=0.02,delay_max_s=0.1",),
+                exciter=SLOW_HOST, **pss),
+           Case("pss_link_cut_3s_mid_step", moment="mid-pulse", action="cut", **pss)]
+    for sig in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGKILL"):
+        out.append(Case(f"pss_{sig}_mid_step", moment="mid-pulse", action=sig, **pss))
     return out
 
 
@@ -204,16 +245,17 @@ def disk_argv(case: Case, argv_for: Callable[[Path], list[str]], work: Path) -> 
     return argv_for(mount / "run"), {"preexec_fn": _rlimit(size)}, True
 
 
-def online_bench_toml(path: Path, sim: SimBench, case: Case) -> Path:
-    """bench_ctl/data/demo_bench_online.toml pointed at `sim` (the recorder on its pseudo-terminal),
-    the hold capped at STEP_CAP_S, the steady state over 0.5 s."""
+def online_bench_toml(path: Path, sim: SimBench, case: Case, url: str | None = None) -> Path:
+    """bench_ctl/data/demo_bench_online.toml pointed at `sim` (the recorder on its pseudo-terminal;
+    the exciter at `url` when given: a proxy), the hold capped at the case's cap, the steady state
+    over 0.5 s."""
     import tomllib
 
     doc = tomllib.loads((ROOT / "bench_ctl" / "data" / "demo_bench_online.toml").read_text())
     ep = sim.endpoints
-    doc["exciter"].update({"url": f"tcp://{ep.exciter_host}:{ep.exciter_port}", **case.exciter})
+    doc["exciter"].update({"url": url or f"tcp://{ep.exciter_host}:{ep.exciter_port}", **case.exciter})
     doc["recorder"].update({"url": ep.recorder_serial, **case.recorder})
-    doc["limits"].update(step_hold_max_s=STEP_CAP_S, steady_time_s=0.5, restore_deadline_s=3.0)
+    doc["limits"].update(step_hold_max_s=case.cap_s, steady_time_s=0.5, restore_deadline_s=3.0)
     return write_toml(path, doc)
 
 
@@ -285,6 +327,24 @@ def device_outcome(sim: SimBench, t_fault: float | None) -> dict[str, Any]:
             "held_s": back - t_on}
 
 
+def pss_outcome(sim: SimBench, before: bool, t_fault: float | None) -> dict[str, Any]:
+    """The PSS switch as found (the device's own, at the end) and how long it stayed off after
+    the fault hit (from the switch's first move when no fault moment: a write lost or refused)."""
+    # the watchdog puts the switch back as it was when remote was taken (the event holds the setpoint)
+    ev = [(t, float(before) if k == "watchdog" else v) for t, k, v in sim.exciter.events
+          if k in ("pss_on", "watchdog")]
+    off = next((t for t, v in ev if v == 0.0), None)
+    start = t_fault if t_fault is not None else off
+    back = next((t for t, v in ev if start is not None and t >= start and v == 1.0), None) if off else None
+    if off is None:
+        off_s = 0.0
+    elif back is None:
+        off_s = float("inf")
+    else:
+        off_s = max(0.0, back - max(off, start))
+    return {"pss_as_found": sim.exciter.pss_on == before, "pss_off_after_fault_s": off_s}
+
+
 def settle(sim: SimBench, timeout_s: float) -> None:
     """Wait for the device to reach a state that will not change by itself (remote released
     by the watchdog after a killed run)."""
@@ -296,8 +356,9 @@ def settle(sim: SimBench, timeout_s: float) -> None:
 def capture_state(out: Path, stdout: str, visible: bool) -> str:
     """saved | reported | silent"""
     if visible:
-        try:
-            read_capture(out / "capture.csv")
+        try:   # capture.csv; the stabiliser test's capture_pss_off.csv (and capture_pss_on.csv)
+            for path in sorted(out.glob("capture*.csv"))[:1] or [out / "capture.csv"]:
+                read_capture(path)
             return "saved"
         except Exception:  # noqa: BLE001 - missing or unreadable: not saved
             pass
@@ -319,12 +380,13 @@ def one_run(case: Case, work: Path) -> list[dict[str, Any]]:
         if case.setup == "second-master":
             other = SecondMaster(sim)
         if case.online:
-            bench = online_bench_toml(work / "bench.toml", sim, case)
+            bench = online_bench_toml(work / "bench.toml", sim, case, proxy.url if proxy else None)
         else:
             doc = bench_doc(sim, exciter_url=proxy.url if proxy else None, exciter=case.exciter)
             doc["recorder"].update(case.recorder)
             bench = write_toml(work / "bench.toml", doc)
-        params = STEP_PARAMS if case.online else PARAMS
+        params = case.params
+        pss_before = sim.exciter.pss_on
         outs = [work / "run"] if case.setup != "second-run" else [work / "run0", work / "run1"]
         visible = True
         extras: dict[str, Any] = {}
@@ -347,6 +409,8 @@ def one_run(case: Case, work: Path) -> list[dict[str, Any]]:
             t_fault = sim.faults.history[0].time
         settle(sim, WATCHDOG_S + 1.0)
         dev = device_outcome(sim, t_fault)
+        if case.pss:
+            dev.update(pss_outcome(sim, pss_before, t_fault))
         released = not (sim.exciter.remote and sim.exciter._owner == "127.0.0.1")
         wrote = sum(n for (device, _), n in sim.faults.writes.items() if device == "exciter") > 0
         within = (not wrote) or dev["held_s"] <= case.cap_s
@@ -391,7 +455,7 @@ def record_lost(case: Case, out: Path, visible: bool) -> bool:
     armed = any(r.get("kind") == "write" and r.get("register") == "arm" and r.get("value") == 1 for r in rows)
     tried = any((r.get("kind") == "step_end" and r.get("step") == "download" and r.get("result") == "failed")
                 or (r.get("kind") == "record_kept" and "failed" in r) for r in rows)
-    return armed and not (out / "recorder_raw.bin").exists() and not tried
+    return armed and not any(out.glob("recorder_raw*.bin")) and not tried   # the stabiliser test: one a step
 
 
 def summarise(case: Case, rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -409,14 +473,18 @@ def summarise(case: Case, rows: list[dict[str, Any]]) -> dict[str, Any]:
             "refused_before_write": sum(not r["wrote"] for r in rows),
             "records_lost": sum(r["record_lost"] for r in rows),
             "fault_missed": sum(not r["fault_hit"] for r in rows),
-            "exit_codes": ",".join(str(c) for c in sorted({r["exit"] for r in rows}))}
+            "exit_codes": ",".join(str(c) for c in sorted({r["exit"] for r in rows})),
+            **({"pss_as_found_pct": 100.0 * sum(r["pss_as_found"] for r in rows) / n,
+                "pss_worst_off_after_fault_ms": max(r["pss_off_after_fault_s"] for r in rows) * 1e3}
+               if case.pss else {})}
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--only", default=None, help="comma-separated case names")
-    ap.add_argument("--group", default=None, choices=("issue24", "issue48"), help="only the faults of one issue")
+    ap.add_argument("--group", default=None, choices=("issue24", "issue48", "issue49"),
+                    help="only the faults of one issue")
     ap.add_argument("--json", dest="json_out", default=None)
     ap.add_argument("-v", "--verbose", action="store_true",
                     help="print each run's exit code and the run's own outcome line")
@@ -459,7 +527,9 @@ def main(argv: list[str] | None = None) -> int:
                   + (f"  ({s['refused_before_write']} wrote nothing to the exciter)"
                      if s["refused_before_write"] else "")
                   + (f"  ({s['tracebacks']} tracebacks)" if s["tracebacks"] else "")
-                  + (f"  (fault not reached in {s['fault_missed']})" if s["fault_missed"] else ""),
+                  + (f"  (fault not reached in {s['fault_missed']})" if s["fault_missed"] else "")
+                  + (f"  PSS as found {s['pss_as_found_pct']:.0f} %, off after the fault "
+                     f"{s['pss_worst_off_after_fault_ms']:.0f} ms at worst" if case.pss else ""),
                   flush=True)
             if args.verbose:
                 for r in rows:
@@ -469,7 +539,8 @@ def main(argv: list[str] | None = None) -> int:
     restored = sum(s["restored_pct"] * s["runs"] / 100 for _, s in summaries.values())
     signal_mid = [s["worst_restore_ms"] for c, s in summaries.values()
                   if c.action not in (None, "cut", "SIGKILL") and c.moment == "mid-pulse"]
-    kill_held = [s["worst_held_ms"] for c, s in summaries.values() if c.action == "SIGKILL"]
+    kill_held = [s["worst_held_ms"] for c, s in summaries.values() if c.action == "SIGKILL" and not c.pss]
+    pss = [s for c, s in summaries.values() if c.pss]
     result.update({
         "run_processes": all_runs,
         "restored_pct_all": 100.0 * restored / all_runs if all_runs else 0.0,
@@ -483,6 +554,9 @@ def main(argv: list[str] | None = None) -> int:
         "signal_mid_pulse_worst_restore_ms": max(signal_mid) if signal_mid else 0.0,
         "sigkill_worst_held_ms": max(kill_held) if kill_held else 0.0,
         "sigkill_bound_ms": (WIDTH_CAP_S + WATCHDOG_S) * 1e3,
+        "pss_as_found_pct_all": (sum(s["pss_as_found_pct"] * s["runs"] / 100 for s in pss) * 100.0
+                                 / max(sum(s["runs"] for s in pss), 1)),
+        "pss_worst_off_after_fault_ms": max((s["pss_worst_off_after_fault_ms"] for s in pss), default=0.0),
         "machine": f"{platform.machine()} {os.cpu_count()} cpu, Python {platform.python_version()}",
     })
     print("-" * len(head))
@@ -500,6 +574,10 @@ def main(argv: list[str] | None = None) -> int:
     if kill_held:
         print(f"SIGKILL: pulse on the device at most {result['sigkill_worst_held_ms']:.0f} ms "
               f"(bound: width cap + watchdog = {result['sigkill_bound_ms']:.0f} ms)")
+    if pss:
+        print(f"issue 49: the PSS as found in {result['pss_as_found_pct_all']:.1f} % of "
+              f"{sum(s['runs'] for s in pss)} stabiliser-test runs; off after a fault "
+              f"{result['pss_worst_off_after_fault_ms']:.0f} ms at worst")
     print(f"disk full made with: {result['disk_full_method']}")
     if args.json_out:
         Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
