@@ -289,6 +289,8 @@ class Exciter(RegisterDevice):
         last_error: DeviceError | None = None
         action = ""
         refused: ExceptionReply | None = None  # the device refused the restore write
+        pss_refused: ExceptionReply | None = None  # ... or the PSS switch's restore write
+        setpoint_back = False   # the setpoint's part done (restored, or left as someone else set it)
         while True:
             if cancel is not None and cancel.is_set() and attempts > 0:  # the first try always runs
                 self.heartbeat.stop()
@@ -330,7 +332,16 @@ class Exciter(RegisterDevice):
                               f"host's restore ({refused.message})")
                 elif not action:
                     action = self._how_restored(reconnected)
-                pss = self.pss.restore(reason, writes)
+                setpoint_back = True
+                try:
+                    pss = self.pss.restore(reason, writes, refused=pss_refused)
+                except ExceptionReply as exc:
+                    if pss_refused is None:   # as a refused setpoint: the watchdog puts it back
+                        pss_refused = exc
+                        self.heartbeat.stop()
+                        log.error("%s: the device refused the PSS switch's restore write (%s); heartbeat "
+                                  "stopped so that its watchdog puts the switch back", self.name, exc.message)
+                    raise
                 self._give_back_remote(writes, reason)
                 self._took_remote = False
                 return SafeStateReport(self.name, True, action,
@@ -352,6 +363,18 @@ class Exciter(RegisterDevice):
             time.sleep(0.05)
         # the heartbeat stops on the way out: a host that cannot reach the device leaves it to
         # its watchdog
+        if setpoint_back:   # the setpoint is back; the PSS switch is not
+            detail = (f"{action}, but the PSS switch could not be put back "
+                      f"{'on' if self.pss.pretest and self.pss.pretest.on else 'off'} within the deadline "
+                      f"({attempts} attempts); heartbeat stopped, the device watchdog should put it back - "
+                      "CHECK THE UNIT")
+            if pss_refused is not None:
+                detail += f"; the device refused the PSS switch's restore write ({pss_refused.message})"
+            if last_error is not None and last_error is not pss_refused:
+                detail += f"; last error: {last_error}"
+            return SafeStateReport(self.name, False, "PSS SWITCH NOT RESTORED", detail=detail,
+                                   reason=reason, attempts=attempts, reconnected=reconnected,
+                                   writes=tuple(writes))
         detail = (f"could not restore the pre-test setpoint {pre.setpoint_pu:.6g} pu within "
                   f"the deadline ({attempts} attempts); heartbeat stopped, the device watchdog "
                   "should revert it - CHECK THE UNIT")

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from drivers.device import RegisterDevice, WriteRecord
+from drivers.errors import DeviceError, ExceptionReply
 
 PSS_ON = "pss_on"
 
@@ -56,20 +57,27 @@ class PssSwitch:
         self.attempted = True   # before sending: a Ctrl-C inside the write skips the handlers
         return self.device.write(PSS_ON, 1.0 if on else 0.0, purpose=purpose, at_mono=at_mono)
 
-    def restore(self, reason: str, writes: list[WriteRecord]) -> str:
+    def restore(self, reason: str, writes: list[WriteRecord], refused: ExceptionReply | None = None) -> str:
         """Put the pre-test switch back when this run wrote it and it differs (the write appended to
         `writes`); what was done, in words ("" without a switch). Device errors propagate: the
-        safe state's loop reconnects and tries again."""
+        safe state's loop reconnects and tries again. After the device `refused` that write, it is
+        not sent again: the switch is read until the device's watchdog has put it back."""
         pre = self.pretest
         if pre is None:
             return ""
         state = "on" if pre.on else "off"
         words = tuple(self.device.read_words(PSS_ON))
         if words == pre.words:
+            if refused is not None:
+                return (f"PSS switch put back {state} by the device watchdog after the device refused the "
+                        f"host's restore ({refused.message})")
             return f"PSS switch {state} as before the test"
         if not self.attempted:
             return (f"PSS switch not written by this run; it changed since the pre-test snapshot (by "
                     f"someone else) and was left as found ({list(words)}, pre-test {state})")
+        if refused is not None:
+            raise DeviceError(f"PSS switch still {list(words)} after the refused restore; waiting for the "
+                              "device watchdog", device=self.device.name)
         writes.append(self.device.write(PSS_ON, 1.0 if pre.on else 0.0,
                                         purpose=f"restore pre-test PSS switch ({reason})"))
         return f"PSS switch restored to {state} by host"

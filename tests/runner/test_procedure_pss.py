@@ -70,10 +70,10 @@ def pss_bench():
     sim.stop()
 
 
-def _run(sim, tmp_path, *faults: Fault, params=None, url=None, **kwargs):
+def _run(sim, tmp_path, *faults: Fault, params=None, url=None, limits=None, **kwargs):
     for f in faults:
         sim.faults.add(f)
-    doc = _doc()
+    doc = _doc(**(limits or {}))
     host, port = sim.endpoints.exciter_tcp
     doc["exciter"]["url"] = url or f"tcp://{host}:{port}"
     doc["recorder"]["url"] = sim.endpoints.recorder_serial
@@ -139,3 +139,29 @@ def test_a_step_ended_by_a_loss_of_load_keeps_its_record_and_leaves_the_pss_as_f
     assert (tmp_path / "run" / "capture_pss_off.csv").exists()
     assert not (tmp_path / "run" / "capture_pss_on.csv").exists()    # no second step after an abort
     _as_found(pss_bench, out)
+
+
+def test_a_refused_restore_of_the_switch_is_left_to_the_watchdog_and_said_as_such(pss_bench, tmp_path):
+    """The device refuses the write that puts the PSS back on after the PSS-off step: the safe
+    state stops the heartbeat (as for a refused setpoint restore) and reads until the device's
+    watchdog has put the switch back; the report names the switch, never the setpoint."""
+    out = _run(pss_bench, tmp_path, Fault("exception", device="exciter", op="write", register="pss_on", skip=1,
+                                           count=1, code=4))
+    audit = out.audit_path.read_text()     # the release after the PSS-off step is in the audit
+    assert "SETPOINT NOT RESTORED" not in audit + out.message
+    assert "PSS switch put back on by the device watchdog after the device refused" in audit, out.message
+    assert any(k == "watchdog" for _, k, _ in pss_bench.exciter.events)   # the device put it back
+    _as_found(pss_bench, out)
+
+
+def test_a_switch_the_watchdog_cannot_put_back_in_time_is_reported_as_the_switch(pss_bench, tmp_path):
+    """The same refusal with a restore deadline shorter than the device's watchdog: the release
+    after the PSS-off step is not confirmed and says it is the PSS switch (the setpoint is back)."""
+    out = _run(pss_bench, tmp_path, Fault("exception", device="exciter", op="write", register="pss_on", skip=1,
+                                           count=1, code=4), limits={"restore_deadline_s": 0.5})
+    assert out.exit_code == ExitCode.COMMS, out.message
+    assert "but the PSS switch could not be put back on within the deadline" in out.message, out.message
+    assert "the device refused the PSS switch's restore write" in out.message
+    assert "SETPOINT NOT RESTORED" not in out.message
+    assert (tmp_path / "run" / "capture_pss_off.csv").exists()     # the record kept
+    assert pss_bench.exciter.setpoint == pytest.approx(pss_bench.plant.usetp_pre)
