@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         t = time.perf_counter()
         sel = select_structure([cap], units, max_evals=args.evals, seed=args.seed)
         wall = time.perf_counter() - t
-        j = sel.to_json()
+        j = sel.entry().to_json()
         first = sel.best.model
         named = {first, *sel.equivalent}
         # the truth, or its pulse twin (the same equations on a pulse test) standing for it
