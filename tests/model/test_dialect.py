@@ -12,7 +12,8 @@ from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.model.dialect import dialect_of, kernel_sections
 from bench_ctl.model.effects import EFFECTS, separating_test
 from bench_ctl.model.structures import STRUCTURES, structure
-from bench_ctl.units.unit import UnitError, apply_overrides, reference_unit, unit_from_dict, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import UnitError, reference_unit, unit_from_dict
 from records import model_json, result_json
 
 STANDARD = [n for n in STRUCTURES if n != "REFERENCE"]
