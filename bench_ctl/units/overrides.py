@@ -14,6 +14,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import replace
 
+from bench_ctl.model.dialect import Dialect
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.params import GENERATOR_OPTIONAL, MACHINE_PARAMS, PARAMS
 from bench_ctl.model.stabilisers import model_code
@@ -37,6 +38,7 @@ def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
     """Apply `--set NAME=VALUE` overrides (see the module docstring); unknown names are errors.
     The whole unit is checked once all are in (`KAVR.max=100 KAVR=80` is fine in that order)."""
     overrides = list(overrides)
+    names = unit.dialect   # the --set boundary: the user's names, the kernel's from here on
     for item in overrides:
         if "=" not in item:
             raise UnitError(f"--set {item!r}: expected NAME=VALUE")
@@ -49,14 +51,14 @@ def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
         if math.isnan(value):
             raise UnitError(f"--set {item!r}: NaN is not a value")
         try:
-            unit = _apply_one(unit, key, value, item)
+            unit = _apply_one(unit, names, key, value, item)
         except UnitError:
             raise
         except ValueError as exc:
             raise UnitError(str(exc)) from None
     if not overrides:
         return unit
-    return check_unit(_bypass_lead_lags(unit), f"{unit.source} with --set {' '.join(overrides)}")
+    return check_unit(_bypass_lead_lags(unit), f"{unit.source} with --set {' '.join(overrides)}", names)
 
 
 def _bypass_lead_lags(unit: Unit) -> Unit:
@@ -112,28 +114,30 @@ def with_model(unit: Unit, name: str) -> Unit:
                    grid_identify=dict(unit.grid_identify))
 
 
-def _std_to_kernel(unit: Unit, key: str, item: str) -> str:
+def _std_to_kernel(names: Dialect, key: str, item: str) -> str:
     """`--set` names a standard parameter of the unit's structure: the kernel's name for it."""
-    if unit.model == DEFAULT_MODEL:
+    if names.plain:
         return key
     base, dot, attr = key.partition(".")
-    st = unit.structure
+    st = names.structure
     if base in st.names:
         try:
             return st.kernel_name(base) + dot + attr
         except StructureError as exc:
             raise UnitError(f"--set {item!r}: {exc}") from None
-    why = unit.dialect.refusal(base)
+    why = names.refusal(base)
     if why:
         raise UnitError(f"--set {item!r}: {why}")
     return key
 
 
-def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
+def _apply_one(unit: Unit, names: Dialect, key: str, value: float, item: str) -> Unit:
+    """`unit` with one override, `key` in the structure's `names` (`item`: the override as given,
+    for messages, which name what the user wrote)."""
     std_key = key
     if unit.model != DEFAULT_MODEL and key in unit.structure.names and unit.structure.param(key).kernel is None:
         return replace(unit, model_values={**unit.model_values, key: value})  # for the record only
-    key = _std_to_kernel(unit, key, item)
+    key = _std_to_kernel(names, key, item)
     if unit.model != DEFAULT_MODEL and key != std_key and "." not in std_key:
         unit = replace(unit, model_values={**unit.model_values, std_key: value})
     if key in MACHINE_PARAMS:   # the machine on the grid, the grid, the operating point
@@ -152,9 +156,9 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     if "." in key:
         name, attr = key.split(".", 1)
         if name not in unit.identify or attr not in ("min", "max", "value"):
-            shown = unit.dialect.name(name)
+            shown = std_key.split(".", 1)[0]
             raise UnitError(f"--set {item!r}: {shown!r} is not an identified parameter with min/max/value"
-                            f" (identified: {', '.join(unit.dialect.name(n) for n in unit.identify)})")
+                            f" (identified: {', '.join(names.name(n) for n in unit.identify)})")
         b = replace(unit.identify[name], **{attr: value})
         if not b.min < b.max:
             raise UnitError(f"--set {item!r}: min {b.min} must be below max {b.max}")
@@ -165,7 +169,7 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     if key in unit.identify:
         return replace(unit, identify={**unit.identify, key: replace(unit.identify[key], value=value)})
     if key in unit.fixed:
-        check_value(unit.dialect, key, value, where="--set ")
+        check_value(names, key, value, where="--set ")
         return replace(unit, fixed={**unit.fixed, key: value})
     for eff in EFFECTS.values():
         if key in eff.params:
@@ -176,5 +180,5 @@ def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
     if key in PARAMS:
         PARAMS[key].check(value, where="--set ")
         return replace(unit, fixed={**unit.fixed, key: value})
-    known = unit.dialect.names() + list(MACHINE_PARAMS)
+    known = names.names() + list(MACHINE_PARAMS)
     raise UnitError(f"--set {item!r}: unknown name {key!r}; known: {', '.join(known)}")

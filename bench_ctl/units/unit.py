@@ -169,11 +169,11 @@ _TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects", "avr", "a
 MACHINE_INFO = {p.name: p for p in MACHINE_CATALOGUE}
 
 
-def check_unit(unit: Unit, source: str) -> Unit:
+def check_unit(unit: Unit, source: str, d: Dialect) -> Unit:
     """What a whole unit must satisfy, once every override is in: every AVR parameter given,
     identified values finite and inside their bounds, bounds and fixed values inside the
-    physical ranges, fixed names apart from the generator's."""
-    d = unit.dialect
+    physical ranges, fixed names apart from the generator's. Messages name parameters in `d`'s
+    names, the ones the input (a file, `--set`) was read in."""
     for name in AVR_PARAMS:
         if name not in unit.identify and name not in unit.fixed:
             raise UnitError(f"{source}: AVR parameter {name} is neither under [identify] nor [fixed]")
@@ -384,7 +384,7 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
         raise
     except ValueError as exc:
         raise UnitError(f"{source}: {exc}") from None
-    return check_unit(unit, source)
+    return check_unit(unit, source, d)
 
 
 def grid_values(raw: Mapping, source: str) -> dict[str, float]:
