@@ -58,7 +58,7 @@ from andes_units import online_capture, online_entry, online_manifest, online_un
 from bench_ctl import cli  # noqa: E402
 from bench_ctl.identification.identify import result_for_file, run_identification  # noqa: E402
 from bench_ctl.units.dyr import format_record, read_dyr  # noqa: E402
-from bench_ctl.units.unit import apply_overrides  # noqa: E402
+from bench_ctl.units.overrides import apply_overrides  # noqa: E402
 
 NOISE = 0.01        # pu on efd, as benchmarks/andes_online_identify.py
 TARGET = 1.1

@@ -33,7 +33,8 @@ import numpy as np  # noqa: E402
 from andes_units import fixture_column, generator_values, manifest, read_fixture  # noqa: E402
 from bench_ctl.capture import Capture  # noqa: E402
 from bench_ctl.diagnosis import diagnose  # noqa: E402
-from bench_ctl.units.unit import apply_overrides, reference_unit, with_model  # noqa: E402
+from bench_ctl.units.overrides import apply_overrides, with_model  # noqa: E402
+from bench_ctl.units.unit import reference_unit  # noqa: E402
 
 
 def unit_for(name: str, model: str):

@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from andes_units import online_capture, online_entry, online_manifest, online_unit  # noqa: E402
 from bench_ctl.diagnosis import diagnose  # noqa: E402
-from bench_ctl.units.unit import apply_overrides  # noqa: E402
+from bench_ctl.units.overrides import apply_overrides  # noqa: E402
 
 NOISE = {"noise": 0.01, "q_noise": 0.002, "vt_noise": 0.0005}
 XE_FACTOR = {"true": 1.0, "xe_half": 0.5, "xe_double": 2.0}

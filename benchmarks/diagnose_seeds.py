@@ -33,7 +33,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_ctl.cli import main  # noqa: E402
 from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.units.dyr_unit import unit_from_dyr  # noqa: E402
-from bench_ctl.units.unit import apply_overrides, reference_unit  # noqa: E402
+from bench_ctl.units.overrides import apply_overrides  # noqa: E402
+from bench_ctl.units.unit import reference_unit  # noqa: E402
 from import_real import add_import_options, import_one, label, parse_import_args  # noqa: E402
 
 

@@ -41,7 +41,8 @@ from bench_ctl.identification.identify import warm_up  # noqa: E402
 from bench_ctl.identification.peers import run_optimizer  # noqa: E402
 from bench_ctl.identification.problem import make_problem  # noqa: E402
 from bench_ctl.identification.synthetic import synthetic_capture  # noqa: E402
-from bench_ctl.units.unit import apply_overrides, reference_unit  # noqa: E402
+from bench_ctl.units.overrides import apply_overrides  # noqa: E402
+from bench_ctl.units.unit import reference_unit  # noqa: E402
 
 
 def _de_unbatched(prob, evals: int, seed: int) -> tuple[float, int]:

@@ -36,7 +36,8 @@ from bench_ctl.capture import Capture  # noqa: E402
 from bench_ctl.engine import run  # noqa: E402
 from bench_ctl.engine.simulate import param_matrix, pre_trigger_mean, simulate  # noqa: E402
 from bench_ctl.identification.identify import run_identification, warm_up  # noqa: E402
-from bench_ctl.units.unit import apply_overrides, reference_unit  # noqa: E402
+from bench_ctl.units.overrides import apply_overrides  # noqa: E402
+from bench_ctl.units.unit import reference_unit  # noqa: E402
 
 #: ANDES 2.0's EXST1 limits its washout output (HardLimiter(u=WF_y)), not VA: with KF = 0 its
 #: ceilings never act (its 20 % capture reaches 5.1 pu, VRMAX 4.0). Compared with limits wide.
@@ -136,7 +137,7 @@ def speed(out: dict) -> None:
     t = np.arange(5001) * 1e-3
     usetp = 1.0 + 0.05 * ((t >= 1.0) & (t < 2.0))
     efd = np.ones_like(t)
-    from bench_ctl.units.unit import with_model
+    from bench_ctl.units.overrides import with_model
     ref: dict[str, float] = {}
     print(f"  {'model':<10} {'in bounds':>10} {'ratio':>7} {'failed':>7}   {'near typical':>12} {'ratio':>7}")
     for model in ("REFERENCE", "SEXS", "EXST1", "ESST1A", "IEEEX1", "ESST4B", "ESST5B", "EXAC1", "AC8B"):

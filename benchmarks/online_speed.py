@@ -33,7 +33,8 @@ import numpy as np  # noqa: E402
 from bench_ctl.engine import run  # noqa: E402
 from bench_ctl.engine.machines import grid  # noqa: E402
 from bench_ctl.engine.simulate import param_matrix  # noqa: E402
-from bench_ctl.units.unit import reference_unit, with_model  # noqa: E402
+from bench_ctl.units.overrides import with_model  # noqa: E402
+from bench_ctl.units.unit import reference_unit  # noqa: E402
 
 
 def _population(model: str, n: int, seed: int) -> np.ndarray:

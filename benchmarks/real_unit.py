@@ -41,7 +41,8 @@ from bench_ctl.identification.problem import make_problem  # noqa: E402
 from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.model.structures import STRUCTURES  # noqa: E402
 from bench_ctl.units.dyr_unit import unit_from_dyr  # noqa: E402
-from bench_ctl.units.unit import apply_overrides, reference_unit  # noqa: E402
+from bench_ctl.units.overrides import apply_overrides  # noqa: E402
+from bench_ctl.units.unit import reference_unit  # noqa: E402
 from import_real import add_import_options, import_one, label, parse_import_args, pre_step_disturbance  # noqa: E402
 
 

@@ -36,7 +36,8 @@ from bench_ctl.diagnosis.selection import free_limits, select_structure  # noqa:
 from bench_ctl.identification.identify import warm_up  # noqa: E402
 from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.model.structures import STRUCTURES  # noqa: E402
-from bench_ctl.units.unit import apply_overrides, reference_unit, with_model  # noqa: E402
+from bench_ctl.units.overrides import apply_overrides, with_model  # noqa: E402
+from bench_ctl.units.unit import reference_unit  # noqa: E402
 
 
 def candidate_units(models: list[str], limits: str) -> dict:

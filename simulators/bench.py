@@ -46,7 +46,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench_ctl.plants import OnlinePlant, Plant
-from bench_ctl.units.unit import Unit, apply_overrides, load_unit
+from bench_ctl.units.overrides import apply_overrides
+from bench_ctl.units.unit import Unit, load_unit
 from drivers.profile import Profile, load_profile
 
 from .control import start_control

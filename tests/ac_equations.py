@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from bench_ctl.engine.simulate import simulate
-from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import reference_unit
 
 #: the generator's saturation of these tests, S(1.0), S(1.2)
 S10, S12 = 0.05, 0.24

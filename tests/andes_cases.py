@@ -34,7 +34,7 @@ import independent_plant as ip
 from andes_units import fixture_column, fixture_unit, manifest, read_fixture
 from bench_ctl.capture import Capture
 from bench_ctl.diagnosis.blind import NONE, Case
-from bench_ctl.units.unit import apply_overrides
+from bench_ctl.units.overrides import apply_overrides
 
 #: the effects an ANDES record can carry without editing ANDES' models
 EFFECTS = ("saturation", "ceiling_limit", "recorder_gain", "time_skew")

@@ -14,7 +14,8 @@ import numpy as np
 from bench_ctl.capture import Capture
 from bench_ctl.capture.capture import read_capture
 from bench_ctl.signals.edges import EdgeSpec, find_setpoint_edges
-from bench_ctl.units.unit import Unit, apply_overrides, reference_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import Unit, reference_unit
 
 FOLDER = Path(__file__).resolve().parent / "fixtures" / "andes"
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from bench_ctl import outputs
-from bench_ctl.units.unit import Unit, apply_overrides, reference_unit
+from bench_ctl.units.overrides import apply_overrides
+from bench_ctl.units.unit import Unit, reference_unit
 from records import assert_round_trip
 from truth import TRUTH
 

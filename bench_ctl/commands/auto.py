@@ -11,7 +11,8 @@ from bench_ctl.exitcodes import BadInput
 from bench_ctl.identification.result_file import SelectionEntry
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
 from bench_ctl.model.structures import STRUCTURES
-from bench_ctl.units.unit import Unit, apply_overrides, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import Unit
 
 from .options import fmt_value as _fmt
 from .options import resolve_unit

@@ -42,7 +42,7 @@ def export(result_path: str, dyr_out: str, bus: int, machine_id: str, force: boo
     from bench_ctl.identification.result_file import read_result
     from bench_ctl.model.structures import StructureError
     from bench_ctl.units.dyr import DyrError, DyrRecord, check_bus_id, dyr_text
-    from bench_ctl.units.dyr_unit import dyr_fields, dyr_values_of, not_carried, pss_record
+    from bench_ctl.units.dyr_export import dyr_fields, dyr_values_of, not_carried, pss_record
 
     try:   # what PSS/E reads back the same: refused before anything is read or written
         check_bus_id(bus, str(machine_id))

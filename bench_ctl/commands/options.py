@@ -11,7 +11,8 @@ import click
 from bench_ctl.exitcodes import BadInput
 from bench_ctl.model.effects import effect
 from bench_ctl.model.structures import STRUCTURES
-from bench_ctl.units.unit import Unit, UnitError, apply_overrides, load_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import Unit, UnitError, load_unit
 
 
 def model_options(f):

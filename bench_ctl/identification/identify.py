@@ -149,9 +149,10 @@ def run_identification(*args: Any, **kwargs: Any) -> Identification:
 def model_entry(unit: Unit, kernel_values: Mapping[str, float], identified: Sequence[str],
                 determined: Mapping[str, bool]) -> ModelEntry:
     """The result's `model`: the structure, its parameters under their standard names (fitted
-    values where identified), which ones were identified and which the captures determined."""
+    values where identified), which ones were identified and which the captures determined (in
+    the kernel's names, as the rest of the result, until its writer renames it:
+    `IdentificationResult.renamed`)."""
     st = unit.structure
-    name = unit.dialect.name
     values = st.std_values(kernel_values, unit.model_values)
     return ModelEntry(
         name=st.name,
@@ -159,8 +160,8 @@ def model_entry(unit: Unit, kernel_values: Mapping[str, float], identified: Sequ
         dyr_model=st.dyr_model,
         params={k: _none_if_inf(float(v)) for k, v in values.items()},
         units={p.name: p.unit for p in st.params},
-        identified=[name(n) for n in identified if n not in RECORD_PARAMS],
-        determined={name(n): bool(v) for n, v in determined.items() if n not in RECORD_PARAMS},
+        identified=[n for n in identified if n not in RECORD_PARAMS],
+        determined={n: bool(v) for n, v in determined.items() if n not in RECORD_PARAMS},
         simulated=[p.name for p in st.params if p.kernel is not None],
         generator={k: _none_if_inf(float(kernel_values[k])) for k in ("Td0p", "Td0pp", "Vt0", *GENERATOR_OPTIONAL)
                    if k in kernel_values},

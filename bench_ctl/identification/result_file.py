@@ -309,9 +309,10 @@ class IdentificationResult(Record):
 
     def renamed(self, d: Dialect) -> IdentificationResult:
         """The result built in the kernel's names, in the structure's (`params`, `bounds`, `fixed`,
-        `constraints`, `identifiability`, `unit`, `comparison`, the optimizer's settings); the
-        kernel's view under `kernel`. `model` is in the structure's names already. The reference
-        structure speaks the kernel's names: the result as it is."""
+        `constraints`, `identifiability`, `unit`, `comparison`, the optimizer's settings, the
+        names `model` lists as identified and determined; its values are the structure's already);
+        the kernel's view under `kernel`. The reference structure speaks the kernel's names: the
+        result as it is."""
         if d.plain:
             return self
         params = d.keys(self.params)
@@ -323,6 +324,9 @@ class IdentificationResult(Record):
             identifiability=None if self.identifiability is None else self.identifiability.renamed(d),
             comparison=None if self.comparison is None else tuple(c.renamed(d) for c in self.comparison),
             optimizer=replace(self.optimizer, settings=d.deep(self.optimizer.settings)),
+            model=None if self.model is None else replace(
+                self.model, identified=[d.name(n) for n in self.model.identified],
+                determined=d.keys(self.model.determined)),
             kernel=ResultKernel(dict(self.params), dict(self.bounds), dict(self.fixed), self.constraints))
 
     @property

@@ -14,7 +14,8 @@ import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
-from bench_ctl.units.unit import Unit, apply_overrides
+from bench_ctl.units.overrides import apply_overrides
+from bench_ctl.units.unit import Unit
 
 from .problem import make_problem
 

@@ -11,8 +11,9 @@ translates, in each direction, and it is applied at the boundaries only:
   `renamed(dialect)`: `name`, `text`, `keys`, `fixed`, `unit`; the kernel's own view goes under a
   `kernel` key, for debugging); texts a record carries are written in the structure's names
   where they are made (the identifiability notes, with the unit's dialect);
-- standard -> kernel, where an input is parsed: unit files and `--set` (`bench_ctl.units.unit`:
-  `kernel_text`, `refusal` of a kernel name, naming the standard one), and a result read back
+- standard -> kernel, where an input is parsed: unit files and `--set` (`bench_ctl.units.unit`,
+  `bench_ctl.units.overrides`: `kernel_text`, `refusal` of a kernel name, naming the standard
+  one), and a result read back
   (`kernel_sections`: its values for the report's re-simulation, `export --dyr` and
   `diagnose --result`, through `IdentificationResult.kernel_view`).
 

@@ -63,7 +63,7 @@ def pss2_record(grid: Mapping[str, Any], bus: int, ident: str) -> DyrRecord | No
     """The PSS2A / PSS2B record of the stabiliser in a unit's [grid] (`PSS_MODEL`; MACHINE_DEFAULTS
     where a value is absent), None when KS1 is 0 (no stabiliser); input 1 the speed, input 2 the
     electrical power, both of the machine itself. ValueError for a unit whose stabiliser is the
-    IEEEST (`dyr_unit.pss_record` writes that one)."""
+    IEEEST (`dyr_export.pss_record` writes that one)."""
     g = {**MACHINE_DEFAULTS, **{k: float(x) for k, x in grid.items() if k.startswith("PSS")}}
     st = stabiliser(g["PSS_MODEL"])
     if st.code == IEEEST:

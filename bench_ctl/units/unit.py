@@ -1,15 +1,13 @@
 """Unit files: generator constants, parameters to identify, fixed parameters, constraints, effects.
 
 A unit file is TOML (see `bench_ctl/data/reference_unit.toml`, the built-in default). Unknown keys
-are errors. `--set NAME=VALUE` overrides go through `apply_overrides`: a generator constant
-(`Td0p=6.0`), a fixed parameter (`TR=0.01`), the value of an identified parameter (`KAVR=250`), a
-bound (`KAVR.min=20`), a weight (`weights.vt=0.5`) or an effect parameter (`VRMAX=2.8`, which
-switches its effect on).
+are errors. `--set NAME=VALUE` overrides and `--model` are changes to a unit read here
+(`bench_ctl.units.overrides`).
 
-The AVR / exciter structure is chosen with `[avr] model = "ESST1A"` (or `--model`, see
-`with_model`); its parameters are then named as the standard names them (KA, TC, TB, ...) in
-`[identify]`, `[fixed]`, `constraints` and `--set`, and translated here to the kernel's columns
-(`bench_ctl.model.structures`). The unit keeps the standard values too (`model_values`), for the
+The AVR / exciter structure is chosen with `[avr] model = "ESST1A"` (or `--model`); its parameters
+are then named as the standard names them (KA, TC, TB, ...) in `[identify]`, `[fixed]`,
+`constraints` and `--set`, and translated to the kernel's columns where they are read (a file here,
+`--set` in `overrides`; `bench_ctl.model.structures`). The unit keeps the standard values too (`model_values`), for the
 report and the PSS/E record. `[acceptance]` holds the grid operator's numeric acceptance limits
 (`bench_ctl.signals.acceptance`).
 """
@@ -17,7 +15,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -167,14 +165,15 @@ def _finite_or_none(v: float) -> float | None:
 _TOP_KEYS = {"name", "constraints", "generator", "identify", "fixed", "weights", "effects", "avr",
              "acceptance", "grid"}
 _TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects", "avr", "acceptance", "grid")
-_MACHINE_INFO = {p.name: p for p in MACHINE_CATALOGUE}
+#: the machine-on-the-grid parameters by name (their units, meanings and physical ranges)
+MACHINE_INFO = {p.name: p for p in MACHINE_CATALOGUE}
 
 
-def check_unit(unit: Unit, source: str) -> Unit:
+def check_unit(unit: Unit, source: str, d: Dialect) -> Unit:
     """What a whole unit must satisfy, once every override is in: every AVR parameter given,
     identified values finite and inside their bounds, bounds and fixed values inside the
-    physical ranges, fixed names apart from the generator's."""
-    d = unit.dialect
+    physical ranges, fixed names apart from the generator's. Messages name parameters in `d`'s
+    names, the ones the input (a file, `--set`) was read in."""
     for name in AVR_PARAMS:
         if name not in unit.identify and name not in unit.fixed:
             raise UnitError(f"{source}: AVR parameter {name} is neither under [identify] nor [fixed]")
@@ -184,7 +183,7 @@ def check_unit(unit: Unit, source: str) -> Unit:
             if not math.isfinite(v):
                 raise UnitError(f"{source}: identify.{shown}.{what} = {v!r} must be finite")
             try:
-                _check_value(d, name, v, where=f"{source}: identify.{shown}.{what}: ")
+                check_value(d, name, v, where=f"{source}: identify.{shown}.{what}: ")
             except ValueError as exc:
                 raise UnitError(str(exc)) from None
         if not b.min <= b.value <= b.max:
@@ -199,7 +198,7 @@ def check_unit(unit: Unit, source: str) -> Unit:
         if name in unit.generator:
             raise UnitError(f"{source}: fixed.{name}: a generator constant; set it under [generator]")
         try:
-            _check_value(d, name, v, where=f"{source}: fixed.")
+            check_value(d, name, v, where=f"{source}: fixed.")
         except ValueError as exc:
             raise UnitError(str(exc)) from None
     try:
@@ -209,7 +208,7 @@ def check_unit(unit: Unit, source: str) -> Unit:
     return unit
 
 
-def _check_value(d: Dialect, kernel_name: str, value: float, where: str) -> None:
+def check_value(d: Dialect, kernel_name: str, value: float, where: str) -> None:
     """The kernel parameter's physical range check, its message naming the parameter as the
     structure does (ESST1A's `TA`, not the kernel's `TE`)."""
     info = PARAMS[kernel_name]
@@ -218,7 +217,10 @@ def _check_value(d: Dialect, kernel_name: str, value: float, where: str) -> None
         p = d.structure.param(name)
         info = replace(info, name=name, unit=p.unit, info=p.info)
     info.check(value, where=where)
-_WEIGHT_KEYS = {"efd", "vt", "q"}
+
+
+#: the signals a unit's [weights] may weigh
+WEIGHT_KEYS = {"efd", "vt", "q"}
 
 
 def _num(value: object, where: str) -> float:
@@ -356,8 +358,8 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
 
     weights = {"efd": 1.0, "vt": 0.0}
     for name, v in data.get("weights", {}).items():
-        if name not in _WEIGHT_KEYS:
-            raise UnitError(f"{source}: weights.{name}: unknown signal; allowed: {sorted(_WEIGHT_KEYS)}")
+        if name not in WEIGHT_KEYS:
+            raise UnitError(f"{source}: weights.{name}: unknown signal; allowed: {sorted(WEIGHT_KEYS)}")
         weights[name] = _num(v, f"{source}: weights.{name}")
 
     constraints = data.get("constraints", [])
@@ -382,7 +384,7 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
         raise
     except ValueError as exc:
         raise UnitError(f"{source}: {exc}") from None
-    return check_unit(unit, source)
+    return check_unit(unit, source, d)
 
 
 def grid_values(raw: Mapping, source: str) -> dict[str, float]:
@@ -396,7 +398,7 @@ def grid_values(raw: Mapping, source: str) -> dict[str, float]:
         if "PSS_MODEL" in raw:   # the stabiliser's name ("PSS2B") or its code
             grid["PSS_MODEL"] = model_code(raw["PSS_MODEL"])
         for k, v in grid.items():
-            _MACHINE_INFO[k].check(v, where=f"{source}: grid.")
+            MACHINE_INFO[k].check(v, where=f"{source}: grid.")
         check_stabiliser(grid, where=f"{source}: grid.")
     except ValueError as exc:
         raise UnitError(str(exc)) from None
@@ -424,150 +426,3 @@ def load_unit(path: str | Path | None = None) -> Unit:
 
 def reference_unit() -> Unit:
     return load_unit(None)
-
-
-def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
-    """Apply `--set NAME=VALUE` overrides (see the module docstring); unknown names are errors.
-    The whole unit is checked once all are in (`KAVR.max=100 KAVR=80` is fine in that order)."""
-    overrides = list(overrides)
-    for item in overrides:
-        if "=" not in item:
-            raise UnitError(f"--set {item!r}: expected NAME=VALUE")
-        key, raw = (s.strip() for s in item.split("=", 1))
-        try:
-            value = model_code(raw) if key == "PSS_MODEL" else float(raw)   # PSS_MODEL=PSS2B
-        except ValueError as exc:
-            raise UnitError(f"--set {item!r}: " + (str(exc) if key == "PSS_MODEL" else f"{raw!r} is not a number")) \
-                from None
-        if math.isnan(value):
-            raise UnitError(f"--set {item!r}: NaN is not a value")
-        try:
-            unit = _apply_one(unit, key, value, item)
-        except UnitError:
-            raise
-        except ValueError as exc:
-            raise UnitError(str(exc)) from None
-    if not overrides:
-        return unit
-    return check_unit(_bypass_lead_lags(unit), f"{unit.source} with --set {' '.join(overrides)}")
-
-
-def _bypass_lead_lags(unit: Unit) -> Unit:
-    """A lead-lag of the structure set to both time constants 0 (`--set TB=0 --set TC=0`, a
-    record's way of saying "none") runs as 1, 1, as the structure's typical 0, 0 and a .dyr's do
-    (`Structure.kernel_values`); its standard values stay 0."""
-    if unit.model == DEFAULT_MODEL:
-        return unit
-    fixed = unit.structure.bypass_lead_lags(unit.fixed)
-    return replace(unit, fixed=fixed) if fixed != unit.fixed else unit
-
-
-#: [grid] values an on-line record can determine (not the operating point, the frequency, the
-#: stabiliser's model and its ramp-tracking filter's integers M, N)
-GRID_FITTABLE = tuple(n for n in MACHINE_PARAMS if n not in ("P0", "Q0", "FN", "PSS_MODEL", "PSS2_M", "PSS2_N"))
-
-
-def _grid_bound(unit: Unit, name: str, attr: str, value: float, item: str) -> Unit:
-    """`--set XE.min=0.05` (or .max, .value): the [grid] value fitted on an on-line record within
-    bounds (default: its physical range; start: its [grid] value, else the middle)."""
-    if name not in GRID_FITTABLE or attr not in ("min", "max", "value"):
-        raise UnitError(f"--set {item!r}: a [grid] value fitted on line takes .min, .max or .value; "
-                        f"fittable: {', '.join(GRID_FITTABLE)}")
-    info = _MACHINE_INFO[name]
-    info.check(value, where="--set ")
-    given = name in unit.grid   # a start value given, else the middle of the bounds
-    old = unit.grid_identify.get(name) or Bound(unit.grid.get(name, 0.0), info.lo, info.hi)
-    b = replace(old, **{attr: value})
-    if not b.min < b.max:
-        raise UnitError(f"--set {item!r}: min {b.min} must be below max {b.max}")
-    if attr != "value":
-        b = replace(b, value=min(max(b.value, b.min), b.max) if given else 0.5 * (b.min + b.max))
-    if not b.min <= b.value <= b.max:
-        raise UnitError(f"--set {item!r}: {name} = {b.value} is outside its bounds [{b.min}, {b.max}]")
-    grid = {**unit.grid, name: b.value} if given or attr == "value" else unit.grid
-    return replace(unit, grid_identify={**unit.grid_identify, name: b}, grid=grid)
-
-
-def with_model(unit: Unit, name: str) -> Unit:
-    """The unit with another structure (`--model NAME`): the generator, weights and effects kept,
-    the structure's default identified parameters, bounds and typical values."""
-    st = structure(name)
-    if st.name == unit.model:
-        return unit
-    data = {"name": unit.name, "generator": dict(unit.generator), "weights": dict(unit.weights),
-            "avr": {"model": st.name}, "grid": dict(unit.grid)}
-    if st.name == DEFAULT_MODEL:
-        ref = reference_unit()
-        data.update(identify={k: {"value": b.value, "min": b.min, "max": b.max} for k, b in ref.identify.items()},
-                    fixed=dict(ref.fixed), constraints=list(ref.constraints))
-    new = unit_from_dict(data, f"{unit.source} with --model {st.name}")
-    return replace(new, effects={k: dict(v) for k, v in unit.effects.items()}, source=unit.source,
-                   grid_identify=dict(unit.grid_identify))
-
-
-def _std_to_kernel(unit: Unit, key: str, item: str) -> str:
-    """`--set` names a standard parameter of the unit's structure: the kernel's name for it."""
-    if unit.model == DEFAULT_MODEL:
-        return key
-    base, dot, attr = key.partition(".")
-    st = unit.structure
-    if base in st.names:
-        try:
-            return st.kernel_name(base) + dot + attr
-        except StructureError as exc:
-            raise UnitError(f"--set {item!r}: {exc}") from None
-    why = unit.dialect.refusal(base)
-    if why:
-        raise UnitError(f"--set {item!r}: {why}")
-    return key
-
-
-def _apply_one(unit: Unit, key: str, value: float, item: str) -> Unit:
-    std_key = key
-    if unit.model != DEFAULT_MODEL and key in unit.structure.names and unit.structure.param(key).kernel is None:
-        return replace(unit, model_values={**unit.model_values, key: value})  # for the record only
-    key = _std_to_kernel(unit, key, item)
-    if unit.model != DEFAULT_MODEL and key != std_key and "." not in std_key:
-        unit = replace(unit, model_values={**unit.model_values, std_key: value})
-    if key in MACHINE_PARAMS:   # the machine on the grid, the grid, the operating point
-        _MACHINE_INFO[key].check(value, where="--set ")
-        if key in unit.grid_identify:   # a fitted one: its start value
-            return _grid_bound(unit, key, "value", value, item)
-        return replace(unit, grid={**unit.grid, key: value})
-    if "." in key and key.split(".", 1)[0] in MACHINE_PARAMS:   # XE.min=0.05: XE fitted on line
-        name, attr = key.split(".", 1)
-        return _grid_bound(unit, name, attr, value, item)
-    if key.startswith("weights."):
-        sig = key.split(".", 1)[1]
-        if sig not in _WEIGHT_KEYS:
-            raise UnitError(f"--set {item!r}: unknown signal {sig!r}; allowed: {sorted(_WEIGHT_KEYS)}")
-        return replace(unit, weights={**unit.weights, sig: value})
-    if "." in key:
-        name, attr = key.split(".", 1)
-        if name not in unit.identify or attr not in ("min", "max", "value"):
-            shown = unit.dialect.name(name)
-            raise UnitError(f"--set {item!r}: {shown!r} is not an identified parameter with min/max/value"
-                            f" (identified: {', '.join(unit.dialect.name(n) for n in unit.identify)})")
-        b = replace(unit.identify[name], **{attr: value})
-        if not b.min < b.max:
-            raise UnitError(f"--set {item!r}: min {b.min} must be below max {b.max}")
-        return replace(unit, identify={**unit.identify, name: b})
-    if key in unit.generator or key in GENERATOR_OPTIONAL:   # a generator constant stays with the generator
-        PARAMS[key].check(value, where="--set ")
-        return replace(unit, generator={**unit.generator, key: value})
-    if key in unit.identify:
-        return replace(unit, identify={**unit.identify, key: replace(unit.identify[key], value=value)})
-    if key in unit.fixed:
-        _check_value(unit.dialect, key, value, where="--set ")
-        return replace(unit, fixed={**unit.fixed, key: value})
-    for eff in EFFECTS.values():
-        if key in eff.params:
-            try:  # constraints between effect parameters: once all overrides are in
-                return unit.with_effects({eff.name: {key: value}}, check_constraints=False)
-            except ValueError as exc:
-                raise UnitError(f"--set {item!r}: {exc}") from None
-    if key in PARAMS:
-        PARAMS[key].check(value, where="--set ")
-        return replace(unit, fixed={**unit.fixed, key: value})
-    known = unit.dialect.names() + list(MACHINE_PARAMS)
-    raise UnitError(f"--set {item!r}: unknown name {key!r}; known: {', '.join(known)}")

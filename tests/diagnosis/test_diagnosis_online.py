@@ -12,7 +12,7 @@ from andes_units import online_capture, online_entry, online_unit
 from bench_ctl.diagnosis.diagnose import diagnose, prepare
 from bench_ctl.diagnosis.localize import DiagnosisError
 from bench_ctl.model.effects import vocabulary
-from bench_ctl.units.unit import apply_overrides
+from bench_ctl.units.overrides import apply_overrides
 
 #: recorder noise of the captures: efd 0.01 pu, Q 0.002 pu, Vt 0.0005 pu
 NOISE = {"noise": 0.01, "q_noise": 0.002, "vt_noise": 0.0005}

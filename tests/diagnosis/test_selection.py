@@ -32,7 +32,8 @@ from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.result_file import Localization, SegmentShare, SelectionEntry
 from bench_ctl.identification.threads import set_fit_threads
 from bench_ctl.model.structures import STRUCTURES
-from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import reference_unit
 
 
 def _cand(model: str, k: int, mse: float, check: float, n: int = 5000, n_check: int = 1000) -> Candidate:

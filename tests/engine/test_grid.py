@@ -12,7 +12,8 @@ from bench_ctl.engine import run
 from bench_ctl.engine.machines.grid import machine_matrix
 from bench_ctl.engine.simulate import param_matrix
 from bench_ctl.model.params import MACHINE_PARAMS
-from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import reference_unit
 
 #: the GENROU of the ANDES fixtures (tests/fixtures/andes), H = M / 2
 GEN = dict(xd=1.8, xq=1.7, xd1=0.3, xq1=0.55, xd2=0.25, xl=0.15, Td10=7.5, Tq10=0.4, Td20=0.05, Tq20=0.05,

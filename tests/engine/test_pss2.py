@@ -17,7 +17,8 @@ from test_grid import GEN, SEXS, Machine
 from bench_ctl.engine import run
 from bench_ctl.engine.machines.grid import machine_matrix
 from bench_ctl.engine.simulate import param_matrix
-from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import reference_unit
 
 XE, P0, Q0, VT0 = 0.4, 0.8, 0.2, 1.0
 DT, T_END, STEPS = 1e-3, 4.0, [(0.5, 0.02)]

@@ -14,7 +14,8 @@ from bench_ctl.identification.identifiability import analyse
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.synthetic import synthetic_capture
-from bench_ctl.units.unit import apply_overrides, reference_unit
+from bench_ctl.units.overrides import apply_overrides
+from bench_ctl.units.unit import reference_unit
 from truth import TRUTH
 
 
@@ -138,7 +139,7 @@ def test_every_declared_exchange_of_every_structure_is_examined():
     `--model auto` fits them), and named in the notes when one is not."""
     from bench_ctl.diagnosis.selection import free_limits
     from bench_ctl.model.structures import STRUCTURES
-    from bench_ctl.units.unit import with_model
+    from bench_ctl.units.overrides import with_model
 
     examined = 0
     for name, st in STRUCTURES.items():

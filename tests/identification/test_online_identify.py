@@ -14,7 +14,8 @@ from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, synthetic_reco
 from bench_ctl.identification.identify import run_identification
 from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.report.analysis import simulate_record
-from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import reference_unit
 
 TRUE = {"K": 200.0, "TA": 1.0, "TB": 10.0, "TE": 0.05}
 

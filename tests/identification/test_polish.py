@@ -17,7 +17,7 @@ from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.result import Result
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.synthetic import synthetic_capture
-from bench_ctl.units.unit import apply_overrides
+from bench_ctl.units.overrides import apply_overrides
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,8 @@ from ac_equations import quad as _quad
 from bench_ctl.engine.simulate import simulate
 from bench_ctl.units.dyr import DyrRecord, dyr_text, read_dyr
 from bench_ctl.units.dyr_unit import unit_from_dyr
-from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import reference_unit
 
 TRACK = 2.0   # ANDES' PITrackAW tracking gain ks (its AC8B's default)
 

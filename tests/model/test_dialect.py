@@ -12,7 +12,8 @@ from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.model.dialect import dialect_of, kernel_sections
 from bench_ctl.model.effects import EFFECTS, separating_test
 from bench_ctl.model.structures import STRUCTURES, structure
-from bench_ctl.units.unit import UnitError, apply_overrides, reference_unit, unit_from_dict, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import UnitError, reference_unit, unit_from_dict
 from records import model_json, result_json
 
 STANDARD = [n for n in STRUCTURES if n != "REFERENCE"]
@@ -199,3 +200,49 @@ def test_a_result_in_standard_names_reads_back_to_the_kernel_values_it_was_made_
             assert got[k] == values[k], (k, got[k], values[k])
     if name != "REFERENCE":
         assert not set(std["fixed"]) & set(unit.dialect.hidden_kernel_names())
+
+
+@pytest.mark.parametrize("name", ["ESST1A", "IEEEX1", "ESST4B"])
+def test_a_unit_file_in_the_structures_names_reads_and_writes_back_the_same(name):
+    """The unit file is read in the structure's names and the record written of it (`Unit.entry`
+    through the dialect) says the same names, bounds, values and constraints (IEEEX1: the kernel's
+    TE is the standard TA, its TEX the standard TE, a swap that must not chain)."""
+    st = structure(name)
+    typical = {p.name: p.typical for p in st.params}
+    ident = {n: {"value": typical[n], "min": st.param(n).bounds[0], "max": st.param(n).bounds[1]}
+             for n in st.default_identified()}
+    fixed = {p.name: p.typical for p in st.params if p.name not in ident and p.kernel is not None}
+    data = {"avr": {"model": name}, "generator": {"Td0p": 7.5, "Td0pp": 0.05, "Vt0": 1.0},
+            "identify": ident, "fixed": fixed, "constraints": list(st.constraints)}
+    unit = unit_from_dict(data, "u.toml")
+    assert not set(unit.identify) & (set(ident) - {st.kernel_name(n) for n in ident})   # kernel names inside
+    written = dialect_of(st).unit(unit.entry())
+    assert {k: (b.value, b.min, b.max) for k, b in written.identify.items()} == \
+        {k: (b["value"], b["min"], b["max"]) for k, b in ident.items()}
+    assert {k: written.fixed[k] for k in fixed} == fixed
+    assert written.constraints == list(st.constraints)
+    again = unit_from_dict({**data, "identify": {k: {"value": b.value, "min": b.min, "max": b.max}
+                                                 for k, b in written.identify.items()},
+                            "fixed": {k: written.fixed[k] for k in fixed}}, "again.toml")
+    assert again.identify == unit.identify and again.fixed == unit.fixed
+
+
+def test_set_reads_the_structures_names_and_its_messages_say_what_was_typed():
+    """`--set` on an IEEEX1 unit: TE is the standard exciter constant (the kernel's TEX), TA the
+    regulator's lag (the kernel's TE), TB a fixed lag (the kernel's TA2); a refusal names the name
+    the user typed and lists the identified ones as the structure calls them, never the kernel's."""
+    unit = with_model(reference_unit(), "IEEEX1")
+    st = unit.structure
+    assert [st.kernel_name(n) for n in ("TE", "TA", "TB")] == ["TEX", "TE", "TA2"]
+    assert {"TEX", "TE"} <= set(unit.identify) and "TA2" in unit.fixed
+    set_ = apply_overrides(unit, ["TE=0.9", "TA.max=0.5", "TB=2"])
+    assert set_.identify["TEX"].value == 0.9 and set_.identify["TE"].max == 0.5 and set_.fixed["TA2"] == 2.0
+    assert set_.standard_values()["TE"] == 0.9 and set_.standard_values()["TB"] == 2.0
+    with pytest.raises(UnitError) as exc:
+        apply_overrides(unit, ["TB.max=2"])
+    assert "'TB' is not an identified parameter" in str(exc.value)
+    assert f"(identified: {', '.join(st.std_name(k) for k in unit.identify)})" in str(exc.value)
+    assert "TA2" not in str(exc.value) and "TEX" not in str(exc.value)
+    with pytest.raises(UnitError) as exc:
+        apply_overrides(unit, ["TB=-1"])
+    assert "TB" in str(exc.value) and "TA2" not in str(exc.value)

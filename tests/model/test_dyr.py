@@ -8,7 +8,8 @@ import pytest
 
 from bench_ctl.cli import main
 from bench_ctl.units.dyr import FIELDS, ICONS, DyrError, DyrRecord, find, format_record, parse_dyr, read_dyr, write_dyr
-from bench_ctl.units.dyr_unit import pss_from_record, pss_record, unit_from_dyr
+from bench_ctl.units.dyr_export import pss_record
+from bench_ctl.units.dyr_unit import pss_from_record, unit_from_dyr
 from bench_ctl.units.unit import UnitError, reference_unit
 
 FILE = """// a plant: generator, exciter, and a governor bench-ctl does not model

@@ -9,7 +9,8 @@ import pytest
 
 from bench_ctl.cli import main
 from bench_ctl.units.dyr import DyrError, dyr_text, parse_dyr, read_dyr
-from bench_ctl.units.dyr_unit import pss_record, unit_from_dyr
+from bench_ctl.units.dyr_export import pss_record
+from bench_ctl.units.dyr_unit import unit_from_dyr
 from bench_ctl.units.unit import UnitError, reference_unit
 
 PLANT = """// a salient-pole unit with its static exciter

@@ -11,7 +11,8 @@ from bench_ctl.engine.simulate import simulate
 from bench_ctl.model.structures import structure
 from bench_ctl.units.dyr import read_dyr
 from bench_ctl.units.dyr_unit import unit_from_dyr
-from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import reference_unit
 
 # the Mostar unit's voltage channel as its OpenIPSL study fitted it (Data/Step5/init.mo in
 # ALSETLab/Mostar; numbers only), with its T'd0

@@ -12,7 +12,8 @@ from bench_ctl.cli import main
 from bench_ctl.engine.simulate import simulate
 from bench_ctl.model.params import PARAMS
 from bench_ctl.model.structures import STRUCTURES, StructureError, structure
-from bench_ctl.units.unit import UnitError, apply_overrides, load_unit, reference_unit, with_model
+from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.unit import UnitError, load_unit, reference_unit
 
 
 def test_the_library_holds_the_standard_structures_each_coherent():

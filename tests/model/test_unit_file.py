@@ -8,7 +8,8 @@ import pytest
 
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.params import PARAMS
-from bench_ctl.units.unit import UnitError, apply_overrides, load_unit, reference_unit
+from bench_ctl.units.overrides import apply_overrides
+from bench_ctl.units.unit import UnitError, load_unit, reference_unit
 
 
 def test_reference_unit_matches_design():
@@ -125,7 +126,7 @@ def test_bad_overrides(bad, msg):
 def test_grid_table_set_and_dyr_give_the_machine_on_the_grid(tmp_path):
     """[grid] (issue 27): the machine's on-line data and the grid, from the unit file, --set (kept
     across --model) and a GENROU record; a key outside the machine's names, or out of range, is named."""
-    from bench_ctl.units.unit import with_model
+    from bench_ctl.units.overrides import with_model
 
     ref = tmp_path / "ref.toml"
     text = resources_reference_text()
@@ -167,7 +168,7 @@ def test_the_units_stabiliser_is_picked_by_name_in_grid_and_by_set(tmp_path, cap
     PSS2_* values beside it, values that do not go together refused with the name; without it the
     IEEEST of the PSS_* values, as before; `models PSS2B` lists its parameters."""
     from bench_ctl.cli import main
-    from bench_ctl.units.unit import GRID_FITTABLE
+    from bench_ctl.units.overrides import GRID_FITTABLE
 
     ref = tmp_path / "ref.toml"
     text = resources_reference_text()
@@ -198,7 +199,7 @@ def test_the_units_stabiliser_is_picked_by_name_in_grid_and_by_set(tmp_path, cap
     assert main(["models"]) == 0
     assert "PSS2B" in capsys.readouterr().out
     # export: an IEEEST record for an IEEEST, a PSS2B record for a PSS2B (tests/model/test_dyr_pss2.py)
-    from bench_ctl.units.dyr_unit import pss_record
+    from bench_ctl.units.dyr_export import pss_record
 
     assert pss_record({"PSS_MODEL": 3.0, "PSS_KS": 10.0}, 1, "1") is None   # KS1 0: no stabiliser
     assert pss_record({"PSS_MODEL": 3.0, "PSS2_KS1": 10.0}, 1, "1").model == "PSS2B"

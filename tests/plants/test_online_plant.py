@@ -17,7 +17,8 @@ from bench_ctl.plants import O_P as A_P
 from bench_ctl.plants import O_Q as A_Q
 from bench_ctl.plants import O_VT as A_VT
 from bench_ctl.plants import OnlinePlant
-from bench_ctl.units.unit import apply_overrides, load_unit
+from bench_ctl.units.overrides import apply_overrides
+from bench_ctl.units.unit import load_unit
 
 
 def _unit():

@@ -7,7 +7,8 @@ import numpy as np
 
 from bench_ctl.plants import O_P, OnlinePlant
 from bench_ctl.signals.mode import electromechanical_mode
-from bench_ctl.units.unit import apply_overrides, load_unit
+from bench_ctl.units.overrides import apply_overrides
+from bench_ctl.units.unit import load_unit
 
 #: the reference unit's IEEEST of the dry run of pss_step (procedures/pss_step.py SIMULATED_BENCH)
 IEEEST = ("PSS_MODEL=IEEEST", "PSS_KS=5", "PSS_T1=0.2", "PSS_T2=0.05", "PSS_T3=0.2", "PSS_T4=0.05", "PSS_TW=5",

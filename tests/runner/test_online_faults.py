@@ -16,7 +16,8 @@ from bench_ctl.exitcodes import ExitCode
 from bench_ctl.runner.audit import read_audit
 from bench_ctl.runner.config import config_from_dict
 from bench_ctl.runner.runner import run_procedure
-from bench_ctl.units.unit import apply_overrides, load_unit
+from bench_ctl.units.overrides import apply_overrides
+from bench_ctl.units.unit import load_unit
 from pulse_bench import ROOT
 from simulators.faults import Fault
 
