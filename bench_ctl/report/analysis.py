@@ -41,6 +41,7 @@ from bench_ctl.report.metrics import (
 from bench_ctl.signals.acceptance import Acceptance, AcceptanceError, acceptance_limits, evaluate
 from bench_ctl.signals.edges import EdgeSearch
 from bench_ctl.timestamps import utc_now_text
+from bench_ctl.units.switched import grid_as_recorded
 from bench_ctl.units.unit import outside_bounds
 
 log = logging.getLogger(__name__)
@@ -238,14 +239,14 @@ def _noise_floor(diagnosis: Diagnosis | None,
 def simulate_record(values: Mapping[str, float], cap: Any, grid: Mapping[str, float], spec: Any,
                     where: str) -> dict[str, Any]:
     """efd, vt and fail_step of the fitted values on a capture: at no load, or on the grid when
-    the capture has P and Q (from its own operating point and the result's [grid]; then p, q and
-    ifd too)."""
+    the capture has P and Q (from its own operating point and the result's [grid], the stabiliser
+    as the record was taken: `grid_as_recorded`; then p, q and ifd too)."""
     p, q = cap.channel("p"), cap.channel("q")
     if p is None or q is None or cap.vt is None:
         efd, vt, fail = simulate(values, cap.usetp, cap.dt, edges=spec)
         return {"efd": efd, "vt": vt, "fail_step": fail}
     try:
         point = operating_point(cap.usetp, p, q, cap.vt, float(cap.dt))
-        return simulate_on_line(values, grid, point, cap.usetp, cap.dt, edges=spec)
+        return simulate_on_line(values, grid_as_recorded(grid, cap), point, cap.usetp, cap.dt, edges=spec)
     except (KeyError, ValueError) as exc:
         raise ReportError(f"{where}: an on-line capture (p and q) re-simulated on the grid: {exc}") from None

@@ -2,9 +2,9 @@
 on-line step with the PSS off, then on: their sidecars' `test.pss_on`), the electromechanical mode
 in P of each, measured and simulated, and one figure of P after the step, off vs on.
 
-The simulated mode of the PSS-off record is the identified model re-simulated with its
-stabiliser's output held at 0 (its output limits 0, its states running: the simulated exciter's
-switch); the PSS-on record's is the report's own re-simulation (`CaptureAnalysis.online`).
+The simulated mode of each record is the report's own re-simulation (`CaptureAnalysis.online`),
+which runs a PSS-off record with its stabiliser's output held at 0, its states running, as the
+exciter's switch does (`bench_ctl.units.switched`).
 """
 from __future__ import annotations
 
@@ -13,15 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.identification.timing import edge_spec_of
-from bench_ctl.report.analysis import CaptureAnalysis, ReportData, simulate_record
+from bench_ctl.report.analysis import CaptureAnalysis, ReportData
 from bench_ctl.report.blocks import Block, Fig, Num, Para, Section, Table
 from bench_ctl.report.metrics import edge_times
 from bench_ctl.signals.mode import Mode, electromechanical_mode
 
-#: the [grid] values that hold a stabiliser's output at 0 (IEEEST's +-LSMAX, PSS2A/PSS2B's VSTMAX
-#: and VSTMIN), its states running
-PSS_OUTPUT_OFF = {"PSS_LSMAX": 0.0, "PSS2_VSTMAX": 0.0, "PSS2_VSTMIN": 0.0}
 #: seconds of P shown after the step
 SHOWN_S = 6.0
 
@@ -33,14 +29,6 @@ def pss_captures(d: ReportData) -> tuple[CaptureAnalysis, CaptureAnalysis] | Non
                      and (a.loaded.capture.meta.get("test") or {}).get("pss_on") is on), None)
     off, on = first(False), first(True)
     return (off, on) if off is not None and on is not None else None
-
-
-def _simulated_off(d: ReportData, a: CaptureAnalysis) -> np.ndarray:
-    """P of the model on the PSS-off record, the stabiliser's output held at 0."""
-    cap = a.loaded.capture
-    spec, offsets = edge_spec_of(a.loaded.entry.edges, cap.n)
-    grid = {**(d.result.unit.grid or {}), **PSS_OUTPUT_OFF}
-    return simulate_record({**d.values, **offsets}, cap, grid, spec, a.loaded.path.name)["p"]
 
 
 def _mode_cells(m: Mode | None, key: str) -> tuple[Any, Any]:
@@ -60,7 +48,7 @@ def stabiliser(d: ReportData) -> Section | None:
         lead_s = edge_times(a.edges)[0]
         p_meas = cap.channel("p")
         assert p_meas is not None and a.online is not None   # an on-line capture
-        p_sim = _simulated_off(d, a) if label == "PSS off" else a.online["p"]
+        p_sim = a.online["p"]
         modes = [None if lead_s is None else electromechanical_mode(cap.time, p, lead_s) for p in (p_meas, p_sim)]
         key = "pss-off" if label == "PSS off" else "pss-on"
         rows.append((label, *_mode_cells(modes[0], f"{key}-measured"), *_mode_cells(modes[1], f"{key}-simulated")))
