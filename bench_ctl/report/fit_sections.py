@@ -16,7 +16,7 @@ from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
-from bench_ctl.report.blocks import (
+from bench_ctl.report.document import (
     NOT_AVAILABLE,
     Block,
     Fig,

@@ -15,7 +15,7 @@ import numpy as np
 
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData, simulate_record
-from bench_ctl.report.blocks import Block, Fig, Num, Para, Section, Table
+from bench_ctl.report.document import Block, Fig, Num, Para, Section, Table
 from bench_ctl.report.metrics import edge_times
 from bench_ctl.signals.mode import Mode, electromechanical_mode
 
