@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_ctl.capture import read_capture  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
-from bench_ctl.identification.problem import make_problem  # noqa: E402
+from bench_ctl.identification.construction import make_problem  # noqa: E402
 from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.model.structures import STRUCTURES  # noqa: E402
 from bench_ctl.units.dyr_unit import unit_from_dyr  # noqa: E402

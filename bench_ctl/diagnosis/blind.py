@@ -24,9 +24,9 @@ import numpy as np
 from bench_ctl.capture import Capture
 from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate
 from bench_ctl.identification.constraints import parse_constraints
+from bench_ctl.identification.construction import make_problem
 from bench_ctl.identification.options import PROFILE
 from bench_ctl.identification.polish import polish
-from bench_ctl.identification.problem import make_problem
 from bench_ctl.model.effects import EFFECT_NAMES
 from bench_ctl.units.unit import Bound, Unit, load_unit
 

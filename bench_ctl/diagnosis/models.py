@@ -13,7 +13,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 from bench_ctl.capture import Capture
-from bench_ctl.identification.problem import Problem, make_problem
+from bench_ctl.identification.construction import make_problem
+from bench_ctl.identification.problem import Problem
 from bench_ctl.identification.result import Result
 from bench_ctl.model.effects import VOCABULARY, vocabulary
 from bench_ctl.signals.edges import EDGE_PARAMS

@@ -32,8 +32,8 @@ import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.exitcodes import BadInput
+from bench_ctl.identification.construction import make_problem
 from bench_ctl.identification.identify import Identification, run_identification
-from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.result_file import CandidateEntry, Localization, SelectionEntry, Separation
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits

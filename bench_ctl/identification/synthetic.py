@@ -16,7 +16,7 @@ from bench_ctl.capture import Capture
 from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate, synthetic_record
 from bench_ctl.units.unit import Unit, apply_overrides
 
-from .problem import make_problem
+from .construction import make_problem
 
 __all__ = ["synthetic_capture", "random_parameters", "noise_variance", "closed_loop_poles", "with_values"]
 

@@ -28,7 +28,7 @@ from bench_ctl.diagnosis.selection import (
     separation_text,
     where_left,
 )
-from bench_ctl.identification.problem import make_problem
+from bench_ctl.identification.construction import make_problem
 from bench_ctl.identification.result_file import Localization, SegmentShare, SelectionEntry
 from bench_ctl.identification.threads import set_fit_threads
 from bench_ctl.model.structures import STRUCTURES

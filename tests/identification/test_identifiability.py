@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench_ctl.identification.construction import make_problem
 from bench_ctl.identification.identifiability import analyse
 from bench_ctl.identification.peers import run_optimizer
-from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.synthetic import synthetic_capture
 from bench_ctl.units.unit import apply_overrides, reference_unit
 from truth import TRUTH

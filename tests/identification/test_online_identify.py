@@ -11,8 +11,8 @@ import pytest
 from bench_ctl.capture import Capture
 from bench_ctl.engine.machines.grid import TYPICAL_MACHINE
 from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, synthetic_record
+from bench_ctl.identification.construction import ProblemError, make_problem
 from bench_ctl.identification.identify import run_identification
-from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.report.analysis import simulate_record
 from bench_ctl.units.unit import apply_overrides, reference_unit, with_model
 
