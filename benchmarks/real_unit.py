@@ -91,7 +91,7 @@ def main_bench(argv: list[str] | None = None) -> int:
             base = apply_overrides(base, generator)
             print("generator from the record: " + ", ".join(generator))
         # `bench-ctl identify --model auto`, as a user runs it: every structure identified, checked
-        # and ranked (bench_ctl.diagnosis.selection)
+        # and ranked (bench_ctl.identification.selection)
         res = Path(tmp) / "auto.json"
         argv_i = ["identify", str(Path(tmp) / f"{label(args.path)}.csv"), "--model", "auto", "--json", str(res),
                   "--seed", str(args.seed), "--evals", str(args.evals), "--no-progress"]

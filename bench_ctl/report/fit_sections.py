@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.diagnosis.selection import separation_text, where_left
 from bench_ctl.engine.simulate import pre_trigger_mean, simulate
 from bench_ctl.identification.result_file import CandidateEntry, EquivalentSet, Identifiability, IdentificationResult
+from bench_ctl.identification.selection import separation_text, where_left
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report import figures as F

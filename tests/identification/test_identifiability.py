@@ -136,7 +136,7 @@ def test_every_declared_exchange_of_every_structure_is_examined():
     """Each structure's declared exchanges (`Structure.swaps`) are built and reported among the
     equivalent sets when both parameters are fitted (a pair of limits: with the limits fitted, as
     `--model auto` fits them), and named in the notes when one is not."""
-    from bench_ctl.diagnosis.selection import free_limits
+    from bench_ctl.identification.candidates import free_limits
     from bench_ctl.model.structures import STRUCTURES
     from bench_ctl.units.unit import with_model
 
