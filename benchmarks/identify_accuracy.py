@@ -46,10 +46,10 @@ import numpy as np  # noqa: E402
 
 from bench_ctl.capture import Capture, read_capture  # noqa: E402
 from bench_ctl.engine.simulate import RecorderModel  # noqa: E402
+from bench_ctl.identification.construction import make_problem  # noqa: E402
 from bench_ctl.identification.identify import warm_up  # noqa: E402
 from bench_ctl.identification.options import IDENTIFY  # noqa: E402
 from bench_ctl.identification.peers import OPTIMIZERS, run_optimizer  # noqa: E402
-from bench_ctl.identification.problem import make_problem  # noqa: E402
 from bench_ctl.identification.synthetic import noise_variance, random_parameters, synthetic_capture, with_values  # noqa: E402
 from bench_ctl.units.overrides import apply_overrides  # noqa: E402
 from bench_ctl.units.unit import reference_unit  # noqa: E402

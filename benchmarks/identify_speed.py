@@ -37,9 +37,9 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
+from bench_ctl.identification.construction import make_problem  # noqa: E402
 from bench_ctl.identification.identify import warm_up  # noqa: E402
 from bench_ctl.identification.peers import run_optimizer  # noqa: E402
-from bench_ctl.identification.problem import make_problem  # noqa: E402
 from bench_ctl.identification.synthetic import synthetic_capture  # noqa: E402
 from bench_ctl.units.overrides import apply_overrides  # noqa: E402
 from bench_ctl.units.unit import reference_unit  # noqa: E402

@@ -15,7 +15,7 @@ saved (`--json`) per file:
   spread of the pre-step efd; the ifd factor;
 - the pre-step disturbance: the variance of the pre-step efd (model pu) about a straight line,
   the samples before the first setpoint change less 2 (the definition of the diagnosis' noise
-  floor, bench_ctl/diagnosis/localize.py), and its standard deviation.
+  floor, bench_ctl/identification/localize.py), and its standard deviation.
 
 Usage: python benchmarks/import_real.py PATH... [--test step:amplitude=0.1] [--resample 200]
            [--map NAME=COLUMN ...] [--set S10=0.1 --set S12=0.48] [--json OUT]

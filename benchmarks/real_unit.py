@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_ctl.capture import read_capture  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
-from bench_ctl.identification.problem import make_problem  # noqa: E402
+from bench_ctl.identification.construction import make_problem  # noqa: E402
 from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.model.structures import STRUCTURES  # noqa: E402
 from bench_ctl.units.dyr_unit import unit_from_dyr  # noqa: E402
@@ -92,7 +92,7 @@ def main_bench(argv: list[str] | None = None) -> int:
             base = apply_overrides(base, generator)
             print("generator from the record: " + ", ".join(generator))
         # `bench-ctl identify --model auto`, as a user runs it: every structure identified, checked
-        # and ranked (bench_ctl.diagnosis.selection)
+        # and ranked (bench_ctl.identification.selection)
         res = Path(tmp) / "auto.json"
         argv_i = ["identify", str(Path(tmp) / f"{label(args.path)}.csv"), "--model", "auto", "--json", str(res),
                   "--seed", str(args.seed), "--evals", str(args.evals), "--no-progress"]

@@ -31,9 +31,9 @@ import numpy as np  # noqa: E402
 
 from andes_units import fixture_column, generator_values, manifest, read_fixture  # noqa: E402
 from bench_ctl.capture import Capture  # noqa: E402
-from bench_ctl.commands.auto import auto_models  # noqa: E402
-from bench_ctl.diagnosis.selection import free_limits, select_structure  # noqa: E402
+from bench_ctl.identification.candidates import auto_models, free_limits  # noqa: E402
 from bench_ctl.identification.identify import warm_up  # noqa: E402
+from bench_ctl.identification.selection import select_structure  # noqa: E402
 from bench_ctl.identification.threads import fit_threads  # noqa: E402
 from bench_ctl.model.structures import STRUCTURES  # noqa: E402
 from bench_ctl.units.overrides import apply_overrides, with_model  # noqa: E402
@@ -42,7 +42,7 @@ from bench_ctl.units.unit import reference_unit  # noqa: E402
 
 def candidate_units(models: list[str], limits: str) -> dict:
     """Every candidate in its structure at typical values, on the fixtures' generator; its
-    limits identified too with `limits` "free" (`selection.free_limits`)."""
+    limits identified too with `limits` "free" (`candidates.free_limits`)."""
     g = generator_values(manifest()["generator_params"])
     base = apply_overrides(reference_unit(), [f"{k}={g[k]}" for k in ("Td0p", "Td0pp", "KPP", "KDA")])
     base = base.with_effects({"saturation": {"S10": g["S10"], "S12": g["S12"]}})

@@ -30,10 +30,10 @@ from bench_ctl import outputs
 from bench_ctl.capture import Capture, read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis
-from bench_ctl.diagnosis.localize import where_lines
 from bench_ctl.engine.simulate import simulate
 from bench_ctl.exitcodes import BadInput, ExitCode
 from bench_ctl.identification.constraints import parse_constraints
+from bench_ctl.identification.localize import where_lines
 from bench_ctl.identification.result_file import (
     RESULT_SCHEMA,
     CaptureEntry,
@@ -42,12 +42,13 @@ from bench_ctl.identification.result_file import (
     OptimizerEntry,
     read_result,
 )
+from bench_ctl.identification.selection import rank_structures
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.records import plain
 from bench_ctl.units.unit import Unit, UnitError
 
-from .auto import auto_units, is_auto, rank_structures, selection_summary
+from .auto import auto_units, is_auto, selection_summary
 from .options import fmt_value as _fmt
 from .options import model_args, model_options, resolve_unit
 

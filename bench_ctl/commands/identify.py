@@ -28,14 +28,15 @@ from bench_ctl.capture import read_capture
 from bench_ctl.capture.plausible import check_plausible
 from bench_ctl.exitcodes import BadInput, ExitCode
 from bench_ctl.identification.constraints import ConstraintError
+from bench_ctl.identification.construction import ProblemError, make_problem
 from bench_ctl.identification.identify import Identification, result_for_file, run_identification
 from bench_ctl.identification.options import IDENTIFY
 from bench_ctl.identification.peers import OPTIMIZERS
-from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.identification.result_file import IdentificationResult, ModelEntry  # noqa: F401 (the summary's input)
+from bench_ctl.identification.selection import NoStructureFitted, rank_structures
 from bench_ctl.model.unit_record import UnitEntry
 
-from .auto import NoStructureFitted, auto_units, is_auto, rank_structures, selection_summary
+from .auto import auto_units, is_auto, selection_summary
 from .options import fmt_value as _fmt
 from .options import model_args, model_options, resolve_unit
 

@@ -3,9 +3,10 @@
 `diagnose(capture, unit, holdout=...)` -> `Diagnosis` (docs/formats.md, schema "bench-ctl/diagnosis/1");
 `blind` generates and scores the blind suite.
 """
+from bench_ctl.identification.localize import DiagnosisError
+
 from .diagnose import SCHEMA, Budget, diagnose
 from .diagnosis_file import BaseFit, Diagnosis, EffectEntry, Step, read_diagnosis
-from .localize import DiagnosisError
 
 __all__ = ["SCHEMA", "BaseFit", "Budget", "Diagnosis", "DiagnosisError", "EffectEntry", "Step", "diagnose",
            "read_diagnosis"]

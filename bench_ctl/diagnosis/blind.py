@@ -24,15 +24,15 @@ import numpy as np
 from bench_ctl.capture import Capture
 from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate
 from bench_ctl.identification.constraints import parse_constraints
+from bench_ctl.identification.construction import make_problem
+from bench_ctl.identification.localize import pulse_edges
+from bench_ctl.identification.model_fits import coarse_factor
 from bench_ctl.identification.options import PROFILE
 from bench_ctl.identification.polish import polish
-from bench_ctl.identification.problem import make_problem
 from bench_ctl.model.effects import EFFECT_NAMES
 from bench_ctl.units.unit import Bound, Unit, load_unit
 
 from .diagnosis_file import Diagnosis
-from .localize import pulse_edges
-from .models import coarse_factor
 from .search import fit, mean
 
 log = logging.getLogger(__name__)

@@ -3,7 +3,7 @@
 `diagnose(capture, unit, holdout=...)` returns the diagnosis (`diagnosis_file.Diagnosis`, schema
 "bench-ctl/diagnosis/1", docs/formats.md). Every model is identification's `Problem` on the whole capture (the unit's
 identified parameters, the effects' parameters and the instant of every setpoint edge,
-`models.Views`), fitted with identification's stack (`search`):
+`model_fits.Views`), fitted with identification's stack (`search`):
 
 1. Base fit: exactly as `bench-ctl identify` fits it (from the unit's values, or `base_params`
    when a previous identification is given); re-polished from an effect fit's parameters when
@@ -21,8 +21,8 @@ identified parameters, the effects' parameters and the instant of every setpoint
    effects are ranked again: it must not rest on a local fit (docs/lab/benchmarks-2026-11.md).
 4. Several effects at once (`explained_by`, `explain`), and what is left.
 
-The check (`check.check_parts`): the cross-validation windows of the capture (leading edge,
-plateau, trailing edge; each left out of a re-fit and scored: `CV_SEGMENTS`, the recovery is
+The check (`fit_check.check_parts`): the cross-validation windows of the capture (leading edge,
+plateau, trailing edge; each left out of a re-fit and scored: `fit_check.CV_SEGMENTS`, the recovery is
 never one), the recorded Vt when the fit did not use it, and the holdout capture when one is
 given.
 """
@@ -39,6 +39,9 @@ import numpy as np
 
 import bench_ctl
 from bench_ctl.capture import Capture, capture_sha256
+from bench_ctl.identification.fit_check import bic, checked, fit_holdout, prepare
+from bench_ctl.identification.localize import NoiseFloor, localization
+from bench_ctl.identification.model_fits import Budget, ModelFit, Setup, Views
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
@@ -49,23 +52,17 @@ from bench_ctl.timestamps import utc_now_text
 from bench_ctl.units.unit import Unit
 
 from . import features as F
-from .check import bic, checked, describe_check, fit_holdout
 from .diagnosis_file import (
     DIAGNOSIS_SCHEMA,
     BaseFit,
     CaptureRef,
     Criteria,
     Diagnosis,
-    HoldoutCheck,
     NoiseFloorDetail,
     SequenceEntry,
-    Span,
-    Validation,
     Vocabulary,
 )
 from .explain import explained_by, sequence
-from .localize import DiagnosisError, NoiseFloor, localization, noise_floor, pulse_edges, segments
-from .models import Budget, ModelFit, Setup, Views, Window, coarse_factor
 from .search import finish, fit_model, global_search, refine, refine_base
 from .significance import close_to_best, criteria, worth_checking
 from .starts import all_starts, lag_variants
@@ -86,76 +83,6 @@ def _capture_ref(c: Capture | None) -> CaptureRef | None:
 
 #: effects checked after the single-effect fits: those that lower the BIC most
 CHECKED = 4
-
-#: cross-validation windows: the segments of the record (localize.segments) each left out in turn.
-#: Not the recovery: it is most of the record and holds what determines the slow time constants,
-#: so the rest cannot predict it for any model; it stays in every fit (docs/decisions/0010).
-CV_SEGMENTS = ("leading_edge", "plateau", "trailing_edge")
-
-
-def _windows(capture: Capture, edges: EdgeSearch) -> tuple[Window, ...]:
-    dt = capture.dt
-    return tuple(Window(s.name, s.k0 * dt, (s.k1 - 1) * dt) for s in segments(capture.n, dt, edges)
-                 if s.name in CV_SEGMENTS and s.k1 - s.k0 >= 5)
-
-
-def _fit_floor(capture: Capture, unit: Unit, edges: EdgeSearch, efd_floor: NoiseFloor, source: str) -> NoiseFloor:
-    """The noise floor of the mean objective every fit is ranked by: efd's at its weight, plus
-    Vt's at its weight when the unit weights a recorded Vt (the default: efd's alone), plus on line
-    Q's at its weight (default 1: `Problem`'s)."""
-    weighted = [(float(unit.weights.get("efd", 1.0)), efd_floor)]
-    w_vt = float(unit.weights.get("vt", 0.0))
-    if capture.vt is not None and w_vt > 0.0:
-        weighted.append((w_vt, noise_floor(capture.vt, capture.dt, edges, source)))
-    w_q = float(unit.weights.get("q", 1.0))
-    if capture.on_line and w_q > 0.0:
-        weighted.append((w_q, noise_floor(capture.channel("q"), capture.dt, edges, source)))
-    return replace(efd_floor, variance=sum(w * f.variance for w, f in weighted),
-                   rel_se=max(f.rel_se for _, f in weighted))
-
-
-def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: EdgeSearch, floor: NoiseFloor,
-           budget: Budget) -> Setup:
-    windows = _windows(capture, edges)
-    if not windows:
-        raise DiagnosisError(f"{capture.source or 'capture'}: too short after the setpoint change for a check")
-    q = coarse_factor(unit, capture.dt, budget.coarse_dt)
-    k_on, k_off = edges.lead.index, edges.trail_index
-    if k_off is not None:  # both setpoint edges on the coarse grid, or the trailing one moves
-        q = math.gcd(q, k_off - k_on) or 1
-    n_coarse = capture.n if k_off is None else min(capture.n, k_off + int(round(budget.coarse_tail_s / capture.dt)))
-    views = Views(unit, capture, holdout, q, n_coarse, edges.lead.index, windows)
-    check_floor, check_se = floor.variance, floor.rel_se
-    hold = None
-    if holdout is not None:
-        h_src = holdout.source or "holdout"
-        h_edges = pulse_edges(holdout.usetp, h_src)
-        h_floor = _fit_floor(holdout, unit, h_edges, noise_floor(holdout.efd, holdout.dt, h_edges, h_src), h_src)
-        n_w = sum(int(round((w.t1 - w.t0) / capture.dt)) + 1 for w in windows)
-        check_floor = (h_floor.variance * holdout.n + floor.variance * n_w) / (holdout.n + n_w)
-        check_se = max(h_floor.rel_se, floor.rel_se)
-        hold = HoldoutCheck(holdout.source or None, 0.0, float(holdout.time[-1] - holdout.time[0]), h_floor.variance)
-    floor_tol = floor.variance * (1.0 + budget.floor_sigmas * math.sqrt(floor.rel_se ** 2 + 2.0 / capture.n))
-    validation = Validation("holdout + windows" if holdout is not None else "windows",
-                            Span(0.0, (capture.n - 1) * capture.dt), describe_check(views, hold))
-    return Setup(views, capture.n, floor, check_floor, check_se, floor_tol, validation)
-
-
-def prepare(capture: Capture, unit: Unit, *, holdout: Capture | None = None, budget: Budget | None = None
-            ) -> tuple[EdgeSearch, NoiseFloor, Setup]:
-    """What every model of `capture` is fitted and checked on: the setpoint edges, efd's noise
-    floor (pre-trigger) and the `Setup` (views, the fit's floor, the check's windows)."""
-    budget = budget if budget is not None else Budget()
-    src = capture.source or "capture"
-    if holdout is not None and holdout.on_line != capture.on_line:
-        kind = {True: "an on-line", False: "a no-load"}
-        raise DiagnosisError(f"{holdout.source or 'the holdout'} is {kind[holdout.on_line]} record and {src} "
-                             f"{kind[capture.on_line]} one: a holdout is a record of the same test")
-    edges = pulse_edges(capture.usetp, src)
-    efd_floor = noise_floor(capture.efd, capture.dt, edges, src)
-    floor = _fit_floor(capture, unit, edges, efd_floor, src)
-    return edges, efd_floor, _setup(capture, holdout, unit, edges, floor, budget)
-
 
 def _fit_base(st: Setup, budget: Budget, seed: int, base_params: Mapping[str, float] | None) -> ModelFit:
     """The base model identified as `bench-ctl identify` does (`peers.run_optimizer("mvmo")` on the

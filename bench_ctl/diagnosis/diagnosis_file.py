@@ -14,6 +14,14 @@ import os
 from dataclasses import dataclass, replace
 from typing import Any
 
+from bench_ctl.identification.check_records import (
+    BlocksCheck,
+    CheckDescription,
+    CheckWindow,
+    HoldoutCheck,
+    Span,
+    Validation,
+)
 from bench_ctl.identification.result_file import Localization, SelectionEntry
 from bench_ctl.identification.timing import Edge
 from bench_ctl.limits import read_json
@@ -37,56 +45,6 @@ class CaptureRef(Record):
     written) and the SHA-256 of its file (`bench_ctl.capture.capture_sha256`)."""
     path: str | None
     sha256: str | None
-
-
-@dataclass(frozen=True, eq=False)
-class Span(Record):
-    t0: float
-    t1: float
-
-
-@dataclass(frozen=True, eq=False)
-class CheckWindow(Record):
-    """A window of the capture left out of the fit in turn and scored."""
-    label: str
-    t0: float
-    t1: float
-
-
-@dataclass(frozen=True, eq=False)
-class HoldoutCheck(Record):
-    """The holdout capture as the check uses it."""
-    capture: str | None
-    t0: float
-    t1: float
-    noise_floor: float | None
-
-
-@dataclass(frozen=True, eq=False)
-class BlocksCheck(Record):
-    """The interleaved blocks: their length and how many halves the record is dealt into."""
-    seconds: float
-    folds: int
-
-
-@dataclass(frozen=True, eq=False)
-class CheckDescription(Record):
-    """What each model was judged on (`check.describe_check`)."""
-    kind: str
-    windows: tuple[CheckWindow, ...]
-    how: str
-    holdout: HoldoutCheck | None
-    vt: bool
-    blocks: BlocksCheck | None = None   # absent in files written before the interleaved blocks
-
-    OMITTED_WHEN_NONE = ("blocks",)
-
-
-@dataclass(frozen=True, eq=False)
-class Validation(Record):
-    kind: str
-    fit: Span
-    check: CheckDescription
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,15 +10,15 @@ import math
 from collections.abc import Mapping
 
 from bench_ctl.capture import Capture
+from bench_ctl.identification.fit_check import bic, check_deviance, checked, score
+from bench_ctl.identification.localize import localization
+from bench_ctl.identification.model_fits import Budget, ModelFit, Setup
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
 from bench_ctl.model.effects import VOCABULARY
 from bench_ctl.signals.edges import EDGE_PARAMS, EdgeSearch
 
-from .check import bic, check_deviance, checked, score
 from .diagnosis_file import Left, Step, StepCheck
-from .localize import localization
-from .models import Budget, ModelFit, Setup
 from .search import finish, fit_model, refine
 from .significance import Significance, kept_without_check, significance, step_gain
 from .starts import effect_starts

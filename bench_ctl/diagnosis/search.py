@@ -23,14 +23,13 @@ from dataclasses import replace
 import numpy as np
 
 from bench_ctl.identification import options as mvmo_sets
+from bench_ctl.identification.fit_check import checked
+from bench_ctl.identification.model_fits import ModelFit, Views, added_params, edge_names, mid
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.polish import evaluate, polish
 from bench_ctl.identification.problem import Problem
 from bench_ctl.identification.result import Result
 from bench_ctl.identification.space import SearchSpace
-
-from .check import checked
-from .models import ModelFit, Views, added_params, edge_names, mid
 
 __all__ = ["fit", "fit_model", "global_search", "finish", "refine", "refine_base", "mean"]
 
@@ -171,7 +170,7 @@ def finish(views: Views, effects: Sequence[str], fixed: Mapping[str, float], x0:
            polish_fine: int, check: bool = False, noise_variance: float | None = None,
            extra: Sequence[str] = ()) -> ModelFit:
     """Polish x0 on the full record, edge instants free (`polish_fine` simulations; 0: evaluate x0
-    as it is); with `check`, judge the result on the check (`check.check_parts`); with the noise
+    as it is); with `check`, judge the result on the check (`fit_check.check_parts`); with the noise
     variance, the parameters' standard deviations from the polish."""
     p = views.problem(effects, fixed, extra=extra)
     x0 = np.asarray(x0, float)

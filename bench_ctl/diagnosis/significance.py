@@ -2,9 +2,9 @@
 (docs/model.md, "When an effect counts").
 
 Every figure is in -2 log-likelihood units (n ln mse): a model's fit gain over another is the fall
-of the BIC on the capture (`check.bic`: n ln(mse) + k ln(n)), its check gain the fall of the
-check's deviance (`check.check_deviance`: the left-out windows and the holdout), its blocks gain
-the fall of the interleaved blocks' deviance (`check.block_deviance`).
+of the BIC on the capture (`fit_check.bic`: n ln(mse) + k ln(n)), its check gain the fall of the
+check's deviance (`fit_check.check_deviance`: the left-out windows and the holdout), its blocks gain
+the fall of the interleaved blocks' deviance (`fit_check.block_deviance`).
 
 - significant (`significance`): fit gain > SIGNIFICANT, and check gain > CHECK_GAIN or blocks gain
   > ONE_REGIME_GAIN, and the model breaks no constraint. The verdict, `explained_by`'s steps and
@@ -26,8 +26,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from .check import bic, block_deviance, check_deviance
-from .models import ModelFit, Setup
+from bench_ctl.identification.fit_check import bic, block_deviance, check_deviance
+from bench_ctl.identification.model_fits import ModelFit, Setup
 
 __all__ = ["SIGNIFICANT", "CHECK_GAIN", "STRONG", "ONE_REGIME_GAIN", "AMBIGUOUS", "KEEP_WITHOUT_CHECK",
            "STEP_REL", "Significance", "significance", "worth_checking", "close_to_best", "strong",

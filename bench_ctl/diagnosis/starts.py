@@ -9,10 +9,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from bench_ctl.identification.constraints import parse_constraints
+from bench_ctl.identification.model_fits import Views
 from bench_ctl.model.effects import EFFECTS, VOCABULARY
 from bench_ctl.units.unit import Unit
-
-from .models import Views
 
 __all__ = ["effect_starts", "lag_variants", "all_starts", "ORDER_SENSITIVE"]
 

@@ -9,13 +9,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+from bench_ctl.identification.fit_check import aic, bic, block_deviance, score
+from bench_ctl.identification.model_fits import ModelFit, Setup
 from bench_ctl.model.effects import VOCABULARY
 from bench_ctl.model.effects import separating_test as effect_separating_test
 from bench_ctl.units.unit import Unit
 
-from .check import aic, bic, block_deviance, score
 from .diagnosis_file import AmbiguousPair, CheckEntry, EffectEntry, PartEntry
-from .models import ModelFit, Setup
 from .significance import AMBIGUOUS, significance, strong
 
 __all__ = ["separating_test", "ambiguous_pairs", "gap", "rank_entries", "check_entry", "choose_verdict",

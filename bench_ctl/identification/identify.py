@@ -30,9 +30,10 @@ from bench_ctl.timestamps import utc_now_text
 from bench_ctl.units.unit import Unit
 from bench_ctl.units.unit import outside_bounds as values_outside_bounds
 
+from .construction import make_problem
 from .identifiability import analyse, not_analysed
 from .peers import OPTIMIZERS, Progress, run_optimizer
-from .problem import Problem, make_problem
+from .problem import Problem
 from .result import Result
 from .result_file import (
     RESULT_SCHEMA,

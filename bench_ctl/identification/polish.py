@@ -40,7 +40,7 @@ VIOLATION_WEIGHT = 10.0
 TOL = 1e-8
 #: with at most this many candidates in a point and its difference steps together (d + 1), a trial
 #: point is simulated with its steps in one kernel call: one call of up to 8 candidates costs
-#: about what one of a single candidate does (`problem.LANES`), and most trial points are accepted
+#: about what one of a single candidate does (`engine.layout.LANES`), and most trial points are accepted
 #: and need their Jacobian next (docs/benchmarks.md, "Diagnosis constants")
 SPECULATE = 8
 

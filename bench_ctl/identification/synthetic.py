@@ -17,7 +17,7 @@ from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, simulate, synt
 from bench_ctl.units.overrides import apply_overrides
 from bench_ctl.units.unit import Unit
 
-from .problem import make_problem
+from .construction import make_problem
 
 __all__ = ["synthetic_capture", "random_parameters", "noise_variance", "closed_loop_poles", "with_values"]
 

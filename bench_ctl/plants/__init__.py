@@ -1,10 +1,7 @@
 """The real-time plants the simulated devices share: the unit at no load (`Plant`) or on the grid
 (`OnlinePlant`), one candidate of the engine stepped against the clock (`realtime`)."""
-from .plant import (
-    FLAG_CEILING,
-    FLAG_FAILED,
-    FLAG_RAMP,
-    FLAG_RATE,
+from .plant import FLAG_CEILING, FLAG_FAILED, FLAG_RAMP, FLAG_RATE, TURBINE_PU, OnlinePlant, Plant, warm_up
+from .samples import (
     N_OUT,
     O_EFD,
     O_EFD_REC,
@@ -16,13 +13,9 @@ from .plant import (
     O_UREF,
     O_USETP,
     O_VT,
-    TURBINE_PU,
     Listener,
-    OnlinePlant,
-    Plant,
     PlantState,
     PlantTiming,
-    warm_up,
 )
 
 __all__ = ["FLAG_CEILING", "FLAG_FAILED", "FLAG_RAMP", "FLAG_RATE", "N_OUT", "O_EFD", "O_EFD_REC", "O_EQP", "O_FLAGS",

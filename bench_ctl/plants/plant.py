@@ -29,8 +29,6 @@ import os
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
-from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
@@ -38,24 +36,9 @@ import numpy as np
 from bench_ctl import engine
 from bench_ctl.engine import classify, grid_key, variant
 from bench_ctl.engine.derived import derive
-from bench_ctl.engine.layout import D_GVALID, D_SKEW, D_TD, D_TM, D_UREF0, D_VALID, R_FLD, SIGNALS
+from bench_ctl.engine.layout import D_GVALID, D_SKEW, D_TD, D_TM, D_UREF0, D_VALID, R_FLD
 from bench_ctl.engine.machines import grid
-from bench_ctl.engine.runner import (
-    C_UREF,
-    FLAG_CEILING,
-    FLAG_FAILED,
-    FLAG_RAMP,
-    FLAG_RATE,
-    K_EQP,
-    K_FLAGS,
-    K_FLD,
-    K_UREF,
-    N_KEEP,
-    Drive,
-    Edges,
-    Out,
-    Switches,
-)
+from bench_ctl.engine.runner import C_UREF, FLAG_CEILING, FLAG_FAILED, FLAG_RAMP, FLAG_RATE, Drive, Edges, Out, Switches
 from bench_ctl.engine.simulate import param_matrix
 from bench_ctl.engine.stabilisers import OUTPUT_LIMIT_ROWS
 from bench_ctl.engine.variants import Key, cached
@@ -84,68 +67,31 @@ from .realtime import (
     SP_RING,
     STAT_RING,
 )
+from .samples import (
+    KEEP_COLUMNS,
+    N_OUT,
+    O_EFD_REC,
+    O_FLAGS,
+    O_IFD,
+    O_P,
+    O_Q,
+    O_USETP,
+    O_VT,
+    Listener,
+    PlantState,
+    PlantTiming,
+)
 
 #: the real-time loop's compile time (s of one core, measured: `bench-ctl warm-up` with an empty cache)
 RT_LOOP_ESTIMATE_S = 10.0
 
 log = logging.getLogger(__name__)
 
-#: the columns of the per-sample block `advance` returns and the listeners get
-(O_USETP, O_EFD_REC, O_VT, O_EFD, O_EQP, O_UREF, O_FLAGS, O_P, O_Q, O_IFD) = range(10)
-N_OUT = 10
 #: the turbine's mechanical power an on-line plant accepts, pu on the machine base
 TURBINE_PU = (-0.2, 1.2)
 
-__all__ = ["FLAG_CEILING", "FLAG_FAILED", "FLAG_RAMP", "FLAG_RATE", "N_OUT", "O_EFD", "O_EFD_REC", "O_EQP", "O_FLAGS",
-           "O_IFD", "O_P", "O_Q", "O_UREF", "O_USETP", "O_VT", "Listener", "Plant", "OnlinePlant", "PlantState",
-           "PlantTiming", "TURBINE_PU"]
+__all__ = ["FLAG_CEILING", "FLAG_FAILED", "FLAG_RAMP", "FLAG_RATE", "Plant", "OnlinePlant", "TURBINE_PU", "warm_up"]
 
-
-def _keep() -> np.ndarray:
-    """The engine's kept quantities -> the plant's columns."""
-    keep = np.full(N_KEEP, -1, dtype=np.int64)
-    for name, col in (("efd", O_EFD_REC), ("vt", O_VT), ("p", O_P), ("q", O_Q), ("ifd", O_IFD)):
-        keep[SIGNALS.index(name)] = col
-    keep[K_FLD], keep[K_EQP], keep[K_UREF], keep[K_FLAGS] = O_EFD, O_EQP, O_UREF, O_FLAGS
-    return keep
-
-
-_KEEP = _keep()
-
-
-@dataclass(frozen=True)
-class PlantState:
-    """A snapshot of the plant after its last step (exciter readings)."""
-    step: int                 # number of steps taken; plant time = step * dt
-    time_s: float
-    usetp: float              # digital setpoint acting now
-    active_setpoint: float    # setpoint after the device's ramp (pu)
-    vt: float
-    efd: float
-    ifd: float                # field current, pu: E'q + Sat(E'q) (on line: XadIfd)
-    flags: int                # FLAG_* bits
-    p: float = 0.0            # active and reactive power, pu on the machine base (on line)
-    q: float = 0.0
-
-
-@dataclass(frozen=True)
-class PlantTiming:
-    """Real-time statistics: lag = wall time - plant time after each burst of steps."""
-    steps: int
-    elapsed_s: float
-    lag_mean_s: float
-    lag_max_s: float
-    lag_p99_s: float
-    late_bursts: int          # bursts of more than one step (the loop woke late)
-    max_burst: int
-    drift_s: float            # lag at the last burst minus lag at the first
-    behind_max_s: float       # wall - plant time when the loop woke, before catching up
-    behind_p99_s: float       # (>= one step by construction: a step is computed after its end)
-    stalls_over_1ms: int      # wake-ups that found the plant more than one step + 1 ms behind
-    late_setpoints: int       # setpoint changes published after their step had been computed
-
-
-Listener = Callable[[int, np.ndarray], None]
 _RT_LOOPS: dict[Key, object] = {}
 
 
@@ -193,7 +139,7 @@ class Plant:
         """A call's Drive and Out for the setpoints u."""
         n = u.shape[0]
         drive = Drive(u, self.usetp_pre, self.dt, np.zeros((4, 1)), np.zeros(4), self._ext)
-        return drive, Out(np.zeros((N_OUT, 1, n)), _KEEP, np.zeros((4, 1)), np.zeros((4, 1)), np.full(1, -1))
+        return drive, Out(np.zeros((N_OUT, 1, n)), KEEP_COLUMNS, np.zeros((4, 1)), np.zeros((4, 1)), np.full(1, -1))
 
     def _clock(self, dt: float, rt_priority: int | None) -> None:
         self.dt = float(dt)

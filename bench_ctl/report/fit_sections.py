@@ -10,13 +10,13 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.diagnosis.selection import separation_text, where_left
 from bench_ctl.engine.simulate import pre_trigger_mean, simulate
 from bench_ctl.identification.result_file import CandidateEntry
+from bench_ctl.identification.selection import separation_text, where_left
 from bench_ctl.identification.timing import edge_spec_of
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
-from bench_ctl.report.blocks import (
+from bench_ctl.report.document import (
     NOT_AVAILABLE,
     Block,
     Fig,

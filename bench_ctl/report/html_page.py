@@ -8,8 +8,8 @@ import base64
 import html
 from collections.abc import Mapping, Sequence
 
-from bench_ctl.report.blocks import Cell, Fig, Heading, Num, Para, Section, Status, Table, Verdict
 from bench_ctl.report.checks import verdict_class
+from bench_ctl.report.document import Cell, Fig, Heading, Num, Para, Section, Status, Table, Verdict
 
 CSS = """
 :root { --pass: #1e7e34; --fail: #c5221f; --warn: #b26a00; --na: #666; }

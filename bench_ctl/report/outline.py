@@ -6,7 +6,7 @@ from __future__ import annotations
 from bench_ctl.report import fit_sections as fit
 from bench_ctl.report import parameter_sections as model
 from bench_ctl.report.analysis import ReportData
-from bench_ctl.report.blocks import Section
+from bench_ctl.report.document import Section
 from bench_ctl.report.record_sections import diagnosis, metadata, provenance
 from bench_ctl.report.stabiliser import stabiliser
 

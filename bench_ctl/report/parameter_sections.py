@@ -11,7 +11,7 @@ import numpy as np
 from bench_ctl.identification.result_file import EquivalentSet, Identifiability, IdentificationResult
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.report.analysis import ReportData
-from bench_ctl.report.blocks import NOT_AVAILABLE, Block, Num, Para, Section, Status, fmt, num, table
+from bench_ctl.report.document import NOT_AVAILABLE, Block, Num, Para, Section, Status, fmt, num, table
 
 #: an estimate pair whose correlation is at least this (in magnitude) is listed
 STRONG_CORRELATION = 0.9

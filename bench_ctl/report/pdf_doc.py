@@ -13,7 +13,7 @@ from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 
 import bench_ctl
-from bench_ctl.report.blocks import Cell, Fig, Heading, Num, Para, Section, Status, Table, Verdict
+from bench_ctl.report.document import Cell, Fig, Heading, Num, Para, Section, Status, Table, Verdict
 
 A4 = (8.27, 11.69)  # inches, portrait
 FONT = "DejaVu Sans Mono"

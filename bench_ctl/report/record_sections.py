@@ -13,7 +13,7 @@ from bench_ctl.diagnosis.diagnosis_file import Diagnosis
 from bench_ctl.model.unit_record import UnitEntry
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import ReportData
-from bench_ctl.report.blocks import NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section, flatten, fmt, num, table
+from bench_ctl.report.document import NOT_AVAILABLE, Block, Fig, Heading, Num, Para, Section, flatten, fmt, num, table
 from bench_ctl.report.inputs import same_file
 
 NO_GAP = "n/a: base model at the noise floor"

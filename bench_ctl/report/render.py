@@ -12,7 +12,7 @@ from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.outputs import Outputs
 from bench_ctl.report import checks as chk
 from bench_ctl.report.analysis import ReportData, analyse
-from bench_ctl.report.blocks import Fig, Section
+from bench_ctl.report.document import Fig, Section
 from bench_ctl.report.figures import FIGSIZE, png_bytes
 from bench_ctl.report.html_page import render_html
 from bench_ctl.report.metrics import DEFAULT_EDGE_WINDOW_S

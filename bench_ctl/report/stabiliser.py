@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
-from bench_ctl.report.blocks import Block, Fig, Num, Para, Section, Table
+from bench_ctl.report.document import Block, Fig, Num, Para, Section, Table
 from bench_ctl.report.metrics import edge_times
 from bench_ctl.signals.mode import Mode, electromechanical_mode
 

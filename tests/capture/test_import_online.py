@@ -13,7 +13,7 @@ from andes_units import online_capture, online_unit
 from bench_ctl.capture import read_capture
 from bench_ctl.cli import main
 from bench_ctl.engine.simulate import operating_point
-from bench_ctl.identification.problem import make_problem
+from bench_ctl.identification.construction import make_problem
 
 MVA = 250.0
 

@@ -12,12 +12,12 @@ from bench_ctl.capture import Capture, write_capture
 from bench_ctl.diagnosis import SCHEMA, Budget, DiagnosisError, diagnose
 from bench_ctl.diagnosis import features as F
 from bench_ctl.diagnosis.blind import SuiteConfig, make_case
-from bench_ctl.diagnosis.localize import BANDS_HZ, band_shares, localization, noise_floor, segments
-from bench_ctl.diagnosis.localize import pulse_edges as find_edges
 from bench_ctl.diagnosis.starts import lag_variants
 from bench_ctl.diagnosis.verdict import choose_verdict
 from bench_ctl.diagnosis.verdict import gap as _gap
 from bench_ctl.engine.simulate import pulse_usetp, simulate
+from bench_ctl.identification.localize import BANDS_HZ, band_shares, localization, noise_floor, segments
+from bench_ctl.identification.localize import pulse_edges as find_edges
 from bench_ctl.identification.threads import set_fit_threads
 from bench_ctl.units.unit import load_unit
 
@@ -186,8 +186,8 @@ def test_an_effect_the_windows_cannot_judge_is_accepted_on_the_interleaved_block
     noise floor only a strong gain on either counts."""
     from types import SimpleNamespace
 
-    from bench_ctl.diagnosis.models import ModelFit, Part
     from bench_ctl.diagnosis.significance import ONE_REGIME_GAIN, SIGNIFICANT, significance
+    from bench_ctl.identification.model_fits import ModelFit, Part
 
     n = 5000
     st = SimpleNamespace(n=n)
@@ -221,7 +221,7 @@ def test_an_effect_the_windows_cannot_judge_is_accepted_on_the_interleaved_block
 def test_what_is_left_is_said_where_it_lies():
     """The residual's localization in words: segments holding >= 5 % of the energy, largest first,
     each over the noise floor; then the bands."""
-    from bench_ctl.diagnosis.localize import where_lines
+    from bench_ctl.identification.localize import where_lines
     from bench_ctl.identification.result_file import Localization
 
     loc = {"segments": [{"name": "pre_trigger", "t0": 0.0, "t1": 1.0, "share": 0.03, "mse": 1e-4},
@@ -368,8 +368,8 @@ def test_a_left_out_part_is_scored_on_the_linear_prediction_only_where_it_holds(
     does, and with no damping trusted scores the model as it is (its mean objective over the part's
     samples; the two halves of the blocks are then the whole record). The structure selection's
     `linear` check scores the undamped prediction, which is other figures there."""
-    from bench_ctl.diagnosis import check
-    from bench_ctl.diagnosis.diagnose import prepare
+    from bench_ctl.identification import fit_check as check
+    from bench_ctl.identification.fit_check import prepare
 
     _, _, st = prepare(ceiling_case.capture, unit)
     p = st.views.problem(())

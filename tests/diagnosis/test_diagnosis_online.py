@@ -9,8 +9,9 @@ from dataclasses import replace
 import pytest
 
 from andes_units import online_capture, online_entry, online_unit
-from bench_ctl.diagnosis.diagnose import diagnose, prepare
-from bench_ctl.diagnosis.localize import DiagnosisError
+from bench_ctl.diagnosis.diagnose import diagnose
+from bench_ctl.identification.fit_check import prepare
+from bench_ctl.identification.localize import DiagnosisError
 from bench_ctl.model.effects import vocabulary
 from bench_ctl.units.overrides import apply_overrides
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from bench_ctl.commands.options import fmt_value
 from bench_ctl.diagnosis import features as F
-from bench_ctl.diagnosis.localize import pulse_edges
+from bench_ctl.identification.localize import pulse_edges
 
 
 def Edges(k_on: int, k_off: int | None, amplitude: float, n: int = 3000):   # noqa: N802 - reads as a record

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench_ctl.identification.construction import make_problem
 from bench_ctl.identification.identifiability import analyse
 from bench_ctl.identification.peers import run_optimizer
-from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.synthetic import synthetic_capture
 from bench_ctl.units.overrides import apply_overrides
 from bench_ctl.units.unit import reference_unit
@@ -137,7 +137,7 @@ def test_every_declared_exchange_of_every_structure_is_examined():
     """Each structure's declared exchanges (`Structure.swaps`) are built and reported among the
     equivalent sets when both parameters are fitted (a pair of limits: with the limits fitted, as
     `--model auto` fits them), and named in the notes when one is not."""
-    from bench_ctl.diagnosis.selection import free_limits
+    from bench_ctl.identification.candidates import free_limits
     from bench_ctl.model.structures import STRUCTURES
     from bench_ctl.units.overrides import with_model
 

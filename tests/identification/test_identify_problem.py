@@ -12,7 +12,7 @@ import pytest
 
 from bench_ctl.capture import Capture
 from bench_ctl.engine.simulate import simulate
-from bench_ctl.identification.problem import ProblemError, make_problem
+from bench_ctl.identification.construction import ProblemError, make_problem
 from bench_ctl.identification.synthetic import synthetic_capture
 from bench_ctl.units.overrides import apply_overrides
 

@@ -11,8 +11,8 @@ import pytest
 from bench_ctl.capture import Capture
 from bench_ctl.engine.machines.grid import TYPICAL_MACHINE
 from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, synthetic_record
+from bench_ctl.identification.construction import ProblemError, make_problem
 from bench_ctl.identification.identify import run_identification
-from bench_ctl.identification.problem import ProblemError, make_problem
 from bench_ctl.report.analysis import simulate_record
 from bench_ctl.units.overrides import apply_overrides, with_model
 from bench_ctl.units.unit import reference_unit
@@ -123,3 +123,35 @@ def test_a_no_load_pulse_and_an_on_line_step_of_one_unit_fit_together():
     assert len(mse) == 2 and all(m < 1.05 * 0.01 ** 2 for m in mse), mse
     values = prob.params(ident.best.x)
     assert values["TE"] == pytest.approx(0.05, rel=0.1)
+
+
+PSS = ("PSS_MODEL=IEEEST", "PSS_KS=5", "PSS_T1=0.2", "PSS_T2=0.05", "PSS_T3=0.2", "PSS_T4=0.05", "PSS_TW=5",
+       "PSS_LSMAX=0.1")
+
+
+@pytest.mark.parametrize("switch", ["off", "on"])
+def test_a_record_taken_with_the_pss_off_is_fitted_and_reported_as_taken(switch):
+    """A unit with a stabiliser; its step recorded with the PSS's output switched off (the first
+    step of pss_step, `test.pss_on` false in the sidecar) or on. Identification and the report
+    simulate each as it was taken (`grid_as_recorded`): exact at the true values. The same record
+    said to be taken the other way is missed by far: the stabiliser's action is no rounding."""
+    unit = apply_overrides(_unit(), list(PSS))
+    t, usetp = pulse_usetp(amplitude=0.02, width=3.0, start=0.5, duration=4.0, rate=1000.0, usetp0=1.02)
+    taken = unit if switch == "on" else apply_overrides(unit, ["PSS_LSMAX=0"])
+    rec = synthetic_record(taken, t, usetp, RecorderModel(0.0, 0.0), 0, online=True)
+
+    def capture(pss_on: bool) -> Capture:
+        return Capture(time=rec["time"], usetp=rec["usetp"], efd=rec["efd"], vt=rec["vt"],
+                       extra={k: rec[k] for k in ("p", "q", "ifd")}, meta={"test": {"pss_on": pss_on}},
+                       source="pss.csv")
+
+    right, wrong = capture(switch == "on"), capture(switch != "on")
+    fits = {}
+    for name, cap in (("right", right), ("wrong", wrong)):
+        prob = make_problem([cap], unit)
+        x = prob.x_start()
+        fits[name] = prob.mse(x, "efd")[0]
+        sim = simulate_record(prob.values(x), cap, unit.grid, None, "test")
+        fits[name + "_report"] = float(np.mean((sim["efd"] - rec["efd"]) ** 2))
+    assert fits["right"] < 1e-20 and fits["right_report"] < 1e-20, fits
+    assert fits["wrong"] > 1e-6 and fits["wrong_report"] > 1e-6, fits

@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
+from bench_ctl.identification.construction import make_problem
 from bench_ctl.identification.peers import OPTIMIZERS, OpenLoopModel, run_optimizer
-from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.result import Result
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.synthetic import synthetic_capture

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from bench_ctl.engine.simulate import simulate
+from bench_ctl.identification.construction import make_problem
 from bench_ctl.identification.polish import polish
-from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.result import Result
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.synthetic import synthetic_capture

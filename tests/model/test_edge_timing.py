@@ -13,8 +13,8 @@ import pytest
 from bench_ctl.capture import Capture
 from bench_ctl.engine import run as run_engine
 from bench_ctl.engine.simulate import param_matrix
+from bench_ctl.identification.construction import make_problem
 from bench_ctl.identification.identify import identify
-from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.timing import edge_spec_of, record_edges
 from bench_ctl.signals.edges import EdgeSpec, find_setpoint_edges
 from bench_ctl.units.unit import reference_unit

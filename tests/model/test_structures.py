@@ -221,7 +221,7 @@ def test_identification_polishes_again_from_ieeex1s_exchanged_lags():
     and an optimizer run on that problem records the restart in its settings."""
     from bench_ctl.capture import Capture
     from bench_ctl.identification import peers
-    from bench_ctl.identification.problem import make_problem
+    from bench_ctl.identification.construction import make_problem
 
     name = "ieeex1_05pct"
     unit = fixture_unit(name, true_values=False)
@@ -255,8 +255,8 @@ def test_identifiability_examines_the_structures_declared_exchange():
     sets: the no-load capture cannot tell the two lags apart, the default bounds do (TA <= 0.5 s,
     the true TE is 0.58 s), so TA and TE count as determined and the note says why."""
     from bench_ctl.capture import Capture
+    from bench_ctl.identification.construction import make_problem
     from bench_ctl.identification.identifiability import analyse
-    from bench_ctl.identification.problem import make_problem
 
     name = "ieeex1_05pct"
     unit = fixture_unit(name, true_values=True)

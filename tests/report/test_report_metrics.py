@@ -14,8 +14,8 @@ from bench_ctl.engine.simulate import RecorderModel, pre_trigger_mean, pulse_use
 from bench_ctl.identification.result_file import IdentificationResult
 from bench_ctl.model.params import AVR_PARAMS, REFERENCE_VALUES, neutral_values
 from bench_ctl.report import ReportError, analyse
-from bench_ctl.report.blocks import Fig
 from bench_ctl.report.checks import constraint_margin
+from bench_ctl.report.document import Fig
 from bench_ctl.report.inputs import model_values
 from bench_ctl.report.metrics import edge_times, error_figures, segment_bounds
 from bench_ctl.report.metrics import setpoint_edges as find_edges

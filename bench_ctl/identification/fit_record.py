@@ -1,5 +1,5 @@
 """One capture prepared for the kernel, and its views: a time window, a decimated copy.
-`Problem` holds one `Record` per capture.
+`Problem` holds one `FitRecord` per capture.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from bench_ctl.signals.edges import EdgeSpec
 
 from .timing import Edge
 
-__all__ = ["Record", "apply_window", "decimated", "segment_window", "ProblemError"]
+__all__ = ["FitRecord", "apply_window", "decimated", "segment_window", "ProblemError"]
 
 
 class ProblemError(BadInput):
@@ -21,7 +21,7 @@ class ProblemError(BadInput):
 
 
 @dataclass(frozen=True, eq=False)
-class Record:
+class FitRecord:
     """One capture prepared for the kernel (window applied as the index range [i0, i1))."""
     usetp: np.ndarray
     efd: np.ndarray
@@ -66,7 +66,7 @@ class Record:
         return EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
 
 
-def apply_window(r: Record, window: tuple[float, float] | None, cap: Capture) -> Record:
+def apply_window(r: FitRecord, window: tuple[float, float] | None, cap: Capture) -> FitRecord:
     n = cap.efd.size
     if window is None:
         return replace(r, i0=0, i1=n)
@@ -80,7 +80,7 @@ def apply_window(r: Record, window: tuple[float, float] | None, cap: Capture) ->
     return replace(r, i0=i0, i1=i1)
 
 
-def decimated(r: Record, q: int, n_max: int | None, offset: int) -> Record:
+def decimated(r: FitRecord, q: int, n_max: int | None, offset: int) -> FitRecord:
     """Every q-th sample of `r` from offset (mod q) up to n_max, the window carried over."""
     n = r.efd.size if n_max is None else min(int(n_max), r.efd.size)
     first = offset % q if q > 1 else 0

@@ -1,4 +1,4 @@
-"""Structure selection (`identify --model auto`, bench_ctl.diagnosis.selection): the ranking rule
+"""Structure selection (`identify --model auto`, bench_ctl.identification.selection): the ranking rule
 on made-up candidates, the limits it frees, and the whole selection on ANDES records (made by
 another simulator: tests/fixtures/andes) with recorder noise, the candidates knowing the generator
 and nothing of the exciter.
@@ -15,21 +15,21 @@ import pytest
 from andes_units import fixture_column, generator_values, manifest, read_fixture
 from bench_ctl.capture import Capture, write_capture
 from bench_ctl.cli import main
-from bench_ctl.commands.auto import auto_models, selection_summary, twin_notes
-from bench_ctl.diagnosis import selection
-from bench_ctl.diagnosis.models import Part
-from bench_ctl.diagnosis.selection import (
+from bench_ctl.commands.auto import selection_summary
+from bench_ctl.identification import selection
+from bench_ctl.identification.candidates import auto_models, free_limits, twin_notes
+from bench_ctl.identification.construction import make_problem
+from bench_ctl.identification.model_fits import Part
+from bench_ctl.identification.result_file import Localization, SegmentShare, SelectionEntry
+from bench_ctl.identification.selection import (
     EQUAL_FIT,
     Candidate,
     _inert,
-    free_limits,
     rank,
     select_structure,
     separation_text,
     where_left,
 )
-from bench_ctl.identification.problem import make_problem
-from bench_ctl.identification.result_file import Localization, SegmentShare, SelectionEntry
 from bench_ctl.identification.threads import set_fit_threads
 from bench_ctl.model.structures import STRUCTURES
 from bench_ctl.units.overrides import apply_overrides, with_model

@@ -16,9 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench_ctl.exitcodes import BadInput
-from bench_ctl.identification.result_file import BandShare, Localization, SegmentShare
 from bench_ctl.signals import edges as model_edges
 from bench_ctl.signals.edges import EdgeSearch
+
+from .result_file import BandShare, Localization, SegmentShare
 
 log = logging.getLogger(__name__)
 

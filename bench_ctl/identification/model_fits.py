@@ -1,5 +1,7 @@
-"""The diagnosis' records: how every model sees the capture (`Views`), one fitted model
-(`ModelFit`), the parts of its check (`Window`, `Part`) and what every step works on (`Setup`).
+"""Models fitted to a capture and what they are fitted and checked on: how every model sees the
+capture (`Views`), one fitted model (`ModelFit`), the parts of its check (`Window`, `Part`), the
+budget (`Budget`) and what every step works on (`Setup`); shared by the diagnosis and the
+structure selection.
 
 Every model is identification's `Problem` on the whole capture (the unit's identified
 parameters, the effects' parameters, the instant of every setpoint edge) and every fit is
@@ -13,14 +15,15 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 from bench_ctl.capture import Capture
-from bench_ctl.identification.problem import Problem, make_problem
-from bench_ctl.identification.result import Result
 from bench_ctl.model.effects import VOCABULARY, vocabulary
 from bench_ctl.signals.edges import EDGE_PARAMS
 from bench_ctl.units.unit import Bound, Unit
 
-from .diagnosis_file import Validation
+from .check_records import Validation
+from .construction import make_problem
 from .localize import NoiseFloor
+from .problem import Problem
+from .result import Result
 
 __all__ = ["Budget", "Window", "Part", "ModelFit", "Views", "Setup", "edge_names", "mid", "coarse_factor",
            "added_params"]
@@ -77,7 +80,7 @@ class ModelFit:
     start: dict[str, float] = field(default_factory=dict)
     fixed: dict[str, float] = field(default_factory=dict)   # the variant: values it holds (VRVT, ..)
     extra: tuple[str, ...] = ()        # a variant's own fitted parameters (KC), counted in k
-    blocks: tuple[Part, ...] | None = None   # the interleaved blocks (check.check_and_blocks)
+    blocks: tuple[Part, ...] | None = None   # the interleaved blocks (fit_check.check_and_blocks)
 
     @property
     def params(self) -> dict[str, float]:

@@ -3,7 +3,7 @@
 The parts (`check_parts`): the holdout capture when there is one (the model held, only its own
 edge instants fitted), the recorded terminal voltage when there is one and the fit did not use it,
 and always the cross-validation windows of the capture - the leading edge, the plateau and the
-trailing edge in turn (never the recovery: `diagnose.CV_SEGMENTS`): the model re-fitted with the
+trailing edge in turn (never the recovery: `CV_SEGMENTS`): the model re-fitted with the
 window left out of the objective (the simulation running through it) and scored on it, the re-fit
 being the Gauss-Newton step from the model's fit over the other samples (one Jacobian serving all
 windows), scored on its linear prediction where the step, simulated, does what the linear model
@@ -23,6 +23,10 @@ verdict uses it only to accept such an effect (`significance.significance`).
 
 Ranking (`score`): BIC on the capture (n ln(mse) + k ln(n), k = added parameters) plus the
 predictive deviance on the check, the sum over its parts of n_i ln(mse_i).
+
+What every model of a capture is fitted and checked on (`prepare`): its setpoint edges, efd's noise
+floor, the fit's floor and the `Setup` with the check's windows; the diagnosis and the structure
+selection both start from it.
 """
 from __future__ import annotations
 
@@ -32,13 +36,17 @@ from dataclasses import replace
 
 import numpy as np
 
-from bench_ctl.identification.polish import FD_STEP, polish
-from bench_ctl.identification.problem import Problem
-from bench_ctl.identification.result import Result
-from bench_ctl.identification.space import SearchSpace
+from bench_ctl.capture import Capture
+from bench_ctl.signals.edges import EdgeSearch
+from bench_ctl.units.unit import Unit
 
-from .diagnosis_file import BlocksCheck, CheckDescription, CheckWindow, HoldoutCheck
-from .models import ModelFit, Part, Views, mid
+from .check_records import BlocksCheck, CheckDescription, CheckWindow, HoldoutCheck, Span, Validation
+from .localize import DiagnosisError, NoiseFloor, noise_floor, pulse_edges, segments
+from .model_fits import Budget, ModelFit, Part, Setup, Views, Window, coarse_factor, mid
+from .polish import FD_STEP, polish
+from .problem import Problem
+from .result import Result
+from .space import SearchSpace
 
 __all__ = ["check_parts", "checked", "check_deviance", "block_deviance", "describe_check", "fit_holdout", "bic",
            "aic", "score", "BLOCK_S", "BLOCK_FOLDS"]
@@ -261,3 +269,75 @@ def describe_check(views: Views, holdout: HoldoutCheck | None) -> CheckDescripti
         vt=bool(views.capture.vt is not None and float(views.unit.weights.get("vt", 0.0)) == 0.0),
         blocks=BlocksCheck(BLOCK_S, BLOCK_FOLDS),
     )
+
+
+# ---------------------------------------------------------------------- what every model is checked on
+
+#: cross-validation windows: the segments of the record (localize.segments) each left out in turn.
+#: Not the recovery: it is most of the record and holds what determines the slow time constants,
+#: so the rest cannot predict it for any model; it stays in every fit (docs/decisions/0010).
+CV_SEGMENTS = ("leading_edge", "plateau", "trailing_edge")
+
+
+def _windows(capture: Capture, edges: EdgeSearch) -> tuple[Window, ...]:
+    dt = capture.dt
+    return tuple(Window(s.name, s.k0 * dt, (s.k1 - 1) * dt) for s in segments(capture.n, dt, edges)
+                 if s.name in CV_SEGMENTS and s.k1 - s.k0 >= 5)
+
+
+def _fit_floor(capture: Capture, unit: Unit, edges: EdgeSearch, efd_floor: NoiseFloor, source: str) -> NoiseFloor:
+    """The noise floor of the mean objective every fit is ranked by: efd's at its weight, plus
+    Vt's at its weight when the unit weights a recorded Vt (the default: efd's alone), plus on line
+    Q's at its weight (default 1: `Problem`'s)."""
+    weighted = [(float(unit.weights.get("efd", 1.0)), efd_floor)]
+    w_vt = float(unit.weights.get("vt", 0.0))
+    if capture.vt is not None and w_vt > 0.0:
+        weighted.append((w_vt, noise_floor(capture.vt, capture.dt, edges, source)))
+    w_q = float(unit.weights.get("q", 1.0))
+    if capture.on_line and w_q > 0.0:
+        weighted.append((w_q, noise_floor(capture.channel("q"), capture.dt, edges, source)))
+    return replace(efd_floor, variance=sum(w * f.variance for w, f in weighted),
+                   rel_se=max(f.rel_se for _, f in weighted))
+
+
+def _setup(capture: Capture, holdout: Capture | None, unit: Unit, edges: EdgeSearch, floor: NoiseFloor,
+           budget: Budget) -> Setup:
+    windows = _windows(capture, edges)
+    if not windows:
+        raise DiagnosisError(f"{capture.source or 'capture'}: too short after the setpoint change for a check")
+    q = coarse_factor(unit, capture.dt, budget.coarse_dt)
+    k_on, k_off = edges.lead.index, edges.trail_index
+    if k_off is not None:  # both setpoint edges on the coarse grid, or the trailing one moves
+        q = math.gcd(q, k_off - k_on) or 1
+    n_coarse = capture.n if k_off is None else min(capture.n, k_off + int(round(budget.coarse_tail_s / capture.dt)))
+    views = Views(unit, capture, holdout, q, n_coarse, edges.lead.index, windows)
+    check_floor, check_se = floor.variance, floor.rel_se
+    hold = None
+    if holdout is not None:
+        h_src = holdout.source or "holdout"
+        h_edges = pulse_edges(holdout.usetp, h_src)
+        h_floor = _fit_floor(holdout, unit, h_edges, noise_floor(holdout.efd, holdout.dt, h_edges, h_src), h_src)
+        n_w = sum(int(round((w.t1 - w.t0) / capture.dt)) + 1 for w in windows)
+        check_floor = (h_floor.variance * holdout.n + floor.variance * n_w) / (holdout.n + n_w)
+        check_se = max(h_floor.rel_se, floor.rel_se)
+        hold = HoldoutCheck(holdout.source or None, 0.0, float(holdout.time[-1] - holdout.time[0]), h_floor.variance)
+    floor_tol = floor.variance * (1.0 + budget.floor_sigmas * math.sqrt(floor.rel_se ** 2 + 2.0 / capture.n))
+    validation = Validation("holdout + windows" if holdout is not None else "windows",
+                            Span(0.0, (capture.n - 1) * capture.dt), describe_check(views, hold))
+    return Setup(views, capture.n, floor, check_floor, check_se, floor_tol, validation)
+
+
+def prepare(capture: Capture, unit: Unit, *, holdout: Capture | None = None, budget: Budget | None = None
+            ) -> tuple[EdgeSearch, NoiseFloor, Setup]:
+    """What every model of `capture` is fitted and checked on: the setpoint edges, efd's noise
+    floor (pre-trigger) and the `Setup` (views, the fit's floor, the check's windows)."""
+    budget = budget if budget is not None else Budget()
+    src = capture.source or "capture"
+    if holdout is not None and holdout.on_line != capture.on_line:
+        kind = {True: "an on-line", False: "a no-load"}
+        raise DiagnosisError(f"{holdout.source or 'the holdout'} is {kind[holdout.on_line]} record and {src} "
+                             f"{kind[capture.on_line]} one: a holdout is a record of the same test")
+    edges = pulse_edges(capture.usetp, src)
+    efd_floor = noise_floor(capture.efd, capture.dt, edges, src)
+    floor = _fit_floor(capture, unit, edges, efd_floor, src)
+    return edges, efd_floor, _setup(capture, holdout, unit, edges, floor, budget)

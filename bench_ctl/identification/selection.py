@@ -4,10 +4,10 @@ and ranked by the diagnosis' score.
 
 Each candidate is identified on the whole of every capture (`run_identification`: MVMO, its
 polish and the exchange restarts); each fitted model is then checked on every capture as the
-diagnosis checks a model (`check.check_parts`: the leading edge, the plateau and the trailing
+diagnosis checks a model (`fit_check.check_parts`: the leading edge, the plateau and the trailing
 edge each left out of a re-fit and scored; a recorded Vt the fit did not use is scored and
 shown, not counted: every candidate shares the generator that makes Vt from efd). The score is
-the diagnosis' (`check.score`) over those windows: BIC on the captures, n ln(mse) + k ln(n) with
+the diagnosis' (`fit_check.score`) over those windows: BIC on the captures, n ln(mse) + k ln(n) with
 k the structure's identified parameters that the record informs (a limit it never reaches moves
 nothing and is not counted: `_inert`), plus the windows' sum of n_i ln(mse_i). So a structure with
 more freedom earns it only by fitting better where it was fitted and predicting better where it was
@@ -32,22 +32,20 @@ import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.exitcodes import BadInput
-from bench_ctl.identification.identify import Identification, run_identification
-from bench_ctl.identification.problem import make_problem
-from bench_ctl.identification.result_file import CandidateEntry, Localization, SelectionEntry, Separation
-from bench_ctl.identification.space import SearchSpace
-from bench_ctl.identification.threads import map_fits
-from bench_ctl.model.params import PARAMS
 from bench_ctl.signals.edges import EDGE_PARAMS
-from bench_ctl.units.unit import Bound, Unit
+from bench_ctl.units.unit import Unit
 
-from .check import check_parts
-from .diagnose import prepare
+from .construction import make_problem
+from .fit_check import check_parts, prepare
+from .identify import Identification, run_identification
 from .localize import DiagnosisError, localization, where_lines
-from .models import Part, Setup
+from .model_fits import Part, Setup
+from .result_file import CandidateEntry, Localization, SelectionEntry, Separation
+from .space import SearchSpace
+from .threads import map_fits
 
-__all__ = ["Candidate", "Selection", "select_structure", "free_limits", "where_left", "separation_text", "EQUAL_FIT",
-           "LIMITS"]
+__all__ = ["Candidate", "Selection", "select_structure", "rank_structures", "NoStructureFitted", "where_left",
+           "separation_text", "EQUAL_FIT"]
 
 log = logging.getLogger(__name__)
 
@@ -56,10 +54,6 @@ log = logging.getLogger(__name__)
 EQUAL_FIT = 6.0
 #: standard errors of the noise floor within which a fit counts as at the floor
 FLOOR_SIGMAS = 3.0
-#: the limits of a structure (standard names) `free_limits` identifies, and how far from the
-#: typical value their bounds reach (a factor each way)
-LIMITS = ("VRMAX", "VRMIN", "EMAX", "EMIN", "VMMAX", "VMMIN", "VAMAX", "VAMIN")
-LIMIT_RANGE = 4.0
 #: a parameter is inert on a record when a change of this share of its value or of its bounds'
 #: span (the larger), either way, moves its simulated efd by no more than INERT_TOL (relative to
 #: the trace's peak): it is then not counted in the score's k (a freed limit the record never
@@ -75,43 +69,6 @@ SUSPECT_AT_BOUNDS = 3
 #: not move up the ranking; on the Mostar record that spares the second search of the structures
 #: at 4x-30x the best)
 SUSPECT_RANGE = 4.0
-#: each lower limit's upper one (a lower limit at 0 is freed as far below it as the upper is above)
-_UPPER = {"VRMIN": "VRMAX", "EMIN": "EMAX", "VMMIN": "VMMAX", "VAMIN": "VAMAX"}
-
-
-def free_limits(unit: Unit, keep: Sequence[str] = ()) -> Unit:
-    """`unit` with its structure's limits (`LIMITS`, those it simulates and holds fixed, except
-    `keep`) identified too, from their value: an upper one within LIMIT_RANGE of it each way, a
-    lower one from LIMIT_RANGE times it to 0, a lower one at 0 from minus its upper one to 0 (and
-    the kernel's range). An engineer who does not
-    know the exciter does not know its ceilings either, and a structure with a wrong ceiling can
-    lose to a wrong structure whose ceiling is never reached."""
-    st = unit.structure
-    identify, fixed = dict(unit.identify), dict(unit.fixed)
-    for name in LIMITS:
-        if name not in st.names or name in keep:
-            continue
-        k = st.param(name).kernel
-        if k is None or k in identify or k not in fixed or not math.isfinite(fixed[k]):
-            continue
-        v, info = fixed[k], PARAMS[k]
-        if v > 0:
-            lo, hi = v / LIMIT_RANGE, v * LIMIT_RANGE
-        elif v < 0:   # a lower limit may be 0 (a one-quadrant bridge, a diode rectifier's exciter)
-            lo, hi = v * LIMIT_RANGE, 0.0
-        else:
-            # a lower limit typically at 0 (AC8B's one-quadrant exciter field) may be below it: as
-            # far below as the upper limit is above (the kernel's range at most)
-            up = _UPPER.get(name)
-            upper = unit.fixed.get(st.param(up).kernel or "", math.nan) if up in st.names else math.nan
-            if not (math.isfinite(upper) and upper > 0):
-                continue
-            lo, hi = -upper, 0.0
-        fixed.pop(k)
-        identify[k] = Bound(v, max(lo, info.lo), min(hi, info.hi))
-    return replace(unit, identify=identify, fixed=fixed)
-
-
 @dataclass(frozen=True, eq=False)
 class Candidate:
     """One structure identified on the captures and checked."""
@@ -478,3 +435,21 @@ def separation_text(sel: SelectionEntry) -> str:
 
 def _g(v: float | None) -> str:
     return "-" if v is None else f"{v:.3g}"
+
+
+class NoStructureFitted(BadInput):
+    """Every candidate failed; the message names each one's error."""
+
+
+def rank_structures(captures: Sequence[Capture], units: Mapping[str, Unit], notes: Sequence[str], *,
+                    seed: int, command_line: str, max_evals: int = 1000,
+                    progress: Callable[[str, Any], None] | None = None) -> tuple[Selection, SelectionEntry]:
+    """The selection of `identify` / `diagnose --model auto` and its record with the `--set` notes.
+    Raises NoStructureFitted when no candidate could be fitted, DiagnosisError for a capture the
+    check cannot use."""
+    sel = select_structure(captures, units, max_evals=max_evals, seed=seed, command_line=command_line,
+                           progress=progress)
+    if sel.best.ident is None:
+        raise NoStructureFitted("no structure could be fitted: " + "; ".join(
+            f"{c.model}: {c.error}" for c in sel.candidates))
+    return sel, sel.entry(notes)
