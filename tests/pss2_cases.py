@@ -3,8 +3,8 @@ the stabiliser on): a capture (CSV + sidecar, with P, Q and Vt) made by tests/in
 outside the engine, and the unit file that names the PSS2B and its values. Used by
 benchmarks/pss2_identify.py and tests/identification/test_pss2_identify.py.
 
-Per seed: the exciter's values drawn around its typical ones (a closed loop that settles), the
-PSS2B's gain KS1 drawn, the reference step's instant between two samples. The unit file holds
+Per seed: the exciter's values drawn around its typical ones, the PSS2B's gain KS1 drawn, the
+reference step's instant between two samples; drawn again until the closed loop settles. The unit file holds
 the machine, the grid and the PSS2B's time constants as a planning record gives them (true), and
 KS1 at its planning value `KS1_PLANNED` (not the truth): `pss_sets` fits it (and T1, T3 if asked)
 on the record."""
@@ -34,6 +34,7 @@ TYPICAL = {"SEXS": SEXS, "ESST1A": ESST1A}
 #: values fixed in the unit file (the structure's others are its typical ones, the same as here)
 FIXED = {"SEXS": ("EMIN", "EMAX"), "ESST1A": ("TR", "VRMAX", "VRMIN", "KC")}
 AMPLITUDE_PU, STEP_S = 0.02, 1.0
+MAX_DRAWS = 10
 
 
 @dataclass(frozen=True)
@@ -47,17 +48,28 @@ class Pss2Case:
     unit: Path             # the unit file with the PSS2B (KS1 at its planning value)
     unit_without_pss: Path  # the same unit with the stabiliser left out
     noise_efd_var: float  # the noise actually in efd: mean square of recorded - clean
+    redrawn: int          # how many draws of the seed were refused (their closed loop did not settle)
 
 
-def draw(exciter: str, seed: int) -> tuple[dict, dict, float]:
-    """(the exciter's values, the PSS2B's, the step instant) of `seed`."""
-    rng = np.random.default_rng([seed, 0x9552B, 1 if exciter == "ESST1A" else 0])
+def draw(exciter: str, seed: int, attempt: int = 0) -> tuple[dict, dict, float]:
+    """(the exciter's values, the PSS2B's, the step instant) of `seed` (`attempt` > 0: drawn again)."""
+    rng = np.random.default_rng([seed, 0x9552B, 1 if exciter == "ESST1A" else 0] + ([attempt] if attempt else []))
     values = dict(TYPICAL[exciter])
     for name, (lo, hi) in DRAWN[exciter].items():
         values[name] = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
     pss = {**PSS2B, "KS1": float(rng.uniform(5.0, 20.0))}
     step_s = STEP_S - float(rng.uniform(0.02, 0.98)) * 1e-3   # inside the sample interval before 1 s
     return values, pss, step_s
+
+
+def settled(clean: dict[str, np.ndarray], rate_hz: float, last_s: float = 2.0) -> bool:
+    """Whether the closed loop settled: over the record's last `last_s` the stabiliser's output
+    moves less than 1e-3 pu and efd's fast part (its second difference) stays below 1e-4 pu. A
+    unit with its exciter and PSS2B in a sustained oscillation (a fast exciter, a high KS1) is no
+    commissioning record: drawn again, as tests/independent_plant.py's `draw_avr` does."""
+    k = int(round(last_s * rate_hz))
+    efd, vs = clean["efd"][-k:], clean["vs"][-k:]
+    return bool(np.ptp(vs) < 1e-3 and np.abs(np.diff(efd, 2)).max() < 1e-4)
 
 
 def _grid(pss: dict | None) -> dict:
@@ -107,9 +119,15 @@ def make_case(folder: Path, seed: int, exciter: str = "SEXS", recorder: OnlineRe
     PSS2B; without it, the unit that leaves the stabiliser out)."""
     from bench_ctl.capture import write_capture
 
-    values, pss, step_s = draw(exciter, seed)
-    case = OnlineStep(exciter, values, pss, step_s=step_s, amplitude_pu=AMPLITUDE_PU)
-    rec = online_record(case, recorder or OnlineRecorder(), seed=30_000 + seed)
+    recorder = recorder or OnlineRecorder()
+    for attempt in range(MAX_DRAWS):
+        values, pss, step_s = draw(exciter, seed, attempt)
+        case = OnlineStep(exciter, values, pss, step_s=step_s, amplitude_pu=AMPLITUDE_PU)
+        rec = online_record(case, recorder, seed=30_000 + seed)
+        if settled(rec["truth"]["clean"], recorder.rate_hz):
+            break
+    else:
+        raise RuntimeError(f"{exciter} seed {seed}: no draw of {MAX_DRAWS} settles")
     folder.mkdir(parents=True, exist_ok=True)
     stem = f"pss2b_{exciter.lower()}_seed{seed}"
     cap = folder / f"{stem}.csv"
@@ -119,4 +137,4 @@ def make_case(folder: Path, seed: int, exciter: str = "SEXS", recorder: OnlineRe
     unit, bare = folder / f"{stem}.toml", folder / f"{stem}_no_pss.toml"
     unit.write_text(unit_text(exciter, values, pss), encoding="utf-8")
     bare.write_text(unit_text(exciter, values, None), encoding="utf-8")
-    return Pss2Case(seed, exciter, values, pss, step_s, cap, unit, bare, rec["truth"]["noise_efd_var"])
+    return Pss2Case(seed, exciter, values, pss, step_s, cap, unit, bare, rec["truth"]["noise_efd_var"], attempt)
