@@ -1,8 +1,8 @@
 """The unit on the grid (issue 27, item 1): a GENROU synchronised through XE to an infinite bus
 under SEXS and ESST1A, the engine's machine on the grid (`bench_ctl.engine.machines.grid`) against solve_ivp
-on the equations written here apart from it: the network solved as a linear system rather than
-in closed form, the steady state found by a root finder from the operating point rather than by
-ANDES' closed-form initialisation the machine uses."""
+on the equations written apart from it (tests/independent_online.py): the network solved as a
+linear system rather than in closed form, the steady state found by a root finder from the
+operating point rather than by ANDES' closed-form initialisation the machine uses."""
 from __future__ import annotations
 
 import numpy as np
@@ -14,15 +14,7 @@ from bench_ctl.engine.simulate import param_matrix
 from bench_ctl.model.params import MACHINE_PARAMS
 from bench_ctl.units.overrides import apply_overrides, with_model
 from bench_ctl.units.unit import reference_unit
-
-#: the GENROU of the ANDES fixtures (tests/fixtures/andes), H = M / 2
-GEN = dict(xd=1.8, xq=1.7, xd1=0.3, xq1=0.55, xd2=0.25, xl=0.15, Td10=7.5, Tq10=0.4, Td20=0.05, Tq20=0.05,
-           H=3.0, D=0.0, fn=60.0, S10=0.05, S12=0.2)
-#: a salient-pole unit: the Mostar unit's GENSAL as its OpenIPSL study fitted it (X'q, T'q0 unused)
-SALIENT = dict(xd=1.183, xq=0.62, xd1=0.371, xq1=0.62, xd2=0.215, xl=0.1, Td10=3.77, Tq10=1.0, Td20=0.0552,
-               Tq20=0.0823, H=2.137, D=0.0, fn=50.0, S10=0.1, S12=0.4, salient=True)
-SEXS = dict(TA=1.0, TB=10.0, K=200.0, TE=0.05, EMIN=-3.0, EMAX=4.5)
-ESST1A = dict(TR=0.01, KA=200.0, TA=0.02, TB=10.0, TC=1.0, TB1=0.2, TC1=0.5, VRMAX=4.0, VRMIN=-3.0, KC=0.1)
+from independent_online import ESST1A, GEN, SALIENT, SEXS, Machine, exciter
 
 
 def _machine(xe: float, p0: float, q0: float, g: dict = GEN) -> dict[str, float]:
@@ -41,77 +33,6 @@ def _unit(model: str, values: dict[str, float], vt0: float, g: dict = GEN):
     return unit.with_effects({"saturation": {"S10": g["S10"], "S12": 1.2 * g["S12"]}})
 
 
-def _sat(g: dict):
-    """B (x - A)^2 through S(1.0) 1.0 = S10 and S(1.2) 1.2 = 1.2 S12 (absolute), 0 below A."""
-    y1, y2 = g["S10"], 1.2 * g["S12"]
-    r = np.sqrt(y2 / y1)
-    a = (r * 1.0 - 1.2) / (r - 1.0)
-    b = y1 / (1.0 - a) ** 2
-    return lambda x: b * max(x - a, 0.0) ** 2
-
-
-class Machine:
-    """GENROU (X''d = X''q, RA = 0) through RE + j XE to an infinite bus, written out; a GENSAL
-    (`salient`): saturation Sat(E'q) on the d-axis alone, one q-axis circuit psi''q =
-    psikq with T''q0 dpsikq/dt = -psikq + (Xq - X''d) Iq."""
-
-    def __init__(self, xe: float, re: float = 0.0, g: dict = GEN):
-        self.g = g
-        self.salient = bool(g.get("salient"))
-        self.xe, self.re = xe, re
-        self.sat = _sat(g)
-        self.gd1 = (g["xd2"] - g["xl"]) / (g["xd1"] - g["xl"])
-        self.gq1 = (g["xd2"] - g["xl"]) / (g["xq1"] - g["xl"])
-        self.gqd = (g["xq"] - g["xl"]) / (g["xd"] - g["xl"])
-
-    def algebra(self, e1q, e2d, e1d, e2q, delta, vinf):
-        g = self.g
-        psd = self.gd1 * e1q + (1 - self.gd1) * e2d
-        psq = e2q if self.salient else self.gq1 * e1d + (1 - self.gq1) * e2q
-        psi = np.hypot(psd, psq)
-        se = 0.0 if self.salient else self.sat(psi) / psi
-        x2, xe, re = g["xd2"], self.xe, self.re
-        # vd = psq + x2 iq = vinf sin(delta) + re id - xe iq; vq = psd - x2 id = vinf cos(delta) + re iq + xe id
-        A = np.array([[-re, x2 + xe], [-(x2 + xe), -re]])
-        cid, ciq = np.linalg.solve(A, [vinf * np.sin(delta) - psq, vinf * np.cos(delta) - psd])
-        vd, vq = psq + x2 * ciq, psd - x2 * cid
-        p, q = vd * cid + vq * ciq, vq * cid - vd * ciq
-        gd2 = (g["xd1"] - g["xd2"]) / (g["xd1"] - g["xl"]) ** 2
-        ifd = e1q + (g["xd"] - g["xd1"]) * (self.gd1 * cid + gd2 * (e1q - e2d)) + se * psd
-        if self.salient:
-            ifd += self.sat(e1q)
-        xaq = (e1d + (g["xq"] - g["xq1"]) * ((g["xq1"] - g["xd2"]) / (g["xq1"] - g["xl"]) ** 2 * (e1d - e2q)
-                                             - self.gq1 * ciq) + se * psq * self.gqd)
-        return np.hypot(vd, vq), ifd, cid, ciq, p, q, xaq
-
-    def derivatives(self, m, efd, vinf):
-        g = self.g
-        e1q, e2d, e1d, e2q, delta, omega = m
-        vt, ifd, cid, ciq, p, q, xaq = self.algebra(e1q, e2d, e1d, e2q, delta, vinf)
-        if self.salient:
-            dq = [0.0, (-e2q + (g["xq"] - g["xd2"]) * ciq) / g["Tq20"]]
-        else:
-            dq = [-xaq / g["Tq10"], (e1d - e2q + (g["xq1"] - g["xl"]) * ciq) / g["Tq20"]]
-        return [(efd - ifd) / g["Td10"], (e1q - e2d - (g["xd1"] - g["xl"]) * cid) / g["Td20"], *dq,
-                2 * np.pi * g["fn"] * (omega - 1.0), (self.tm - p - g["D"] * (omega - 1.0)) / (2 * g["H"])]
-
-    def steady_state(self, p0: float, q0: float, vt0: float):
-        """(E'q, psikd, E'd, psikq, delta), Efd and Vinf with every derivative 0 at P0, Q0, Vt0."""
-        from scipy.optimize import fsolve
-
-        self.tm = p0
-
-        def eqs(z):
-            e1q, e2d, e1d, e2q, delta, efd, vinf = z
-            vt, _ifd, _cid, _ciq, p, q, _xaq = self.algebra(e1q, e2d, e1d, e2q, delta, vinf)
-            d = self.derivatives([e1q, e2d, e1d, e2q, delta, 1.0], efd, vinf)
-            return [d[0], d[1], e1d if self.salient else d[2], d[3], p - p0, q - q0, vt - vt0]
-
-        z, _info, ok, msg = fsolve(eqs, [1.2, 1.0, 0.3, 0.3, 0.6, 2.0, 1.0], full_output=True, xtol=1e-13)
-        assert ok == 1, msg
-        return z
-
-
 def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float, steps, t_end: float, dt: float,
                g: dict = GEN, pss: dict | None = None):
     """efd, Vt, P, Q of the exciter `model` on the machine by solve_ivp; `steps`: (instant, change
@@ -122,29 +43,7 @@ def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float,
     mach = Machine(xe, g=g)
     e1q, e2d, e1d, e2q, delta, efd0, vinf = mach.steady_state(p0, q0, vt0)
     m0 = [e1q, e2d, e1d, e2q, delta, 1.0]
-    if model == "SEXS":
-        ka = s["K"]
-        x0 = [efd0 / ka, efd0]   # lead-lag state, efd
-
-        def exc(x, vt, ifd, vref):
-            xl, efd = x
-            e = vref - vt
-            y = xl + s["TA"] / s["TB"] * (e - xl)
-            de = (ka * y - efd) / s["TE"]
-            if (efd >= s["EMAX"] and de > 0) or (efd <= s["EMIN"] and de < 0):
-                de = 0.0
-            return [(e - xl) / s["TB"], de], efd
-    else:
-        ka = s["KA"]
-        x0 = [vt0, efd0 / ka, efd0 / ka, efd0]   # transducer, lead-lag 1, lead-lag 2, VA
-
-        def exc(x, vt, ifd, vref):
-            xm, x1, x2, va = x
-            e = vref - xm
-            y1 = x1 + s["TC"] / s["TB"] * (e - x1)
-            y2 = x2 + s["TC1"] / s["TB1"] * (y1 - x2)
-            efd = min(max(va, s["VRMIN"] * vt), s["VRMAX"] * vt - s["KC"] * ifd)
-            return [(vt - xm) / s["TR"], (e - x1) / s["TB"], (y1 - x2) / s["TB1"], (ka * y2 - va) / s["TA"]], efd
+    x0, exc, ka = exciter(model, s, vt0, efd0)
     vref0 = vt0 + efd0 / ka
     ne = len(x0)
     ks = pss["KS"] if pss else 0.0

@@ -1,6 +1,7 @@
 """PSS2A and PSS2B on the unit on the grid (issue 49, item 1): the engine's plug-in
-(`bench_ctl/engine/stabilisers/pss2.py`) against the stabiliser written out here apart from it and
-solved with the machine (tests/engine/test_grid.py's `Machine`) and SEXS by solve_ivp.
+(`bench_ctl/engine/stabilisers/pss2.py`) against the stabiliser written out apart from it
+(tests/independent_online.py's `Pss2`) and solved with the machine (`Machine`) and SEXS by
+solve_ivp.
 
 The equations here differ in form from the engine's where they can: the inputs are limited and
 washed out as absolute signals (the washouts' states start at the operating point's input), the
@@ -12,13 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_grid import GEN, SEXS, Machine
 
 from bench_ctl.engine import run
 from bench_ctl.engine.machines.grid import machine_matrix
 from bench_ctl.engine.simulate import param_matrix
 from bench_ctl.units.overrides import apply_overrides, with_model
 from bench_ctl.units.unit import reference_unit
+from independent_online import GEN, SEXS, Machine, Pss2
 
 XE, P0, Q0, VT0 = 0.4, 0.8, 0.2, 1.0
 DT, T_END, STEPS = 1e-3, 4.0, [(0.5, 0.02)]
@@ -75,73 +76,6 @@ def engine_run(pss: dict | None):
     for at, change in STEPS:
         usetp[int(round(at / DT)):] += change
     return run(P, usetp, DT, 1.0, machine=machine_matrix(_grid(pss)))
-
-
-class Pss2:
-    """PSS2A / PSS2B written out from IEEE 421.5-2016's PSS2B diagram: absolute inputs, limited
-    (PSS2B), each washout's state the lagged input; the ramp-tracking filter as the transfer
-    function (1 + s T8)^N / (1 + s T9)^(M N) in state-space form; `drop_tw2` leaves the second
-    washout of input 1 out (a mutation)."""
-
-    def __init__(self, p: dict, pe0: float, drop_tw2: bool = False):
-        from scipy.signal import tf2ss
-
-        self.p, self.b = p, p["MODEL"] == "PSS2B"
-        self.drop_tw2 = drop_tw2
-        mn = p["M"] * p["N"]
-        if mn:
-            num = np.poly1d([p["T8"], 1.0]) ** p["N"]
-            den = np.poly1d([p["T9"], 1.0]) ** mn
-            self.A, self.B, self.C, self.D = tf2ss(num.coeffs, den.coeffs)
-        else:
-            self.A, self.B, self.C, self.D = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.ones((1, 1))
-        self.nr = self.A.shape[0]
-        u1, u2 = self.inputs(1.0, pe0)
-        # washouts' states (their lagged inputs), lags, the filter's states, the lead-lags'
-        self.x0 = np.concatenate([[u1, 0.0, 0.0, u2, 0.0, 0.0], np.zeros(self.nr), [0.0, 0.0, 0.0]])
-
-    def inputs(self, w, pe):
-        p = self.p
-        if self.b:
-            return float(np.clip(w - 1.0, p["VS1MIN"], p["VS1MAX"])), float(np.clip(pe, p["VS2MIN"], p["VS2MAX"]))
-        return w - 1.0, pe
-
-    def __call__(self, x, w, pe):
-        """(vs, the derivatives of x)."""
-        p = self.p
-        u1, u2 = self.inputs(w, pe)
-        wo = []   # washout i: s T/(1 + s T), state z: dz = (u - z)/T, y = u - z; T = 0 passes u
-
-        def washout(u, z, t):
-            if t == 0.0:
-                wo.append(0.0)
-                return u
-            wo.append((u - z) / t)
-            return u - z
-
-        def lag(u, z, k, t):
-            return (k * u, 0.0) if t == 0.0 else (z, (k * u - z) / t)
-
-        a = washout(u1, x[0], p["TW1"])
-        a = washout(a, x[1], 0.0 if self.drop_tw2 else p["TW2"])
-        v1, d2 = lag(a, x[2], 1.0, p["T6"])
-        b = washout(u2, x[3], p["TW3"])
-        b = washout(b, x[4], p["TW4"])
-        v2, d5 = lag(b, x[5], p["KS2"], p["T7"])
-        r = x[6:6 + self.nr]
-        f_in = v1 + p["KS3"] * v2
-        dr = self.A @ r + self.B[:, 0] * f_in
-        f_out = float(self.C[0] @ r + self.D[0, 0] * f_in)
-        y = p["KS1"] * (f_out - v2)
-        lls = [("T1", "T2"), ("T3", "T4")] + ([("T10", "T11")] if self.b else [])
-        dll = []
-        for j, (lead, lagc) in enumerate(lls):
-            z = x[6 + self.nr + j]
-            dll.append((y - z) / p[lagc])
-            y = z + p[lead] / p[lagc] * (y - z)
-        dll += [0.0] * (3 - len(lls))
-        vs = min(max(y, p.get("VSTMIN", -0.1)), p.get("VSTMAX", 0.1))
-        return vs, np.concatenate([[wo[0], wo[1], d2, wo[2], wo[3], d5], dr, dll])
 
 
 def reference(pss: dict, *, drop_tw2: bool = False, swap_mn: bool = False):
