@@ -3,8 +3,9 @@
 `run` simulates a population of parameter sets driven by one recorded setpoint series: the unit
 at no load, on the grid (a machine matrix given), or its excitation system alone fed a record's
 Vt and Ifd (`ext`). Time runs in the outer loop and candidates in the inner loop (states are
-arrays over candidates), chunks of candidates run in parallel (docs/decisions/0003); each call
-runs the variant its candidates need (`variants`), compiled on first use.
+arrays over candidates), chunks of candidates run in parallel (docs/decisions/0003), shared out
+between the calling thread and the engine's pool (`_share`); each call runs the variant its
+candidates need (`variants`), compiled on first use.
 
 The package, bottom up: `jit` (the one numba decorator, variants by constants, cache names),
 `layout` (the derived columns `D_*`, rows, constants), `derived` (the derived matrix), `exciter`,
@@ -16,8 +17,8 @@ RK4 step and its loop over candidates), `span` (the no-load reference structure'
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import numba as nb
 import numpy as np
@@ -70,8 +71,9 @@ def classify(D: np.ndarray) -> int:
     the reference blocks, the standard structures' without the potential-source stage, with it
     for some, with it alone for every valid candidate (an invalid one does not count)."""
     bits = D[:, D_BITS].astype(np.int64)
-    if not np.any(bits & B_ST4):
-        return X_FULL if np.any(bits & B_FULL) else X_REF
+    union = int(np.bitwise_or.reduce(bits))   # (one reduction: a test per bit cost one each)
+    if not union & B_ST4:
+        return X_FULL if union & B_FULL else X_REF
     valid = D[:, D_VALID] != 0.0
     return X_ST4_ONLY if np.all(bits[valid] & B_ST4_ONLY) else X_ST4
 
@@ -92,10 +94,14 @@ def edge_window(D: np.ndarray, edges: EdgeSpec, dt: float, T: int) -> np.ndarray
     """1 for every step where some candidate's setpoint differs from the zero-order hold of the
     record (between an edge's nominal and fitted instants) or jumps inside the step."""
     win = np.zeros(T, dtype=np.uint8)
-    for j in range(edges.n):
-        ke = (edges.nominal_s[j] + D[:, D_EDGE0 + edges.slot[j]]) / dt
-        lo = int(math.floor(min(float(ke.min()), float(edges.index[j])))) - 1
-        hi = int(math.ceil(max(float(ke.max()), float(edges.index[j])))) + 1
+    if not edges.n or not D.shape[0]:
+        return win
+    # every edge's fitted sample for every candidate at once (the same arithmetic as one at a time)
+    ke = (edges.nominal_s[:, None] + D[:, D_EDGE0 + edges.slot].T) / dt
+    first, last = ke.min(axis=1).tolist(), ke.max(axis=1).tolist()
+    for j, index in enumerate(edges.index.tolist()):
+        lo = int(math.floor(min(first[j], float(index)))) - 1
+        hi = int(math.ceil(max(last[j], float(index)))) + 1
         win[max(0, lo): max(0, min(T, hi + 1))] = 1
     return win
 
@@ -106,6 +112,11 @@ def _array(a: np.ndarray, dtype: type) -> np.ndarray:
     if type(a) is np.ndarray and a.dtype == dtype and a.flags.c_contiguous and a.flags.writeable:
         return a
     return np.require(a, dtype, ("C", "W"))
+
+
+def _padded(A: np.ndarray, k: int) -> np.ndarray:
+    """A with k copies of its last row after it."""
+    return np.concatenate((A, np.broadcast_to(A[-1:], (k, A.shape[1]))))
 
 
 def _chunk(v, Dt: np.ndarray, lo: int, hi: int, drive: Drive, edges: Edges, out: Out, sw: Switches) -> None:
@@ -130,6 +141,27 @@ def _pool(threads: int) -> ThreadPoolExecutor:
     return pool
 
 
+def _share(spans: list[tuple[int, int]], work: Callable[[int, int], None], threads: int) -> None:
+    """`work(lo, hi)` for every span, taken in turn by the calling thread and threads - 1 of the
+    pool's: the caller works instead of waiting (a call of two chunks wakes one thread, not two).
+    A helper that has not started when the caller runs out of spans is cancelled, so that a call
+    from a pool thread never waits for a free one."""
+    todo = iter(spans)   # (next() on a list's iterator is atomic: each span is taken once)
+
+    def drain() -> None:
+        for lo, hi in todo:
+            work(lo, hi)
+
+    helpers = [_pool(threads - 1).submit(drain) for _ in range(min(threads, len(spans)) - 1)]
+    try:
+        drain()
+    finally:
+        started = [f for f in helpers if not f.cancel()]
+        wait(started)
+    for f in started:
+        f.result()   # (a helper's error)
+
+
 def run(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *, machine: np.ndarray | None = None,
         ext: np.ndarray | None = None, measured: Mapping[str, np.ndarray | None] | None = None,
         weights: Mapping[str, float] | None = None, store: bool = True, edges: EdgeSpec | None = None,
@@ -147,17 +179,19 @@ def run(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *, machin
     (n, T) of the `keep` signals (default efd and vt, on the grid p, q and ifd too); with
     measurements `obj` (the trapezoidal integral of the weighted squared errors) and
     `sse_<signal>` for each measured signal with a weight."""
-    P = np.atleast_2d(np.asarray(P, dtype=np.float64))
+    P = np.asarray(P, dtype=np.float64)
+    if P.ndim != 2:
+        P = np.atleast_2d(P)
     n_asked = P.shape[0]
     short = n_asked % LANES
     if n_asked > 1 and short >= 2:   # two or more would run in the loops' scalar remainder
-        P = np.vstack([P, np.repeat(P[-1:], LANES - short, axis=0)])
+        P = _padded(P, LANES - short)
     if machine is not None:
         M = np.atleast_2d(np.asarray(machine, dtype=np.float64))
         if M.shape[0] != n_asked:
             raise ValueError(f"machine matrix has {M.shape[0]} rows for {n_asked} candidates")
         if P.shape[0] != n_asked:
-            M = np.vstack([M, np.repeat(M[-1:], P.shape[0] - n_asked, axis=0)])
+            M = _padded(M, P.shape[0] - n_asked)
         D = grid.derive_grid(P, M)
         key = grid_key(D)
     else:
@@ -184,8 +218,8 @@ def _run(D, key, usetp, dt, usetp_pre, ext, measured, weights, store, edges, kee
     w = np.zeros(N_SCORED)
     weights = {"efd": 1.0, **dict(weights or {})}
     scored = []
-    for q, name in enumerate(SIGNALS[:N_SCORED]):
-        series = (measured or {}).get(name)
+    for q, name in enumerate(SIGNALS[:N_SCORED] if measured else ()):
+        series = measured.get(name)
         if series is not None:
             series = np.asarray(series, dtype=np.float64)
             if series.shape != (T,):
@@ -194,7 +228,8 @@ def _run(D, key, usetp, dt, usetp_pre, ext, measured, weights, store, edges, kee
             w[q] = float(weights.get(name, 0.0))
             if w[q] > 0.0:
                 scored.append(q)
-    unknown = set(measured or {}) - set(SIGNALS[:N_SCORED])
+    scored_beyond_efd = any(q > 0 for q in scored)
+    unknown = set(measured or ()) - set(SIGNALS[:N_SCORED])
     if unknown:
         raise ValueError(f"measured signal(s) {', '.join(sorted(unknown))}: a fit reads efd, vt, p, q")
     if keep is None:
@@ -209,10 +244,11 @@ def _run(D, key, usetp, dt, usetp_pre, ext, measured, weights, store, edges, kee
     fail_step = np.full(n, -1, dtype=np.int64)
     if n:
         bits = int(np.bitwise_or.reduce(D[:, D_BITS].astype(np.int64)))
-        td_max = float(np.max(D[:, D_TD]))
-        sk_max = float(np.max(D[:, D_SKEW]))
         delay, skew, ramp = bool(bits & B_DELAY), bool(bits & B_SKEW), bool(bits & B_RAMP)
-        sw = Switches(delay, skew, ramp, not (delay or skew or ramp or bits & B_FLUX or np.any(w[1:] > 0.0)),
+        # (B_DELAY, B_SKEW: some candidate's TD, SKEW > 0, `derived`; the rings' lengths need their largest)
+        td_max = float(D[:, D_TD].max()) if delay else 0.0
+        sk_max = float(D[:, D_SKEW].max()) if skew else 0.0
+        sw = Switches(delay, skew, ramp, not (delay or skew or ramp or bits & B_FLUX or scored_beyond_efd),
                       not bits & B_LIMITED, int(math.ceil(td_max / dt)) + 3 if td_max > 0 else 1,
                       int(math.ceil(sk_max / dt)) + 3 if sk_max > 0 else 1)
         xt = _array(ext, np.float64) if ext is not None else np.zeros((2, 1))
@@ -234,7 +270,7 @@ def _run(D, key, usetp, dt, usetp_pre, ext, measured, weights, store, edges, kee
             for lo, hi in spans:
                 _chunk(v, Dt, lo, hi, drive, e, o, sw)
         else:
-            list(_pool(threads).map(lambda s: _chunk(v, Dt, s[0], s[1], drive, e, o, sw), spans))
+            _share(spans, lambda lo, hi: _chunk(v, Dt, lo, hi, drive, e, o, sw), threads)
     result = {"fail_step": fail_step}
     if store:
         result.update({name: traces[r] for r, name in enumerate(keep)})

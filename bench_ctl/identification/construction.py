@@ -214,7 +214,8 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         if c.n < 3:
             raise ProblemError(f"{owner}: {c.n} samples are too few to identify anything")
         dt = float(c.dt)
-        usetp = np.ascontiguousarray(c.usetp, dtype=float)
+        # a writable copy: the engine takes a capture's read-only series as a copy, on every call
+        usetp = np.require(c.usetp, float, ("C", "W"))
         vt = np.ascontiguousarray(c.vt, dtype=float) if c.vt is not None else None
         moved = [(e, s) for e, s in zip(edges, slots) if s is not None]
         spec = edge_spec([e for e, _ in moved], [s for _, s in moved])
