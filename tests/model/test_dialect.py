@@ -246,3 +246,22 @@ def test_set_reads_the_structures_names_and_its_messages_say_what_was_typed():
     with pytest.raises(UnitError) as exc:
         apply_overrides(unit, ["TB=-1"])
     assert "TB" in str(exc.value) and "TA2" not in str(exc.value)
+
+
+def test_a_note_says_its_names_and_leaves_its_prose():
+    """A `Note` translates only the names it carries (IEEEX1: kernel TE is TA, TEX is TE, no
+    chaining); its prose, even where it holds a kernel name, and a note without names stay as
+    they are; the reference structure says the kernel's text."""
+    from bench_ctl.model.dialect import Note
+
+    x1 = dialect_of(structure("IEEEX1"))
+    note = Note("{} and {} trade places; constraint {} (TE is prose here)", "TE", "TEX", "TE <= TEX")
+    assert note == "TE and TEX trade places; constraint TE <= TEX (TE is prose here)"   # the kernel's
+    assert x1.say(note) == "TA and TE trade places; constraint TA <= TE (TE is prose here)"
+    assert x1.say(Note("exchangeable ({}) here", Note("lag TA <-> TE"))) == "exchangeable (lag TA <-> TE) here"
+    assert x1.deep({"swap": Note("lag TA <-> TE"), "k": "TEX"}) == {"swap": "lag TA <-> TE", "k": "TE"}
+    assert dialect_of(structure("REFERENCE")).say(note) == str(note)
+    import pickle
+    again = pickle.loads(pickle.dumps(note))
+    assert x1.say(again) == x1.say(note)
+
