@@ -218,14 +218,11 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     base_params = None
     if result_path:
         previous = read_result(result_path)
+        for k, v in previous.params.items():   # refused under the name the file gives it
+            if not math.isfinite(v):
+                raise UnitError(f"{result_path}: params.{k} = {v!r} is not a finite number")
         params = previous.kernel_view()["params"]      # the result's names -> the kernel's
-        base_params = {}
-        for k, v in params.items():
-            if k in unit.identify:
-                if not math.isfinite(v):
-                    raise UnitError(f"{result_path}: params.{unit.dialect.name(k)} = {v!r} "
-                                    "is not a finite number")
-                base_params[k] = float(v)
+        base_params = {k: float(v) for k, v in params.items() if k in unit.identify}
         if not base_params:
             raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
     out = outputs.Outputs([capture_path, holdout_path, unit_path, result_path, from_dyr], force=force)

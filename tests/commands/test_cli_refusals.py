@@ -103,3 +103,18 @@ def test_identify_evals_help_states_the_swarm_and_refuses_below_it(cap, capsys):
     assert rc == 2 and "x>=32" in err
     rc, err = _run(["identify", str(cap), "--evals", "32", "--optimizer", "de", "--no-progress"], capsys)
     assert rc == 2 and "de needs at least" in err and "evaluations" in err
+
+
+def test_diagnose_refuses_a_result_value_that_is_not_finite_under_the_files_name(cap, tmp_path, capsys):
+    """A --result of IEEEX1 whose TE (the kernel's TEX) is Infinity is refused naming params.TE, the
+    key as the file writes it, not the kernel's TEX."""
+    import json
+
+    from records import model_json, result_json
+
+    res = tmp_path / "inf.json"
+    data = result_json(params={"KA": 400.0, "TE": float("inf")}, model=model_json(name="IEEEX1"),
+                       kernel={"params": {}, "bounds": {}, "fixed": {}, "constraints": []})
+    res.write_text(json.dumps(data))          # json writes the float as Infinity, which it reads back
+    rc, err = _run(["diagnose", str(cap), "--model", "IEEEX1", "--result", str(res)], capsys)
+    assert rc == 2 and "params.TE = inf is not a finite number" in err and "TEX" not in err, err
