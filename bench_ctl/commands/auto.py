@@ -11,7 +11,7 @@ from bench_ctl.exitcodes import BadInput
 from bench_ctl.identification.result_file import SelectionEntry
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
 from bench_ctl.model.structures import STRUCTURES
-from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.overrides import apply_overrides, apply_own_overrides, with_model
 from bench_ctl.units.unit import Unit
 
 from .options import fmt_value as _fmt
@@ -37,12 +37,9 @@ def auto_units(unit_path: str | None, overrides: tuple[str, ...], model_kw: dict
     units: dict[str, Unit] = {}
     skipped: dict[str, list[str]] = {}
     for name in auto_models(base.model):
-        u = with_model(base, name)
-        taken = [item for item in overrides if _takes(u, item)]
-        for item in overrides:
-            if item not in taken:
-                skipped.setdefault(item, []).append(name)
-        u = apply_overrides(u, taken)
+        u, lacking = apply_own_overrides(with_model(base, name), overrides)
+        for item in lacking:
+            skipped.setdefault(item, []).append(name)
         # the limits of the structure a unit file or planning record gives stay as given, as do
         # those --set names; the typical values of the others are only a start: fitted
         given_model = u.model == base.model and (model_kw.get("from_dyr") or unit_path) is not None
@@ -83,15 +80,6 @@ def twin_notes(fitted: Sequence[str]) -> list[str]:
             out.append(f"{name} stands for {other} too: on a pulse test they are the same equations, "
                        "their limits under other names (not fitted apart)")
     return out
-
-
-def _takes(unit: Unit, item: str) -> bool:
-    """Whether `--set item` names something the unit's structure has (its own standard names,
-    the generator's, the effects', a weight; the reference structure: every kernel name)."""
-    key = item.split("=", 1)[0].strip()
-    if key.startswith("weights."):
-        return True
-    return unit.dialect.speaks(key.split(".", 1)[0])
 
 
 def selection_summary(sel: SelectionEntry) -> str:

@@ -265,3 +265,18 @@ def test_a_note_says_its_names_and_leaves_its_prose():
     again = pickle.loads(pickle.dumps(note))
     assert x1.say(again) == x1.say(note)
 
+
+def test_model_auto_applies_the_overrides_a_structure_names_and_says_the_others():
+    """`--model auto`'s --set parse: IEEEX1 takes its TE (the kernel's TEX), a weight and the
+    generator's constants, not the kernel's KAVR (its KA); the reference takes KAVR, not SEXS's K."""
+    from bench_ctl.units.overrides import apply_own_overrides
+
+    x1 = with_model(reference_unit(), "IEEEX1")
+    u, lacking = apply_own_overrides(x1, ["TE=0.9", "KAVR=200", "weights.vt=0.5", "Td0p=6.0"])
+    assert lacking == ["KAVR=200"]
+    te = u.identify["TEX"].value if "TEX" in u.identify else u.fixed["TEX"]
+    assert te == 0.9 and u.weights["vt"] == 0.5 and u.generator["Td0p"] == 6.0
+    r, lacking = apply_own_overrides(reference_unit(), ["KAVR=200", "K.max=900"])
+    assert lacking == ["K.max=900"] and r.identify["KAVR"].value == 200
+    with pytest.raises(UnitError, match="not a number"):       # one it takes is still checked
+        apply_own_overrides(x1, ["TE=abc"])
