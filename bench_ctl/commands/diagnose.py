@@ -43,6 +43,7 @@ from bench_ctl.identification.result_file import (
     read_result,
 )
 from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.records import plain
 from bench_ctl.units.unit import Unit, UnitError
@@ -152,7 +153,7 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
         history=[], fit_window=None if k1 >= capture.n else [0.0, t1],
         model=model_entry(unit, values, names, {}),
     )
-    return replace(result.renamed(unit.dialect), selection=d.selection)
+    return replace(result.renamed(dialect_of(unit.structure)), selection=d.selection)
 
 
 def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str], model_kw: dict,

@@ -43,6 +43,7 @@ from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
 from bench_ctl.identification.timing import Edge
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.effects import VOCABULARY
 from bench_ctl.signals.edges import EdgeSearch
 from bench_ctl.timestamps import utc_now_text
@@ -394,7 +395,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
         vocabulary=_vocabulary(views),
     )
     # the boundary: model parameters in the structure's names
-    return diagnosis.renamed(unit.dialect)
+    return diagnosis.renamed(dialect_of(unit.structure))
 
 
 def _vocabulary(views: Views) -> Vocabulary:

@@ -37,6 +37,7 @@ from bench_ctl.identification.problem import make_problem
 from bench_ctl.identification.result_file import CandidateEntry, Localization, SelectionEntry, Separation
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import PARAMS
 from bench_ctl.signals.edges import EDGE_PARAMS
 from bench_ctl.units.unit import Bound, Unit
@@ -331,7 +332,7 @@ def _scored(model: str, unit: Unit, captures: Sequence[Capture], ident: Identifi
         score = math.inf
     return Candidate(model, ident, k, n_total, mse_all, tuple(parts), score, check_nll, time.perf_counter() - t0,
                      where=tuple(where),
-                     inert=tuple(unit.dialect.name(n) for n in ident.problem.names if n in inert))
+                     inert=tuple(dialect_of(unit.structure).name(n) for n in ident.problem.names if n in inert))
 
 
 def _inert(p: Any, x: np.ndarray) -> set[str]:

@@ -338,14 +338,15 @@ class IdentificationResult(Record):
                 determined=d.keys(self.model.determined)),
             kernel=ResultKernel(dict(self.params), dict(self.bounds), dict(self.fixed), self.constraints))
 
-    @property
-    def dialect(self) -> Dialect:
-        """The names of the result's structure (a structure this version lacks: the kernel's)."""
+    def describe(self, name: str) -> tuple[str, str, float | None] | None:
+        """(unit, meaning, neutral value) of a parameter as the result names it (its structure's
+        names; a structure this version lacks: the kernel's), None for a name it does not know
+        (`Dialect.describe`)."""
         try:
             st = structure(self.model_name)
         except StructureError:
             st = structure(None)
-        return dialect_of(st)
+        return dialect_of(st).describe(name)
 
     def kernel_view(self) -> dict[str, dict[str, Any]]:
         """`fixed` and `params` in the kernel's names, values as written (None: an open limit);

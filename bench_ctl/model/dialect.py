@@ -3,8 +3,8 @@
 Inside bench-ctl a unit's values are kernel parameters (`bench_ctl.model.params`, the columns of
 the kernel's matrix); a user reads and writes a standard structure's IEEE 421.5 / PSS/E names
 (`bench_ctl.model.structures`): ESST1A's `KA`, `TA`, `TB1` are the kernel's `KAVR`, `TE`, `TA4`.
-A structure's `Dialect` (`dialect_of`, or a unit's `Unit.dialect`) is the one place that
-translates, in each direction, and it is applied at the boundaries only:
+A structure's `Dialect` (`dialect_of`, taken where an input is parsed or a record written) is
+the one place that translates, in each direction, and it is applied at the boundaries only:
 
 - kernel -> standard, where a record is written: a result, a diagnosis and a simulated
   capture's unit are built in kernel names and renamed once by their writer (their records'

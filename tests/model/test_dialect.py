@@ -190,7 +190,7 @@ def test_a_result_in_standard_names_reads_back_to_the_kernel_values_it_was_made_
         params={k: values[k] for k in unit.identify},
         fixed={k: none(v) for k, v in values.items() if k not in unit.identify and k not in RECORD_PARAMS},
         bounds={k: [b.min, b.max] for k, b in unit.identify.items()}))
-    std = kernel.renamed(unit.dialect).to_json()
+    std = kernel.renamed(dialect_of(unit.structure)).to_json()
     back = kernel_sections(json.loads(json.dumps(std)))
     got = dict(neutral_values())
     for section in ("fixed", "params"):
@@ -199,7 +199,7 @@ def test_a_result_in_standard_names_reads_back_to_the_kernel_values_it_was_made_
         if k not in RECORD_PARAMS:
             assert got[k] == values[k], (k, got[k], values[k])
     if name != "REFERENCE":
-        assert not set(std["fixed"]) & set(unit.dialect.hidden_kernel_names())
+        assert not set(std["fixed"]) & set(dialect_of(unit.structure).hidden_kernel_names())
 
 
 @pytest.mark.parametrize("name", ["ESST1A", "IEEEX1", "ESST4B"])
@@ -280,3 +280,17 @@ def test_model_auto_applies_the_overrides_a_structure_names_and_says_the_others(
     assert lacking == ["K.max=900"] and r.identify["KAVR"].value == 200
     with pytest.raises(UnitError, match="not a number"):       # one it takes is still checked
         apply_own_overrides(x1, ["TE=abc"])
+
+
+def test_a_result_describes_a_parameter_in_its_structures_names():
+    """The report's parameter table: IEEEX1's TE is its exciter time constant (the kernel's TEX),
+    not the kernel's TE (its TA); a structure this version lacks reads the kernel's."""
+    from bench_ctl.model.params import PARAMS
+    from records import result_of
+
+    te = structure("IEEEX1").param("TE")
+    x1 = result_of(model=model_json(name="IEEEX1"))
+    assert x1.describe("TE") == (te.unit, te.info, None) and te.info != PARAMS["TE"].info
+    assert x1.describe("NOPE") is None
+    other = result_of(model=model_json(name="NO_SUCH_MODEL"))
+    assert other.describe("TE") == (PARAMS["TE"].unit, PARAMS["TE"].info, PARAMS["TE"].neutral)
