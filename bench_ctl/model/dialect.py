@@ -11,7 +11,10 @@ the one place that translates, in each direction, and it is applied at the bound
   `renamed(dialect)`: `name`, `text`, `keys`, `fixed`, `unit`; the kernel's own view goes under a
   `kernel` key, for debugging); texts a record carries that name parameters (the
   identifiability notes) are made as `Note`s, prose with the kernel names as data, and said in
-  the structure's names by the same writer (`say`: the names translated, never the prose);
+  the structure's names by the same writer (`say`: the names translated, never the prose); a
+  refusal of the problem a unit gives (constraints that contradict each other inside the
+  bounds) is said in them where the unit was loaded (the `identify` command) or the diagnosis
+  is written (`bench_ctl.diagnosis.diagnose.diagnose`), its text translated (`text`);
 - standard -> kernel, where an input is parsed: unit files and `--set` (`bench_ctl.units.unit`,
   `bench_ctl.units.overrides`: `kernel_text`, `refusal` of a kernel name, naming the standard
   one), and a result read back
