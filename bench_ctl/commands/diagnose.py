@@ -44,6 +44,7 @@ from bench_ctl.identification.result_file import (
 )
 from bench_ctl.identification.selection import rank_structures
 from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.records import plain
 from bench_ctl.units.unit import Unit, UnitError
@@ -153,7 +154,7 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
         history=[], fit_window=None if k1 >= capture.n else [0.0, t1],
         model=model_entry(unit, values, names, {}),
     )
-    return replace(result.renamed(unit.dialect), selection=d.selection)
+    return replace(result.renamed(dialect_of(unit.structure)), selection=d.selection)
 
 
 def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str], model_kw: dict,
@@ -219,14 +220,11 @@ def diagnose(capture_path: str, holdout_path: str | None, unit_path: str | None,
     base_params = None
     if result_path:
         previous = read_result(result_path)
+        for k, v in previous.params.items():   # refused under the name the file gives it
+            if not math.isfinite(v):
+                raise UnitError(f"{result_path}: params.{k} = {v!r} is not a finite number")
         params = previous.kernel_view()["params"]      # the result's names -> the kernel's
-        base_params = {}
-        for k, v in params.items():
-            if k in unit.identify:
-                if not math.isfinite(v):
-                    raise UnitError(f"{result_path}: params.{unit.dialect.name(k)} = {v!r} "
-                                    "is not a finite number")
-                base_params[k] = float(v)
+        base_params = {k: float(v) for k, v in params.items() if k in unit.identify}
         if not base_params:
             raise UnitError(f"{result_path}: no 'params' of the unit's identified parameters")
     out = outputs.Outputs([capture_path, holdout_path, unit_path, result_path, from_dyr], force=force)

@@ -34,6 +34,7 @@ from bench_ctl.identification.options import IDENTIFY
 from bench_ctl.identification.peers import OPTIMIZERS
 from bench_ctl.identification.result_file import IdentificationResult, ModelEntry  # noqa: F401 (the summary's input)
 from bench_ctl.identification.selection import NoStructureFitted, rank_structures
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.unit_record import UnitEntry
 
 from .auto import auto_units, is_auto, selection_summary
@@ -187,7 +188,7 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
     try:
         problem = make_problem(caps, unit)
     except (ProblemError, ConstraintError) as exc:   # said on the kernel's names: in the structure's
-        raise type(exc)(unit.dialect.text(str(exc))) from None
+        raise type(exc)(dialect_of(unit.structure).text(str(exc))) from None
     out = outputs.guard_outputs({"--json": json_out, "--plot": plot_out},
                                 [*captures, unit_path, from_dyr], force=force)
     chosen = list(dict.fromkeys(optimizers or ("mvmo",)))

@@ -39,13 +39,16 @@ import numpy as np
 
 import bench_ctl
 from bench_ctl.capture import Capture, capture_sha256
+from bench_ctl.identification.constraints import ConstraintError
 from bench_ctl.identification.fit_check import bic, checked, fit_holdout, prepare
 from bench_ctl.identification.localize import NoiseFloor, localization
 from bench_ctl.identification.model_fits import Budget, ModelFit, Setup, Views
 from bench_ctl.identification.peers import run_optimizer
+from bench_ctl.identification.problem import ProblemError
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
 from bench_ctl.identification.timing import Edge
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.effects import VOCABULARY
 from bench_ctl.signals.edges import EdgeSearch
 from bench_ctl.timestamps import utc_now_text
@@ -222,13 +225,19 @@ def _edges(st: Setup, m: ModelFit) -> tuple[Edge, ...]:
     return tuple(out)
 
 
-def diagnose(*args: Any, **kwargs: Any) -> Diagnosis:
+def diagnose(capture: Capture, unit: Unit, **kwargs: Any) -> Diagnosis:
     """`_diagnose` with BLAS on one thread (the same answer on any machine, alone or in a batch;
-    see identification.identify.run_identification)."""
+    see identification.identify.run_identification), said in the unit's structure's names: the
+    diagnosis, built in the kernel's, renamed once, and a refusal of its problem (constraints
+    that contradict each other, a bound) too, whose text names the kernel's parameters."""
     from threadpoolctl import threadpool_limits
 
+    names = dialect_of(unit.structure)    # the boundary: the structure's names
     with threadpool_limits(limits=1, user_api="blas"):
-        return _diagnose(*args, **kwargs)
+        try:
+            return _diagnose(capture, unit, **kwargs).renamed(names)
+        except (ProblemError, ConstraintError) as exc:
+            raise type(exc)(names.text(str(exc))) from None
 
 
 def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, seed: int = 0,
@@ -320,8 +329,7 @@ def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, s
         wall_s=time.perf_counter() - t_start,
         vocabulary=_vocabulary(views),
     )
-    # the boundary: model parameters in the structure's names
-    return diagnosis.renamed(unit.dialect)
+    return diagnosis     # in the kernel's names: `diagnose` renames it
 
 
 def _vocabulary(views: Views) -> Vocabulary:

@@ -12,7 +12,7 @@ from dataclasses import replace
 from bench_ctl.model.params import PARAMS
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
 from bench_ctl.model.structures import STRUCTURES
-from bench_ctl.units.overrides import apply_overrides, with_model
+from bench_ctl.units.overrides import apply_overrides, apply_own_overrides, with_model
 from bench_ctl.units.unit import Bound, Unit
 
 __all__ = ["LIMITS", "LIMIT_RANGE", "free_limits", "candidate_units", "auto_models", "twin_notes"]
@@ -71,12 +71,9 @@ def candidate_units(base: Unit, overrides: Sequence[str], *, given_model: bool
     units: dict[str, Unit] = {}
     skipped: dict[str, list[str]] = {}
     for name in auto_models(base.model):
-        u = with_model(base, name)
-        taken = [item for item in overrides if takes(u, item)]
-        for item in overrides:
-            if item not in taken:
-                skipped.setdefault(item, []).append(name)
-        u = apply_overrides(u, taken)
+        u, lacking = apply_own_overrides(with_model(base, name), overrides)
+        for item in lacking:
+            skipped.setdefault(item, []).append(name)
         units[name] = u if given_model and u.model == base.model else free_limits(u, keep=sorted(given))
     for item, names in skipped.items():
         if len(names) == len(units):   # no structure has it: the reference structure says why
@@ -115,11 +112,3 @@ def twin_notes(fitted: Sequence[str]) -> list[str]:
                        "their limits under other names (not fitted apart)")
     return out
 
-
-def takes(unit: Unit, item: str) -> bool:
-    """Whether `--set item` names something the unit's structure has (its own standard names,
-    the generator's, the effects', a weight; the reference structure: every kernel name)."""
-    key = item.split("=", 1)[0].strip()
-    if key.startswith("weights."):
-        return True
-    return unit.dialect.speaks(key.split(".", 1)[0])

@@ -25,9 +25,9 @@ notes as not examined. Each swapped set is built, checked against the bounds and
 simulated, and reported with its MSE and whether it is equivalent (same fit within the noise); a
 swap the constraints or bounds rule out is reported as such.
 
-`analyse` returns the result's `Identifiability` record, its tables keyed by the problem's (kernel)
-names (the result's writer renames them) and its texts in the structure's names (the unit's
-dialect), as a user reads them.
+`analyse` returns the result's `Identifiability` record in the problem's (kernel) names: its
+tables keyed by them, its texts `Note`s that carry them as data (`bench_ctl.model.dialect.Note`);
+the result's writer says both in the structure's names (`Identifiability.renamed`).
 """
 from __future__ import annotations
 
@@ -37,8 +37,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from bench_ctl.model.dialect import Dialect
+from bench_ctl.model.dialect import Note, slots
 from bench_ctl.model.params import RECORD_PARAMS
+from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
 
 from .problem import Problem
 from .result_file import EquivalentSet, Identifiability, IdentifiabilitySettings
@@ -48,10 +49,11 @@ logger = logging.getLogger(__name__)
 __all__ = ["analyse", "exchanges", "SWAPS"]
 
 #: (note, mapping new_name -> source_name) of the lead-lag symmetries of the reference AVR
-SWAPS: tuple[tuple[str, dict[str, str]], ...] = (
-    ("(TA1,TA2) <-> (TA3,TA4) swapped", {"TA1": "TA3", "TA2": "TA4", "TA3": "TA1", "TA4": "TA2"}),
-    ("leads TA1 <-> TA3 swapped", {"TA1": "TA3", "TA3": "TA1"}),
-    ("lags TA2 <-> TA4 swapped", {"TA2": "TA4", "TA4": "TA2"}),
+SWAPS: tuple[tuple[Note, dict[str, str]], ...] = (
+    (Note("({},{}) <-> ({},{}) swapped", "TA1", "TA2", "TA3", "TA4"),
+     {"TA1": "TA3", "TA2": "TA4", "TA3": "TA1", "TA4": "TA2"}),
+    (Note("leads {} <-> {} swapped", "TA1", "TA3"), {"TA1": "TA3", "TA3": "TA1"}),
+    (Note("lags {} <-> {} swapped", "TA2", "TA4"), {"TA2": "TA4", "TA4": "TA2"}),
 )
 
 
@@ -84,9 +86,7 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
     x = np.asarray(x, dtype=float).reshape(-1)
     names = list(problem.names)
     d = len(names)
-    dia = problem.unit.dialect
-    nm = dia.name       # texts name parameters as the structure does
-    notes: list[str] = []
+    notes: list[str] = []       # `Note`s: the names they carry are said by the writer
     reasons: dict[str, list[str]] = {n: [] for n in names}
     # log steps for positive model parameters; additive (s) for the edge offsets, whose sign is free
     positive = (x > 0) & np.array([n not in RECORD_PARAMS for n in names])
@@ -123,8 +123,8 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
     for k in np.flatnonzero(small):
         v = Vt[k]
         involved = [names[i] for i in np.flatnonzero(np.abs(v) > 0.2)]
-        notes.append(f"singular direction (singular value {sv[k]:.3g} vs max {smax:.3g}) involving "
-                     f"{', '.join(map(nm, involved))}: the capture cannot tell these apart")
+        notes.append(Note(f"singular direction (singular value {sv[k]:.3g} vs max {smax:.3g}) involving "
+                          f"{slots(len(involved))}: the capture cannot tell these apart", *involved))
         for n in involved:
             reasons[n].append("part of a singular direction")
             std_log[names.index(n)] = math.inf
@@ -141,32 +141,32 @@ def analyse(problem: Problem, x: Sequence[float], *, rel_step: float = 1e-4,
             reasons[n].append(f"relative std {shown} > {max_rel_std:.0%}")
         for j, m in enumerate(names):
             if j != i and abs(corr[i, j]) > max_corr:
-                reasons[n].append(f"|corr| with {nm(m)} = {abs(corr[i, j]):.4f} > {max_corr}")
-    pairs = [f"{nm(names[i])}-{nm(names[j])} ({corr[i, j]:+.4f})" for i in range(d) for j in range(i + 1, d)
+                reasons[n].append(Note(f"|corr| with {{}} = {abs(corr[i, j]):.4f} > {max_corr}", m))
+    pairs = [Note(f"{{}}-{{}} ({corr[i, j]:+.4f})", names[i], names[j]) for i in range(d) for j in range(i + 1, d)
              if abs(corr[i, j]) > note_corr]
     if pairs:
-        notes.append(f"strongly correlated: {', '.join(pairs)}; the capture fixes their combination "
-                     "better than each one")
+        notes.append(Note(f"strongly correlated: {slots(len(pairs))}; the capture fixes their combination "
+                          "better than each one", *pairs))
     lo, hi = problem.lower, problem.upper
     for i, n in enumerate(names):
         span = hi[i] - lo[i]
         if x[i] <= lo[i] + 1e-6 * span or x[i] >= hi[i] - 1e-6 * span:
-            notes.append(f"{nm(n)} = {x[i]:.6g} sits on its bound; the capture may want it beyond")
+            notes.append(Note(f"{{}} = {x[i]:.6g} sits on its bound; the capture may want it beyond", n))
     for c in problem.constraint_report(x):
         if c["margin"] is not None and c["satisfied"] and abs(c["margin"]) <= 1e-6 * (1 + np.max(np.abs(x))):
-            notes.append(f"constraint {dia.text(c['expr'])} is active: it, not the capture, fixes the "
-                         "parameters it links")
+            notes.append(Note("constraint {} is active: it, not the capture, fixes the parameters it links",
+                              c["expr"]))
 
     mse_opt = float(np.mean(problem.mse(x)))
     n_efd = int(efd_rows.sum())
     tol = equivalence_tol if equivalence_tol is not None else max(1e-3 * mse_opt,
                                                                    3.0 * mse_opt * math.sqrt(2.0 / n_efd))
-    eq_sets = _equivalent_sets(problem, x, mse_opt, tol, reasons, notes, dia)
+    eq_sets = _equivalent_sets(problem, x, mse_opt, tol, reasons, notes)
 
     determined = {n: not reasons[n] for n in names}
     undetermined = [n for n in names if not determined[n]]
     if undetermined:
-        notes.append(f"not determined by this capture: {', '.join(map(nm, undetermined))}")
+        notes.append(Note(f"not determined by this capture: {slots(len(undetermined))}", *undetermined))
     logger.info("identifiability: s2 %.3g, rel std %s, undetermined %s", s2,
                 dict(zip(names, np.round(rel_std, 4))), undetermined)
     return Identifiability(
@@ -197,46 +197,44 @@ def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-def exchanges(problem: Problem) -> list[tuple[str, dict[str, str]]]:
-    """Every exchange to examine, as (note in the structure's names, mapping new_name ->
-    source_name, kernel names): the reference AVR's lead-lag symmetries (in a standard structure
-    only where all four are fitted) and every pair the structure declares (`Structure.swaps`),
-    fitted or not, so that one left out is said."""
-    dia = problem.unit.dialect
-    st = dia.structure
+def exchanges(problem: Problem) -> list[tuple[Note, dict[str, str]]]:
+    """Every exchange to examine, as (note, mapping new_name -> source_name, kernel names): the
+    reference AVR's lead-lag symmetries (in a standard structure only where all four are fitted)
+    and every pair the structure declares (`Structure.swaps`, its note in its own names), fitted
+    or not, so that one left out is said."""
+    st = problem.unit.structure
     names = list(problem.names)
-    swaps = list(SWAPS) if dia.plain else [(dia.text(n), m) for n, m in SWAPS if set(m) <= set(names)]
+    swaps = list(SWAPS) if st.name == DEFAULT_MODEL else [(n, m) for n, m in SWAPS if set(m) <= set(names)]
     simulated = [p.kernel for p in st.params if p.kernel is not None]
     for note, a, b in st.kernel_swaps(simulated):
         mapping = {a: b, b: a}
         if all(m != mapping for _, m in swaps):
-            swaps.append((note, mapping))
+            swaps.append((Note(note), mapping))
     return swaps
 
 
 def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float,
-                     reasons: dict[str, list[str]], notes: list[str], dia: Dialect) -> list[EquivalentSet]:
-    nm = dia.name
+                     reasons: dict[str, list[str]], notes: list[str]) -> list[EquivalentSet]:
     names = list(problem.names)
     values = problem.values(x)
     cands, meta = [], []
     for note, mapping in exchanges(problem):
         if not set(mapping) <= set(names):
             fixed = sorted(set(mapping) - set(names))
-            notes.append(f"{note}: not examined, {', '.join(map(nm, fixed))} not fitted")
+            notes.append(Note(f"{{}}: not examined, {slots(len(fixed))} not fitted", note, *fixed))
             continue
         new = dict(values)
         for dst, src in mapping.items():
             new[dst] = values[src]
         xs = np.array([new[n] for n in names])
         if np.allclose(xs, x, rtol=1e-9, atol=0.0):
-            notes.append(f"{note}: gives the same point (the swapped values are equal)")
+            notes.append(Note("{}: gives the same point (the swapped values are equal)", note))
             continue
         lo, hi = problem.lower, problem.upper
-        out = [f"{nm(n)} = {xs[i]:.6g} outside [{lo[i]:g}, {hi[i]:g}]" for i, n in enumerate(names)
+        out = [Note(f"{{}} = {xs[i]:.6g} outside [{lo[i]:g}, {hi[i]:g}]", n) for i, n in enumerate(names)
                if not lo[i] <= xs[i] <= hi[i]]
         cands.append(xs)
-        meta.append((note, mapping, out, [dia.text(v) for v in problem.violated(xs)]))
+        meta.append((note, mapping, out, list(problem.violated(xs))))
     if not cands:
         return []
     mses = problem.mse_many(np.array(cands)).mean(axis=0)
@@ -248,11 +246,10 @@ def _equivalent_sets(problem: Problem, x: np.ndarray, mse_opt: float, tol: float
             verdict = "equally good and allowed: the capture cannot choose between them"
             for n in mapping:
                 if not math.isclose(values[n], values[mapping[n]], rel_tol=1e-6):
-                    reasons[n].append(f"exchangeable ({note}) within bounds and constraints")
+                    reasons[n].append(Note("exchangeable ({}) within bounds and constraints", note))
         elif equivalent:
-            why = "; ".join(([f"constraints {', '.join(viol)}"] if viol else [])
-                            + (["bounds"] if out else []))
-            verdict = f"equally good but ruled out by {why}"
+            why = "; ".join(([f"constraints {slots(len(viol))}"] if viol else []) + (["bounds"] if out else []))
+            verdict = Note(f"equally good but ruled out by {why}", *viol)
         else:
             verdict = "not equivalent (different response)"
         sets.append(EquivalentSet(params=problem.params(xs), mse=_num(float(m)), note=note, equivalent=equivalent,

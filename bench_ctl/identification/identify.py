@@ -23,6 +23,7 @@ from bench_ctl import engine
 from bench_ctl.capture import Capture, capture_sha256
 from bench_ctl.engine import optimisation_note
 from bench_ctl.engine.simulate import param_matrix
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import GENERATOR_OPTIONAL, RECORD_PARAMS
 from bench_ctl.outputs import path_from
 from bench_ctl.records import plain
@@ -242,7 +243,8 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
         comparison=tuple(_run_summary(prob, r) for r in runs) if len(runs) > 1 else None,
     )
     # the boundary: the structure's names
-    return Identification(result=result.renamed(prob.unit.dialect), problem=prob, best=best, runs=tuple(runs))
+    written = result.renamed(dialect_of(prob.unit.structure))
+    return Identification(result=written, problem=prob, best=best, runs=tuple(runs))
 
 
 def identify(captures: Sequence[Capture], unit: Unit, *, optimizer: str = "mvmo",

@@ -39,6 +39,7 @@ import numpy as np
 from scipy import optimize as sopt
 from scipy import signal
 
+from bench_ctl.model.dialect import Note
 from bench_ctl.model.params import AVR_PARAMS, RECORD_PARAMS
 
 from . import mvmo
@@ -169,7 +170,8 @@ def _swaps(problem: Problem) -> list[tuple[str, int, int]]:
     """The structure's near-symmetric pairs (`Structure.swaps`) whose two parameters are fitted,
     as (note, index, index) into the problem's names."""
     names = list(problem.names)
-    return [(note, names.index(a), names.index(b)) for note, a, b in problem.unit.structure.kernel_swaps(names)]
+    # the note is the structure's own text (its names): a `Note` without args, never re-translated
+    return [(Note(note), names.index(a), names.index(b)) for note, a, b in problem.unit.structure.kernel_swaps(names)]
 
 
 def _swap_restarts(problem: Problem, space: SearchSpace, swaps: list[tuple[str, int, int]], max_evals: int,

@@ -87,6 +87,12 @@ class EquivalentSet(Record):
     allowed: bool
     verdict: str
 
+    def renamed(self, d: Dialect) -> EquivalentSet:
+        return replace(self, params=d.keys(self.params), note=d.say(self.note),
+                       outside_bounds=[d.say(o) for o in self.outside_bounds],
+                       constraints_violated=[d.text(c) for c in self.constraints_violated],
+                       verdict=d.say(self.verdict))
+
 
 @dataclass(frozen=True, eq=False)
 class IdentifiabilitySettings(Record):
@@ -101,8 +107,9 @@ class IdentifiabilitySettings(Record):
 @dataclass(frozen=True, eq=False, kw_only=True)
 class Identifiability(Record):
     """What the captures determine at the result (`identifiability.analyse`); a fit that failed
-    has no `reasons`, `singular_values`, `residual_variance` nor `settings` (not analysed). Its
-    texts are written in the structure's names where they are made."""
+    has no `reasons`, `singular_values`, `residual_variance` nor `settings` (not analysed). Made
+    in the kernel's names, its texts `Note`s (`bench_ctl.model.dialect.Note`), said in the
+    structure's by `renamed`."""
     names: list[str]
     sensitivity: dict[str, float | None]
     std: dict[str, float | None]
@@ -121,8 +128,10 @@ class Identifiability(Record):
     def renamed(self, d: Dialect) -> Identifiability:
         return replace(self, names=[d.name(n) for n in self.names], sensitivity=d.keys(self.sensitivity),
                        std=d.keys(self.std), rel_std=d.keys(self.rel_std), determined=d.keys(self.determined),
-                       reasons=None if self.reasons is None else d.keys(self.reasons),
-                       equivalent_sets=tuple(replace(e, params=d.keys(e.params)) for e in self.equivalent_sets))
+                       reasons=None if self.reasons is None else
+                       {d.name(n): [d.say(r) for r in rs] for n, rs in self.reasons.items()},
+                       equivalent_sets=tuple(e.renamed(d) for e in self.equivalent_sets),
+                       notes=[d.say(n) for n in self.notes])
 
 
 @dataclass(frozen=True, eq=False)
@@ -329,14 +338,15 @@ class IdentificationResult(Record):
                 determined=d.keys(self.model.determined)),
             kernel=ResultKernel(dict(self.params), dict(self.bounds), dict(self.fixed), self.constraints))
 
-    @property
-    def dialect(self) -> Dialect:
-        """The names of the result's structure (a structure this version lacks: the kernel's)."""
+    def describe(self, name: str) -> tuple[str, str, float | None] | None:
+        """(unit, meaning, neutral value) of a parameter as the result names it (its structure's
+        names; a structure this version lacks: the kernel's), None for a name it does not know
+        (`Dialect.describe`)."""
         try:
             st = structure(self.model_name)
         except StructureError:
             st = structure(None)
-        return dialect_of(st)
+        return dialect_of(st).describe(name)
 
     def kernel_view(self) -> dict[str, dict[str, Any]]:
         """`fixed` and `params` in the kernel's names, values as written (None: an open limit);

@@ -32,6 +32,7 @@ import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.exitcodes import BadInput
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.signals.edges import EDGE_PARAMS
 from bench_ctl.units.unit import Unit
 
@@ -288,7 +289,7 @@ def _scored(model: str, unit: Unit, captures: Sequence[Capture], ident: Identifi
         score = math.inf
     return Candidate(model, ident, k, n_total, mse_all, tuple(parts), score, check_nll, time.perf_counter() - t0,
                      where=tuple(where),
-                     inert=tuple(unit.dialect.name(n) for n in ident.problem.names if n in inert))
+                     inert=tuple(dialect_of(unit.structure).name(n) for n in ident.problem.names if n in inert))
 
 
 def _inert(p: Any, x: np.ndarray) -> set[str]:

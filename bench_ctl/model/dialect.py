@@ -3,14 +3,18 @@
 Inside bench-ctl a unit's values are kernel parameters (`bench_ctl.model.params`, the columns of
 the kernel's matrix); a user reads and writes a standard structure's IEEE 421.5 / PSS/E names
 (`bench_ctl.model.structures`): ESST1A's `KA`, `TA`, `TB1` are the kernel's `KAVR`, `TE`, `TA4`.
-A structure's `Dialect` (`dialect_of`, or a unit's `Unit.dialect`) is the one place that
-translates, in each direction, and it is applied at the boundaries only:
+A structure's `Dialect` (`dialect_of`, taken where an input is parsed or a record written) is
+the one place that translates, in each direction, and it is applied at the boundaries only:
 
 - kernel -> standard, where a record is written: a result, a diagnosis and a simulated
   capture's unit are built in kernel names and renamed once by their writer (their records'
   `renamed(dialect)`: `name`, `text`, `keys`, `fixed`, `unit`; the kernel's own view goes under a
-  `kernel` key, for debugging); texts a record carries are written in the structure's names
-  where they are made (the identifiability notes, with the unit's dialect);
+  `kernel` key, for debugging); texts a record carries that name parameters (the
+  identifiability notes) are made as `Note`s, prose with the kernel names as data, and said in
+  the structure's names by the same writer (`say`: the names translated, never the prose); a
+  refusal of the problem a unit gives (constraints that contradict each other inside the
+  bounds) is said in them where the unit was loaded (the `identify` command) or the diagnosis
+  is written (`bench_ctl.diagnosis.diagnose.diagnose`), its text translated (`text`);
 - standard -> kernel, where an input is parsed: unit files and `--set` (`bench_ctl.units.unit`,
   `bench_ctl.units.overrides`: `kernel_text`, `refusal` of a kernel name, naming the standard
   one), and a result read back
@@ -34,7 +38,7 @@ from .params import GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, RECORD_PARAMS
 from .structures import DEFAULT, Structure, StructureError, structure
 from .unit_record import UnitEntry, UnitKernelEntry
 
-__all__ = ["Dialect", "dialect_of", "kernel_sections", "structure_of", "shared_names"]
+__all__ = ["Dialect", "Note", "dialect_of", "kernel_sections", "structure_of", "shared_names", "slots"]
 
 _WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
@@ -45,6 +49,37 @@ def shared_names() -> tuple[str, ...]:
     setpoint edge less its nominal sample, the same for every structure)."""
     return (*GENERATOR_PARAMS, *GENERATOR_OPTIONAL,
             *(p for e in EFFECTS.values() for p in (*e.params, *e.options)), *RECORD_PARAMS)
+
+
+class Note(str):
+    """A text that names parameters, made inside in the kernel's names and said in a structure's
+    by the writer (`Dialect.say`): prose with a `{}` slot for each of `args`, an arg being a kernel
+    name, a formula in kernel names (a constraint's text) or another `Note`. Only the args are
+    translated, never the prose. As a `str` it is the text in the kernel's names (what a record of
+    the reference structure writes); a note without args is its text as it is (a structure's
+    declared exchange, in its own names)."""
+
+    template: str
+    args: tuple[str, ...]
+
+    def __new__(cls, template: str, *args: str) -> Note:
+        self = super().__new__(cls, template.format(*args) if args else template)
+        self.template, self.args = template, args
+        return self
+
+    def __getnewargs__(self) -> tuple[str, ...]:   # pickled (a worker's result) with its args
+        return (self.template, *self.args)
+
+    def render(self, d: Dialect) -> str:
+        """The text with every arg in the structure of `d`'s names."""
+        if not self.args:
+            return self.template
+        return self.template.format(*(a.render(d) if isinstance(a, Note) else d.text(a) for a in self.args))
+
+
+def slots(n: int, sep: str = ", ") -> str:
+    """`n` slots of a `Note` separated by `sep` (a list of names: `slots(len(names))`)."""
+    return sep.join(["{}"] * n)
 
 
 @functools.cache
@@ -77,18 +112,24 @@ class Dialect:
             return text
         return _WORD.sub(lambda m: self.structure.std_name(m.group(0)) or m.group(0), text)
 
+    def say(self, text: str) -> str:
+        """A text a record carries, in the structure's names: a `Note` rendered (its args
+        translated, its prose as it is); any other text as it is."""
+        return text.render(self) if isinstance(text, Note) and not self.plain else str(text)
+
     def keys(self, values: Mapping[str, Any]) -> dict[str, Any]:
         """A table keyed by kernel names, keyed by the structure's."""
         return {self.name(k): v for k, v in values.items()}
 
     def deep(self, x: Any) -> Any:
         """`x` (nested JSON objects, lists, texts) with every name in a key or a text in the
-        structure's: for an object a record copies whole (an optimizer's settings)."""
+        structure's: for an object a record copies whole (an optimizer's settings); a `Note` in it
+        is said (`say`), its prose left as it is."""
         if isinstance(x, Mapping):
             return {(self.text(k) if isinstance(k, str) else k): self.deep(v) for k, v in x.items()}
         if isinstance(x, (list, tuple)):
             return [self.deep(v) for v in x]
-        return self.text(x) if isinstance(x, str) else x
+        return self.say(x) if isinstance(x, Note) else self.text(x) if isinstance(x, str) else x
 
     def fixed(self, kernel: Mapping[str, Any], std_values: Mapping[str, Any], skip: set[str]) -> dict[str, Any]:
         """A `fixed` table in the structure's names: its parameters not in `skip` (standard values),

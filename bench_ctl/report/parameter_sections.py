@@ -88,9 +88,8 @@ def parameters(d: ReportData) -> Section:
     bounds = r.bounds
     ident = r.identifiability
     rows = []
-    describe = r.dialect.describe   # the result speaks the structure's names
     for name, value in params.items():
-        info = describe(name)
+        info = r.describe(name)     # the result speaks the structure's names
         b = bounds.get(name) or (None, None)
         rel = num(ident.rel_std.get(name)) if ident else None
         det = ident.determined.get(name) if ident else None
@@ -132,7 +131,7 @@ def parameters(d: ReportData) -> Section:
     fixed = r.fixed
     frows = []
     for name, value in fixed.items():
-        info = describe(name)
+        info = r.describe(name)
         if value is None:
             neutral = info[2] if info and info[2] is not None else float("inf")
             text: Any = f"{fmt(neutral)} (effect off)"

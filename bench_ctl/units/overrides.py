@@ -6,7 +6,8 @@ kernel's, as `unit.unit_from_dict` does for a file): a generator constant (`Td0p
 parameter (`TR=0.01`), the value of an identified parameter (`KAVR=250`), a bound (`KAVR.min=20`),
 a weight (`weights.vt=0.5`), an effect parameter (`VRMAX=2.8`, which switches its effect on) or a
 [grid] value, fitted on line with bounds (`XE.min=0.05`). The whole unit is checked once all are
-in (`unit.check_unit`).
+in (`unit.check_unit`). `--model auto` applies to each structure the overrides it has a name for
+and leaves the others out (`apply_own_overrides`): the same parse, so the same names.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import replace
 
-from bench_ctl.model.dialect import Dialect
+from bench_ctl.model.dialect import Dialect, dialect_of
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.params import GENERATOR_OPTIONAL, MACHINE_PARAMS, PARAMS
 from bench_ctl.model.stabilisers import model_code
@@ -37,12 +38,30 @@ from .unit import (
 def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
     """Apply `--set NAME=VALUE` overrides (see the module docstring); unknown names are errors.
     The whole unit is checked once all are in (`KAVR.max=100 KAVR=80` is fine in that order)."""
-    overrides = list(overrides)
-    names = unit.dialect   # the --set boundary: the user's names, the kernel's from here on
+    return _apply(unit, list(overrides), own_only=False)[0]
+
+
+def apply_own_overrides(unit: Unit, overrides: Iterable[str]) -> tuple[Unit, list[str]]:
+    """`--model auto`: the unit with the overrides that name something its structure has (its own
+    standard names, the generator's, the effects', a weight; the reference structure: every
+    kernel name), and the others, as given, which it leaves out."""
+    return _apply(unit, list(overrides), own_only=True)
+
+
+def _apply(unit: Unit, overrides: list[str], *, own_only: bool) -> tuple[Unit, list[str]]:
+    """The --set parse: each override in the user's names, the kernel's from here on; (the unit,
+    the overrides left out because the structure lacks the name, with `own_only`)."""
+    names = dialect_of(unit.structure)   # the --set boundary: the user's names, the kernel's from here on
+    taken: list[str] = []
+    lacking: list[str] = []
     for item in overrides:
+        key, _, raw = (s.strip() for s in item.partition("="))
+        if own_only and not key.startswith("weights.") and not names.speaks(key.split(".", 1)[0]):
+            lacking.append(item)
+            continue
+        taken.append(item)
         if "=" not in item:
             raise UnitError(f"--set {item!r}: expected NAME=VALUE")
-        key, raw = (s.strip() for s in item.split("=", 1))
         try:
             value = model_code(raw) if key == "PSS_MODEL" else float(raw)   # PSS_MODEL=PSS2B
         except ValueError as exc:
@@ -56,9 +75,9 @@ def apply_overrides(unit: Unit, overrides: Iterable[str]) -> Unit:
             raise
         except ValueError as exc:
             raise UnitError(str(exc)) from None
-    if not overrides:
-        return unit
-    return check_unit(_bypass_lead_lags(unit), f"{unit.source} with --set {' '.join(overrides)}", names)
+    if not taken:
+        return unit, lacking
+    return check_unit(_bypass_lead_lags(unit), f"{unit.source} with --set {' '.join(taken)}", names), lacking
 
 
 def _bypass_lead_lags(unit: Unit) -> Unit:

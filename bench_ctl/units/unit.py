@@ -75,11 +75,6 @@ class Unit:
     def structure(self) -> Structure:
         return structure(self.model)
 
-    @property
-    def dialect(self) -> Dialect:
-        """The structure's names, as its user reads them (`bench_ctl.model.dialect`)."""
-        return dialect_of(self.structure)
-
     def standard_values(self, kernel: Mapping[str, float] | None = None) -> dict[str, float]:
         """The structure's parameters under their standard names, from `kernel` values (default:
         the unit's own), the unit's standard values where the kernel does not simulate them."""

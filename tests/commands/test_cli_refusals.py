@@ -103,3 +103,33 @@ def test_identify_evals_help_states_the_swarm_and_refuses_below_it(cap, capsys):
     assert rc == 2 and "x>=32" in err
     rc, err = _run(["identify", str(cap), "--evals", "32", "--optimizer", "de", "--no-progress"], capsys)
     assert rc == 2 and "de needs at least" in err and "evaluations" in err
+
+
+def test_diagnose_refuses_a_result_value_that_is_not_finite_under_the_files_name(cap, tmp_path, capsys):
+    """A --result of IEEEX1 whose TE (the kernel's TEX) is Infinity is refused naming params.TE, the
+    key as the file writes it, not the kernel's TEX."""
+    import json
+
+    from records import model_json, result_json
+
+    res = tmp_path / "inf.json"
+    data = result_json(params={"KA": 400.0, "TE": float("inf")}, model=model_json(name="IEEEX1"),
+                       kernel={"params": {}, "bounds": {}, "fixed": {}, "constraints": []})
+    res.write_text(json.dumps(data))          # json writes the float as Infinity, which it reads back
+    rc, err = _run(["diagnose", str(cap), "--model", "IEEEX1", "--result", str(res)], capsys)
+    assert rc == 2 and "params.TE = inf is not a finite number" in err and "TEX" not in err, err
+
+
+def test_a_refused_problem_is_said_in_the_structures_names_by_identify_and_diagnose(cap, tmp_path, capsys):
+    """IEEEX1's TA is the kernel's TE and its TE the kernel's TEX: constraints that contradict
+    each other are refused in the names the unit file wrote, by both commands (diagnose once said
+    the kernel's 'TEX <= 0.5*TE')."""
+    unit = tmp_path / "x1.toml"
+    unit.write_text('constraints = ["TE <= 0.5*TA", "TA <= 0.5*TE"]\n[avr]\nmodel = "IEEEX1"\n'
+                    "[generator]\nTd0p = 7.5\nTd0pp = 0.05\nVt0 = 1.0\n")
+    for argv in (["identify", str(cap), "--unit", str(unit), "--evals", "64", "--no-progress"],
+                 ["diagnose", str(cap), "--unit", str(unit)]):
+        rc, err = _run(argv, capsys)
+        assert rc == 2 and "contradict each other" in err, (argv, err)
+        assert "'TE <= 0.5*TA', 'TA <= 0.5*TE'" in err and "KA in [" in err, (argv, err)
+        assert "TEX" not in err and "KAVR" not in err, (argv, err)

@@ -186,3 +186,28 @@ def test_reference_lag_exchanged_with_te_is_equivalent_and_within_the_bounds(uni
     e = {s["note"][:12]: s for s in b["equivalent_sets"]}["lag TA2 <-> "]
     assert e["equivalent"] and e["outside_bounds"] == ["TE = 0.3 outside [0.002, 0.2]"]
     assert b["determined"]["TA2"] and b["determined"]["TE"]
+
+
+def test_notes_are_made_in_kernel_names_and_said_in_the_structures_by_the_writer():
+    """IEEEX1's TE is the kernel's TEX and its TA the kernel's TE: a note on the kernel's TEX reads
+    TE once the result's writer renames it, and the structure's own note on the TA <-> TE exchange
+    is left as it is (a text translation of it would read "TA <-> ... TA")."""
+    from bench_ctl.model.dialect import dialect_of
+    from bench_ctl.units.overrides import with_model
+
+    u = with_model(reference_unit(), "IEEEX1")
+    p = make_problem([synthetic_capture(u, duration=3.0, rate=500.0, seed=11)], u, fit_edges=False)
+    assert {"TE", "TEX"} <= set(p.names)
+    x = p.x_start()
+    x[list(p.names).index("TEX")] = p.lower[list(p.names).index("TEX")]    # the exciter's TE on its bound
+    kernel = analyse(p, x)
+    on_bound = [n for n in kernel.notes if "sits on its bound" in n]
+    assert any(n.startswith("TEX = ") for n in on_bound), kernel.notes     # inside: the kernel's names
+    said = kernel.renamed(dialect_of(u.structure)).to_json()
+    assert any(n.startswith("TE = ") and "sits on its bound" in n for n in said["notes"]), said["notes"]
+    assert not any("TEX" in n for n in said["notes"]), said["notes"]
+    assert "TE" in said["determined"] and "TEX" not in said["determined"]
+    swap_note = u.structure.swaps[0][0]     # "regulator lag TA <-> exciter time constant TE (...)"
+    texts = [e["note"] for e in said["equivalent_sets"]] + said["notes"]
+    assert any(t.startswith(swap_note) for t in texts), texts
+    assert not any("exciter time constant TA" in t for t in texts), texts

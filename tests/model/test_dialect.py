@@ -190,7 +190,7 @@ def test_a_result_in_standard_names_reads_back_to_the_kernel_values_it_was_made_
         params={k: values[k] for k in unit.identify},
         fixed={k: none(v) for k, v in values.items() if k not in unit.identify and k not in RECORD_PARAMS},
         bounds={k: [b.min, b.max] for k, b in unit.identify.items()}))
-    std = kernel.renamed(unit.dialect).to_json()
+    std = kernel.renamed(dialect_of(unit.structure)).to_json()
     back = kernel_sections(json.loads(json.dumps(std)))
     got = dict(neutral_values())
     for section in ("fixed", "params"):
@@ -199,7 +199,7 @@ def test_a_result_in_standard_names_reads_back_to_the_kernel_values_it_was_made_
         if k not in RECORD_PARAMS:
             assert got[k] == values[k], (k, got[k], values[k])
     if name != "REFERENCE":
-        assert not set(std["fixed"]) & set(unit.dialect.hidden_kernel_names())
+        assert not set(std["fixed"]) & set(dialect_of(unit.structure).hidden_kernel_names())
 
 
 @pytest.mark.parametrize("name", ["ESST1A", "IEEEX1", "ESST4B"])
@@ -246,3 +246,51 @@ def test_set_reads_the_structures_names_and_its_messages_say_what_was_typed():
     with pytest.raises(UnitError) as exc:
         apply_overrides(unit, ["TB=-1"])
     assert "TB" in str(exc.value) and "TA2" not in str(exc.value)
+
+
+def test_a_note_says_its_names_and_leaves_its_prose():
+    """A `Note` translates only the names it carries (IEEEX1: kernel TE is TA, TEX is TE, no
+    chaining); its prose, even where it holds a kernel name, and a note without names stay as
+    they are; the reference structure says the kernel's text."""
+    from bench_ctl.model.dialect import Note
+
+    x1 = dialect_of(structure("IEEEX1"))
+    note = Note("{} and {} trade places; constraint {} (TE is prose here)", "TE", "TEX", "TE <= TEX")
+    assert note == "TE and TEX trade places; constraint TE <= TEX (TE is prose here)"   # the kernel's
+    assert x1.say(note) == "TA and TE trade places; constraint TA <= TE (TE is prose here)"
+    assert x1.say(Note("exchangeable ({}) here", Note("lag TA <-> TE"))) == "exchangeable (lag TA <-> TE) here"
+    assert x1.deep({"swap": Note("lag TA <-> TE"), "k": "TEX"}) == {"swap": "lag TA <-> TE", "k": "TE"}
+    assert dialect_of(structure("REFERENCE")).say(note) == str(note)
+    import pickle
+    again = pickle.loads(pickle.dumps(note))
+    assert x1.say(again) == x1.say(note)
+
+
+def test_model_auto_applies_the_overrides_a_structure_names_and_says_the_others():
+    """`--model auto`'s --set parse: IEEEX1 takes its TE (the kernel's TEX), a weight and the
+    generator's constants, not the kernel's KAVR (its KA); the reference takes KAVR, not SEXS's K."""
+    from bench_ctl.units.overrides import apply_own_overrides
+
+    x1 = with_model(reference_unit(), "IEEEX1")
+    u, lacking = apply_own_overrides(x1, ["TE=0.9", "KAVR=200", "weights.vt=0.5", "Td0p=6.0"])
+    assert lacking == ["KAVR=200"]
+    te = u.identify["TEX"].value if "TEX" in u.identify else u.fixed["TEX"]
+    assert te == 0.9 and u.weights["vt"] == 0.5 and u.generator["Td0p"] == 6.0
+    r, lacking = apply_own_overrides(reference_unit(), ["KAVR=200", "K.max=900"])
+    assert lacking == ["K.max=900"] and r.identify["KAVR"].value == 200
+    with pytest.raises(UnitError, match="not a number"):       # one it takes is still checked
+        apply_own_overrides(x1, ["TE=abc"])
+
+
+def test_a_result_describes_a_parameter_in_its_structures_names():
+    """The report's parameter table: IEEEX1's TE is its exciter time constant (the kernel's TEX),
+    not the kernel's TE (its TA); a structure this version lacks reads the kernel's."""
+    from bench_ctl.model.params import PARAMS
+    from records import result_of
+
+    te = structure("IEEEX1").param("TE")
+    x1 = result_of(model=model_json(name="IEEEX1"))
+    assert x1.describe("TE") == (te.unit, te.info, None) and te.info != PARAMS["TE"].info
+    assert x1.describe("NOPE") is None
+    other = result_of(model=model_json(name="NO_SUCH_MODEL"))
+    assert other.describe("TE") == (PARAMS["TE"].unit, PARAMS["TE"].info, PARAMS["TE"].neutral)

@@ -10,6 +10,7 @@ import pytest
 from ac_equations import S10, S12, ac_steady_state, kernel_pulse
 from ac_equations import fex as _fex
 from ac_equations import quad as _quad
+from bench_ctl.model.dialect import dialect_of
 from bench_ctl.units.dyr import read_dyr
 from bench_ctl.units.dyr_unit import unit_from_dyr
 from bench_ctl.units.unit import reference_unit
@@ -95,7 +96,7 @@ def test_exac1_record_reads_into_a_unit(tmp_path):
     assert unit.model == "EXAC1"
     v = unit.values()
     assert (v["ACEX"], v["KD"], v["KC"], v["TEX"], v["KE"]) == (1.0, 0.38, 0.2, 0.8, 1.0)
-    assert unit.dialect.name("TEX") == "TE" and unit.dialect.name("TE") == "TA"
+    assert dialect_of(unit.structure).name("TEX") == "TE" and dialect_of(unit.structure).name("TE") == "TA"
     assert rec.values["KA"] == 400.0 and rec.values["VRMIN"] == -5.43
 
 
