@@ -16,8 +16,12 @@ the step, measured and simulated (the report's estimate, `bench_ctl.signals.mode
 
 `--diagnose`: then `bench-ctl diagnose` on the same capture and unit, from the identification's
 values (`--result`): the verdict, the effects that explain the record together and what is left
-(the diagnosis' `left`) over its noise floor. XE is fitted in the base model here, so the grid's
-reactance is no effect of its.
+(the diagnosis' `left`) over its noise floor; and the last explained_by step's model re-simulated
+on the whole record (`diagnosis.last_step_efd`): its efd MSE over the pre-step disturbance, over
+the part the diagnosis fitted (on line: from 5 s before the step, `bench_ctl.diagnosis.span`) and
+over the whole record (where the operation before the step, which every model holds at its
+operating point, dilutes it). XE is fitted in the base model here, so the grid's reactance is no
+effect of its.
 
 Without a record it runs nothing and exits 0 (`make bench`).
 
@@ -61,6 +65,33 @@ def _run(argv: list[str]) -> tuple[int, str, str, float]:
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         rc = main(argv)
     return rc, out.getvalue(), err.getvalue(), time.perf_counter() - t0
+
+
+def _last_step_efd(diag: dict, values: dict, result: dict, cap, var: float) -> dict:  # noqa: ANN001
+    """The last explained_by step's model re-simulated on the whole record (the report's
+    `simulate_record`, on the grid from the record's operating point): its efd MSE over the part
+    the diagnosis fitted (`validation.fit`) and over the whole record, each over the pre-step
+    disturbance `var`."""
+    step = diag["explained_by"][-1]
+    kernel = (diag.get("kernel") or {}).get("explained_by_avr_params") or [step.get("avr_params") or {}]
+    model = {k: v for k, v in (kernel[-1] or {}).items() if v is not None}
+    grid = dict(result["unit"]["grid"])
+    grid.update({k: model.pop(k) for k in list(model) if k in grid})
+    effect = {k: v for k, v in step["params"].items() if v is not None}
+    grid.update({k: effect.pop(k) for k in list(effect) if k in grid})
+    edges = [Edge.from_json({k: v for k, v in e.items() if k != "capture"}) for e in diag["edges"]
+             if e.get("capture") in (None, "capture")]
+    spec, _ = edge_spec_of(edges, cap.n)
+    offsets = {k: v for k, v in step["edges"].items() if v is not None}
+    sim = simulate_record({**values, **model, **effect, **offsets}, cap, grid, spec, "diagnosis")
+    t = cap.time - cap.time[0]
+    t0, t1 = diag["validation"]["fit"]["t0"], diag["validation"]["fit"]["t1"]
+    span = (t >= t0 - 1e-9) & (t <= t1 + 1e-9)
+    err2 = (sim["efd"] - cap.efd) ** 2
+    mse_span, mse_whole = float(np.mean(err2[span])), float(np.mean(err2))
+    return {"effects": step["effects"], "span_s": [t0, t1], "mse_span": mse_span, "mse_whole": mse_whole,
+            "over_disturbance_span": mse_span / var, "over_disturbance_whole": mse_whole / var,
+            "objective_mse": step["mse"], "objective_over_disturbance": step["mse"] / var}
 
 
 def main_(argv: list[str] | None = None) -> int:
@@ -156,6 +187,13 @@ def main_(argv: list[str] | None = None) -> int:
         print(f"diagnosis: verdict {diag['verdict']}; base {diag['base']['mse']:.4g}, left {left:.4g} = "
               f"{left / diag['noise_floor']:.2f} x its noise floor ({diag['noise_floor']:.3g}, weighted "
               f"efd + Q); {diag_s:.1f} s")
+        if diag["explained_by"]:
+            row["diagnosis"]["last_step_efd"] = last = _last_step_efd(diag, values, result, cap, var)
+            print(f"the last explained_by step ({'+'.join(last['effects'])}), re-simulated: efd MSE "
+                  f"{last['mse_span']:.4g} = {last['over_disturbance_span']:.2f} x the pre-step disturbance over "
+                  f"the part diagnosed ({last['span_s'][0]:.2f}-{last['span_s'][1]:.2f} s); over the whole "
+                  f"record {last['over_disturbance_whole']:.2f} x (the operation before the step, held at its "
+                  f"operating point, counted)")
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(row, indent=1) + "\n")
         print(f"wrote {args.json_out}")

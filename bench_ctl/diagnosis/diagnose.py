@@ -1,7 +1,8 @@
 """Sim-to-real gap diagnosis of one capture: where the model misses, which effects, how far it shrinks.
 
 `diagnose(capture, unit, holdout=...)` returns the diagnosis (`diagnosis_file.Diagnosis`, schema
-"bench-ctl/diagnosis/1", docs/formats.md). Every model is identification's `Problem` on the whole capture (the unit's
+"bench-ctl/diagnosis/1", docs/formats.md). On line only the test is simulated, from a few seconds
+before the step (`span`). Every model is identification's `Problem` on the whole capture (the unit's
 identified parameters, the effects' parameters and the instant of every setpoint edge,
 `model_fits.Views`), fitted with identification's stack (`search`):
 
@@ -68,6 +69,7 @@ from .diagnosis_file import (
 from .explain import explained_by, sequence
 from .search import finish, fit_model, global_search, refine, refine_base
 from .significance import close_to_best, criteria, worth_checking
+from .span import PRE_STEP_S, cut_to_test, on_record
 from .starts import all_starts, lag_variants
 from .verdict import ambiguous_pairs, check_entry, choose_verdict, model_params, rank_entries
 
@@ -235,9 +237,23 @@ def diagnose(capture: Capture, unit: Unit, **kwargs: Any) -> Diagnosis:
     names = dialect_of(unit.structure)    # the boundary: the structure's names
     with threadpool_limits(limits=1, user_api="blas"):
         try:
-            return _diagnose(capture, unit, **kwargs).renamed(names)
+            return _on_its_test(capture, unit, **kwargs).renamed(names)
         except (ProblemError, ConstraintError) as exc:
             raise type(exc)(names.text(str(exc))) from None
+
+
+def _on_its_test(capture: Capture, unit: Unit, *, holdout: Capture | None = None, **kwargs: Any) -> Diagnosis:
+    """`_diagnose` on the test's part of an on-line capture and holdout (`span.cut_to_test`: not the
+    operation before it, which every model holds at the record's operating point), its instants
+    written in the whole records' seconds (`span.on_record`)."""
+    part, k0 = cut_to_test(capture)
+    hold, k0_h = cut_to_test(holdout)
+    if k0:
+        log.info("%s: diagnosed from %.2f s, %.1f s before the step (the %d samples before it, where every model "
+                 "holds the operating point, are not simulated)", capture.source or "capture", k0 * capture.dt,
+                 PRE_STEP_S, k0)
+    d = _diagnose(part, unit, holdout=hold, **kwargs)
+    return on_record(d, k0, capture.dt, k0_h, holdout.dt if holdout is not None else 0.0)
 
 
 def _diagnose(capture: Capture, unit: Unit, *, holdout: Capture | None = None, seed: int = 0,
