@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 
 from bench_ctl.capture import read_capture  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
-from bench_ctl.identification.timing import Edge, edge_spec_of  # noqa: E402
+from bench_ctl.identification.timing import Edge, fitted_edge_plan  # noqa: E402
 from bench_ctl.model.dialect import kernel_sections  # noqa: E402
 from bench_ctl.report.analysis import simulate_record  # noqa: E402
 from bench_ctl.report.inputs import model_values  # noqa: E402
@@ -122,7 +122,7 @@ def main_(argv: list[str] | None = None) -> int:
     sections = kernel_sections(result)
     values = model_values(sections["params"], sections["fixed"], "result")
     edges = [Edge.from_json(e) for e in result["captures"][0]["edges"]]
-    spec, offsets = edge_spec_of(edges, cap.n)   # the fitted edge instants
+    spec, offsets = fitted_edge_plan(edges, cap.n)   # the fitted edge instants
     sim = simulate_record({**values, **offsets}, cap, result["unit"]["grid"], spec, "result")
     lead = float(cap.time[np.flatnonzero(np.abs(cap.usetp - cap.usetp[0]) > 1e-9)[0]])
     test = cap.time >= lead - 1.0

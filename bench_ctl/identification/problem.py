@@ -53,7 +53,7 @@ from bench_ctl.units.unit import Unit
 
 from .constraints import LinearConstraint, parse_constraints
 from .records import ProblemError, Record, apply_window, decimated, segment_window
-from .timing import EDGE_PARAMS, Edge, edge_spec, edges_entry, record_edges
+from .timing import EDGE_PARAMS, Edge, edge_plan_of, edges_entry, record_edges
 
 logger = logging.getLogger(__name__)
 
@@ -590,7 +590,7 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         usetp = np.ascontiguousarray(c.usetp, dtype=float)
         vt = np.ascontiguousarray(c.vt, dtype=float) if c.vt is not None else None
         moved = [(e, s) for e, s in zip(edges, slots) if s is not None]
-        spec = edge_spec([e for e, _ in moved], [s for _, s in moved])
+        spec = edge_plan_of([e for e, _ in moved], [s for _, s in moved])
         r = Record(usetp=usetp, efd=np.ascontiguousarray(c.efd, dtype=float), vt=vt, dt=dt,
                     usetp_pre=pre_trigger_mean(usetp, dt), alpha=a, i0=0, i1=c.n, source=owner,
                     edges=spec, edge_list=tuple(edges), edge_slots=tuple(slots), **_on_line(c, unit, owner))

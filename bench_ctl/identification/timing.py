@@ -14,7 +14,7 @@ setpoint edge as a parameter: `EDGE1`.. hold the fitted instant minus the nomina
 `Edge` is one edge as a fit carries it and as the result and diagnosis JSON write it (a
 capture's `edges`: {index, jump_pu, nominal_s, fitted_s, offset_s, std_s, lo_s, hi_s, how,
 fitted}); `record_edges` gives them unfitted, `edges_entry` with the instants a fit found, and
-`edge_spec_of` reads them back for the kernel, so a report re-simulates with those instants.
+`fitted_edge_plan` reads them back for the engine, so a report re-simulates with those instants.
 """
 from __future__ import annotations
 
@@ -26,10 +26,12 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.capture import Capture
+from bench_ctl.engine import edge_plan
+from bench_ctl.engine.runner import Edges
 from bench_ctl.records import Record
-from bench_ctl.signals.edges import EDGE_PARAMS, EdgeSpec, find_setpoint_edges
+from bench_ctl.signals.edges import EDGE_PARAMS, find_setpoint_edges
 
-__all__ = ["Edge", "record_edges", "edge_spec", "edges_entry", "edge_spec_of", "EDGE_PARAMS"]
+__all__ = ["Edge", "record_edges", "edge_plan_of", "edges_entry", "fitted_edge_plan", "EDGE_PARAMS"]
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -92,11 +94,12 @@ def record_edges(capture: Capture) -> list[Edge]:
     return out
 
 
-def edge_spec(edges: Sequence[Edge], slots: Sequence[int]) -> EdgeSpec:
-    """The kernel's view of `edges`, whose offsets sit in the EDGE columns `slots`."""
-    return EdgeSpec(np.array([e.index for e in edges], dtype=np.int64),
-                    np.array([e.jump_pu for e in edges]), np.array([e.nominal_s for e in edges]),
-                    np.array(list(slots), dtype=np.int64))
+def edge_plan_of(edges: Sequence[Edge], slots: Sequence[int]) -> Edges:
+    """The engine's plan of `edges` (`bench_ctl.engine.edge_plan`), whose offsets sit in the EDGE
+    columns `slots`."""
+    return edge_plan.build(np.array([e.index for e in edges], dtype=np.int64),
+                           np.array([e.jump_pu for e in edges]), np.array([e.nominal_s for e in edges]),
+                           np.array(list(slots), dtype=np.int64))
 
 
 def edges_entry(edges: Sequence[Edge], slots: Sequence[int | None], values: Mapping[str, float],
@@ -115,12 +118,12 @@ def edges_entry(edges: Sequence[Edge], slots: Sequence[int | None], values: Mapp
     return out
 
 
-def edge_spec_of(entries: Sequence[Edge] | None, n: int) -> tuple[EdgeSpec, dict[str, float]]:
-    """(EdgeSpec, {EDGEi: offset}) from a capture's edges as a result or diagnosis holds them
+def fitted_edge_plan(entries: Sequence[Edge] | None, n: int) -> tuple[Edges, dict[str, float]]:
+    """(the engine's plan, {EDGEi: offset}) from a capture's edges as a result or diagnosis holds them
     (`edges_entry`), for a record of `n` samples; edges beyond the record or not fitted are left
     out."""
     rows = [e for e in (entries or []) if e.fitted and 1 <= e.index < n]
     rows = rows[: len(EDGE_PARAMS)]
-    spec = EdgeSpec(np.array([e.index for e in rows], dtype=np.int64), np.array([e.jump_pu for e in rows]),
-                    np.array([e.nominal_s for e in rows]), np.arange(len(rows)))
-    return spec, {EDGE_PARAMS[i]: e.fitted_s - e.nominal_s for i, e in enumerate(rows)}
+    plan = edge_plan.build(np.array([e.index for e in rows], dtype=np.int64), np.array([e.jump_pu for e in rows]),
+                           np.array([e.nominal_s for e in rows]), np.arange(len(rows)))
+    return plan, {EDGE_PARAMS[i]: e.fitted_s - e.nominal_s for i, e in enumerate(rows)}

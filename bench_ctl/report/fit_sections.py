@@ -13,7 +13,7 @@ import numpy as np
 from bench_ctl.diagnosis.selection import separation_text, where_left
 from bench_ctl.engine.simulate import pre_trigger_mean, simulate
 from bench_ctl.identification.result_file import CandidateEntry
-from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.identification.timing import fitted_edge_plan
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
 from bench_ctl.report.blocks import (
@@ -365,7 +365,7 @@ def _residual_of(a: CaptureAnalysis, c: CandidateEntry) -> np.ndarray | None:
     edges = c.edges or []
     try:
         values = model_values({}, c.kernel or {}, f"selection candidate {c.model}")
-        spec, offsets = edge_spec_of(edges[a.loaded.index] if a.loaded.index < len(edges) else None, cap.n)
+        spec, offsets = fitted_edge_plan(edges[a.loaded.index] if a.loaded.index < len(edges) else None, cap.n)
         efd, _, fail = simulate({**values, **offsets}, cap.usetp, cap.dt, edges=spec)
     except (KeyError, TypeError, ValueError, ReportError):
         return None

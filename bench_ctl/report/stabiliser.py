@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.identification.timing import fitted_edge_plan
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData, simulate_record
 from bench_ctl.report.blocks import Block, Fig, Num, Para, Section, Table
 from bench_ctl.report.metrics import edge_times
@@ -38,7 +38,7 @@ def pss_captures(d: ReportData) -> tuple[CaptureAnalysis, CaptureAnalysis] | Non
 def _simulated_off(d: ReportData, a: CaptureAnalysis) -> np.ndarray:
     """P of the model on the PSS-off record, the stabiliser's output held at 0."""
     cap = a.loaded.capture
-    spec, offsets = edge_spec_of(a.loaded.entry.edges, cap.n)
+    spec, offsets = fitted_edge_plan(a.loaded.entry.edges, cap.n)
     grid = {**(d.result.unit.grid or {}), **PSS_OUTPUT_OFF}
     return simulate_record({**d.values, **offsets}, cap, grid, spec, a.loaded.path.name)["p"]
 

@@ -6,10 +6,8 @@ exciter the sub-sample instant moves efd by tenths of a pu at the edge, so every
 instant of each edge as a parameter (`EDGE1` .. `EDGE4`: fitted instant minus the nominal one, in
 seconds) and the kernel moves the jump there, splitting the RK4 step at that instant.
 
-`EdgeSpec` is what the kernel needs of a record: where its usetp jumps (sample index in that
-record), by how much, the nominal instant (s from the record's first sample, which stays the same
-on a decimated copy of the record), and which `EDGE` column of the parameter matrix holds the
-offset.
+What the engine needs of a record's edges (where its usetp jumps, by how much, the nominal
+instant, which `EDGE` column holds the offset) is its plan, `bench_ctl.engine.edge_plan`.
 
 `find_edges` is the one finder of a test's edges, in any channel: a recorded setpoint (the fits'
 edge instants, the report's segments, the plausibility checks, the diagnosis' windows, a run's
@@ -21,8 +19,8 @@ levels around it and the interval its instant lies in (`FoundEdge`, docs/model.m
 edge with its own offset).
 
 The edges' types: `FoundEdge` (an edge as the finder found it, with the `EdgeSearch` that holds
-them), `EdgeSpec` (the kernel's view of a record's edges) and
-`bench_ctl.identification.timing.Edge` (an edge as a fit carries it and a result writes it).
+them), the engine's `bench_ctl.engine.runner.Edges` (a record's edges as the engine runs them)
+and `bench_ctl.identification.timing.Edge` (an edge as a fit carries it and a result writes it).
 """
 from __future__ import annotations
 
@@ -35,47 +33,6 @@ from bench_ctl.model.params import RECORD_PARAMS
 
 #: kernel parameter columns that hold edge offsets (one per edge a fit can move)
 EDGE_PARAMS: tuple[str, ...] = RECORD_PARAMS
-
-
-@dataclass(frozen=True, eq=False)
-class EdgeSpec:
-    """Edges of one record as the kernel reads them (arrays of equal length, one row per edge)."""
-
-    index: np.ndarray      # int64: first sample of this record that shows the new setpoint
-    jump: np.ndarray       # float: usetp[index] - usetp[index - 1] (pu)
-    nominal_s: np.ndarray  # float: nominal instant, s from the record's first sample
-    slot: np.ndarray       # int64: 0..3, which EDGE column holds the offset
-
-    def __post_init__(self) -> None:
-        for name in ("index", "jump", "nominal_s", "slot"):
-            kind = np.int64 if name in ("index", "slot") else np.float64
-            object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=kind).reshape(-1))
-        n = self.index.size
-        if not (self.jump.size == self.nominal_s.size == self.slot.size == n):
-            raise ValueError("edge arrays must have one entry per edge")
-        if n and (self.slot.min() < 0 or self.slot.max() >= len(EDGE_PARAMS)):
-            raise ValueError(f"edge slots must lie in 0..{len(EDGE_PARAMS) - 1}, got {self.slot.tolist()}")
-        if n and self.index.min() < 1:
-            raise ValueError("an edge needs a sample before it (index >= 1)")
-
-    @property
-    def n(self) -> int:
-        return int(self.index.size)
-
-    @staticmethod
-    def none() -> EdgeSpec:
-        return EdgeSpec(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
-
-    def decimated(self, q: int, offset: int, dt: float) -> EdgeSpec:
-        """The same edges on the record of every q-th sample from `offset` (fine step `dt`): each
-        jump shows at the first kept sample at or after its fine index; the nominal instant stays
-        the fine one, counted from the decimated record's first sample."""
-        first = offset % q
-        if q == 1 and first == 0:
-            return self
-        idx = -(-(self.index - first) // q)  # ceil
-        keep = idx >= 1
-        return EdgeSpec(idx[keep], self.jump[keep], self.nominal_s[keep] - first * dt, self.slot[keep])
 
 
 def find_setpoint_edges(usetp: np.ndarray) -> np.ndarray:
