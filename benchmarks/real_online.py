@@ -44,10 +44,11 @@ import numpy as np  # noqa: E402
 
 from bench_ctl.capture import read_capture  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
-from bench_ctl.identification.timing import Edge, fitted_edge_plan  # noqa: E402
+from bench_ctl.identification.timing import fitted_edge_plan  # noqa: E402
 from bench_ctl.model.dialect import kernel_sections  # noqa: E402
 from bench_ctl.report.analysis import simulate_record  # noqa: E402
 from bench_ctl.report.inputs import model_values  # noqa: E402
+from bench_ctl.signals.edges import Edge  # noqa: E402
 from bench_ctl.signals.mode import electromechanical_mode  # noqa: E402
 from import_real import MOSTAR_CLOCK, pre_step_disturbance  # noqa: E402
 

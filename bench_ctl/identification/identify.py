@@ -26,6 +26,7 @@ from bench_ctl.engine.simulate import param_matrix
 from bench_ctl.model.params import GENERATOR_OPTIONAL, RECORD_PARAMS
 from bench_ctl.outputs import path_from
 from bench_ctl.records import plain
+from bench_ctl.signals.edges import Edge
 from bench_ctl.timestamps import utc_now_text
 from bench_ctl.units.unit import Unit
 from bench_ctl.units.unit import outside_bounds as values_outside_bounds
@@ -44,7 +45,6 @@ from .result_file import (
     ModelEntry,
     OptimizerEntry,
 )
-from .timing import Edge
 
 logger = logging.getLogger(__name__)
 

@@ -49,11 +49,12 @@ from bench_ctl.engine.machines.grid import machine_data, machine_matrix, steady_
 from bench_ctl.engine.simulate import base_row, operating_point, param_matrix, pre_trigger_mean
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.params import COL, KERNEL_PARAMS, MCOL, PARAMS
+from bench_ctl.signals.edges import EDGE_PARAMS, Edge
 from bench_ctl.units.unit import Unit
 
 from .constraints import LinearConstraint, parse_constraints
 from .records import ProblemError, Record, apply_window, decimated, segment_window
-from .timing import EDGE_PARAMS, Edge, edge_plan_of, edges_entry, record_edges
+from .timing import edge_plan_of, edges_entry, record_edges
 
 logger = logging.getLogger(__name__)
 

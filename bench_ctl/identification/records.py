@@ -11,8 +11,7 @@ from bench_ctl.capture import Capture
 from bench_ctl.engine import edge_plan
 from bench_ctl.engine.runner import Edges
 from bench_ctl.exitcodes import BadInput
-
-from .timing import Edge
+from bench_ctl.signals.edges import Edge
 
 __all__ = ["Record", "apply_window", "decimated", "segment_window", "ProblemError"]
 

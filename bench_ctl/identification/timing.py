@@ -11,16 +11,16 @@ setpoint edge as a parameter: `EDGE1`.. hold the fitted instant minus the nomina
   import's median source step, the capture's step when it was not resampled): the offset is
   searched in [-tol, +tol].
 
-`Edge` is one edge as a fit carries it and as the result and diagnosis JSON write it (a
-capture's `edges`: {index, jump_pu, nominal_s, fitted_s, offset_s, std_s, lo_s, hi_s, how,
-fitted}); `record_edges` gives them unfitted, `edges_entry` with the instants a fit found, and
+A fit's edges are `bench_ctl.signals.edges.Edge` records, as the result and diagnosis JSON
+write them (a capture's `edges`: {index, jump_pu, nominal_s, fitted_s, offset_s, std_s, lo_s,
+hi_s, how, fitted}); `record_edges` gives them unfitted, `edges_entry` with the instants a fit found, and
 `fitted_edge_plan` reads them back for the engine, so a report re-simulates with those instants.
 """
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -28,31 +28,9 @@ import numpy as np
 from bench_ctl.capture import Capture
 from bench_ctl.engine import edge_plan
 from bench_ctl.engine.runner import Edges
-from bench_ctl.records import Record
-from bench_ctl.signals.edges import EDGE_PARAMS, find_setpoint_edges
+from bench_ctl.signals.edges import EDGE_PARAMS, Edge, find_setpoint_edges
 
-__all__ = ["Edge", "record_edges", "edge_plan_of", "edges_entry", "fitted_edge_plan", "EDGE_PARAMS"]
-
-
-@dataclass(frozen=True, eq=False, kw_only=True)
-class Edge(Record):
-    """One setpoint edge of a capture, the interval its instant is searched in and, once fitted,
-    the instant found (the JSON's keys; docs/formats.md, "Result JSON")."""
-    #: which capture it belongs to, in a list of several captures' edges (a result's: the index;
-    #: a diagnosis': "capture" / "holdout"); absent in a capture's own list
-    capture: int | str | None = None
-    index: int                  # first sample showing the new setpoint
-    jump_pu: float              # usetp[index] - usetp[index - 1]
-    nominal_s: float            # index * dt, s from the record's first sample
-    fitted_s: float             # the instant the fit found (nominal_s when not fitted)
-    offset_s: float             # fitted_s - nominal_s
-    std_s: float | None         # the offset's standard deviation, when known
-    lo_s: float                 # offset bounds (s) relative to nominal_s
-    hi_s: float
-    how: str                    # "recorded" (usetp channel) or "described" (user's test description)
-    fitted: bool                # its instant was fitted (at most four edges over a fit's captures)
-
-    OMITTED_WHEN_NONE = ("capture",)
+__all__ = ["record_edges", "edge_plan_of", "edges_entry", "fitted_edge_plan"]
 
 
 def _described_tolerance(capture: Capture) -> float | None:

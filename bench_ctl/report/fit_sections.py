@@ -89,7 +89,7 @@ def _edge_text(a: CaptureAnalysis) -> str:
         " (a step: no trailing edge)"
     cap = a.loaded.capture
     pre = pre_trigger_mean(np.asarray(cap.usetp, float), float(cap.time[1] - cap.time[0]))
-    return (f"Setpoint change of {lead.jump:+.4g} pu from {pre:.4g} pu; leading edge at "
+    return (f"Setpoint change of {lead.jump_pu:+.4g} pu from {pre:.4g} pu; leading edge at "
             f"t = {lead_s:.4f} s{trail}. Edges are where usetp crosses half its largest "
             "excursion from the pre-trigger mean.")
 

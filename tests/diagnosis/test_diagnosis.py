@@ -41,7 +41,7 @@ def test_find_edges_pulse_and_step(pulse):
     _, u = pulse
     e = find_edges(u)
     assert (e.lead.index, e.trail_index) == (1000, 2000)
-    assert e.lead.jump == pytest.approx(0.05)
+    assert e.lead.jump_pu == pytest.approx(0.05)
     step = np.where(np.arange(3000) >= 500, 1.05, 1.0)
     s = find_edges(step)
     assert s.lead.index == 500 and s.trail_index is None
