@@ -11,7 +11,9 @@ never converted; a non-finite one, which only a record made in memory holds, is 
 null; a numpy scalar is written as the Python number), so a file read and written again is the
 same JSON. The fields named in
 `OMITTED_WHEN_NONE` are keys some writers leave out: absent on reading, they are None and are
-not written.
+not written. The fields named in `IN_MEMORY` are no keys at all: a record made in memory holds
+them (an edge's levels as the edge finder saw them), a record read holds their defaults, and
+they are never written.
 
 The result and diagnosis files carry a `schema` tag, `"bench-ctl/KIND/N"`; `schema_version`
 reads it (docs/formats.md).
@@ -175,7 +177,8 @@ def _write(value: Any) -> Any:
 @functools.cache
 def _layout(cls: type) -> tuple[dict[str, Any], tuple[dataclasses.Field, ...]]:
     """A record class's annotations (resolved) and fields, worked out once."""
-    return typing.get_type_hints(cls), tuple(f for f in dataclasses.fields(cls) if f.init)
+    return typing.get_type_hints(cls), tuple(f for f in dataclasses.fields(cls)
+                                             if f.init and f.name not in cls.IN_MEMORY)
 
 
 class Record:
@@ -183,6 +186,8 @@ class Record:
 
     #: keys a writer may leave out: None when absent, not written when None
     OMITTED_WHEN_NONE: ClassVar[tuple[str, ...]] = ()
+    #: fields that are no keys: held in memory, never read nor written (they need defaults)
+    IN_MEMORY: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def _from(cls: type[R], data: Mapping[str, Any], path: str, where: str) -> R:
@@ -212,9 +217,12 @@ class Record:
         return cls._from(data, "", where)
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON object: every key in field order (those of OMITTED_WHEN_NONE only when set)."""
+        """The JSON object: every key in field order (those of OMITTED_WHEN_NONE only when set,
+        those of IN_MEMORY never)."""
         out = {}
         for f in dataclasses.fields(self):   # type: ignore[arg-type]
+            if f.name in self.IN_MEMORY:
+                continue
             value = getattr(self, f.name)
             if value is None and f.name in self.OMITTED_WHEN_NONE:
                 continue

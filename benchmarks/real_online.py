@@ -48,10 +48,11 @@ import numpy as np  # noqa: E402
 
 from bench_ctl.capture import read_capture  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
-from bench_ctl.identification.timing import Edge, edge_spec_of  # noqa: E402
+from bench_ctl.identification.timing import fitted_edge_plan  # noqa: E402
 from bench_ctl.model.dialect import kernel_sections  # noqa: E402
 from bench_ctl.report.analysis import simulate_record  # noqa: E402
 from bench_ctl.report.inputs import model_values  # noqa: E402
+from bench_ctl.signals.edges import Edge  # noqa: E402
 from bench_ctl.signals.mode import electromechanical_mode  # noqa: E402
 from import_real import MOSTAR_CLOCK, pre_step_disturbance  # noqa: E402
 
@@ -81,7 +82,7 @@ def _last_step_efd(diag: dict, values: dict, result: dict, cap, var: float) -> d
     grid.update({k: effect.pop(k) for k in list(effect) if k in grid})
     edges = [Edge.from_json({k: v for k, v in e.items() if k != "capture"}) for e in diag["edges"]
              if e.get("capture") in (None, "capture")]
-    spec, _ = edge_spec_of(edges, cap.n)
+    spec, _ = fitted_edge_plan(edges, cap.n)
     offsets = {k: v for k, v in step["edges"].items() if v is not None}
     sim = simulate_record({**values, **model, **effect, **offsets}, cap, grid, spec, "diagnosis")
     t = cap.time - cap.time[0]
@@ -153,7 +154,7 @@ def main_(argv: list[str] | None = None) -> int:
     sections = kernel_sections(result)
     values = model_values(sections["params"], sections["fixed"], "result")
     edges = [Edge.from_json(e) for e in result["captures"][0]["edges"]]
-    spec, offsets = edge_spec_of(edges, cap.n)   # the fitted edge instants
+    spec, offsets = fitted_edge_plan(edges, cap.n)   # the fitted edge instants
     sim = simulate_record({**values, **offsets}, cap, result["unit"]["grid"], spec, "result")
     lead = float(cap.time[np.flatnonzero(np.abs(cap.usetp - cap.usetp[0]) > 1e-9)[0]])
     test = cap.time >= lead - 1.0

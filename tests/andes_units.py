@@ -13,7 +13,9 @@ import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.capture.capture import read_capture
-from bench_ctl.signals.edges import EdgeSpec, find_setpoint_edges
+from bench_ctl.engine import edge_plan
+from bench_ctl.engine.runner import Edges
+from bench_ctl.signals.edges import find_setpoint_edges
 from bench_ctl.units.overrides import apply_overrides, with_model
 from bench_ctl.units.unit import Unit, reference_unit
 
@@ -92,14 +94,14 @@ def open_loop_efd(name: str, unit, cap: Capture) -> np.ndarray:
     return run_open_loop(unit.values(), cap.time, cap.vt, fixture_column(name, "ifd"), times, spec.jump)
 
 
-def true_edges(name: str, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:
+def true_edges(name: str, cap: Capture) -> tuple[Edges, dict[str, float]]:
     """The capture's setpoint edges and the EDGE offsets of their true instants (the manifest)."""
     return _true_edges(manifest()["captures"][name], cap)
 
 
-def _true_edges(entry: dict, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:
+def _true_edges(entry: dict, cap: Capture) -> tuple[Edges, dict[str, float]]:
     k = find_setpoint_edges(cap.usetp)
-    spec = EdgeSpec(k, cap.usetp[k] - cap.usetp[k - 1], cap.time[k], np.arange(len(k)))
+    spec = edge_plan.build(k, cap.usetp[k] - cap.usetp[k - 1], cap.time[k], np.arange(len(k)))
     offsets = {f"EDGE{i + 1}": t - n for i, (n, t) in enumerate(zip(entry["edges_nominal_s"], entry["edges_true_s"]))}
     return spec, offsets
 
@@ -160,6 +162,6 @@ def online_capture(name: str, noise: float = 0.0, seed: int = 0, *, q_noise: flo
     return Capture(time=d["time"], usetp=d["usetp"], efd=efd, vt=vt, extra=extra, source=str(path))
 
 
-def online_true_edges(name: str, cap: Capture) -> tuple[EdgeSpec, dict[str, float]]:
+def online_true_edges(name: str, cap: Capture) -> tuple[Edges, dict[str, float]]:
     """The on-line capture's setpoint edges and the EDGE offsets of their true instants."""
     return _true_edges(online_entry(name), cap)

@@ -10,8 +10,8 @@ from typing import Any
 from bench_ctl.capture import read_capture
 from bench_ctl.diagnosis.diagnosis_file import DIAGNOSIS_SCHEMA, Diagnosis
 from bench_ctl.identification.result_file import RESULT_SCHEMA, Identifiability, IdentificationResult, ModelEntry
-from bench_ctl.identification.timing import Edge
 from bench_ctl.limits import sha256_file
+from bench_ctl.signals.edges import Edge
 from bench_ctl.units.unit import reference_unit
 
 

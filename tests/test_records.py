@@ -174,7 +174,8 @@ def _table(section: str) -> dict[str, str]:
 
 
 def _fields(cls) -> list[str]:
-    return [f.name for f in dataclasses.fields(cls)]
+    """The keys of `cls` (its fields but those held in memory only)."""
+    return [f.name for f in dataclasses.fields(cls) if f.name not in cls.IN_MEMORY]
 
 
 def _nested(cls: type) -> dict[str, list[type]]:

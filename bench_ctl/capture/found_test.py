@@ -17,7 +17,7 @@ is refused naming the file and what was searched; a record whose channel shows e
 test's (a second test in one export) is refused too, with a window for each test (`--window`):
 one capture holds one test.
 
-Each found instant comes with the interval it lies in (`FoundEdge.lo_s`, `hi_s`); `tolerance_on`
+Each found instant comes with the interval it lies in (`Edge.earliest_s`, `latest_s`); `tolerance_on`
 turns it into the test's `edge_tolerance_s` on the capture's time grid, so that every fit searches
 each edge over the whole interval (bench_ctl/identification/timing.py).
 """
@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from bench_ctl.capture.errors import CaptureError
-from bench_ctl.signals.edges import EXCITER, VOLTAGE, EdgeSearch, FoundEdge, find_edges
+from bench_ctl.signals.edges import EXCITER, VOLTAGE, Edge, EdgeSearch, find_edges
 
 #: channels searched, in the order a setpoint change reaches them
 SEARCH_ORDER: tuple[tuple[str, str], ...] = (("vr", EXCITER), ("efd", EXCITER), ("vt", VOLTAGE))
@@ -57,18 +57,18 @@ class FoundTest:
     kind: str
     start_s: float
     width_s: float | None
-    edges: tuple[FoundEdge, ...]
+    edges: tuple[Edge, ...]
     block: dict[str, Any]
 
     @property
     def first_lo_s(self) -> float:
         """The earliest instant the first edge may have: the pre-step part ends here."""
-        return self.edges[0].lo_s
+        return self.edges[0].earliest_s
 
 
-def _edge_row(e: FoundEdge, label: str, rows: np.ndarray) -> dict[str, Any]:
-    return {"edge": label, "row": int(rows[e.index]), "first_shows_s": e.hi_s, "lo_s": e.lo_s,
-            "hi_s": e.hi_s, "instant_s": e.instant_s, "uncertainty_s": e.uncertainty_s,
+def _edge_row(e: Edge, label: str, rows: np.ndarray) -> dict[str, Any]:
+    return {"edge": label, "row": int(rows[e.index]), "first_shows_s": e.nominal_s, "lo_s": e.earliest_s,
+            "hi_s": e.latest_s, "instant_s": e.instant_s, "uncertainty_s": e.uncertainty_s,
             "level_before": e.level_before, "departure": e.departure, "level_after": e.level_after}
 
 
@@ -78,28 +78,28 @@ def _why_not(search: EdgeSearch, sign: int, kind: str) -> str:
                 f" x its noise) from a steady level")
     first = search.edges[0]
     if first.sign != sign:
-        return (f"its first edge goes {'down' if sign > 0 else 'up'} (at t = {first.hi_s:.4f} s), the stated "
+        return (f"its first edge goes {'down' if sign > 0 else 'up'} (at t = {first.nominal_s:.4f} s), the stated "
                 "amplitude the other way")
     lead, trail = search.pulse(sign)
     if kind == "pulse" and trail is None:
-        return f"an edge at t = {lead.hi_s:.4f} s but no return within the record"
+        return f"an edge at t = {lead.nominal_s:.4f} s but no return within the record"
     return ""
 
 
-def _settled_change(time: np.ndarray, x: np.ndarray, lead: FoundEdge, trail: FoundEdge | None) -> float | None:
+def _settled_change(time: np.ndarray, x: np.ndarray, lead: Edge, trail: Edge | None) -> float | None:
     """x's settled change over the leading edge: the median of the second half of the plateau
     (up to the trailing edge) less the mean over PRE_S before the edge (a long export's earlier
     operation is not the level the step starts from); None with too few samples."""
-    pre = x[(time < lead.lo_s) & (time >= lead.lo_s - PRE_S)]
-    end = trail.lo_s if trail is not None else math.inf
-    plateau = x[(time > lead.hi_s) & (time < end)]
+    pre = x[(time < lead.earliest_s) & (time >= lead.earliest_s - PRE_S)]
+    end = trail.earliest_s if trail is not None else math.inf
+    plateau = x[(time > lead.nominal_s) & (time < end)]
     if pre.size == 0 or plateau.size < 2:
         return None
     return float(np.median(plateau[plateau.size // 2:]) - np.mean(pre))
 
 
 def _amplitude_check(time: np.ndarray, channels: Mapping[str, np.ndarray], columns: Mapping[str, str],
-                     lead: FoundEdge, trail: FoundEdge | None, amplitude: float, on_line: bool) -> dict[str, Any]:
+                     lead: Edge, trail: Edge | None, amplitude: float, on_line: bool) -> dict[str, Any]:
     """The amplitude against vt (see the module docstring); `ok` False refuses the record."""
     vt = channels.get("vt")
     if vt is None:
@@ -139,9 +139,9 @@ def _amplitude_check(time: np.ndarray, channels: Mapping[str, np.ndarray], colum
     return out
 
 
-def _groups(edges: Sequence[FoundEdge]) -> list[list[FoundEdge]]:
+def _groups(edges: Sequence[Edge]) -> list[list[Edge]]:
     """The edges as tests: an edge and, when the next one goes the other way, its return."""
-    out: list[list[FoundEdge]] = []
+    out: list[list[Edge]] = []
     i = 0
     while i < len(edges):
         if i + 1 < len(edges) and edges[i + 1].sign == -edges[i].sign:
@@ -154,12 +154,12 @@ def _groups(edges: Sequence[FoundEdge]) -> list[list[FoundEdge]]:
 
 
 def _second_test(file: str, name: str, column: str | None, t: np.ndarray, search: EdgeSearch,
-                 edges: Sequence[FoundEdge], origin_s: float) -> CaptureError:
+                 edges: Sequence[Edge], origin_s: float) -> CaptureError:
     """The refusal of a record whose channel shows edges beyond the test's, with a window
     (seconds from the export's first sample, at `origin_s`) for each test."""
     groups = _groups(search.edges)
     t0 = origin_s
-    cuts = [float(t[0]) - t0] + [0.5 * (g[-1].hi_s + h[0].lo_s) - t0 for g, h in zip(groups, groups[1:])] \
+    cuts = [float(t[0]) - t0] + [0.5 * (g[-1].nominal_s + h[0].earliest_s) - t0 for g, h in zip(groups, groups[1:])] \
         + [float(t[-1]) - t0]
     tests = []
     for g, a, b in zip(groups, cuts, cuts[1:]):
@@ -186,7 +186,7 @@ def find_test(file: str, time: np.ndarray, channels: Mapping[str, np.ndarray], *
     rows = np.arange(1, t.size + 1) if rows is None else np.asarray(rows)
     sign = 1 if amplitude_pu > 0 else -1
     searched: list[dict[str, Any]] = []
-    chosen: tuple[str, EdgeSearch, FoundEdge, FoundEdge | None] | None = None
+    chosen: tuple[str, EdgeSearch, Edge, Edge | None] | None = None
     for name, ch_kind in SEARCH_ORDER:
         if name not in channels:
             continue
@@ -208,7 +208,7 @@ def find_test(file: str, time: np.ndarray, channels: Mapping[str, np.ndarray], *
     check = _amplitude_check(t, channels, columns, lead, trail, amplitude_pu, on_line)
     if check.get("ok") is False:
         raise CaptureError(file, f"no {kind} of {amplitude_pu:+g} pu found in the record: the edge found in "
-                           f"{name} (column {columns.get(name)!r}) at t = {lead.hi_s:.4f} s moves vt by "
+                           f"{name} (column {columns.get(name)!r}) at t = {lead.nominal_s:.4f} s moves vt by "
                            f"{check['change_pu']:+.4g} pu, {check['ratio']:.2f} times the stated amplitude "
                            f"({AMPLITUDE_RANGE[0]:g}..{AMPLITUDE_RANGE[1]:g} accepted"
                            + (", and on line no more than the step" if on_line else
@@ -240,15 +240,15 @@ def find_test(file: str, time: np.ndarray, channels: Mapping[str, np.ndarray], *
     return FoundTest(imported_as, lead.instant_s, found_width, tuple(e for e in edges if e is not None), block)
 
 
-def tolerance_on(grid: np.ndarray, edges: Sequence[FoundEdge]) -> float:
+def tolerance_on(grid: np.ndarray, edges: Sequence[Edge]) -> float:
     """The half-width of the search interval each edge needs on the capture's `grid`: the
     synthesised setpoint steps at the first grid sample at or after the found instant (its nominal
-    instant), and the fits search nominal +- tolerance, which must cover [lo_s, hi_s]."""
+    instant), and the fits search nominal +- tolerance, which must cover [earliest_s, latest_s]."""
     g = np.asarray(grid, float)
     step = float(g[1] - g[0])
     tol = 0.0
     for e in edges:
         k = min(int(np.searchsorted(g, e.instant_s - 1e-6 * step, side="left")), g.size - 1)
         nominal = float(g[k])
-        tol = max(tol, nominal - e.lo_s, e.hi_s - nominal)
+        tol = max(tol, nominal - e.earliest_s, e.latest_s - nominal)
     return tol

@@ -286,7 +286,7 @@ def _first_edge_lo(test: TestDescription | None, found: FoundTest | None, rec: R
         return found.first_lo_s
     if "usetp" in raw:
         lead, _ = find_edges(rec.time, raw["usetp"], kind=SETPOINT).pulse()
-        return None if lead is None else lead.lo_s
+        return None if lead is None else lead.earliest_s
     if test is not None and test.start_s is not None:
         return test.start_s - (test.edge_tolerance_s or source_step)
     return None
@@ -380,7 +380,7 @@ def import_export(
     factors, efd_block, ifd_block = _field_factors(file, spec, rec, raw, edge_lo, on_line)
     steady = None
     if edge_lo is not None:
-        hi = found.edges[0].hi_s if found is not None else edge_lo
+        hi = found.edges[0].latest_s if found is not None else edge_lo
         steady = pre_step_steadiness(rec.time, raw, spec.columns, edge_lo, hi, float(rec.time[-1]), origin_s)
     data: dict[str, np.ndarray] = {"time": time}
     for our, name in spec.columns.items():

@@ -43,7 +43,7 @@ from bench_ctl.identification.result_file import (
     read_result,
 )
 from bench_ctl.identification.selection import rank_structures
-from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.identification.timing import fitted_edge_plan
 from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.records import plain
@@ -126,7 +126,7 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
     values = unit.values()
     values.update(base_params)
     edges = tuple(replace(e, capture=None) for e in d.edges if e.capture == "capture")
-    spec, offsets = edge_spec_of(edges, capture.n)
+    spec, offsets = fitted_edge_plan(edges, capture.n)
     efd, _vt, _fail = simulate({**values, **offsets}, capture.usetp, capture.dt, edges=spec)
     t1 = d.validation.fit.t1
     k1 = min(capture.n, int(round(t1 / capture.dt)) + 1)  # t1 included (the whole capture today)

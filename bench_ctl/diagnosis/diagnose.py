@@ -48,10 +48,9 @@ from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.problem import ProblemError
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
-from bench_ctl.identification.timing import Edge
 from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.effects import VOCABULARY
-from bench_ctl.signals.edges import EdgeSearch
+from bench_ctl.signals.edges import Edge, EdgeSearch
 from bench_ctl.timestamps import utc_now_text
 from bench_ctl.units.unit import Unit
 
@@ -122,7 +121,7 @@ def _features(capture: Capture, model: np.ndarray, model_vt: np.ndarray, edges: 
         *(() if on_line else (F.steady_state_ratio(efd_pre, efd_se, vt_pre, values["Vt0"]),)),
         F.pre_trigger_level(efd_pre, efd_se, efd0_model, on_line=on_line),
         F.asymmetry(capture.efd, model, capture.dt, edges, sigma),
-        F.edge_shape(capture.efd, model, capture.dt, edges, sigma, edges.lead.jump),
+        F.edge_shape(capture.efd, model, capture.dt, edges, sigma, edges.lead.jump_pu),
     ]
     fv = {f.name: f.values for f in feats}
     hints = {

@@ -23,11 +23,11 @@ from bench_ctl.identification.check_records import (
     Validation,
 )
 from bench_ctl.identification.result_file import Localization, SelectionEntry
-from bench_ctl.identification.timing import Edge
 from bench_ctl.limits import read_json
 from bench_ctl.model.dialect import Dialect
 from bench_ctl.model.unit_record import UnitEntry
 from bench_ctl.records import FormatError, Record, schema_version
+from bench_ctl.signals.edges import Edge
 
 __all__ = ["DIAGNOSIS_SCHEMA", "SCHEMA_VERSION", "CaptureRef", "Span", "CheckWindow", "HoldoutCheck", "BlocksCheck",
            "CheckDescription", "Validation", "PartEntry", "CheckEntry", "BaseFit", "NoiseFloorDetail",

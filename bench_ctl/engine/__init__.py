@@ -12,7 +12,7 @@ The package, bottom up: `jit` (the one numba decorator, variants by constants, c
 `machines`, `stabilisers` (the plug-ins of the seam), `history` (dead time and skew), `step` (the
 RK4 step and its loop over candidates), `span` (the no-load reference structure's fast path),
 `substep` (a step with jumps inside), `runner` (a chunk over the record, the parallel loop),
-`variants`, and here `run`.
+`variants`, `edge_plan` (the record's setpoint edges as `run` takes them), and here `run`.
 """
 from __future__ import annotations
 
@@ -24,9 +24,8 @@ import numba as nb
 import numpy as np
 
 from bench_ctl.compile_notice import compiling
-from bench_ctl.signals.edges import EdgeSpec
 
-from . import layout
+from . import edge_plan, layout
 from .derived import derive
 from .jit import optimisation_note
 from .layout import (
@@ -90,11 +89,11 @@ def grid_key(D: np.ndarray) -> Key:
     return Key("grid", x, pss)
 
 
-def edge_window(D: np.ndarray, edges: EdgeSpec, dt: float, T: int) -> np.ndarray:
+def edge_window(D: np.ndarray, edges: Edges, dt: float, T: int) -> np.ndarray:
     """1 for every step where some candidate's setpoint differs from the zero-order hold of the
     record (between an edge's nominal and fitted instants) or jumps inside the step."""
     win = np.zeros(T, dtype=np.uint8)
-    if not edges.n or not D.shape[0]:
+    if not edges.index.size or not D.shape[0]:
         return win
     # every edge's fitted sample for every candidate at once (the same arithmetic as one at a time)
     ke = (edges.nominal_s[:, None] + D[:, D_EDGE0 + edges.slot].T) / dt
@@ -164,14 +163,14 @@ def _share(spans: list[tuple[int, int]], work: Callable[[int, int], None], threa
 
 def run(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *, machine: np.ndarray | None = None,
         ext: np.ndarray | None = None, measured: Mapping[str, np.ndarray | None] | None = None,
-        weights: Mapping[str, float] | None = None, store: bool = True, edges: EdgeSpec | None = None,
+        weights: Mapping[str, float] | None = None, store: bool = True, edges: Edges | None = None,
         keep: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
     """Simulate the candidates P (n, len(KERNEL_PARAMS)) over the setpoint series `usetp` (step dt;
     `usetp_pre` before the test): at no load; on the grid M (`machine`, n rows of
     `params.MACHINE_PARAMS`); or the excitation system alone fed `ext` = (Vt, Ifd) recorded on
     the same samples.
 
-    `edges`: the record's setpoint edges; each moves to its nominal instant plus the candidate's
+    `edges`: the record's setpoint edges (`edge_plan`); each moves to its nominal instant plus the candidate's
     offset (EDGE1..); None: every change of usetp acts at the sample that shows it. `measured`:
     the recorded efd, vt, p, q to score (None entries skipped), `weights` theirs (default efd 1).
 
@@ -211,8 +210,8 @@ def _run(D, key, usetp, dt, usetp_pre, ext, measured, weights, store, edges, kee
         raise ValueError("a simulation needs at least two samples")
     if not (dt > 0 and math.isfinite(dt)):
         raise ValueError(f"time step {dt!r} must be positive")
-    edges = EdgeSpec.none() if edges is None else edges
-    if edges.n and int(edges.index.max()) >= T:
+    edges = edge_plan.none() if edges is None else edges
+    if edges.index.size and int(edges.index.max()) >= T:
         raise ValueError(f"edge at sample {int(edges.index.max())} lies beyond the record ({T} samples)")
     meas = np.zeros((N_SCORED, T))
     w = np.zeros(N_SCORED)
@@ -253,7 +252,7 @@ def _run(D, key, usetp, dt, usetp_pre, ext, measured, weights, store, edges, kee
                       int(math.ceil(sk_max / dt)) + 3 if sk_max > 0 else 1)
         xt = _array(ext, np.float64) if ext is not None else np.zeros((2, 1))
         drive = Drive(usetp, usetp_pre, dt, meas, w, xt)
-        window = edge_window(D, edges, dt, T) if edges.n else np.zeros(T, dtype=np.uint8)
+        window = edge_window(D, edges, dt, T) if edges.index.size else np.zeros(T, dtype=np.uint8)
         e = Edges(_array(edges.index, np.int64), _array(edges.jump, np.float64),
                   _array(edges.nominal_s, np.float64), _array(edges.slot, np.int64), window)
         o = Out(traces, rows, sse, ends, fail_step)

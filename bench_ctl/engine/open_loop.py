@@ -18,9 +18,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from bench_ctl.model.params import KERNEL_PARAMS
-from bench_ctl.signals.edges import EdgeSpec
 
-from . import run
+from . import edge_plan, run
 
 
 def run_open_loop(values: Mapping[str, float], time: np.ndarray, vt: np.ndarray, ifd: np.ndarray,
@@ -58,8 +57,8 @@ def run_open_loop(values: Mapping[str, float], time: np.ndarray, vt: np.ndarray,
         if k < t.size:
             usetp[k:] += float(jump)
     inside = index < t.size
-    edges = EdgeSpec(index[inside], np.asarray(edge_jumps, float)[inside], at[inside] * dt,
-                     np.zeros(int(inside.sum()), np.int64))
+    edges = edge_plan.build(index[inside], np.asarray(edge_jumps, float)[inside], at[inside] * dt,
+                            np.zeros(int(inside.sum()), np.int64))
     out = run(P, usetp, dt, 0.0, ext=np.vstack([vt, ifd]), edges=edges, keep=("efd",))
     if out["fail_step"][0] == 0:
         raise ValueError("open loop: the values are not a valid unit (see `bench-ctl models`)")

@@ -14,8 +14,8 @@ import numpy as np
 from bench_ctl import engine
 from bench_ctl.engine.derived import saturation_ab
 from bench_ctl.engine.machines.grid import machine_matrix, unit_machine, with_placeholders
+from bench_ctl.engine.runner import Edges
 from bench_ctl.model.params import COL, KERNEL_PARAMS, PARAMS, RECORD_PARAMS, STRUCTURE_PARAMS
-from bench_ctl.signals.edges import EdgeSpec
 from bench_ctl.units.unit import Unit, UnitError
 
 
@@ -65,7 +65,7 @@ def pre_trigger_mean(usetp: np.ndarray, dt: float, start_s: float | None = None)
 
 
 def simulate(values: Mapping[str, float], usetp: np.ndarray, dt: float,
-             usetp_pre: float | None = None, edges: EdgeSpec | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+             usetp_pre: float | None = None, edges: Edges | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Simulate one parameter set; returns (efd as recorded, vt, fail_step or -1). `edges`: the
     record's setpoint edges, moved by the EDGE offsets in `values`."""
     pre = pre_trigger_mean(usetp, dt) if usetp_pre is None else usetp_pre
@@ -89,7 +89,7 @@ def operating_point(usetp: np.ndarray, p: np.ndarray, q: np.ndarray, vt: np.ndar
 
 
 def simulate_on_line(values: Mapping[str, float], grid: Mapping[str, float], point: Mapping[str, float],
-                     usetp: np.ndarray, dt: float, edges: EdgeSpec | None = None) -> dict[str, np.ndarray]:
+                     usetp: np.ndarray, dt: float, edges: Edges | None = None) -> dict[str, np.ndarray]:
     """One parameter set on the grid (`engine.run` with a machine) from an operating point (P0, Q0, Vt0,
     `operating_point`): efd (as recorded), vt, p, q, ifd and fail_step."""
     machine = machine_matrix(with_placeholders({**grid, "P0": point["P0"], "Q0": point["Q0"]}))

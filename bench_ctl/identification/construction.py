@@ -29,13 +29,14 @@ from bench_ctl.engine.machines.grid import machine_data, machine_matrix, unit_ma
 from bench_ctl.engine.simulate import operating_point, pre_trigger_mean
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.params import KERNEL_PARAMS, MCOL, PARAMS
+from bench_ctl.signals.edges import EDGE_PARAMS, Edge
 from bench_ctl.units.switched import grid_as_recorded
 from bench_ctl.units.unit import Unit
 
 from .constraints import LinearConstraint, parse_constraints
 from .fit_record import FitRecord, ProblemError, apply_window, segment_window
 from .problem import Problem
-from .timing import EDGE_PARAMS, Edge, edge_spec, record_edges
+from .timing import edge_plan_of, record_edges
 
 logger = logging.getLogger(__name__)
 
@@ -218,7 +219,7 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         usetp = np.require(c.usetp, float, ("C", "W"))
         vt = np.ascontiguousarray(c.vt, dtype=float) if c.vt is not None else None
         moved = [(e, s) for e, s in zip(edges, slots) if s is not None]
-        spec = edge_spec([e for e, _ in moved], [s for _, s in moved])
+        spec = edge_plan_of([e for e, _ in moved], [s for _, s in moved])
         r = FitRecord(usetp=usetp, efd=np.ascontiguousarray(c.efd, dtype=float), vt=vt, dt=dt,
                     usetp_pre=pre_trigger_mean(usetp, dt), alpha=a, i0=0, i1=c.n, source=owner,
                     edges=spec, edge_list=tuple(edges), edge_slots=tuple(slots), **_on_line(c, unit, owner))

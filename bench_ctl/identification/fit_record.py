@@ -8,10 +8,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench_ctl.capture import Capture
+from bench_ctl.engine import edge_plan
+from bench_ctl.engine.runner import Edges
 from bench_ctl.exitcodes import BadInput
-from bench_ctl.signals.edges import EdgeSpec
-
-from .timing import Edge
+from bench_ctl.signals.edges import Edge
 
 __all__ = ["FitRecord", "apply_window", "decimated", "segment_window", "ProblemError"]
 
@@ -32,7 +32,7 @@ class FitRecord:
     i0: int
     i1: int
     source: str
-    edges: EdgeSpec = field(default_factory=EdgeSpec.none)
+    edges: Edges = field(default_factory=edge_plan.none)
     edge_list: tuple[Edge, ...] = ()
     edge_slots: tuple[int | None, ...] = ()
     #: an on-line record: the machine on the grid (a row of `params.MACHINE_PARAMS`, the record's
@@ -57,13 +57,9 @@ class FitRecord:
         """Seconds of record the objective integrates (the trapezoid: half a step at each end)."""
         return float((self.i1 - self.i0 - 1) * self.dt)
 
-    def edges_upto(self, n: int) -> EdgeSpec:
+    def edges_upto(self, n: int) -> Edges:
         """The edges inside the first n samples (a run that stops at a window's end)."""
-        keep = self.edges.index < n
-        if keep.all():
-            return self.edges
-        e = self.edges
-        return EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
+        return edge_plan.upto(self.edges, n)
 
 
 def apply_window(r: FitRecord, window: tuple[float, float] | None, cap: Capture) -> FitRecord:
@@ -89,9 +85,7 @@ def decimated(r: FitRecord, q: int, n_max: int | None, offset: int) -> FitRecord
         return r
     if idx.size < 2:
         raise ProblemError(f"{r.source}: decimating by {q} leaves {idx.size} sample(s)")
-    e = r.edges.decimated(q, offset, r.dt)
-    keep = e.index < idx.size
-    edges = EdgeSpec(e.index[keep], e.jump[keep], e.nominal_s[keep], e.slot[keep])
+    edges = edge_plan.upto(edge_plan.decimated(r.edges, q, offset, r.dt), idx.size)
     i0 = int(np.searchsorted(idx, r.i0))
     i1 = int(np.searchsorted(idx, r.i1))
     return replace(r, usetp=np.ascontiguousarray(r.usetp[idx]), efd=np.ascontiguousarray(r.efd[idx]),

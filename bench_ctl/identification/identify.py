@@ -27,6 +27,7 @@ from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import GENERATOR_OPTIONAL, RECORD_PARAMS
 from bench_ctl.outputs import path_from
 from bench_ctl.records import plain
+from bench_ctl.signals.edges import Edge
 from bench_ctl.timestamps import utc_now_text
 from bench_ctl.units.unit import Unit
 from bench_ctl.units.unit import outside_bounds as values_outside_bounds
@@ -46,7 +47,6 @@ from .result_file import (
     ModelEntry,
     OptimizerEntry,
 )
-from .timing import Edge
 
 logger = logging.getLogger(__name__)
 

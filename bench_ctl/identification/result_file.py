@@ -21,8 +21,7 @@ from bench_ctl.model.dialect import Dialect, dialect_of, kernel_sections
 from bench_ctl.model.structures import StructureError, structure
 from bench_ctl.model.unit_record import UnitEntry
 from bench_ctl.records import JSON, FormatError, Record, schema_version
-
-from .timing import Edge
+from bench_ctl.signals.edges import Edge
 
 __all__ = ["RESULT_SCHEMA", "SCHEMA_VERSION", "CaptureEntry", "ConstraintEntry", "OptimizerEntry",
            "EquivalentSet", "IdentifiabilitySettings", "Identifiability", "ModelEntry", "Comparison",

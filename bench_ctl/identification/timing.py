@@ -11,46 +11,26 @@ setpoint edge as a parameter: `EDGE1`.. hold the fitted instant minus the nomina
   import's median source step, the capture's step when it was not resampled): the offset is
   searched in [-tol, +tol].
 
-`Edge` is one edge as a fit carries it and as the result and diagnosis JSON write it (a
-capture's `edges`: {index, jump_pu, nominal_s, fitted_s, offset_s, std_s, lo_s, hi_s, how,
-fitted}); `record_edges` gives them unfitted, `edges_entry` with the instants a fit found, and
-`edge_spec_of` reads them back for the kernel, so a report re-simulates with those instants.
+A fit's edges are `bench_ctl.signals.edges.Edge` records, as the result and diagnosis JSON
+write them (a capture's `edges`: {index, jump_pu, nominal_s, fitted_s, offset_s, std_s, lo_s,
+hi_s, how, fitted}); `record_edges` gives them unfitted, `edges_entry` with the instants a fit found, and
+`fitted_edge_plan` reads them back for the engine, so a report re-simulates with those instants.
 """
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from bench_ctl.capture import Capture
-from bench_ctl.records import Record
-from bench_ctl.signals.edges import EDGE_PARAMS, EdgeSpec, find_setpoint_edges
+from bench_ctl.engine import edge_plan
+from bench_ctl.engine.runner import Edges
+from bench_ctl.signals.edges import EDGE_PARAMS, Edge, find_setpoint_edges
 
-__all__ = ["Edge", "record_edges", "edge_spec", "edges_entry", "edge_spec_of", "EDGE_PARAMS"]
-
-
-@dataclass(frozen=True, eq=False, kw_only=True)
-class Edge(Record):
-    """One setpoint edge of a capture, the interval its instant is searched in and, once fitted,
-    the instant found (the JSON's keys; docs/formats.md, "Result JSON")."""
-    #: which capture it belongs to, in a list of several captures' edges (a result's: the index;
-    #: a diagnosis': "capture" / "holdout"); absent in a capture's own list
-    capture: int | str | None = None
-    index: int                  # first sample showing the new setpoint
-    jump_pu: float              # usetp[index] - usetp[index - 1]
-    nominal_s: float            # index * dt, s from the record's first sample
-    fitted_s: float             # the instant the fit found (nominal_s when not fitted)
-    offset_s: float             # fitted_s - nominal_s
-    std_s: float | None         # the offset's standard deviation, when known
-    lo_s: float                 # offset bounds (s) relative to nominal_s
-    hi_s: float
-    how: str                    # "recorded" (usetp channel) or "described" (user's test description)
-    fitted: bool                # its instant was fitted (at most four edges over a fit's captures)
-
-    OMITTED_WHEN_NONE = ("capture",)
+__all__ = ["record_edges", "edge_plan_of", "edges_entry", "fitted_edge_plan"]
 
 
 def _described_tolerance(capture: Capture) -> float | None:
@@ -92,11 +72,12 @@ def record_edges(capture: Capture) -> list[Edge]:
     return out
 
 
-def edge_spec(edges: Sequence[Edge], slots: Sequence[int]) -> EdgeSpec:
-    """The kernel's view of `edges`, whose offsets sit in the EDGE columns `slots`."""
-    return EdgeSpec(np.array([e.index for e in edges], dtype=np.int64),
-                    np.array([e.jump_pu for e in edges]), np.array([e.nominal_s for e in edges]),
-                    np.array(list(slots), dtype=np.int64))
+def edge_plan_of(edges: Sequence[Edge], slots: Sequence[int]) -> Edges:
+    """The engine's plan of `edges` (`bench_ctl.engine.edge_plan`), whose offsets sit in the EDGE
+    columns `slots`."""
+    return edge_plan.build(np.array([e.index for e in edges], dtype=np.int64),
+                           np.array([e.jump_pu for e in edges]), np.array([e.nominal_s for e in edges]),
+                           np.array(list(slots), dtype=np.int64))
 
 
 def edges_entry(edges: Sequence[Edge], slots: Sequence[int | None], values: Mapping[str, float],
@@ -115,12 +96,12 @@ def edges_entry(edges: Sequence[Edge], slots: Sequence[int | None], values: Mapp
     return out
 
 
-def edge_spec_of(entries: Sequence[Edge] | None, n: int) -> tuple[EdgeSpec, dict[str, float]]:
-    """(EdgeSpec, {EDGEi: offset}) from a capture's edges as a result or diagnosis holds them
+def fitted_edge_plan(entries: Sequence[Edge] | None, n: int) -> tuple[Edges, dict[str, float]]:
+    """(the engine's plan, {EDGEi: offset}) from a capture's edges as a result or diagnosis holds them
     (`edges_entry`), for a record of `n` samples; edges beyond the record or not fitted are left
     out."""
     rows = [e for e in (entries or []) if e.fitted and 1 <= e.index < n]
     rows = rows[: len(EDGE_PARAMS)]
-    spec = EdgeSpec(np.array([e.index for e in rows], dtype=np.int64), np.array([e.jump_pu for e in rows]),
-                    np.array([e.nominal_s for e in rows]), np.arange(len(rows)))
-    return spec, {EDGE_PARAMS[i]: e.fitted_s - e.nominal_s for i, e in enumerate(rows)}
+    plan = edge_plan.build(np.array([e.index for e in rows], dtype=np.int64), np.array([e.jump_pu for e in rows]),
+                           np.array([e.nominal_s for e in rows]), np.arange(len(rows)))
+    return plan, {EDGE_PARAMS[i]: e.fitted_s - e.nominal_s for i, e in enumerate(rows)}

@@ -19,7 +19,7 @@ import numpy as np
 from bench_ctl.diagnosis.diagnosis_file import Diagnosis
 from bench_ctl.engine.simulate import operating_point, simulate, simulate_on_line
 from bench_ctl.identification.result_file import IdentificationResult
-from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.identification.timing import fitted_edge_plan
 from bench_ctl.report import checks as chk
 from bench_ctl.report.inputs import (
     LoadedCapture,
@@ -160,7 +160,7 @@ def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
     cap = lc.capture
     # the setpoint edges at the instants the fit found (none recorded: the zero-order hold)
     try:
-        spec, offsets = edge_spec_of(lc.entry.edges, cap.n)
+        spec, offsets = fitted_edge_plan(lc.entry.edges, cap.n)
     except (KeyError, TypeError, ValueError) as exc:
         raise ReportError(f"{where}: captures[{lc.index}].edges: unreadable edge entry ({exc})") from None
     sim = simulate_record({**values, **offsets}, cap, grid or {}, spec, where)

@@ -13,7 +13,7 @@ import numpy as np
 from bench_ctl.engine.simulate import pre_trigger_mean, simulate
 from bench_ctl.identification.result_file import CandidateEntry
 from bench_ctl.identification.selection import separation_text, where_left
-from bench_ctl.identification.timing import edge_spec_of
+from bench_ctl.identification.timing import fitted_edge_plan
 from bench_ctl.report import figures as F
 from bench_ctl.report.analysis import CaptureAnalysis, ReportData
 from bench_ctl.report.document import (
@@ -89,7 +89,7 @@ def _edge_text(a: CaptureAnalysis) -> str:
         " (a step: no trailing edge)"
     cap = a.loaded.capture
     pre = pre_trigger_mean(np.asarray(cap.usetp, float), float(cap.time[1] - cap.time[0]))
-    return (f"Setpoint change of {lead.jump:+.4g} pu from {pre:.4g} pu; leading edge at "
+    return (f"Setpoint change of {lead.jump_pu:+.4g} pu from {pre:.4g} pu; leading edge at "
             f"t = {lead_s:.4f} s{trail}. Edges are where usetp crosses half its largest "
             "excursion from the pre-trigger mean.")
 
@@ -365,7 +365,7 @@ def _residual_of(a: CaptureAnalysis, c: CandidateEntry) -> np.ndarray | None:
     edges = c.edges or []
     try:
         values = model_values({}, c.kernel or {}, f"selection candidate {c.model}")
-        spec, offsets = edge_spec_of(edges[a.loaded.index] if a.loaded.index < len(edges) else None, cap.n)
+        spec, offsets = fitted_edge_plan(edges[a.loaded.index] if a.loaded.index < len(edges) else None, cap.n)
         efd, _, fail = simulate({**values, **offsets}, cap.usetp, cap.dt, edges=spec)
     except (KeyError, TypeError, ValueError, ReportError):
         return None

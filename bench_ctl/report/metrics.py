@@ -32,7 +32,7 @@ def setpoint_edges(time: np.ndarray, usetp: np.ndarray) -> EdgeSearch:
 def edge_times(edges: EdgeSearch) -> tuple[float | None, float | None]:
     """The instants of the first samples showing the leading and the trailing edge (None: none)."""
     lead, trail = edges.pulse()
-    return (None if lead is None else lead.hi_s), (None if trail is None else trail.hi_s)
+    return (None if lead is None else lead.nominal_s), (None if trail is None else trail.nominal_s)
 
 
 @dataclass(frozen=True)

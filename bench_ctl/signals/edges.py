@@ -6,23 +6,22 @@ exciter the sub-sample instant moves efd by tenths of a pu at the edge, so every
 instant of each edge as a parameter (`EDGE1` .. `EDGE4`: fitted instant minus the nominal one, in
 seconds) and the kernel moves the jump there, splitting the RK4 step at that instant.
 
-`EdgeSpec` is what the kernel needs of a record: where its usetp jumps (sample index in that
-record), by how much, the nominal instant (s from the record's first sample, which stays the same
-on a decimated copy of the record), and which `EDGE` column of the parameter matrix holds the
-offset.
+What the engine needs of a record's edges (where its usetp jumps, by how much, the nominal
+instant, which `EDGE` column holds the offset) is its plan, `bench_ctl.engine.edge_plan`.
 
 `find_edges` is the one finder of a test's edges, in any channel: a recorded setpoint (the fits'
 edge instants, the report's segments, the plausibility checks, the diagnosis' windows, a run's
 recorded pulse) or, when a record has no setpoint channel, the channel that responds first (the
 regulator output, efd, Vt: the import). It returns each edge's first showing sample, the steady
-levels around it and the interval its instant lies in (`FoundEdge`, docs/model.md "Edge timing");
+levels around it and the interval its instant lies in (`Edge`, docs/model.md "Edge timing");
 `EdgeSearch.pulse()` (`lead`, `trail`) picks the leading and the trailing edge of a pulse or step.
 `find_setpoint_edges` gives the first samples of a setpoint's edges it finds (each one a kernel
 edge with its own offset).
 
-The edges' types: `FoundEdge` (an edge as the finder found it, with the `EdgeSearch` that holds
-them), `EdgeSpec` (the kernel's view of a record's edges) and
-`bench_ctl.identification.timing.Edge` (an edge as a fit carries it and a result writes it).
+The edges' three types: `Edge` (one edge, as the finder found it and as a fit carries it and a
+result writes it), `EdgeSearch` (what the finder found in one channel: its edges, the noise, the
+threshold) and the engine's `bench_ctl.engine.runner.Edges` (a record's edges as the engine runs
+them, built by `bench_ctl.engine.edge_plan`).
 """
 from __future__ import annotations
 
@@ -32,50 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench_ctl.model.params import RECORD_PARAMS
+from bench_ctl.records import Record
 
 #: kernel parameter columns that hold edge offsets (one per edge a fit can move)
 EDGE_PARAMS: tuple[str, ...] = RECORD_PARAMS
-
-
-@dataclass(frozen=True, eq=False)
-class EdgeSpec:
-    """Edges of one record as the kernel reads them (arrays of equal length, one row per edge)."""
-
-    index: np.ndarray      # int64: first sample of this record that shows the new setpoint
-    jump: np.ndarray       # float: usetp[index] - usetp[index - 1] (pu)
-    nominal_s: np.ndarray  # float: nominal instant, s from the record's first sample
-    slot: np.ndarray       # int64: 0..3, which EDGE column holds the offset
-
-    def __post_init__(self) -> None:
-        for name in ("index", "jump", "nominal_s", "slot"):
-            kind = np.int64 if name in ("index", "slot") else np.float64
-            object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=kind).reshape(-1))
-        n = self.index.size
-        if not (self.jump.size == self.nominal_s.size == self.slot.size == n):
-            raise ValueError("edge arrays must have one entry per edge")
-        if n and (self.slot.min() < 0 or self.slot.max() >= len(EDGE_PARAMS)):
-            raise ValueError(f"edge slots must lie in 0..{len(EDGE_PARAMS) - 1}, got {self.slot.tolist()}")
-        if n and self.index.min() < 1:
-            raise ValueError("an edge needs a sample before it (index >= 1)")
-
-    @property
-    def n(self) -> int:
-        return int(self.index.size)
-
-    @staticmethod
-    def none() -> EdgeSpec:
-        return EdgeSpec(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
-
-    def decimated(self, q: int, offset: int, dt: float) -> EdgeSpec:
-        """The same edges on the record of every q-th sample from `offset` (fine step `dt`): each
-        jump shows at the first kept sample at or after its fine index; the nominal instant stays
-        the fine one, counted from the decimated record's first sample."""
-        first = offset % q
-        if q == 1 and first == 0:
-            return self
-        idx = -(-(self.index - first) // q)  # ceil
-        keep = idx >= 1
-        return EdgeSpec(idx[keep], self.jump[keep], self.nominal_s[keep] - first * dt, self.slot[keep])
 
 
 def find_setpoint_edges(usetp: np.ndarray) -> np.ndarray:
@@ -124,39 +83,69 @@ FRONT_ORDER = {SETPOINT: 1.0, EXCITER: 3.0, VOLTAGE: 4.0}
 RISE_LEVELS = 4.0
 
 
-@dataclass(frozen=True)
-class FoundEdge:
-    """One edge of a test as a channel shows it.
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Edge(Record):
+    """One edge of a test: the first sample that shows it, the interval its instant lies in and,
+    in a fit, the instant the fit found. The JSON keys of a result's and a diagnosis' edges
+    (docs/formats.md, "Result JSON").
 
-    The change first shows at sample `index` (it departs from the last steady level before it by
-    more than the threshold, and stays away): it happened in [lo_s, hi_s] of the record's time
-    axis, hi_s = time[index], lo_s = time[index - 1] or earlier by the time the front can have
-    spent below the threshold (from how fast it climbs from 1 to RISE_LEVELS thresholds, for a
-    front of order FRONT_ORDER; nothing for a jump).
+    The finder (`find_edges`, how "found") gives it in any channel: the change first shows at
+    sample `index` (it departs from the last steady level before it by more than the threshold,
+    and stays away), nominal_s = time[index]; it happened in [nominal_s + lo_s, nominal_s + hi_s]
+    (`earliest_s`, `latest_s`): hi_s = 0, lo_s reaches back to the sample before it or earlier by
+    the time the front can have spent below the threshold (from how fast it climbs from 1 to
+    RISE_LEVELS thresholds, for a front of order FRONT_ORDER; nothing for a jump); jump_pu is
+    level_after - level_before. A fit's edge (`bench_ctl.identification.timing.record_edges`, how
+    "recorded" or "described") holds the recorded jump and the interval its instant is searched in.
     """
-
-    index: int
-    sign: int              # +1 up, -1 down
-    level_before: float    # mean of the steady window before it (channel units)
-    departure: float       # farthest from level_before within SIZE_S and before the next departure, signed
-    level_after: float     # median of the second half of the stretch up to the next edge
-    lo_s: float
+    #: which capture it belongs to, in a list of several captures' edges (a result's: the index;
+    #: a diagnosis': "capture" / "holdout"); absent in a capture's own list
+    capture: int | str | None = None
+    index: int                  # first sample showing the change
+    jump_pu: float              # the step's size: usetp[index] - usetp[index - 1] (found: level_after - level_before)
+    nominal_s: float            # time of sample `index` (a fit's: index * dt, s from the record's first sample)
+    fitted_s: float             # the instant the fit found (nominal_s when not fitted)
+    offset_s: float             # fitted_s - nominal_s
+    std_s: float | None         # the offset's standard deviation, when known
+    lo_s: float                 # the instant's interval (s) relative to nominal_s
     hi_s: float
+    how: str                    # "found" (by the finder), "recorded" (usetp channel) or "described" (user's test)
+    fitted: bool                # its instant was fitted (at most four edges over a fit's captures)
+    #: the finder's (in memory only, never written): the mean of the steady window before it, the
+    #: farthest from it within SIZE_S and before the next departure (signed), the median of the
+    #: second half of the stretch up to the next edge (channel units; NaN on a fit's edge)
+    level_before: float = math.nan
+    departure: float = math.nan
+    level_after: float = math.nan
+
+    OMITTED_WHEN_NONE = ("capture",)
+    IN_MEMORY = ("level_before", "departure", "level_after")
+
+    @property
+    def sign(self) -> int:
+        """+1 up, -1 down (the finder's departure; a fit's edge: its jump)."""
+        d = self.departure if math.isfinite(self.departure) else self.jump_pu
+        return 1 if d > 0 else -1
+
+    @property
+    def earliest_s(self) -> float:
+        """The earliest the instant can be (nominal_s + lo_s)."""
+        return self.nominal_s + self.lo_s
+
+    @property
+    def latest_s(self) -> float:
+        """The latest the instant can be (nominal_s + hi_s)."""
+        return self.nominal_s + self.hi_s
 
     @property
     def instant_s(self) -> float:
         """The middle of the interval."""
-        return 0.5 * (self.lo_s + self.hi_s)
+        return 0.5 * (self.earliest_s + self.latest_s)
 
     @property
     def uncertainty_s(self) -> float:
         """Half the interval's width: the instant is instant_s +- uncertainty_s."""
         return 0.5 * (self.hi_s - self.lo_s)
-
-    @property
-    def jump(self) -> float:
-        """level_after - level_before (for a setpoint: the step's size)."""
-        return self.level_after - self.level_before
 
 
 @dataclass(frozen=True)
@@ -165,7 +154,7 @@ class EdgeSearch:
 
     channel: str
     kind: str
-    edges: tuple[FoundEdge, ...]
+    edges: tuple[Edge, ...]
     noise: float            # the channel's noise (standard deviation, channel units)
     threshold: float        # departure that counts (channel units)
     steady_samples: int     # length of the steady window before an edge
@@ -180,12 +169,12 @@ class EdgeSearch:
                 "spends below the first, and that sample")
 
     @property
-    def lead(self) -> FoundEdge | None:
+    def lead(self) -> Edge | None:
         """The leading edge of the pulse or step (`pulse`)."""
         return self.pulse()[0]
 
     @property
-    def trail(self) -> FoundEdge | None:
+    def trail(self) -> Edge | None:
         """The pulse's trailing edge (None: a step, or nothing)."""
         return self.pulse()[1]
 
@@ -195,7 +184,7 @@ class EdgeSearch:
         trail = self.trail
         return None if trail is None else trail.index
 
-    def pulse(self, sign: int | None = None) -> tuple[FoundEdge | None, FoundEdge | None]:
+    def pulse(self, sign: int | None = None) -> tuple[Edge | None, Edge | None]:
         """(leading, trailing): the first edge (of `sign` when given) and the first later edge
         going the other way (None: a step, or nothing)."""
         lead = next((e for e in self.edges if sign is None or e.sign == sign), None)
@@ -242,7 +231,7 @@ def _crossing(t: np.ndarray, d: np.ndarray, k0: int, level: float) -> float:
 
 
 def find_edges(time: np.ndarray, x: np.ndarray, *, kind: str = SETPOINT, channel: str = "usetp") -> EdgeSearch:
-    """The edges of a step or pulse test in one channel (see `FoundEdge`, `EdgeSearch.method`).
+    """The edges of a step or pulse test in one channel (see `Edge`, `EdgeSearch.method`).
 
     `time` strictly increasing (uniform or not: a raw export's own time stamps), `x` the channel,
     `kind` SETPOINT, EXCITER (the regulator output, efd) or VOLTAGE (vt). The noise is the median
@@ -313,7 +302,10 @@ def find_edges(time: np.ndarray, x: np.ndarray, *, kind: str = SETPOINT, channel
         t2 = _crossing(t, d, k, level2)
         hidden = (t2 - t1) / ((level2 / h) ** (1.0 / p) - 1.0) if math.isfinite(t2) else float(t[k] - t[k - 1])
         lo = min(float(t[k - 1]), t1 - hidden)
-        edges.append(FoundEdge(k, sign, level, sign * size, after, lo, float(t[k])))
+        at = float(t[k])
+        edges.append(Edge(index=k, jump_pu=after - level, nominal_s=at, fitted_s=at, offset_s=0.0, std_s=None,
+                          lo_s=lo - at, hi_s=0.0, how="found", fitted=False, level_before=level,
+                          departure=sign * size, level_after=after))
     return EdgeSearch(channel, kind, tuple(edges), noise, h, w)
 
 

@@ -41,7 +41,7 @@ def test_find_edges_pulse_and_step(pulse):
     _, u = pulse
     e = find_edges(u)
     assert (e.lead.index, e.trail_index) == (1000, 2000)
-    assert e.lead.jump == pytest.approx(0.05)
+    assert e.lead.jump_pu == pytest.approx(0.05)
     step = np.where(np.arange(3000) >= 500, 1.05, 1.0)
     s = find_edges(step)
     assert s.lead.index == 500 and s.trail_index is None
@@ -422,11 +422,11 @@ def test_diagnosis_without_holdout_checks_on_windows_of_the_record(unit, ceiling
     # the report re-simulates the base fit over the whole record with the fitted edge instants
     from bench_ctl.commands.diagnose import base_result
     from bench_ctl.engine.simulate import simulate
-    from bench_ctl.identification.timing import edge_spec_of
+    from bench_ctl.identification.timing import fitted_edge_plan
 
     res = base_result(d, cap, unit)
     assert res.fit_window is None
-    spec, offsets = edge_spec_of(res.captures[0].edges, cap.n)
+    spec, offsets = fitted_edge_plan(res.captures[0].edges, cap.n)
     assert set(offsets) == {"EDGE1", "EDGE2"} and all(-cap.dt <= v <= 0 for v in offsets.values())
     efd, _, _ = simulate({**unit.values(), **d.base.params, **offsets}, cap.usetp, cap.dt, edges=spec)
     e2 = (cap.efd - efd) ** 2

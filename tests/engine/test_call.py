@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from bench_ctl import engine
+from bench_ctl.engine import edge_plan
 from bench_ctl.engine.layout import D_EDGE0, N_DERIVED
-from bench_ctl.signals.edges import EdgeSpec
+from bench_ctl.engine.runner import Edges
 
 
 def test_the_calling_thread_works_the_chunks_beside_the_pool():
@@ -56,11 +57,11 @@ def test_a_call_from_a_pool_thread_does_not_wait_for_a_free_one():
     assert sorted(done) == [(0, 16), (16, 32)]
 
 
-def _window_one_edge_at_a_time(D: np.ndarray, edges: EdgeSpec, dt: float, T: int) -> np.ndarray:
+def _window_one_edge_at_a_time(D: np.ndarray, edges: Edges, dt: float, T: int) -> np.ndarray:
     """The definition: around each edge, the steps between its nominal sample and every
     candidate's fitted instant, one step either side."""
     win = np.zeros(T, dtype=np.uint8)
-    for j in range(edges.n):
+    for j in range(edges.index.size):
         ke = [(float(edges.nominal_s[j]) + float(D[c, D_EDGE0 + edges.slot[j]])) / dt for c in range(D.shape[0])]
         lo = math.floor(min(min(ke), float(edges.index[j]))) - 1
         hi = math.ceil(max(max(ke), float(edges.index[j]))) + 1
@@ -75,8 +76,9 @@ def test_the_edge_window_marks_the_steps_between_nominal_and_fitted_instants(see
     D = np.zeros((9, N_DERIVED))
     D[:, D_EDGE0:D_EDGE0 + 3] = rng.uniform(-0.004, 0.003, (9, 3))
     index = np.array([3, 150, 398])   # one near each end of the record: the window is clipped there
-    edges = EdgeSpec(index, np.array([0.05, -0.05, 0.02]), index * dt - rng.uniform(0, dt, 3), np.array([0, 2, 1]))
+    edges = edge_plan.build(index, np.array([0.05, -0.05, 0.02]), index * dt - rng.uniform(0, dt, 3),
+                            np.array([0, 2, 1]))
     win = engine.edge_window(D, edges, dt, T)
     assert np.array_equal(win, _window_one_edge_at_a_time(D, edges, dt, T))
     assert win[0] == 1 and win[-1] == 1 and win[60:90].sum() == 0
-    assert not engine.edge_window(D, EdgeSpec.none(), dt, T).any()
+    assert not engine.edge_window(D, edge_plan.none(), dt, T).any()

@@ -245,13 +245,15 @@ def test_a_candidates_run_does_not_depend_on_where_its_chunk_mates_put_their_edg
     its edges inside a step runs the same next to a chunk-mate whose edges are 0.3 s late (the
     window then spans 300 steps) as next to itself: a window cut too short would leave its jump
     out."""
+    from bench_ctl.engine import edge_plan
     from bench_ctl.model.params import COL
-    from bench_ctl.signals.edges import EDGE_PARAMS, EdgeSpec
+    from bench_ctl.signals.edges import EDGE_PARAMS
 
     dt, n = 1e-3, 2001
     usetp = np.ones(n)
     usetp[500:1500] += 0.05
-    spec = EdgeSpec(np.array([500, 1500]), np.array([0.05, -0.05]), np.array([0.4996, 1.4993]), np.array([0, 1]))
+    spec = edge_plan.build(np.array([500, 1500]), np.array([0.05, -0.05]), np.array([0.4996, 1.4993]),
+                           np.array([0, 1]))
     p = param_matrix(_unit(model, values, 1.0).values())
     late = p.copy()
     p[0, COL[EDGE_PARAMS[0]]], p[0, COL[EDGE_PARAMS[1]]] = 0.0003, -0.0002   # inside steps 499 and 1492

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from bench_ctl.engine import edge_plan
 from bench_ctl.engine import run as run_engine
 from bench_ctl.engine.simulate import param_matrix, pulse_usetp
-from bench_ctl.signals.edges import EdgeSpec, find_setpoint_edges
+from bench_ctl.signals.edges import find_setpoint_edges
 from bench_ctl.units.unit import reference_unit
 
 REF = dict(KAVR=200.0, TA1=1.0, TA2=0.2, TA3=0.5, TA4=10.0, TE=0.02, Td0p=7.5, Td0pp=0.05, Vt0=1.0)
@@ -220,7 +221,7 @@ def test_kernel_edges_between_samples_match_solve_ivp(case):
     p = {**REF, **NEUTRAL, **CASES[case], "EDGE1": OFF_GRID[0], "EDGE2": OFF_GRID[1]}
     t, u = pulse_usetp(amplitude=AMP, width=WIDTH, start=START, duration=DURATION, rate=RATE_HZ)
     k = find_setpoint_edges(u)
-    spec = EdgeSpec(k, np.diff(u)[k - 1], t[k], np.arange(k.size))
+    spec = edge_plan.build(k, np.diff(u)[k - 1], t[k], np.arange(k.size))
     out = run_engine(param_matrix(p), u, 1.0 / RATE_HZ, 1.0, edges=spec)
     assert out["fail_step"][0] == -1
     ref = reference_efd(p, t, on=START + OFF_GRID[0], off=START + WIDTH + OFF_GRID[1])
@@ -235,7 +236,7 @@ def test_kernel_edge_offsets_batch_like_other_parameters():
     """Candidates with different edge offsets in one call each get their own edge instant."""
     t, u = pulse_usetp(amplitude=AMP, width=WIDTH, start=START, duration=2.5, rate=RATE_HZ)
     k = find_setpoint_edges(u)
-    spec = EdgeSpec(k, np.diff(u)[k - 1], t[k], np.arange(k.size))
+    spec = edge_plan.build(k, np.diff(u)[k - 1], t[k], np.arange(k.size))
     offs = np.array([[0.0, 0.0], [-0.0002, -0.0009], [-0.0007, 0.0], [-0.001, -0.001]])
     base = {**REF, **NEUTRAL, "TD": 0.0123}
     P = np.vstack([param_matrix({**base, "EDGE1": a, "EDGE2": b}) for a, b in offs])

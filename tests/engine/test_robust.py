@@ -115,7 +115,7 @@ def test_the_reference_steps_run_in_one_loop_as_step_by_step():
     (`span.span_limited`); scoring Vt as well keeps it on the step-by-step path, which must give the
     same traces, efd errors and failure steps, for stable candidates, an unstable one and an
     invalid one, with a fitted edge inside a step."""
-    from bench_ctl.signals.edges import EdgeSpec
+    from bench_ctl.engine import edge_plan
 
     rng = np.random.default_rng(11)
     X = np.array([200, 1, 0.2, 0.5, 10, 0.02]) * (1 + 0.3 * (rng.random((12, 6)) - 0.5))
@@ -124,8 +124,8 @@ def test_the_reference_steps_run_in_one_loop_as_step_by_step():
     unit = reference_unit()
     t, u = pulse_usetp(duration=3.0)
     P = param_matrix({**unit.values(), "EDGE1": 0.00037}, NAMES, X)
-    edges = EdgeSpec(np.array([np.argmax(u > u[0])]), np.array([0.05]), np.array([t[np.argmax(u > u[0])]]),
-                     np.array([0]))
+    edges = edge_plan.build(np.array([np.argmax(u > u[0])]), np.array([0.05]), np.array([t[np.argmax(u > u[0])]]),
+                            np.array([0]))
     ref = run(param_matrix(unit.values()), u, 1e-3, 1.0)["efd"][0]
     meas = ref + 0.01 * rng.standard_normal(ref.size)
     one_loop = run(P, u, 1e-3, 1.0, measured={"efd": meas}, edges=edges)

@@ -5,13 +5,16 @@ The found interval must contain the true instant, over seeds; the views built on
 PulseEdges, the plausibility checks) keep their meaning."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from bench_ctl.capture.plausible import setpoint_edges
 from bench_ctl.engine.simulate import pulse_usetp
+from bench_ctl.records import FormatError
 from bench_ctl.report.metrics import edge_times
-from bench_ctl.signals.edges import EXCITER, SETPOINT, VOLTAGE, find_edges, find_setpoint_edges
+from bench_ctl.signals.edges import EXCITER, SETPOINT, VOLTAGE, Edge, find_edges, find_setpoint_edges
 from edge_exports import fine_response, sampled
 
 SEEDS = range(12)
@@ -23,13 +26,22 @@ def test_a_recorded_setpoint_pulse_step_and_flat_record():
     assert [e.index for e in s.edges] == [300, 500] == find_setpoint_edges(u).tolist()
     lead, trail = s.pulse()
     assert (lead.sign, trail.sign) == (1, -1)
-    assert lead.jump == pytest.approx(0.05) and trail.jump == pytest.approx(-0.05)
+    assert lead.jump_pu == pytest.approx(0.05) and trail.jump_pu == pytest.approx(-0.05)
     # a recorded jump happened in (t[k-1], t[k]]: the interval is that sample interval
-    assert (lead.lo_s, lead.hi_s) == (t[299], t[300])
+    assert (lead.earliest_s, lead.latest_s) == (t[299], t[300])
     step = np.where(t >= 2.0, 0.98, 1.0)
     lead, trail = find_edges(t, step, kind=SETPOINT).pulse()
     assert lead.index == 400 and lead.sign == -1 and trail is None
     assert find_edges(t, np.ones_like(t)).edges == ()
+    # one type for an edge: the finder's writes as a result's edge, its levels held in memory only
+    written = s.edges[0].to_json()
+    assert list(written) == ["index", "jump_pu", "nominal_s", "fitted_s", "offset_s", "std_s", "lo_s", "hi_s",
+                             "how", "fitted"]
+    assert written["how"] == "found" and written["hi_s"] == 0.0 and written["nominal_s"] == t[300]
+    back = Edge.from_json(written)
+    assert back.index == 300 and back.sign == 1 and math.isnan(back.level_before)
+    with pytest.raises(FormatError, match="unknown key.*'departure'"):
+        Edge.from_json({**written, "departure": 0.05})
     assert find_edges(t[:5], u[:5]).edges == ()
 
 
@@ -45,7 +57,7 @@ def test_the_views_on_it_keep_their_meaning():
     t, u = pulse_usetp(amplitude=-0.02, width=0.3, start=0.5, duration=2.0, rate=1000.0)
     e = find_edges(t, u, kind=SETPOINT)     # as the report finds them
     assert (e.lead.index, e.trail_index, *edge_times(e)) == (500, 800, 0.5, 0.8)
-    assert e.lead.jump == pytest.approx(-0.02)
+    assert e.lead.jump_pu == pytest.approx(-0.02)
     assert setpoint_edges(u).tolist() == [500, 800]
     ramp = u.copy()
     ramp[500:503] = [0.995, 0.99, 0.985]     # a change spread over adjacent samples is one edge
@@ -66,7 +78,7 @@ def test_the_found_interval_holds_the_true_instant(channel, kind, rate_hz, sampl
         assert len(s.edges) == 2, (seed, s.edges)
         lead, trail = s.pulse(1)
         for e, true_s in zip((lead, trail), truth):
-            assert e.lo_s <= true_s <= e.hi_s, (seed, e, true_s)
+            assert e.earliest_s <= true_s <= e.latest_s, (seed, e, true_s)
             assert e.uncertainty_s <= samples / rate_hz, (seed, e.uncertainty_s * rate_hz)
 
 
@@ -79,11 +91,11 @@ def test_a_step_down_and_a_pulse_into_the_ceiling(channel, kind):
     for seed in SEEDS:
         t, ch, truth = sampled(down, seed=seed)
         s = find_edges(t, ch[channel], kind=kind)
-        assert [e.sign for e in s.edges] == [-1] and s.edges[0].lo_s <= truth[0] <= s.edges[0].hi_s
+        assert [e.sign for e in s.edges] == [-1] and s.edges[0].earliest_s <= truth[0] <= s.edges[0].latest_s
         t, ch, truth = sampled(ceiling, seed=seed)
         s = find_edges(t, ch[channel], kind=kind)
         assert [e.sign for e in s.edges] == [1, -1], (seed, s.edges)
-        assert all(e.lo_s <= true_s <= e.hi_s for e, true_s in zip(s.edges, truth))
+        assert all(e.earliest_s <= true_s <= e.latest_s for e, true_s in zip(s.edges, truth))
 
 
 def test_noise_alone_has_no_edge_and_the_search_says_how():

@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 from bench_ctl.capture import Capture
+from bench_ctl.engine import edge_plan
 from bench_ctl.engine import run as run_engine
 from bench_ctl.engine.simulate import param_matrix
 from bench_ctl.identification.construction import make_problem
 from bench_ctl.identification.identify import identify
-from bench_ctl.identification.timing import edge_spec_of, record_edges
-from bench_ctl.signals.edges import EdgeSpec, find_setpoint_edges
+from bench_ctl.identification.timing import fitted_edge_plan, record_edges
+from bench_ctl.signals.edges import find_setpoint_edges
 from bench_ctl.units.unit import reference_unit
 from truth import TRUTH
 
@@ -33,7 +34,7 @@ def _fine_record(on_s: float, off_s: float, rate: float, duration: float, seed: 
     tf = np.arange((n - 1) * FINE + 1) * dtf
     uf = 1.0 + 0.05 * ((tf >= on_s - 1e-12) & (tf < off_s - 1e-12))
     kf = find_setpoint_edges(uf)
-    spec = EdgeSpec(kf, np.diff(uf)[kf - 1], tf[kf], np.arange(kf.size))
+    spec = edge_plan.build(kf, np.diff(uf)[kf - 1], tf[kf], np.arange(kf.size))
     # the fine grid holds the instants only to within dtf: put them there exactly with the offsets
     vals = {**unit.values(), **TRUTH, "EDGE1": on_s - tf[kf[0]], "EDGE2": off_s - tf[kf[1]]}
     efd = run_engine(param_matrix(vals), uf, dtf, 1.0, edges=spec)["efd"][0][::FINE]
@@ -70,7 +71,7 @@ def test_identify_finds_edges_between_samples_and_reaches_the_noise_floor(seed, 
     x = np.array([r["params"][n] for n in nominal.names])
     assert nominal.mse(x)[0] > 1.15 * r["mse"]  # 1.2x and more here; the floor is known to ~2 %
     # the result's edges re-simulate what the fit found
-    spec, offsets = edge_spec_of(result.captures[0].edges, cap.n)
+    spec, offsets = fitted_edge_plan(result.captures[0].edges, cap.n)
     sim = run_engine(param_matrix({**unit.values(), **r["params"], **offsets}), u, cap.dt, 1.0,
                      edges=spec)["efd"][0]
     assert np.mean((sim - efd) ** 2) == pytest.approx(r["mse"], rel=1e-9)

@@ -28,10 +28,10 @@ def test_edges_of_a_pulse_a_negative_pulse_a_step_and_nothing() -> None:
     t, u = pulse_usetp(amplitude=0.05, width=1.0, start=1.5, duration=5.0, rate=200.0)
     e = find_edges(t, u)
     assert (*edge_times(e), e.lead.index) == (1.5, 2.5, 300)
-    assert e.lead.jump == pytest.approx(0.05) and pre_trigger_mean(u, t[1] - t[0]) == 1.0
+    assert e.lead.jump_pu == pytest.approx(0.05) and pre_trigger_mean(u, t[1] - t[0]) == 1.0
     t, u = pulse_usetp(amplitude=-0.02, width=0.3, start=0.5, duration=2.0, rate=1000.0)
     e = find_edges(t, u)
-    assert edge_times(e) == (0.5, 0.8) and e.lead.jump == pytest.approx(-0.02)
+    assert edge_times(e) == (0.5, 0.8) and e.lead.jump_pu == pytest.approx(-0.02)
     t = np.arange(1000) / 1000.0
     u = np.where(t >= 0.25, 1.05, 1.0)
     e = find_edges(t, u)
