@@ -46,7 +46,7 @@ from __future__ import annotations
 import math
 import os
 import re
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -168,7 +168,9 @@ def _records(text: str, name: str) -> Iterable[tuple[int, list[str]]]:
         raise DyrError(f"{name}:{start}: record not terminated by '/'")
 
 
-def parse_dyr(text: str, name: str = "<dyr>") -> list[DyrRecord]:
+def parse_dyr(text: str, name: str = "<dyr>", ignore: Collection[str] = ()) -> list[DyrRecord]:
+    """The records of a .dyr text; a record of a model in `ignore` (upper case: the user's
+    `--dyr-ignore`) is read as plain CONs, its layout not checked: a record left out is not judged."""
     out = []
     for line, tok in _records(text, name):
         where = f"{name}:{line}"
@@ -186,8 +188,8 @@ def parse_dyr(text: str, name: str = "<dyr>") -> list[DyrRecord]:
             raise DyrError(f"{where}: bus {bus}: PSS/E's bus numbers start at {BUS_MIN}")
         rest = tok[3:]
         where = f"{where}: {model}"
-        icon_names = ICONS.get(model, ())
-        names = FIELDS.get(model)
+        icon_names = () if model in ignore else ICONS.get(model, ())
+        names = None if model in ignore else FIELDS.get(model)
         if names is not None and len(rest) != len(icon_names) + len(names):
             raise DyrError(f"{where}: expected {len(icon_names)} ICONs and {len(names)} CONs "
                            f"({len(icon_names) + len(names)} fields), found {len(rest)}")
@@ -204,9 +206,10 @@ def parse_dyr(text: str, name: str = "<dyr>") -> list[DyrRecord]:
     return out
 
 
-def read_dyr(path: str | os.PathLike[str]) -> list[DyrRecord]:
+def read_dyr(path: str | os.PathLike[str], ignore: Collection[str] = ()) -> list[DyrRecord]:
     """The records of a .dyr file (a regular file within the limit of `bench_ctl.limits`; UTF-8,
-    else Latin-1 as older PSS/E files are written)."""
+    else Latin-1 as older PSS/E files are written); `ignore`: models read without their layout
+    checked (`parse_dyr`)."""
     from bench_ctl.limits import InputError, read_bounded
 
     p = Path(path)
@@ -218,7 +221,7 @@ def read_dyr(path: str | os.PathLike[str]) -> list[DyrRecord]:
         text = data.decode("utf-8")
     except UnicodeDecodeError:
         text = data.decode("latin-1")
-    return parse_dyr(text, str(p))
+    return parse_dyr(text, str(p), ignore)
 
 
 def format_record(rec: DyrRecord, comment: str | None = None, per_line: int = 5) -> str:

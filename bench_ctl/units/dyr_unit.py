@@ -280,11 +280,11 @@ def unit_from_dyr(unit: Unit, path: str | Path, *, bus: int | None = None, ident
     `ignore`: models of the unit's records to leave out (`--dyr-ignore`); `notes` (when given)
     receives a line for each record aliased or left out (see the module docstring)."""
     notes = [] if notes is None else notes
+    skip = {m.strip().upper() for m in ignore}
     try:
-        records = read_dyr(path)
+        records = read_dyr(path, skip)   # a record left out is not judged (its layout)
     except (DyrError, OSError) as exc_:
         raise UnitError(f"--from-dyr {path}: {exc_}") from None
-    skip = {m.strip().upper() for m in ignore}
     absent = sorted(skip - {r.model for r in records})
     if absent:
         raise UnitError(f"--dyr-ignore {', '.join(absent)}: no such record in {path}")

@@ -192,3 +192,20 @@ def test_the_identify_header_names_the_unit_used():
     ref = NS(name="reference unit (1500 MW hydro)", model=None)
     assert unit_line(ref, None, [False]).endswith("structure REFERENCE; at no load")
     assert "no load" not in reference_unit().name
+
+
+def test_a_record_left_out_by_name_is_not_judged_by_its_layout(tmp_path):
+    """A PSS2B record with one field too many (as a public study's file has it): refused with its
+    line when the unit is to use it; read when the user leaves it out (--dyr-ignore PSS2B), its
+    layout then not checked -- a record left out is not the unit's."""
+    pss2b = ("  101 'PSS2B' 1  1 1 3 1 10 0 10 0 0 3 0.02 0.02 2 0.2 20 1 0 1 1 0.1 0.1 0.1 0.1 0.1 0.1 0.1 0.1 0.1 "
+             "1 -1 /\n")
+    path = _file(tmp_path, f"  101 'IEEEX1' 1 {DC1} /\n", pss2b)
+    with pytest.raises(UnitError, match=r"plant.dyr:4: PSS2B: expected 6 ICONs and 23 CONs \(29 fields\), found 30"):
+        unit_from_dyr(reference_unit(), path)
+    notes: list[str] = []
+    u = unit_from_dyr(reference_unit(), path, ignore=("PSS2B",), notes=notes)
+    assert u.model == "IEEEX1" and "PSS_MODEL" not in u.grid
+    assert any("as --dyr-ignore PSS2B asks" in n for n in notes), notes
+    with pytest.raises(DyrError, match="found 30"):      # the reader itself checks what is not left out
+        read_dyr(path)
