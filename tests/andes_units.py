@@ -90,7 +90,7 @@ def open_loop_efd(name: str, unit, cap: Capture) -> np.ndarray:
     true instants (bench_ctl.engine.open_loop)."""
     from bench_ctl.engine.open_loop import run_open_loop
     spec, off = true_edges(name, cap)
-    times = [spec.nominal_s[i] + off[f"EDGE{i + 1}"] for i in range(spec.n)]
+    times = [spec.nominal_s[i] + off[f"EDGE{i + 1}"] for i in range(spec.index.size)]
     return run_open_loop(unit.values(), cap.time, cap.vt, fixture_column(name, "ifd"), times, spec.jump)
 
 

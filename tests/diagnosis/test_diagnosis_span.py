@@ -13,7 +13,7 @@ from andes_units import online_capture, online_unit
 from bench_ctl.capture import Capture
 from bench_ctl.diagnosis.diagnose import diagnose
 from bench_ctl.diagnosis.span import PRE_STEP_S, cut_to_test
-from bench_ctl.identification.problem import make_problem
+from bench_ctl.identification.construction import make_problem
 
 NOISE = {"noise": 0.01, "q_noise": 0.002, "vt_noise": 0.0005}
 PAD_S = 20.0
