@@ -19,7 +19,7 @@ from bench_ctl.engine.machines.grid import machine_matrix
 from bench_ctl.engine.simulate import param_matrix
 from bench_ctl.units.overrides import apply_overrides, with_model
 from bench_ctl.units.unit import reference_unit
-from independent_online import GEN, SEXS, Machine, Pss2
+from independent_online import GEN, SEXS, Machine, Pss2, exciter
 
 XE, P0, Q0, VT0 = 0.4, 0.8, 0.2, 1.0
 DT, T_END, STEPS = 1e-3, 4.0, [(0.5, 0.02)]
@@ -86,28 +86,19 @@ def reference(pss: dict, *, drop_tw2: bool = False, swap_mn: bool = False):
     e1q, e2d, e1d, e2q, delta, efd0, vinf = mach.steady_state(P0, Q0, VT0)
     p = {**pss, "M": pss["N"], "N": pss["M"]} if swap_mn else pss
     stab = Pss2(p, P0, drop_tw2)
-    ka = SEXS["K"]
+    x0, exc, ka = exciter("SEXS", SEXS, VT0, efd0)   # tests/independent_online.py's SEXS
     vref0 = VT0 + efd0 / ka
     ns = stab.x0.size
-
-    def exc(x, vt, vref):
-        xl, efd = x
-        e = vref - vt
-        y = xl + SEXS["TA"] / SEXS["TB"] * (e - xl)
-        de = (ka * y - efd) / SEXS["TE"]
-        if (efd >= SEXS["EMAX"] and de > 0) or (efd <= SEXS["EMIN"] and de < 0):
-            de = 0.0
-        return [(e - xl) / SEXS["TB"], de], efd
 
     def f(t, z, vref):
         m, x, xs = z[:6], z[6:8], z[8:]
         vt, _ifd, _cid, _ciq, pe, _q, _xaq = mach.algebra(*m[:5], vinf)
         vs, dxs = stab(xs, m[5], pe)
-        dx, efd = exc(x, vt, vref + vs)
+        dx, efd = exc(x, vt, 0.0, vref + vs)
         return np.concatenate([mach.derivatives(m, efd, vinf), dx, dxs])
 
     t = np.arange(int(round(T_END / DT)) + 1) * DT
-    z = np.concatenate([[e1q, e2d, e1d, e2q, delta, 1.0, efd0 / ka, efd0], stab.x0])
+    z = np.concatenate([[e1q, e2d, e1d, e2q, delta, 1.0], x0, stab.x0])
     cuts = [0.0] + [a for a, _ in STEPS] + [t[-1] + DT]
     vref, ys = vref0, []
     for j in range(len(cuts) - 1):   # one integration between reference changes
@@ -125,7 +116,7 @@ def reference(pss: dict, *, drop_tw2: bool = False, swap_mn: bool = False):
             m, x, xs = Y[:6, k], Y[6:8, k], Y[8:8 + ns, k]
             vt, _ifd, _cid, _ciq, pe, q, _xaq = mach.algebra(*m[:5], vinf)
             vs = stab(xs, m[5], pe)[0]
-            out.append([exc(x, vt, vr[k] + vs)[1], vt, pe, q, vs, m[5] - 1.0, pe])
+            out.append([exc(x, vt, 0.0, vr[k] + vs)[1], vt, pe, q, vs, m[5] - 1.0, pe])
     return np.array(out).T
 
 
