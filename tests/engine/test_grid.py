@@ -73,8 +73,8 @@ def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float,
     vref = vref0
     ys = []
     for j in range(len(cuts) - 1):   # one integration between reference changes
-        sol = solve_ivp(f, (cuts[j], cuts[j + 1]), z, args=(vref,), method="RK45", rtol=1e-9, atol=1e-11,
-                        max_step=5e-4, dense_output=True)
+        sol = solve_ivp(f, (cuts[j], cuts[j + 1]), z, args=(vref,), method="DOP853", rtol=1e-10,
+                        atol=1e-12, dense_output=True)
         assert sol.success
         seg = t[(t >= cuts[j] - 1e-9) & (t < cuts[j + 1] - 1e-9)]
         ys.append(sol.sol(seg))

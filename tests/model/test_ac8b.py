@@ -25,7 +25,7 @@ def _ac8b(s: dict[str, float], amp: float, width: float, n: int, dt: float, s10:
     ys = KPR e + xi + KDR/TDR (e - xd), y = ys within [VPIDMIN, VPIDMAX], xi' = KIR (e - ks (ys - y)),
     TDR xd' = e - xd, TA VR' = KA y - VR (held at VRMIN, VRMAX), TE VE' = VR - VFE,
     VFE = KE VE + SE(VE) VE + KD Ifd, Efd = VE FEX(KC Ifd / VE). The pulse of `amp` starts at 0.5 s."""
-    from scipy.integrate import solve_ivp
+    from ode_pieces import solve_pieces
 
     sat = _quad(1.0, s10, 1.2, s12) if s10 > 0 else (lambda x: 0.0)
     se = _quad(s["E1"], s["E1"] * s["SE1"], s["E2"], s["E2"] * s["SE2"])
@@ -55,8 +55,7 @@ def _ac8b(s: dict[str, float], amp: float, width: float, n: int, dt: float, s10:
                 (vr - vfe) / te, (efd - ifd) / td0p, (eqp - eqpp) / td0pp]
 
     t = np.arange(n) * dt
-    sol = solve_ivp(f, (0, t[-1]), [1.0, vfe0 / ka, 0.0, vfe0, ve0, 1.0, 1.0], t_eval=t, method="RK45",
-                    rtol=1e-8, atol=1e-10, max_step=2e-4)
+    sol = solve_pieces(f, t, [1.0, vfe0 / ka, 0.0, vfe0, ve0, 1.0, 1.0], (0.5, 0.5 + width))
     assert sol.success
     eqp = sol.y[5]
     ifd = eqp + np.array([sat(v) for v in eqp])

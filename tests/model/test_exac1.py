@@ -22,7 +22,7 @@ def _reference(s: dict[str, float], amp: float, width: float, n: int, dt: float,
     generator's saturation on Vt, or on E'q when KPP = 0 (the reference generator), Ifd = E'q +
     KDA (E'q - E''q) + Sat) by solve_ivp, in the
     standard's names. The pulse of `amp` on the reference starts at 0.5 s and lasts `width`."""
-    from scipy.integrate import solve_ivp
+    from ode_pieces import solve_pieces
 
     sat = _quad(1.0, s10, 1.2, s12) if s10 > 0 else (lambda x: 0.0)
     se = _quad(s["E1"], s["E1"] * s["SE1"], s["E2"], s["E2"] * s["SE2"])   # SE(VE) VE
@@ -52,8 +52,7 @@ def _reference(s: dict[str, float], amp: float, width: float, n: int, dt: float,
                 (vfe - xf) / tf, deqp, (eqp - eqpp) / td0pp]
 
     t = np.arange(n) * dt
-    sol = solve_ivp(f, (0, t[-1]), [1.0, y0, vfe0, ve0, vfe0, 1.0, 1.0], t_eval=t, method="RK45",
-                    rtol=1e-8, atol=1e-10, max_step=2e-4)
+    sol = solve_pieces(f, t, [1.0, y0, vfe0, ve0, vfe0, 1.0, 1.0], (0.5, 0.5 + width))
     assert sol.success
     eqp, eqpp = sol.y[5], sol.y[6]
     vt = eqpp + kpp * (eqp - eqpp)
