@@ -27,8 +27,9 @@ START, WIDTH, AMP, DURATION, RATE_HZ = 1.0, 1.0, 0.05, 4.0, 1000.0
 
 
 def reference_efd(p: dict, t_eval: np.ndarray, on: float = START, off: float = START + WIDTH) -> np.ndarray:
-    """efd as recorded, by solve_ivp (DOP853, rtol 1e-10: an explicit method, 3x faster here than Radau, same figures within 1e-6) on the continuous-time equations, for a
-    setpoint pulse of AMP from `on` to `off` (s, any instant, not only sample instants)."""
+    """efd as recorded, by solve_ivp (DOP853, rtol 1e-10: 3x faster here than Radau, the same
+    figures within 1e-6) on the continuous-time equations, for a setpoint pulse of AMP from `on`
+    to `off` (s, any instant, not only sample instants)."""
     if p["S10"] > 0:
         r = math.sqrt(p["S12"] / p["S10"])
         A = (r - 1.2) / (r - 1.0)

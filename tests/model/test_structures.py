@@ -136,8 +136,9 @@ def test_esst4b_blocks_match_solve_ivp(amp, kg, kim, limited):
     (PITrackAW with tracking gain 2, Efd = VB VM with the loop through KG solved by brentq here),
     with a GENROU-like generator and saturation; `limited`: limits low enough that the 20 % pulse
     drives the PIs into them (checked on the reference solution; with KG = 0 all three)."""
-    from ode_pieces import solve_pieces
     from scipy.optimize import brentq
+
+    from ode_pieces import solve_pieces
 
     u = apply_overrides(with_model(reference_unit(), "ESST4B"),
                         ["KPP=0.6", "KDA=0.5", "Td0p=6", "Td0pp=0.05", f"KG={kg}", f"KIM={kim}"]
