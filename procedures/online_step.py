@@ -158,8 +158,10 @@ class StepPart:
     """One record of a test of several (procedures/pss_step.py): its name (the files' suffix,
     `RunContext.part`), what to do once remote is taken and before the steady state is awaited
     (e.g. switch the PSS; the safe state of the release undoes it), what to add to the capture's
-    test, a line for the plan, whether this part asks the operator (the first does), and what to
-    call with the record's data and test once its capture is saved."""
+    test, a line for the plan, whether this part asks the operator (the first does), what to
+    call with the record's data and test once its capture is saved, and what to undo at once when
+    the step is ended early (`on_abort(why)`, e.g. the PSS back as found: the unit is not left
+    without its stabiliser for the rest of the record; the release's safe state checks it again)."""
 
     name: str
     after_remote: Callable[[], None]
@@ -167,6 +169,7 @@ class StepPart:
     plan: str
     confirm: bool
     saved: Callable[[dict[str, Any], dict[str, Any]], None]
+    on_abort: Callable[[str], None] | None = None
 
 
 def step_on_line(bench: ProcedureBench, run: RunContext, params: dict[str, Any],
@@ -287,6 +290,11 @@ def step_on_line(bench: ProcedureBench, run: RunContext, params: dict[str, Any],
         run.hook("step_restored")
 
     carried = Carried(run)   # trouble after the step: noted, the record still kept
+    if why is not None and part is not None and part.on_abort is not None:
+        try:
+            part.on_abort(why)
+        except DeviceError as exc:   # the release's safe state tries again
+            carried.note("undoing the part's change after the abort", exc)
     with run.step("recovery"):
         rec.wait_status(("done",), record_s + 5.0, check=_watching(run, bench, ex, band, poll_s, carried))
         end = time.monotonic() + recovery_timeout_s

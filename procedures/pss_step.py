@@ -31,7 +31,8 @@ SEQUENCE
 HAZARDS
     Those of online_step, and the unit without its stabiliser during the first step: a poorly
     damped swing after the step. The P swing limit (limits.p_swing_max_mw) and the bands end the
-    step at once; whatever ends the test (an abort, an error, a lost link, Ctrl-C, SIGTERM, a
+    step at once, and a step ended early puts the PSS switch back as found at once, right after
+    the setpoint (not when the record ends); whatever ends the test (an abort, an error, a lost link, Ctrl-C, SIGTERM, a
     refusal after the switch was written) the runner's safe state restores the setpoint and the
     PSS switch as found. A host that dies leaves the device to its watchdog (the simulated one
     puts the switch back with the setpoint).
@@ -106,13 +107,17 @@ def pss_step(bench: ProcedureBench, run: RunContext, *, amplitude_pu: float = 0.
             if ex.read_pss() != on:
                 ex.write_pss(on, purpose=f"PSS {'on' if on else 'off'} for the step ({name})")
 
+        def undo(why: str, on: bool = on, name: str = name) -> None:
+            if on != found and ex.read_pss() != found:   # at once, not at the record's end
+                ex.write_pss(found, purpose=f"abort ({why}): PSS back {'on' if found else 'off'} at once ({name})")
+
         def saved(data: dict[str, Any], test: dict[str, Any], name: str = name) -> None:
             modes.append(_mode(run, name, data, float(test["start_s"]), MODE_SPAN_S))
 
         plan = (f"  PSS       step {i + 1} of 2 with the PSS {'ON' if on else 'OFF'}"
                 + ("; then the same step with it on, the switch as found at the end" if i == 0 else ""))
         part = StepPart(name, switch, {"pss_on": on, "pss_test": {"part": i + 1, "of": len(PARTS)}}, plan,
-                        confirm=i == 0, saved=saved)
+                        confirm=i == 0, saved=saved, on_abort=undo)
         result = step_on_line(bench, run, params, part)
         results.append(result)
         if result.data.get("aborted") or result.comms_error is not None:

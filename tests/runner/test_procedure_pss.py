@@ -138,6 +138,15 @@ def test_a_step_ended_by_a_loss_of_load_keeps_its_record_and_leaves_the_pss_as_f
     assert out.exit_code == ExitCode.FAILED, out.message
     assert (tmp_path / "run" / "capture_pss_off.csv").exists()
     assert not (tmp_path / "run" / "capture_pss_on.csv").exists()    # no second step after an abort
+    # the PSS back on right after the setpoint, not when the record ends (FAST records 7 s)
+    writes = pss_writes(out)
+    assert writes[0] == "PSS off for the step (pss_off)" and len(writes) == 2, writes
+    assert writes[1].startswith("abort (") and writes[1].endswith("PSS back on at once (pss_off)"), writes
+    ev = pss_bench.exciter.events
+    t_step = next(t for t, k, v in ev if k == "setpoint" and v != pytest.approx(pss_bench.plant.usetp_pre))
+    t_back = next(t for t, k, v in ev if k == "setpoint" and t > t_step)
+    t_pss = next(t for t, k, v in ev if k == "pss_on" and v == 1.0 and t > t_step)
+    assert 0.0 <= t_pss - t_back < 0.5, (t_step, t_back, t_pss)
     _as_found(pss_bench, out)
 
 
