@@ -38,7 +38,7 @@ from .params import GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, RECORD_PARAMS
 from .structures import DEFAULT, Structure, StructureError, structure
 from .unit_record import UnitEntry, UnitKernelEntry
 
-__all__ = ["Dialect", "Note", "dialect_of", "kernel_sections", "structure_of", "shared_names", "slots"]
+__all__ = ["Dialect", "Note", "dialect_of", "kernel_sections", "prose", "structure_of", "shared_names", "slots"]
 
 _WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
@@ -75,6 +75,12 @@ class Note(str):
         if not self.args:
             return self.template
         return self.template.format(*(a.render(d) if isinstance(a, Note) else d.text(a) for a in self.args))
+
+
+def prose(text: object) -> str:
+    """`text` (a path, a value, a unit's name) for a `Note`'s prose, said as it is: its braces
+    doubled, so that none is read as a slot."""
+    return str(text).replace("{", "{{").replace("}", "}}")
 
 
 def slots(n: int, sep: str = ", ") -> str:
