@@ -294,3 +294,23 @@ def test_a_result_describes_a_parameter_in_its_structures_names():
     assert x1.describe("NOPE") is None
     other = result_of(model=model_json(name="NO_SUCH_MODEL"))
     assert other.describe("TE") == (PARAMS["TE"].unit, PARAMS["TE"].info, PARAMS["TE"].neutral)
+
+
+def test_a_refused_problem_says_its_names_in_the_structures_and_its_capture_path_as_it_is(tmp_path, capsys):
+    """A refusal of the problem is a `Note`: the names it carries are said in the structure's, its
+    prose is not. A capture under a folder named TE (IEEEX1 calls the kernel's TE its TA) keeps
+    its path in the message of `identify` and `diagnose` (a regex over the whole message once
+    said .../TA/cap.csv, a file that does not exist)."""
+    folder = tmp_path / "TE"
+    folder.mkdir()
+    cap = folder / "cap.csv"
+    assert main(["simulate", "--online", "-o", str(cap), "--duration", "3", "--seed", "3"]) == 0
+    unit = tmp_path / "x1.toml"      # no [grid]: an on-line record is refused naming the capture
+    unit.write_text('[avr]\nmodel = "IEEEX1"\n[generator]\nTd0p = 7.5\nTd0pp = 0.05\nVt0 = 1.0\n')
+    capsys.readouterr()
+    for argv in (["identify", str(cap), "--unit", str(unit), "--evals", "64", "--no-progress"],
+                 ["diagnose", str(cap), "--unit", str(unit)]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert f"{cap} is an on-line record" in err, (argv, err)
+
