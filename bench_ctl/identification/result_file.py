@@ -249,6 +249,11 @@ class CandidateEntry(Record):
     OMITTED_WHEN_NONE = ("params", "kernel", "edges", "constraints_violated", "failed", "error", "where",
                          "at_bounds")
 
+    def renamed(self, d: Dialect) -> CandidateEntry:
+        """Its inert parameters (the scoring's, in the kernel's names) in the structure's; its
+        `params` are its result's, written already, and `kernel` is the kernel's view."""
+        return replace(self, inert=[d.name(n) for n in self.inert])
+
 
 @dataclass(frozen=True, eq=False)
 class SelectionEntry(Record):
@@ -370,7 +375,7 @@ R = TypeVar("R")
 def written(record: R, st: Structure) -> R:
     """`record`, built in the kernel's names, as a user of structure `st` reads it: the one writer
     of the structure's names (docs/model.md, "One dialect"). A record (a result, a diagnosis, a
-    unit's entry) is `renamed`; a refusal (`ProblemError`,
+    selection's candidate, a unit's entry) is `renamed`; a refusal (`ProblemError`,
     `ConstraintError`) whose message is a `Note` is made again with it said (`Dialect.say`: its
     names translated, its prose, a capture's path, as it is), any other as it is."""
     d = dialect_of(st)

@@ -314,3 +314,17 @@ def test_a_refused_problem_says_its_names_in_the_structures_and_its_capture_path
         err = capsys.readouterr().err
         assert f"{cap} is an on-line record" in err, (argv, err)
 
+
+def test_a_candidates_inert_parameters_are_written_in_its_structures_names():
+    """`--model auto` scores in the kernel's names; the candidate's entry says its inert ones in
+    its structure's (SEXS's EMAX is the kernel's VRMAX)."""
+    from types import SimpleNamespace as Fit
+
+    from bench_ctl.identification.selection import Candidate, Selection
+
+    unit = with_model(reference_unit(), "SEXS")
+    result = Fit(params={"K": 200.0}, captures=(), constraints_violated=[], failed=False)
+    ident = Fit(result=result, best=Fit(x=None), problem=Fit(unit=unit, values=lambda x: unit.values()))
+    sel = Selection((Candidate("SEXS", ident, 4, 100, 1e-4, (), 1.0, 0.0, 0.1, inert=("VRMAX", "TE")),), 1e-4, 0.1, ())
+    assert sel.entry().candidates[0].inert == ["EMAX", "TE"]
+
