@@ -328,3 +328,28 @@ def test_a_candidates_inert_parameters_are_written_in_its_structures_names():
     sel = Selection((Candidate("SEXS", ident, 4, 100, 1e-4, (), 1.0, 0.0, 0.1, inert=("VRMAX", "TE")),), 1e-4, 0.1, ())
     assert sel.entry().candidates[0].inert == ["EMAX", "TE"]
 
+
+def test_the_dialect_is_taken_at_five_boundaries_at_most():
+    """Issue 50: the dialect is applied where an input is parsed or a record written, not along
+    the way: calls of `dialect_of` / `Dialect` outside bench_ctl/model/dialect.py stay at most 5
+    (the unit's input, the one writer, a result read back, the .dyr export), and none under an
+    alias."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    sites, aliases = [], []
+    for path in sorted((root / "bench_ctl").rglob("*.py")):
+        if path == root / "bench_ctl" / "model" / "dialect.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+            where = f"{path.relative_to(root)}:{getattr(node, 'lineno', 0)}"
+            if isinstance(node, ast.Call):
+                f = node.func
+                name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
+                if name in ("dialect_of", "Dialect", "_dialect"):
+                    sites.append(where)
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").endswith("dialect"):
+                aliases += [where for a in node.names if a.asname and a.name in ("dialect_of", "Dialect")]
+    assert len(sites) <= 5, sites
+    assert not aliases, aliases
