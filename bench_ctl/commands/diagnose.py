@@ -41,10 +41,10 @@ from bench_ctl.identification.result_file import (
     IdentificationResult,
     OptimizerEntry,
     read_result,
+    written,
 )
 from bench_ctl.identification.selection import rank_structures
 from bench_ctl.identification.timing import fitted_edge_plan
-from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import KERNEL_PARAMS, RECORD_PARAMS
 from bench_ctl.records import plain
 from bench_ctl.units.unit import Unit, UnitError
@@ -154,7 +154,7 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
         history=[], fit_window=None if k1 >= capture.n else [0.0, t1],
         model=model_entry(unit, values, names, {}),
     )
-    return replace(result.renamed(dialect_of(unit.structure)), selection=d.selection)
+    return replace(written(result, unit.structure), selection=d.selection)
 
 
 def _command_line(capture: str, holdout: str | None, unit_path: str | None, overrides: Sequence[str], model_kw: dict,

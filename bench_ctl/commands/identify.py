@@ -32,9 +32,12 @@ from bench_ctl.identification.construction import ProblemError, make_problem
 from bench_ctl.identification.identify import Identification, result_for_file, run_identification
 from bench_ctl.identification.options import IDENTIFY
 from bench_ctl.identification.peers import OPTIMIZERS
-from bench_ctl.identification.result_file import IdentificationResult, ModelEntry  # noqa: F401 (the summary's input)
+from bench_ctl.identification.result_file import (  # noqa: F401 (the summary's input)
+    IdentificationResult,
+    ModelEntry,
+    written,
+)
 from bench_ctl.identification.selection import NoStructureFitted, rank_structures
-from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.unit_record import UnitEntry
 
 from .auto import auto_units, is_auto, selection_summary
@@ -187,8 +190,8 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
         check_plausible(c)
     try:
         problem = make_problem(caps, unit)
-    except (ProblemError, ConstraintError) as exc:   # said on the kernel's names: in the structure's
-        raise type(exc)(dialect_of(unit.structure).text(str(exc))) from None
+    except (ProblemError, ConstraintError) as exc:   # said in the kernel's names: in the structure's
+        raise written(exc, unit.structure) from None
     out = outputs.guard_outputs({"--json": json_out, "--plot": plot_out},
                                 [*captures, unit_path, from_dyr], force=force)
     chosen = list(dict.fromkeys(optimizers or ("mvmo",)))

@@ -12,7 +12,7 @@ from bench_ctl import __version__, outputs
 from bench_ctl.capture import write_capture
 from bench_ctl.engine.simulate import RecorderModel, pulse_usetp, synthetic_record
 from bench_ctl.exitcodes import ExitCode
-from bench_ctl.model.dialect import dialect_of
+from bench_ctl.identification.result_file import written
 from bench_ctl.units.unit import UnitError
 
 from .options import build_unit, unit_options
@@ -69,7 +69,7 @@ def simulate(unit_path, model, from_dyr, dyr_bus, dyr_id, overrides, effects, am
         "test": {"kind": "pulse", "amplitude_pu": amplitude, "start_s": start, "width_s": width,
                  **({"online": True} if online else {})},
         "source": "simulation",
-        "unit": dialect_of(unit.structure).unit(entry).to_json(),   # the structure's names
+        "unit": written(entry, unit.structure).to_json(),   # the structure's names
         "recorder": {"noise_pu": noise, "lsb_pu": lsb, "seed": seed,
                      "usetp": "the AVR's digital setpoint, recorded exactly",
                      **{name: "measured: noise + quantisation" for name in rec if name not in ("time", "usetp")}},

@@ -46,9 +46,9 @@ from bench_ctl.identification.localize import NoiseFloor, localization
 from bench_ctl.identification.model_fits import Budget, ModelFit, Setup, Views
 from bench_ctl.identification.peers import run_optimizer
 from bench_ctl.identification.problem import ProblemError
+from bench_ctl.identification.result_file import written
 from bench_ctl.identification.space import SearchSpace
 from bench_ctl.identification.threads import map_fits
-from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.effects import VOCABULARY
 from bench_ctl.signals.edges import Edge, EdgeSearch
 from bench_ctl.timestamps import utc_now_text
@@ -233,12 +233,11 @@ def diagnose(capture: Capture, unit: Unit, **kwargs: Any) -> Diagnosis:
     that contradict each other, a bound) too, whose text names the kernel's parameters."""
     from threadpoolctl import threadpool_limits
 
-    names = dialect_of(unit.structure)    # the boundary: the structure's names
     with threadpool_limits(limits=1, user_api="blas"):
-        try:
-            return _on_its_test(capture, unit, **kwargs).renamed(names)
+        try:   # the boundary: the structure's names (`written`)
+            return written(_on_its_test(capture, unit, **kwargs), unit.structure)
         except (ProblemError, ConstraintError) as exc:
-            raise type(exc)(names.text(str(exc))) from None
+            raise written(exc, unit.structure) from None
 
 
 def _on_its_test(capture: Capture, unit: Unit, *, holdout: Capture | None = None, **kwargs: Any) -> Diagnosis:

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench_ctl.exitcodes import BadInput
+from bench_ctl.model.dialect import Note, prose
 
 logger = logging.getLogger(__name__)
 
@@ -37,7 +38,9 @@ __all__ = ["ConstraintError", "LinearConstraint", "parse_constraint", "parse_con
 
 
 class ConstraintError(BadInput):
-    """A constraint text that cannot be parsed or does not fit the parameter names."""
+    """A constraint text that cannot be parsed or does not fit the parameter names. Its message
+    is a `Note` (`bench_ctl.model.dialect`): the constraint's text and the names it gives are
+    data, said in a structure's names by the writer that reports it."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,11 +62,10 @@ class LinearConstraint:
         object.__setattr__(self, "rhs", float(self.rhs) + 0.0)  # + 0.0 turns -0.0 into 0.0
         object.__setattr__(self, "names", tuple(self.names))
         if self.names and len(self.names) != coef.size:
-            raise ConstraintError(
-                f"constraint {self.expr!r}: {coef.size} coefficients for {len(self.names)} names"
-            )
+            raise ConstraintError(Note(
+                f"constraint {{!r}}: {coef.size} coefficients for {len(self.names)} names", self.expr))
         if not np.all(np.isfinite(coef)) or not np.isfinite(self.rhs):
-            raise ConstraintError(f"constraint {self.expr!r}: non-finite coefficient or bound")
+            raise ConstraintError(Note("constraint {!r}: non-finite coefficient or bound", self.expr))
 
     def violation(self, x: Sequence[float] | np.ndarray) -> float:
         """Amount by which ``x`` breaks the constraint, ``max(0, coef @ x - rhs)``."""
@@ -121,9 +123,8 @@ def _tokenize(text: str) -> list[_Token]:
     while pos < len(text):
         m = _TOKEN_RE.match(text, pos)
         if m is None:
-            raise ConstraintError(
-                f"constraint {text!r}: unexpected character {text[pos]!r} at column {pos + 1}"
-            )
+            raise ConstraintError(Note(
+                f"constraint {{!r}}: unexpected character {prose(repr(text[pos]))} at column {pos + 1}", text))
         kind = m.lastgroup or ""
         if kind != "ws":
             tokens.append(_Token(kind, m.group(), pos))
@@ -180,7 +181,7 @@ class _Parser:
         where = f" at column {tok.pos + 1}" if tok is not None and tok.kind != "end" else ""
         if tok is not None and tok.kind == "end":
             where = " at end of text"
-        return ConstraintError(f"constraint {self.text!r}: {msg}{where}")
+        return ConstraintError(Note(f"constraint {{!r}}: {{}}{where}", self.text, msg))
 
     # grammar
     def parse(self) -> tuple[_Affine, str, _Affine]:
@@ -255,12 +256,11 @@ class _Parser:
             return _Affine({}, float(tok.text))
         if tok.kind == "name":
             if tok.text not in self.known_set:
-                hint = [k for k in self.known if k.lower() == tok.text.lower()]
-                did_you_mean = f" (did you mean {hint[0]!r}?)" if hint else ""
-                raise ConstraintError(
-                    f"constraint {self.text!r}: unknown parameter {tok.text!r} at column "
-                    f"{tok.pos + 1}{did_you_mean}; known parameters: {', '.join(self.known)}"
-                )
+                hint = [k for k in self.known if k.lower() == tok.text.lower()][:1]
+                did_you_mean = " (did you mean {!r}?)" if hint else ""
+                raise ConstraintError(Note(
+                    f"constraint {{!r}}: unknown parameter {{!r}} at column {tok.pos + 1}{did_you_mean}; "
+                    "known parameters: {}", self.text, tok.text, *hint, ", ".join(self.known)))
             return _Affine({tok.text: 1.0}, 0.0)
         if tok.kind == "op" and tok.text == "(":
             self.depth += 1
@@ -285,7 +285,7 @@ def _check_names(names: Sequence[str]) -> tuple[str, ...]:
     seen: set[str] = set()
     for n in out:
         if n in seen:
-            raise ConstraintError(f"parameter name {n!r} given twice in {list(out)}")
+            raise ConstraintError(Note("parameter name {!r} given twice in {}", n, str(list(out))))
         seen.add(n)
     return out
 
@@ -298,17 +298,16 @@ def parse_constraint(text: str, names: Sequence[str]) -> LinearConstraint:
     constraints without any parameter (``"1 <= 2"``).
     """
     if not isinstance(text, str):
-        raise ConstraintError(f"constraint must be text, got {type(text).__name__}: {text!r}")
+        raise ConstraintError(Note(f"constraint must be text, got {prose(type(text).__name__)}: {{}}", repr(text)))
     known = _check_names(names)
     lhs, rel, rhs = _Parser(text, known).parse()
     diff = lhs.plus(rhs, -1.0)  # lhs - rhs  (REL)  0
     if rel in (">=", ">"):
         diff = diff.scaled(-1.0)
     if diff.is_constant:
-        raise ConstraintError(
-            f"constraint {text!r}: no parameter left after simplification (always "
-            f"{'true' if diff.const <= 0 else 'false'})"
-        )
+        raise ConstraintError(Note(
+            "constraint {!r}: no parameter left after simplification (always "
+            f"{'true' if diff.const <= 0 else 'false'})", text))
     coef = np.array([diff.coef.get(n, 0.0) for n in known])
     con = LinearConstraint(expr=text, coef=coef, rhs=-diff.const, names=known)
     logger.debug("parsed constraint %r as %s", text, con.describe())
@@ -318,5 +317,5 @@ def parse_constraint(text: str, names: Sequence[str]) -> LinearConstraint:
 def parse_constraints(texts: Iterable[str], names: Sequence[str]) -> tuple[LinearConstraint, ...]:
     """Parse several constraints over the same parameter names (see :func:`parse_constraint`)."""
     if isinstance(texts, str):
-        raise ConstraintError(f"expected a list of constraints, got one string {texts!r}")
+        raise ConstraintError(Note("expected a list of constraints, got one string {!r}", texts))
     return tuple(parse_constraint(t, names) for t in texts)

@@ -27,6 +27,7 @@ from bench_ctl.capture import Capture
 from bench_ctl.engine.layout import BLOWUP
 from bench_ctl.engine.machines.grid import machine_data, machine_matrix, unit_machine
 from bench_ctl.engine.simulate import operating_point, pre_trigger_mean
+from bench_ctl.model.dialect import Note, prose
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.params import KERNEL_PARAMS, MCOL, PARAMS
 from bench_ctl.signals.edges import EDGE_PARAMS, Edge
@@ -55,8 +56,8 @@ def default_bounds(unit: Unit, name: str) -> tuple[float, float]:
         if name in eff.bounds:
             lo, hi = eff.bounds[name]
             return float(lo), float(hi)
-    raise ProblemError(f"no default bounds for {name!r}: it is neither identified in unit "
-                       f"{unit.name!r} nor an effect parameter; pass bounds={{{name!r}: (lo, hi)}}")
+    raise ProblemError(Note(f"no default bounds for {{!r}}: it is neither identified in unit {prose(repr(unit.name))} "
+                            "nor an effect parameter; pass bounds={{{!r}: (lo, hi)}}", name, name))
 
 
 def _reduce_constraints(texts: Sequence[str], names: Sequence[str], base: dict[str, float]
@@ -73,8 +74,8 @@ def _reduce_constraints(texts: Sequence[str], names: Sequence[str], base: dict[s
         for j in np.flatnonzero(rest):
             v = base[KERNEL_PARAMS[j]]
             if not math.isfinite(v):
-                raise ProblemError(f"constraint {c.expr!r} uses {KERNEL_PARAMS[j]} = {v}, which is "
-                                   "not fitted and not finite (fit it or give it a value)")
+                raise ProblemError(Note(f"constraint {{!r}} uses {{}} = {v}, which is not fitted and not finite "
+                                        "(fit it or give it a value)", c.expr, KERNEL_PARAMS[j]))
             const += rest[j] * v
         if np.any(sub != 0.0):
             fitted.append(LinearConstraint(expr=c.expr, coef=sub, rhs=c.rhs - const, names=tuple(names)))
@@ -89,8 +90,8 @@ def _check_feasible(fitted: Sequence[LinearConstraint], fixed: Sequence[tuple[st
     (a linear feasibility problem), or that the fixed values already break."""
     broken = [expr for expr, ok in fixed if not ok]
     if broken:
-        raise ProblemError(f"constraint(s) {broken} are broken by the fixed parameter values; nothing "
-                           "the fit can change satisfies them")
+        raise ProblemError(Note("constraint(s) {} are broken by the fixed parameter values; nothing the fit can "
+                                "change satisfies them", str(broken)))
     if not fitted:
         return
     from scipy.optimize import linprog
@@ -99,9 +100,9 @@ def _check_feasible(fitted: Sequence[LinearConstraint], fixed: Sequence[tuple[st
     b = np.array([c.rhs for c in fitted])
     res = linprog(np.zeros(len(names)), A_ub=A, b_ub=b, bounds=list(bounds), method="highs")
     if res.status == 2:
-        box = ", ".join(f"{n} in [{lo:g}, {hi:g}]" for n, (lo, hi) in zip(names, bounds))
-        raise ProblemError(f"the constraints {[c.expr for c in fitted]} contradict each other inside the "
-                           f"bounds ({box}): no parameter set satisfies them all")
+        box = Note(", ".join(f"{{}} in [{lo:g}, {hi:g}]" for lo, hi in bounds), *names)
+        raise ProblemError(Note("the constraints {} contradict each other inside the bounds ({}): no parameter "
+                                "set satisfies them all", str([c.expr for c in fitted]), box))
 
 
 def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str] | None = None,
@@ -148,24 +149,25 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
                        "nominal sample", len(EDGE_PARAMS))
     for n in names_t:
         if n not in PARAMS:
-            raise ProblemError(f"unknown parameter {n!r}; known: {', '.join(KERNEL_PARAMS)}")
+            raise ProblemError(Note("unknown parameter {!r}; known: {}", n, ", ".join(KERNEL_PARAMS)))
     if len(set(names_t)) != len(names_t):
-        raise ProblemError(f"parameter names repeat: {list(names_t)}")
+        raise ProblemError(Note("parameter names repeat: {}", str(list(names_t))))
     bounds = dict(bounds or {})
     unknown = set(bounds) - set(names_t)
     if unknown:
-        raise ProblemError(f"bounds given for {sorted(unknown)}, which are not fitted ({list(names_t)})")
+        raise ProblemError(Note("bounds given for {}, which are not fitted ({})", str(sorted(unknown)),
+                                str(list(names_t))))
     bnds = []
     for n in names_t:
         lo, hi = (float(v) for v in bounds.get(n, default_bounds(unit, n)))
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            raise ProblemError(f"bounds of {n}: need finite lo < hi, got ({lo}, {hi})")
+            raise ProblemError(Note(f"bounds of {{}}: need finite lo < hi, got ({lo}, {hi})", n))
         bnds.append((lo, hi))
     names_t = names_t + tuple(edge_bounds)
     for n in edge_bounds:
         lo, hi = edge_bounds[n]
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            raise ProblemError(f"bounds of {n}: need finite lo < hi, got ({lo}, {hi})")
+            raise ProblemError(Note(f"bounds of {{}}: need finite lo < hi, got ({lo}, {hi})", n))
         bnds.append((lo, hi))
     base = unit.values()
     grid_names = tuple(unit.grid_identify)
@@ -173,7 +175,7 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
     if values:
         bad = set(values) - set(KERNEL_PARAMS)
         if bad:
-            raise ProblemError(f"values for unknown parameter(s) {sorted(bad)}")
+            raise ProblemError(Note("values for unknown parameter(s) {}", str(sorted(bad))))
         base.update({k: float(v) for k, v in values.items()})
 
     if constraints is None:

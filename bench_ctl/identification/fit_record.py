@@ -17,7 +17,9 @@ __all__ = ["FitRecord", "apply_window", "decimated", "segment_window", "ProblemE
 
 
 class ProblemError(BadInput):
-    """Names, bounds, weights or a window that cannot define an identification problem."""
+    """Names, bounds, weights or a window that cannot define an identification problem. A message
+    that names parameters is a `Note` (`bench_ctl.model.dialect`), the names data, said in a
+    structure's names by the writer that reports it; a capture's path is its prose, said as it is."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,7 +23,6 @@ from bench_ctl import engine
 from bench_ctl.capture import Capture, capture_sha256
 from bench_ctl.engine import optimisation_note
 from bench_ctl.engine.simulate import param_matrix
-from bench_ctl.model.dialect import dialect_of
 from bench_ctl.model.params import GENERATOR_OPTIONAL, RECORD_PARAMS
 from bench_ctl.outputs import path_from
 from bench_ctl.records import plain
@@ -46,6 +45,7 @@ from .result_file import (
     IdentificationResult,
     ModelEntry,
     OptimizerEntry,
+    written,
 )
 
 logger = logging.getLogger(__name__)
@@ -243,8 +243,7 @@ def _run_identification(captures: Sequence[Capture], unit: Unit, *, optimizer: s
         comparison=tuple(_run_summary(prob, r) for r in runs) if len(runs) > 1 else None,
     )
     # the boundary: the structure's names
-    written = result.renamed(dialect_of(prob.unit.structure))
-    return Identification(result=written, problem=prob, best=best, runs=tuple(runs))
+    return Identification(result=written(result, prob.unit.structure), problem=prob, best=best, runs=tuple(runs))
 
 
 def identify(captures: Sequence[Capture], unit: Unit, *, optimizer: str = "mvmo",

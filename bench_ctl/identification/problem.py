@@ -40,6 +40,7 @@ from bench_ctl.capture import Capture
 from bench_ctl.engine.derived import saturation_ab
 from bench_ctl.engine.machines.grid import steady_field
 from bench_ctl.engine.simulate import base_row, param_matrix
+from bench_ctl.model.dialect import Note
 from bench_ctl.model.params import COL, KERNEL_PARAMS
 from bench_ctl.units.unit import Unit
 
@@ -112,7 +113,7 @@ class Problem:
         """Every kernel parameter value with `x` applied to `names`."""
         x = np.asarray(x, dtype=float).reshape(-1)
         if x.size != self.d:
-            raise ProblemError(f"x has {x.size} values for {self.d} names {list(self.names)}")
+            raise ProblemError(Note(f"x has {x.size} values for {self.d} names {{}}", str(list(self.names))))
         out = dict(self.base)
         out.update({n: float(v) for n, v in zip(self.names, x)})
         return out
@@ -151,7 +152,7 @@ class Problem:
         drop = [i for i, n in enumerate(self.names) if n in values]
         for c in self.constraints:
             if np.any(c.coef[drop] != 0.0):
-                raise ProblemError(f"cannot hold {sorted(values)}: constraint {c.expr!r} links them")
+                raise ProblemError(Note("cannot hold {}: constraint {!r} links them", str(sorted(values)), c.expr))
         names = tuple(self.names[i] for i in keep)
         cons = tuple(LinearConstraint(expr=c.expr, coef=c.coef[keep], rhs=c.rhs, names=names)
                      for c in self.constraints)

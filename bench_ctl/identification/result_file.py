@@ -2,8 +2,9 @@
 `diagnose --result` and the batch read (docs/formats.md, "Result JSON").
 
 The writer (`identify.run_identification`) builds the records below in the kernel's names and
-renames them once, into the structure's, with the unit's dialect (`IdentificationResult.renamed`,
-`bench_ctl.model.dialect`). `IdentificationResult.from_json(data, where)` checks every key (a
+renames them once, into the structure's, with the unit's dialect (`written`: the one writer of
+what a user reads, a result, a diagnosis, a simulated capture's unit, a refused problem; each
+record's `renamed`, `bench_ctl.model.dialect`). `IdentificationResult.from_json(data, where)` checks every key (a
 missing or wrong one is a `FormatError` naming the file and the key) and the schema tag;
 `to_json()` gives the same JSON back. `read_result(path)` reads a file; `kernel_view()` gives its
 values in the kernel's names again (the report's re-simulation, `export`, `diagnose --result`).
@@ -14,11 +15,11 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, TypeVar
 
 from bench_ctl.limits import read_json
-from bench_ctl.model.dialect import Dialect, dialect_of, kernel_sections
-from bench_ctl.model.structures import StructureError, structure
+from bench_ctl.model.dialect import Dialect, Note, dialect_of, kernel_sections
+from bench_ctl.model.structures import Structure, StructureError, structure
 from bench_ctl.model.unit_record import UnitEntry
 from bench_ctl.records import JSON, FormatError, Record, schema_version
 from bench_ctl.signals.edges import Edge
@@ -26,7 +27,7 @@ from bench_ctl.signals.edges import Edge
 __all__ = ["RESULT_SCHEMA", "SCHEMA_VERSION", "CaptureEntry", "ConstraintEntry", "OptimizerEntry",
            "EquivalentSet", "IdentifiabilitySettings", "Identifiability", "ModelEntry", "Comparison",
            "ResultKernel", "SegmentShare", "BandShare", "Localization", "Separation", "CandidateEntry",
-           "SelectionEntry", "IdentificationResult", "read_result"]
+           "SelectionEntry", "IdentificationResult", "read_result", "written"]
 
 #: the version of the result format this bench-ctl writes and reads; bump it (and the docs) when
 #: a key changes meaning or goes away
@@ -248,6 +249,11 @@ class CandidateEntry(Record):
     OMITTED_WHEN_NONE = ("params", "kernel", "edges", "constraints_violated", "failed", "error", "where",
                          "at_bounds")
 
+    def renamed(self, d: Dialect) -> CandidateEntry:
+        """Its inert parameters (the scoring's, in the kernel's names) in the structure's; its
+        `params` are its result's, written already, and `kernel` is the kernel's view."""
+        return replace(self, inert=[d.name(n) for n in self.inert])
+
 
 @dataclass(frozen=True, eq=False)
 class SelectionEntry(Record):
@@ -361,6 +367,24 @@ class IdentificationResult(Record):
     def constraints_violated(self) -> list[str]:
         """The texts of the constraints the result reports as not satisfied."""
         return [c.expr for c in self.constraints if c.satisfied is not True]
+
+
+R = TypeVar("R")
+
+
+def written(record: R, st: Structure) -> R:
+    """`record`, built in the kernel's names, as a user of structure `st` reads it: the one writer
+    of the structure's names (docs/model.md, "One dialect"). A record (a result, a diagnosis, a
+    selection's candidate, a unit's entry) is `renamed`; a refusal (`ProblemError`,
+    `ConstraintError`) whose message is a `Note` is made again with it said (`Dialect.say`: its
+    names translated, its prose, a capture's path, as it is), any other as it is."""
+    d = dialect_of(st)
+    if isinstance(record, BaseException):
+        said = [d.say(a) if isinstance(a, Note) else a for a in record.args]
+        return type(record)(*said) if said != list(record.args) else record
+    if isinstance(record, UnitEntry):
+        return d.unit(record)   # type: ignore[return-value]
+    return record.renamed(d)   # type: ignore[attr-defined]
 
 
 def read_result(path: str | os.PathLike[str]) -> IdentificationResult:

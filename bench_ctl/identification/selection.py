@@ -32,7 +32,6 @@ import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.exitcodes import BadInput
-from bench_ctl.model.dialect import dialect_of
 from bench_ctl.signals.edges import EDGE_PARAMS
 from bench_ctl.units.unit import Unit
 
@@ -41,7 +40,7 @@ from .fit_check import check_parts, prepare
 from .identify import Identification, run_identification
 from .localize import DiagnosisError, localization, where_lines
 from .model_fits import Part, Setup
-from .result_file import CandidateEntry, Localization, SelectionEntry, Separation
+from .result_file import CandidateEntry, Localization, SelectionEntry, Separation, written
 from .space import SearchSpace
 from .threads import map_fits
 
@@ -87,8 +86,8 @@ class Candidate:
     #: per capture, where its residual lies (`localize.localization`: share and mse per segment
     #: of the response, share per frequency band)
     where: tuple[Localization, ...] = ()
-    #: identified parameters (the structure's names) that move nothing on any capture at the fitted
-    #: values (`_inert`), not counted in k
+    #: identified parameters (the kernel's names; the entry says them in the structure's) that move
+    #: nothing on any capture at the fitted values (`_inert`), not counted in k
     inert: tuple[str, ...] = ()
     #: searches run: 2 when the first was suspect (`_searched_again`)
     searches: int = 1
@@ -171,7 +170,7 @@ class Selection:
                               kernel={n: _finite(v) for n, v in values.items() if n not in EDGE_PARAMS},
                               edges=[tuple(cap.edges or ()) for cap in r.captures],
                               constraints_violated=r.constraints_violated, failed=bool(r.failed))
-            out.append(CandidateEntry(
+            entry = CandidateEntry(
                 rank=rank, model=c.model, k=c.k, inert=list(c.inert), n=c.n,
                 mse=_finite(c.mse), x_floor=_finite(c.mse / self.floor) if self.floor > 0 else None,
                 check={p.label: _finite(p.mse) for p in c.checks},
@@ -183,7 +182,9 @@ class Selection:
                 equivalent=c.model in self.equivalent,
                 wall_s=c.wall_s, searches=c.searches, **fitted,
                 error=c.error or None,
-                where=c.where or None, at_bounds=c.at_bounds if c.where else None))
+                where=c.where or None, at_bounds=c.at_bounds if c.where else None)
+            # a fitted candidate in the names of its unit's structure (its inert ones were scored in the kernel's)
+            out.append(written(entry, c.ident.problem.unit.structure) if c.ident is not None else entry)
         return SelectionEntry(
             verdict=self.verdict,
             chosen=best.model,
@@ -289,7 +290,7 @@ def _scored(model: str, unit: Unit, captures: Sequence[Capture], ident: Identifi
         score = math.inf
     return Candidate(model, ident, k, n_total, mse_all, tuple(parts), score, check_nll, time.perf_counter() - t0,
                      where=tuple(where),
-                     inert=tuple(dialect_of(unit.structure).name(n) for n in ident.problem.names if n in inert))
+                     inert=tuple(n for n in ident.problem.names if n in inert))
 
 
 def _inert(p: Any, x: np.ndarray) -> set[str]:

@@ -6,18 +6,20 @@ the kernel's matrix); a user reads and writes a standard structure's IEEE 421.5 
 A structure's `Dialect` (`dialect_of`, taken where an input is parsed or a record written) is
 the one place that translates, in each direction, and it is applied at the boundaries only:
 
-- kernel -> standard, where a record is written: a result, a diagnosis and a simulated
-  capture's unit are built in kernel names and renamed once by their writer (their records'
+- kernel -> standard, where a record is written: a result, a diagnosis, a `--model auto`
+  candidate and a simulated capture's unit are built in kernel names and renamed once by the one
+  writer (`bench_ctl.identification.result_file.written`, through their records'
   `renamed(dialect)`: `name`, `text`, `keys`, `fixed`, `unit`; the kernel's own view goes under a
   `kernel` key, for debugging); texts a record carries that name parameters (the
   identifiability notes) are made as `Note`s, prose with the kernel names as data, and said in
-  the structure's names by the same writer (`say`: the names translated, never the prose); a
-  refusal of the problem a unit gives (constraints that contradict each other inside the
-  bounds) is said in them where the unit was loaded (the `identify` command) or the diagnosis
-  is written (`bench_ctl.diagnosis.diagnose.diagnose`), its text translated (`text`);
+  the structure's names by the same writer (`say`: the names translated, never the prose); so is
+  a refusal of the problem a unit gives (constraints that contradict each other inside the
+  bounds), its message a `Note` too (a capture's path in its prose is said as it is), by the same
+  writer where the unit was loaded (the `identify` command) or the diagnosis is written
+  (`bench_ctl.diagnosis.diagnose.diagnose`);
 - standard -> kernel, where an input is parsed: unit files and `--set` (`bench_ctl.units.unit`,
-  `bench_ctl.units.overrides`: `kernel_text`, `refusal` of a kernel name, naming the standard
-  one), and a result read back
+  `bench_ctl.units.overrides`, their dialect taken in one place, `bench_ctl.units.unit.input_names`:
+  `kernel_text`, `refusal` of a kernel name, naming the standard one), and a result read back
   (`kernel_sections`: its values for the report's re-simulation, `export --dyr` and
   `diagnose --result`, through `IdentificationResult.kernel_view`).
 
@@ -38,7 +40,7 @@ from .params import GENERATOR_OPTIONAL, GENERATOR_PARAMS, PARAMS, RECORD_PARAMS
 from .structures import DEFAULT, Structure, StructureError, structure
 from .unit_record import UnitEntry, UnitKernelEntry
 
-__all__ = ["Dialect", "Note", "dialect_of", "kernel_sections", "structure_of", "shared_names", "slots"]
+__all__ = ["Dialect", "Note", "dialect_of", "kernel_sections", "prose", "structure_of", "shared_names", "slots"]
 
 _WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
@@ -75,6 +77,12 @@ class Note(str):
         if not self.args:
             return self.template
         return self.template.format(*(a.render(d) if isinstance(a, Note) else d.text(a) for a in self.args))
+
+
+def prose(text: object) -> str:
+    """`text` (a path, a value, a unit's name) for a `Note`'s prose, said as it is: its braces
+    doubled, so that none is read as a slot."""
+    return str(text).replace("{", "{{").replace("}", "}}")
 
 
 def slots(n: int, sep: str = ", ") -> str:

@@ -15,7 +15,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import replace
 
-from bench_ctl.model.dialect import Dialect, dialect_of
+from bench_ctl.model.dialect import Dialect
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.params import GENERATOR_OPTIONAL, MACHINE_PARAMS, PARAMS
 from bench_ctl.model.stabilisers import model_code
@@ -30,6 +30,7 @@ from .unit import (
     UnitError,
     check_unit,
     check_value,
+    input_names,
     reference_unit,
     unit_from_dict,
 )
@@ -51,7 +52,7 @@ def apply_own_overrides(unit: Unit, overrides: Iterable[str]) -> tuple[Unit, lis
 def _apply(unit: Unit, overrides: list[str], *, own_only: bool) -> tuple[Unit, list[str]]:
     """The --set parse: each override in the user's names, the kernel's from here on; (the unit,
     the overrides left out because the structure lacks the name, with `own_only`)."""
-    names = dialect_of(unit.structure)   # the --set boundary: the user's names, the kernel's from here on
+    names = input_names(unit.structure)   # the --set boundary: the user's names, the kernel's from here on
     taken: list[str] = []
     lacking: list[str] = []
     for item in overrides:

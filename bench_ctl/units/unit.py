@@ -164,6 +164,14 @@ _TABLE_KEYS = ("generator", "identify", "fixed", "weights", "effects", "avr", "a
 MACHINE_INFO = {p.name: p for p in MACHINE_CATALOGUE}
 
 
+def input_names(st: Structure) -> Dialect:
+    """The names a unit's input speaks, structure `st`'s: the one place where a unit file
+    (`unit_from_dict`) and `--set` (`overrides.apply_overrides`) take their dialect, to read a
+    name in the kernel's (`Dialect.kernel_text`, `Dialect.refusal`, ...) and to say one in their
+    messages (`check_unit`); the kernel's from there on."""
+    return dialect_of(st)
+
+
 def check_unit(unit: Unit, source: str, d: Dialect) -> Unit:
     """What a whole unit must satisfy, once every override is in: every AVR parameter given,
     identified values finite and inside their bounds, bounds and fixed values inside the
@@ -309,7 +317,7 @@ def unit_from_dict(data: Mapping, source: str) -> Unit:
     except StructureError as exc:
         raise UnitError(f"{source}: avr.model: {exc}") from None
     std_vals: dict[str, float] = {}
-    d = dialect_of(st)   # the file speaks the structure's names: the kernel's from here on
+    d = input_names(st)   # the file speaks the structure's names: the kernel's from here on
     if not d.plain:
         data, std_vals = _translate(d, data, source)
     for name, ps in data.get("effects", {}).items():

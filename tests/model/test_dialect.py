@@ -294,3 +294,62 @@ def test_a_result_describes_a_parameter_in_its_structures_names():
     assert x1.describe("NOPE") is None
     other = result_of(model=model_json(name="NO_SUCH_MODEL"))
     assert other.describe("TE") == (PARAMS["TE"].unit, PARAMS["TE"].info, PARAMS["TE"].neutral)
+
+
+def test_a_refused_problem_says_its_names_in_the_structures_and_its_capture_path_as_it_is(tmp_path, capsys):
+    """A refusal of the problem is a `Note`: the names it carries are said in the structure's, its
+    prose is not. A capture under a folder named TE (IEEEX1 calls the kernel's TE its TA) keeps
+    its path in the message of `identify` and `diagnose` (a regex over the whole message once
+    said .../TA/cap.csv, a file that does not exist)."""
+    folder = tmp_path / "TE"
+    folder.mkdir()
+    cap = folder / "cap.csv"
+    assert main(["simulate", "--online", "-o", str(cap), "--duration", "3", "--seed", "3"]) == 0
+    unit = tmp_path / "x1.toml"      # no [grid]: an on-line record is refused naming the capture
+    unit.write_text('[avr]\nmodel = "IEEEX1"\n[generator]\nTd0p = 7.5\nTd0pp = 0.05\nVt0 = 1.0\n')
+    capsys.readouterr()
+    for argv in (["identify", str(cap), "--unit", str(unit), "--evals", "64", "--no-progress"],
+                 ["diagnose", str(cap), "--unit", str(unit)]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert f"{cap} is an on-line record" in err, (argv, err)
+
+
+def test_a_candidates_inert_parameters_are_written_in_its_structures_names():
+    """`--model auto` scores in the kernel's names; the candidate's entry says its inert ones in
+    its structure's (SEXS's EMAX is the kernel's VRMAX)."""
+    from types import SimpleNamespace as Fit
+
+    from bench_ctl.identification.selection import Candidate, Selection
+
+    unit = with_model(reference_unit(), "SEXS")
+    result = Fit(params={"K": 200.0}, captures=(), constraints_violated=[], failed=False)
+    ident = Fit(result=result, best=Fit(x=None), problem=Fit(unit=unit, values=lambda x: unit.values()))
+    sel = Selection((Candidate("SEXS", ident, 4, 100, 1e-4, (), 1.0, 0.0, 0.1, inert=("VRMAX", "TE")),), 1e-4, 0.1, ())
+    assert sel.entry().candidates[0].inert == ["EMAX", "TE"]
+
+
+def test_the_dialect_is_taken_at_five_boundaries_at_most():
+    """Issue 50: the dialect is applied where an input is parsed or a record written, not along
+    the way: calls of `dialect_of` / `Dialect` outside bench_ctl/model/dialect.py stay at most 5
+    (the unit's input, the one writer, a result read back, the .dyr export), and none under an
+    alias."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    sites, aliases = [], []
+    for path in sorted((root / "bench_ctl").rglob("*.py")):
+        if path == root / "bench_ctl" / "model" / "dialect.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+            where = f"{path.relative_to(root)}:{getattr(node, 'lineno', 0)}"
+            if isinstance(node, ast.Call):
+                f = node.func
+                name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
+                if name in ("dialect_of", "Dialect", "_dialect"):
+                    sites.append(where)
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").endswith("dialect"):
+                aliases += [where for a in node.names if a.asname and a.name in ("dialect_of", "Dialect")]
+    assert len(sites) <= 5, sites
+    assert not aliases, aliases
