@@ -9,6 +9,11 @@ Example:
       --date-format %d.%m.%Y --resample 200 --map efd=SFS_Meas_UfRel --map vt=SFS_Meas_UgRel \\
       --map vr=SFS_Reg_Uc --map ifd=SFS_Meas_IfRel --scale ifd=auto \\
       --test step:amplitude=0.1 --efd-base auto --set S10=0.1 --set S12=0.4
+  bench-ctl import online.csv -o cap.csv --time-column t --map usetp=UREF --map efd=EFD --map vt=UG \\
+      --map p=P --map q=Q --map vs=PSS_OUT --scale vs=0.1 --efd-base from:noload.csv
+
+On line with the PSS on, `--map vs=COLUMN` records the stabiliser's output (pu; `--scale vs=K` from
+volts): identify and diagnose then fit it with efd, Vt and Q (docs/formats.md).
 
 Without a start, `--test` has its edges found in the record (the regulator output `vr`, else efd,
 else vt: bench_ctl/capture/found_test.py); `--efd-base auto` puts the pre-step efd on the model's
