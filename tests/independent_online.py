@@ -215,9 +215,11 @@ class OnlineStep:
 @dataclass(frozen=True)
 class OnlineRecorder:
     """The recorder: uniform samples at `rate_hz` over `duration_s`; seeded Gaussian noise on each
-    channel (efd 0.01 pu; Vt 0.0005 pu, Q and P 0.002 pu: the on-line captures' of the tests), then
-    an ADC of `bits` over +-`range_efd_pu` (efd) or +-`range_pu` (Vt, P, Q, each a transducer on
-    its own range). The setpoint is recorded exactly (the regulator's digital value)."""
+    channel (efd 0.01 pu; Vt 0.0005 pu, Q and P 0.002 pu: the on-line captures' of the tests; the
+    stabiliser's output 5e-5 pu, the AVR's own signal on an analogue output), then an ADC of `bits`
+    over +-`range_efd_pu` (efd), +-`range_pu` (Vt, P, Q, each a transducer on its own range) or
+    +-`range_vs_pu` (vs: twice a PSS's usual output limit). The setpoint is recorded exactly (the
+    regulator's digital value)."""
     rate_hz: float = 1000.0
     duration_s: float = 10.0
     noise_efd_pu: float = 0.01
@@ -226,6 +228,8 @@ class OnlineRecorder:
     bits: int = 12
     range_efd_pu: float = 10.0
     range_pu: float = 2.0
+    noise_vs_pu: float = 5e-5
+    range_vs_pu: float = 0.2
 
     def quantise(self, x: np.ndarray, range_pu: float) -> np.ndarray:
         if self.bits <= 0:
@@ -278,9 +282,10 @@ def solve_online(case: OnlineStep, t: np.ndarray, *, rtol: float = 1e-8) -> dict
 
 def online_record(case: OnlineStep, recorder: OnlineRecorder = OnlineRecorder(), seed: int = 0) -> dict:
     """The record a recorder makes of `case`: columns time, usetp (Vt0 before the step, Vt0 plus
-    the amplitude from the first sample at or after it), efd, vt, p, q with the recorder's noise
-    (efd's drawn first, then vt, q, p) and quantisation; `truth` holds the clean signals and the
-    noise actually in efd (its mean square over the record)."""
+    the amplitude from the first sample at or after it), efd, vt, p, q and the stabiliser's output
+    vs with the recorder's noise (efd's drawn first, then vt, q, p, vs: a record without vs has the
+    same noise) and quantisation; `truth` holds the clean signals and the noise actually in efd
+    and vs (their mean squares over the record)."""
     n = int(round(recorder.duration_s * recorder.rate_hz)) + 1
     t = np.arange(n) / recorder.rate_hz
     clean = solve_online(case, t)
@@ -289,6 +294,8 @@ def online_record(case: OnlineStep, recorder: OnlineRecorder = OnlineRecorder(),
     noisy = {"efd": efd}
     for name, sd in (("vt", recorder.noise_vt_pu), ("q", recorder.noise_pq_pu), ("p", recorder.noise_pq_pu)):
         noisy[name] = recorder.quantise(clean[name] + rng.normal(0.0, sd, n), recorder.range_pu)
+    noisy["vs"] = recorder.quantise(clean["vs"] + rng.normal(0.0, recorder.noise_vs_pu, n), recorder.range_vs_pu)
     usetp = case.vt0 + np.where(t >= case.step_s, case.amplitude_pu, 0.0)
     return {"time": t, "usetp": usetp, **noisy,
-            "truth": {"clean": clean, "noise_efd_var": float(np.mean((efd - clean["efd"]) ** 2))}}
+            "truth": {"clean": clean, "noise_efd_var": float(np.mean((efd - clean["efd"]) ** 2)),
+                      "noise_vs_var": float(np.mean((noisy["vs"] - clean["vs"]) ** 2))}}

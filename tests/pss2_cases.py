@@ -1,7 +1,8 @@
 """Independent on-line records with a PSS2B, written as a user has them (issue 49: identify with
-the stabiliser on): a capture (CSV + sidecar, with P, Q and Vt) made by tests/independent_online.py
-outside the engine, and the unit file that names the PSS2B and its values. Used by
-benchmarks/pss2_identify.py and tests/identification/test_pss2_identify.py.
+the stabiliser on): a capture (CSV + sidecar, with P, Q and Vt, and the stabiliser's output vs when
+asked) made by tests/independent_online.py outside the engine, and the unit file that names the
+PSS2B and its values. Used by benchmarks/pss2_identify.py, tests/identification/test_pss2_identify.py
+and tests/identification/test_pss2_vs.py.
 
 Per seed: the exciter's values drawn around its typical ones, the PSS2B's gain KS1 drawn, the
 reference step's instant between two samples; drawn again until the closed loop settles. The unit file holds
@@ -49,6 +50,7 @@ class Pss2Case:
     unit_without_pss: Path  # the same unit with the stabiliser left out
     noise_efd_var: float  # the noise actually in efd: mean square of recorded - clean
     redrawn: int          # how many draws of the seed were refused (their closed loop did not settle)
+    noise_vs_var: float = 0.0   # the same of vs (recorded or not)
 
 
 def draw(exciter: str, seed: int, attempt: int = 0) -> tuple[dict, dict, float]:
@@ -114,9 +116,23 @@ def pss_sets(names: tuple[str, ...] = ("KS1",)) -> list[str]:
     return out
 
 
-def make_case(folder: Path, seed: int, exciter: str = "SEXS", recorder: OnlineRecorder | None = None) -> Pss2Case:
-    """Make seed's record (the PSS2B on), write it as a capture and the unit files (with the
-    PSS2B; without it, the unit that leaves the stabiliser out)."""
+def pss_errors(true: dict, fitted: dict, names: tuple[str, ...]) -> dict[str, float]:
+    """|fitted / true - 1| of each PSS2B value `names` (of `PSS_FIT`; `fitted` keyed `PSS2_NAME`).
+    T1 and T3 fitted together are a pair: with T2 = T4 their lead-lags commute, the same transfer
+    function either way round, so each is compared with the truth of the closer assignment."""
+    err = {n: abs(fitted[f"PSS2_{n}"] / true[n] - 1.0) for n in names}
+    if {"T1", "T3"} <= set(names):
+        swapped = {"T1": abs(fitted["PSS2_T3"] / true["T1"] - 1.0), "T3": abs(fitted["PSS2_T1"] / true["T3"] - 1.0)}
+        if max(swapped.values()) < max(err["T1"], err["T3"]):
+            err.update(swapped)
+    return err
+
+
+def make_case(folder: Path, seed: int, exciter: str = "SEXS", recorder: OnlineRecorder | None = None,
+              with_vs: bool = False) -> Pss2Case:
+    """Make seed's record (the PSS2B on), write it as a capture (`with_vs`: with the stabiliser's
+    output; the other channels the same either way) and the unit files (with the PSS2B; without
+    it, the unit that leaves the stabiliser out)."""
     from bench_ctl.capture import write_capture
 
     recorder = recorder or OnlineRecorder()
@@ -129,12 +145,13 @@ def make_case(folder: Path, seed: int, exciter: str = "SEXS", recorder: OnlineRe
     else:
         raise RuntimeError(f"{exciter} seed {seed}: no draw of {MAX_DRAWS} settles")
     folder.mkdir(parents=True, exist_ok=True)
-    stem = f"pss2b_{exciter.lower()}_seed{seed}"
+    stem = f"pss2b_{exciter.lower()}_seed{seed}" + ("_vs" if with_vs else "")
     cap = folder / f"{stem}.csv"
-    cols = {k: rec[k] for k in ("time", "usetp", "efd", "vt", "p", "q")}
+    cols = {k: rec[k] for k in ("time", "usetp", "efd", "vt", "p", "q") + (("vs",) if with_vs else ())}
     meta = {"source": "tests/independent_online.py", "exciter": exciter, "seed": seed, "step_s": step_s}
     write_capture(cap, cols, meta, overwrite=True)
     unit, bare = folder / f"{stem}.toml", folder / f"{stem}_no_pss.toml"
     unit.write_text(unit_text(exciter, values, pss), encoding="utf-8")
     bare.write_text(unit_text(exciter, values, None), encoding="utf-8")
-    return Pss2Case(seed, exciter, values, pss, step_s, cap, unit, bare, rec["truth"]["noise_efd_var"], attempt)
+    return Pss2Case(seed, exciter, values, pss, step_s, cap, unit, bare, rec["truth"]["noise_efd_var"], attempt,
+                    rec["truth"]["noise_vs_var"])

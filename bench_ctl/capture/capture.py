@@ -2,7 +2,7 @@
 
 On disk a capture is `NAME.csv` (UTF-8, comma-separated, one header row; `time` in s with a
 uniform increasing step, `usetp` and `efd` in pu, optional `vt` in pu, the optional named
-channels `ifd`, `p`, `q`, `vr` in pu, other columns kept) and
+channels `ifd`, `p`, `q`, `vr`, `vs` in pu, other columns kept) and
 an optional `NAME.json` sidecar whose `csv_sha256` pins the CSV. `read_capture` refuses bad
 input with a `CaptureError` naming file, row and column, and repairs nothing; `write_capture`
 never overwrites an existing capture and writes each file atomically.
@@ -39,8 +39,10 @@ OPTIONAL_COLUMNS = ("vt",)
 CAPTURE_UNITS = {"time": "s", "usetp": "pu", "efd": "pu", "vt": "pu"}
 #: optional named channels, kept in `Capture.extra` but numeric, finite and per unit like the
 #: capture columns: the field current (air-gap-line base), active and reactive power (machine
-#: base), the regulator output (the regulator's own base; used to find edges, not fitted)
-CHANNEL_UNITS = {"ifd": "pu", "p": "pu", "q": "pu", "vr": "pu"}
+#: base), the regulator output (the regulator's own base; used to find edges, not fitted), the
+#: stabiliser's output (the PSS's signal added to the voltage reference, on the AVR's base: fitted
+#: on line with efd, Vt and Q)
+CHANNEL_UNITS = {"ifd": "pu", "p": "pu", "q": "pu", "vr": "pu", "vs": "pu"}
 NAMED_UNITS = {**CAPTURE_UNITS, **CHANNEL_UNITS}
 PER_UNIT_SPELLINGS = {"pu", "p.u.", "p.u", "pu."}
 # sidecar keys write_capture computes itself (values passed in `meta` are replaced)
@@ -98,7 +100,7 @@ class Capture:
             raise CaptureError(owner, f"{n} sample(s); a capture needs at least 2")
 
     def channel(self, name: str) -> np.ndarray | None:
-        """A capture column or named channel (`ifd`, `p`, `q`, `vr`), None when not recorded."""
+        """A capture column or named channel (`ifd`, `p`, `q`, `vr`, `vs`), None when not recorded."""
         return self.columns().get(name)
 
     @property

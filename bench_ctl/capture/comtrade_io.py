@@ -27,7 +27,7 @@ from bench_ctl.capture.timebase import check_time
 log = logging.getLogger(__name__)
 
 #: what a channel can be mapped to: the capture columns and the named channels (capture.CHANNEL_UNITS)
-CAPTURE_CHANNELS = ("usetp", "efd", "vt", "ifd", "p", "q", "vr")
+CAPTURE_CHANNELS = ("usetp", "efd", "vt", "ifd", "p", "q", "vr", "vs")
 _ANALOG_BYTES = {"BINARY": 2, "BINARY32": 4, "FLOAT32": 4}
 _PARSE_ERRORS = (comtrade.ComtradeError, ValueError, IndexError, KeyError, TypeError)
 
@@ -239,7 +239,7 @@ def read_comtrade(
     scale: Mapping[str, float] | None = None,
 ) -> Capture:
     """A COMTRADE record as a Capture: `mapping` gives, for `usetp` and `efd` (required) and
-    `vt`, `ifd`, `p`, `q`, `vr` (optional), the analog channel name; `scale` multiplies a mapped channel after the
+    `vt`, `ifd`, `p`, `q`, `vr`, `vs` (optional), the analog channel name; `scale` multiplies a mapped channel after the
     .cfg's own a*x+b (needed for a channel whose unit is not pu). Unmapped analog and status
     channels become extra columns. A record without a setpoint channel is an import job
     (`bench_ctl.capture.importer` with a test description)."""

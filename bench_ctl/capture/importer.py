@@ -1,6 +1,6 @@
 """Import of a real recorder export (vendor CSV, or COMTRADE .cfg + .dat) as a capture.
 
-Maps vendor column names to `usetp` / `efd` / `vt` and the named channels `ifd`, `p`, `q`, `vr`,
+Maps vendor column names to `usetp` / `efd` / `vt` and the named channels `ifd`, `p`, `q`, `vr`, `vs`,
 builds time from a seconds column or from date + clock-time columns, puts efd (and ifd) on the
 model's base (a factor, a base in volts or rated-field units, `auto` from the pre-step level at
 no load, or the factor a no-load import found: `field_base`), synthesises `usetp` from a test
@@ -122,7 +122,7 @@ class TestDescription:
 class ImportSpec:
     """What to do with a recorder export. Nothing here is guessed from the file.
 
-    columns: capture name (`efd` required, `usetp`, `vt`, `ifd`, `p`, `q`, `vr`) -> source column /
+    columns: capture name (`efd` required, `usetp`, `vt`, `ifd`, `p`, `q`, `vr`, `vs`) -> source column /
     channel name.
     Time: `time_column` (s), or `clock_column` (HH:MM:SS.ffff) with an optional `date_column`
     (`date_format`, strptime); CSV only - COMTRADE brings its own time.

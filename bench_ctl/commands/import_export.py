@@ -9,6 +9,11 @@ Example:
       --date-format %d.%m.%Y --resample 200 --map efd=SFS_Meas_UfRel --map vt=SFS_Meas_UgRel \\
       --map vr=SFS_Reg_Uc --map ifd=SFS_Meas_IfRel --scale ifd=auto \\
       --test step:amplitude=0.1 --efd-base auto --set S10=0.1 --set S12=0.4
+  bench-ctl import online.csv -o cap.csv --time-column t --map usetp=UREF --map efd=EFD --map vt=UG \\
+      --map p=P --map q=Q --map vs=PSS_OUT --scale vs=0.1 --efd-base from:noload.csv
+
+On line with the PSS on, `--map vs=COLUMN` records the stabiliser's output (pu; `--scale vs=K` from
+volts): identify and diagnose then fit it with efd, Vt and Q (docs/formats.md).
 
 Without a start, `--test` has its edges found in the record (the regulator output `vr`, else efd,
 else vt: bench_ctl/capture/found_test.py); `--efd-base auto` puts the pre-step efd on the model's
@@ -204,7 +209,8 @@ def summary(capture: Capture) -> list[str]:
               help="Capture CSV to write (its .json sidecar goes beside it); never overwritten.")
 @click.option("--map", "maps", multiple=True, metavar="NAME=COLUMN",
               help="Capture column (efd, usetp, vt) or named channel (ifd, p, q, vr: the regulator "
-                   "output) = source column or COMTRADE channel.")
+                   "output, vs: the stabiliser's (PSS) output in pu, fitted on line) = source column or "
+                   "COMTRADE channel.")
 @click.option("--time-column", help="Source column holding time in seconds.")
 @click.option("--date-column", help="Source column holding the date (see --date-format).")
 @click.option("--clock-column", help="Source column holding HH:MM:SS.ffff clock time.")
@@ -221,7 +227,7 @@ def summary(capture: Capture) -> list[str]:
                    "<X>V (the channel records volts, X V = 1 pu), <X>rf (rated-field units, X of them = 1 pu) or "
                    "from:NOLOAD.csv (the factor the unit's no-load import found: for an on-line record).")
 @click.option("--scale", "scales", multiple=True, metavar="NAME=FACTOR",
-              help="Factor for usetp, vt, ifd, p, q or vr; ifd=auto puts the field current on the no-load base "
+              help="Factor for usetp, vt, ifd, p, q, vr or vs; ifd=auto puts the field current on the no-load base "
                    "(no load only), ifd=from:NOLOAD.csv takes the no-load import's.")
 @click.option("--resample", "resample_hz", type=float, default=None, metavar="HZ",
               help="Resample onto HZ by linear interpolation (otherwise jitter is refused).")

@@ -172,10 +172,11 @@ def run(P: np.ndarray, usetp: np.ndarray, dt: float, usetp_pre: float, *, machin
 
     `edges`: the record's setpoint edges (`edge_plan`); each moves to its nominal instant plus the candidate's
     offset (EDGE1..); None: every change of usetp acts at the sample that shows it. `measured`:
-    the recorded efd, vt, p, q to score (None entries skipped), `weights` theirs (default efd 1).
+    the recorded efd, vt, p, q, vs (the stabiliser's output) to score (None entries skipped),
+    `weights` theirs (default efd 1, the others 0).
 
     Returns `fail_step` (-1: ran to the end; 0: invalid parameters) and, when `store`, the traces
-    (n, T) of the `keep` signals (default efd and vt, on the grid p, q and ifd too); with
+    (n, T) of the `keep` signals (default efd and vt, on the grid p, q, vs and ifd too); with
     measurements `obj` (the trapezoidal integral of the weighted squared errors) and
     `sse_<signal>` for each measured signal with a weight."""
     P = np.asarray(P, dtype=np.float64)
@@ -230,7 +231,8 @@ def _run(D, key, usetp, dt, usetp_pre, ext, measured, weights, store, edges, kee
     scored_beyond_efd = any(q > 0 for q in scored)
     unknown = set(measured or ()) - set(SIGNALS[:N_SCORED])
     if unknown:
-        raise ValueError(f"measured signal(s) {', '.join(sorted(unknown))}: a fit reads efd, vt, p, q")
+        raise ValueError(f"measured signal(s) {', '.join(sorted(unknown))}: a fit reads "
+                         f"{', '.join(SIGNALS[:N_SCORED])}")
     if keep is None:
         keep = SIGNALS if key.machine == "grid" else ("efd", "vt")
     rows = np.full(N_KEEP, -1, dtype=np.int64)

@@ -165,12 +165,13 @@ X_REF, X_FULL, X_ST4, X_ST4_ONLY = 0, 1, 2, 3
 #: machine's algebra (Vt, Ifd and what else the machine carries from a step's end to the next
 #: step's first stage)
 R_FLD, R_VS, R_ALG = 0, 1, 2
-#: the recorded signals, in the order of an engine run's traces, errors and weights
-SIGNALS = ("efd", "vt", "p", "q", "ifd")
-S_EFD, S_VT, S_P, S_Q, S_IFD = range(5)
-N_SIGNALS = 5
-#: the signals an objective can score (ifd is recorded, not fitted)
-N_SCORED = 4
+#: the recorded signals, in the order of an engine run's traces, errors and weights: the field
+#: voltage, Vt, P, Q, the stabiliser's output (R_VS: 0 without one, and at no load), Ifd
+SIGNALS = ("efd", "vt", "p", "q", "vs", "ifd")
+S_EFD, S_VT, S_P, S_Q, S_VS, S_IFD = range(6)
+N_SIGNALS = 6
+#: the signals an objective can score, the first N_SCORED of SIGNALS (ifd is recorded, not fitted)
+N_SCORED = 5
 
 #: tracking gain of the anti-windup of the ESST4B's PI regulators (ANDES' PITrackAW default, ks = 2)
 PI_TRACK = 2.0

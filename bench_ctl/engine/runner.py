@@ -2,14 +2,15 @@
 the machine, and the parallel loop over chunks.
 
 Per sample k: the recorded signals at the states of t_k (efd through the recorder's gain and skew,
-Vt, P, Q, Ifd; a failed candidate's held), their squared errors (the trapezoid's half weight at
-both ends); the reference over [t_k, t_k+1) (the record's zero-order hold with each setpoint edge
-at the candidate's fitted instant, or a ramp towards it); the dead time's delayed VR at the stage
-times; one vectorised RK4 step of every candidate (`step.step_all`); a step with a jump inside (a
-fitted edge instant, a delayed setpoint change) redone from t_k in sub-steps between the jumps
-(`substep`); the histories the skew and the dead time read; a candidate whose state leaves its
-sane range marked failed and parked at its initial state. Where nothing but the no-load reference
-structure's own blocks act, spans of samples run in one compiled loop (`span`).
+Vt, P, Q, the stabiliser's output, Ifd; a failed candidate's held), their squared errors (the
+trapezoid's half weight at both ends); the reference over [t_k, t_k+1) (the record's zero-order
+hold with each setpoint edge at the candidate's fitted instant, or a ramp towards it); the dead
+time's delayed VR at the stage times; one vectorised RK4 step of every candidate (`step.step_all`);
+a step with a jump inside (a fitted edge instant, a delayed setpoint change) redone from t_k in
+sub-steps between the jumps (`substep`); the histories the skew and the dead time read; a candidate
+whose state leaves its sane range marked failed and parked at its initial state. Where nothing but
+the no-load reference structure's own blocks act, spans of samples run in one compiled loop
+(`span`).
 
 A `Work` holds a chunk's state between calls: a run makes one per chunk and drops it; a plant keeps
 one for its single candidate and advances it burst by burst (`advance`).
@@ -44,6 +45,11 @@ from .layout import (
     R_FLD,
     R_VS,
     S_EFD,
+    S_IFD,
+    S_P,
+    S_Q,
+    S_VS,
+    S_VT,
 )
 from .span import W_FAILED, W_MAG, W_OUT, W_SSE, span_limited, span_unlimited
 from .step import (
@@ -71,11 +77,11 @@ from .step import (
 )
 from .substep import breaks, substep
 
-#: what a run can keep per sample (rows of `Out.keep`): the recorded signals (`layout.SIGNALS`),
-#: then what a plant reports besides: the field voltage itself, E'q, the reference after the
-#: ramp, the plant's flags, the stabiliser's output
-K_FLD, K_EQP, K_UREF, K_FLAGS, K_VS = range(N_SIGNALS, N_SIGNALS + 5)
-N_KEEP = N_SIGNALS + 5
+#: what a run can keep per sample (rows of `Out.keep`): the recorded signals (`layout.SIGNALS`,
+#: the stabiliser's output among them), then what a plant reports besides: the field voltage
+#: itself, E'q, the reference after the ramp, the plant's flags
+K_FLD, K_EQP, K_UREF, K_FLAGS = range(N_SIGNALS, N_SIGNALS + 4)
+N_KEEP = N_SIGNALS + 4
 #: the plant's flag bits (K_FLAGS)
 FLAG_CEILING, FLAG_RATE, FLAG_RAMP, FLAG_FAILED = 1, 2, 4, 8
 #: is the no-load reference structure's span loop allowed in this variant (`variants` sets it)
@@ -87,7 +93,7 @@ C_UREF, C_TARGET, C_CROSS = range(3)
 
 class Drive(NamedTuple):
     """What the candidates run on: the recorded setpoint (a sample per step of this call), its value
-    before the test, the step (s), the measured efd, Vt, P, Q and their weights (0: not scored),
+    before the test, the step (s), the measured efd, Vt, P, Q, vs and their weights (0: not scored),
     the recorded Vt and Ifd a played-back machine reads ((2, 1) otherwise)."""
     usetp: np.ndarray
     usetp_pre: float
@@ -122,7 +128,7 @@ class Switches(NamedTuple):
 
 class Out(NamedTuple):
     """What a run writes, a column (or entry) a candidate: `traces` (rows keep[K_*], columns the
-    call's samples; (1, 1, 1) when nothing is kept), the squared errors of efd, Vt, P, Q summed
+    call's samples; (1, 1, 1) when nothing is kept), the squared errors of efd, Vt, P, Q, vs summed
     over the samples and at the record's ends (halved), the failure step (-1: none)."""
     traces: np.ndarray
     keep: np.ndarray
@@ -211,24 +217,23 @@ def record(w, drive, out, k, j, last, any_skew):
                 y = skewed(w.skh, c, Ls, k, k - D[D_SKEW, c] / drive.dt, drive.dt, D[D_OUT0, c])
             W[W_OUT, c] = D[D_GAIN, c] * y
             vt, ifd, p, q = gen_signals(gen_alg_load(R, c))
-            held[1, c] = vt
-            held[2, c] = p
-            held[3, c] = q
-            held[4, c] = ifd
+            held[S_VT, c] = vt
+            held[S_P, c] = p
+            held[S_Q, c] = q
+            held[S_VS, c] = R[R_VS, c]
+            held[S_IFD, c] = ifd
         held[S_EFD, c] = W[W_OUT, c]
     keep = out.keep
     for s in range(N_SIGNALS):
         if keep[s] >= 0:
             for c in range(m):
                 out.traces[keep[s], lo + c, j] = held[s, c]
-    if keep[K_FLD] >= 0 or keep[K_EQP] >= 0 or keep[K_VS] >= 0:
+    if keep[K_FLD] >= 0 or keep[K_EQP] >= 0:
         for c in range(m):
             if keep[K_FLD] >= 0:
                 out.traces[keep[K_FLD], lo + c, j] = R[R_FLD, c]
             if keep[K_EQP] >= 0:
                 out.traces[keep[K_EQP], lo + c, j] = gen_flux(gen_load(w.S, c))
-            if keep[K_VS] >= 0:
-                out.traces[keep[K_VS], lo + c, j] = R[R_VS, c]
     for s in range(N_SCORED):
         ws = drive.w[s]
         if ws > 0.0:

@@ -81,21 +81,28 @@ def operating_point(usetp: np.ndarray, p: np.ndarray, q: np.ndarray, vt: np.ndar
     """An on-line record's operating point before the test: P0, Q0 and Vt0, the means of its P, Q
     and Vt over the OPERATING_POINT_S before the setpoint first changes (a unit's P drifts over a
     long record: the test starts from where it was just before)."""
+    return {name: pre_step_mean(usetp, x, dt) for name, x in (("P0", p), ("Q0", q), ("Vt0", vt))}
+
+
+def pre_step_mean(usetp: np.ndarray, x: np.ndarray, dt: float) -> float:
+    """The mean of a recorded signal x over the OPERATING_POINT_S before the setpoint first
+    changes (`operating_point`'s window)."""
     usetp = np.asarray(usetp, float)
     changed = np.flatnonzero(np.abs(usetp - usetp[0]) > 1e-9)
     end = max(1, int(changed[0]) if changed.size else usetp.size)
     pre = slice(max(0, end - max(1, int(round(OPERATING_POINT_S / dt)))), end)
-    return {name: float(np.mean(np.asarray(x, float)[pre])) for name, x in (("P0", p), ("Q0", q), ("Vt0", vt))}
+    return float(np.mean(np.asarray(x, float)[pre]))
 
 
 def simulate_on_line(values: Mapping[str, float], grid: Mapping[str, float], point: Mapping[str, float],
                      usetp: np.ndarray, dt: float, edges: Edges | None = None) -> dict[str, np.ndarray]:
     """One parameter set on the grid (`engine.run` with a machine) from an operating point (P0, Q0, Vt0,
-    `operating_point`): efd (as recorded), vt, p, q, ifd and fail_step."""
+    `operating_point`): efd (as recorded), vt, p, q, vs (the stabiliser's output), ifd and fail_step."""
     machine = machine_matrix(with_placeholders({**grid, "P0": point["P0"], "Q0": point["Q0"]}))
     out = engine.run(param_matrix({**values, "Vt0": point["Vt0"]}), usetp, dt, pre_trigger_mean(usetp, dt),
                      machine=machine, edges=edges)
-    return {**{name: out[name][0] for name in ("efd", "vt", "p", "q", "ifd")}, "fail_step": int(out["fail_step"][0])}
+    return {**{name: out[name][0] for name in ("efd", "vt", "p", "q", "vs", "ifd")},
+            "fail_step": int(out["fail_step"][0])}
 
 
 def generator_saturation(s10: float, s12: float) -> Callable[[float], float]:

@@ -6,7 +6,9 @@ constraints and weights, and binds them into a `Problem` (`problem.py`).
 the diagnosis can fit "reference model + effect"), and the instants of the setpoint edges. A fit
 window (`fit_window=(t0, t1)` in s, or `segment=slice(i0, i1)` in samples) restricts the
 objective and the MSE to part of each record. A capture with P and Q channels is an on-line
-record: its machine on the grid starts from the record's own pre-step P, Q and Vt (`_on_line`).
+record: its machine on the grid starts from the record's own pre-step P, Q and Vt (`_on_line`);
+its stabiliser's output `vs`, when recorded, is fitted with efd, Vt and Q (weight `vs`, default
+`units.unit.VS_WEIGHT`).
 
 Constraints are read from the unit's text (and those of any effect whose parameters are fitted)
 over all kernel parameters, then reduced to the fitted names: a term on a parameter that is not
@@ -26,13 +28,13 @@ import numpy as np
 from bench_ctl.capture import Capture
 from bench_ctl.engine.layout import BLOWUP
 from bench_ctl.engine.machines.grid import machine_data, machine_matrix, unit_machine
-from bench_ctl.engine.simulate import operating_point, pre_trigger_mean
+from bench_ctl.engine.simulate import operating_point, pre_step_mean, pre_trigger_mean
 from bench_ctl.model.dialect import Note, prose
 from bench_ctl.model.effects import EFFECTS
 from bench_ctl.model.params import KERNEL_PARAMS, MCOL, PARAMS
 from bench_ctl.signals.edges import EDGE_PARAMS, Edge
-from bench_ctl.units.switched import grid_as_recorded
-from bench_ctl.units.unit import Unit
+from bench_ctl.units.switched import grid_as_recorded, pss_switched_off
+from bench_ctl.units.unit import VS_WEIGHT, Unit
 
 from .constraints import LinearConstraint, parse_constraints
 from .fit_record import FitRecord, ProblemError, apply_window, segment_window
@@ -41,7 +43,7 @@ from .timing import edge_plan_of, record_edges
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["make_problem", "default_bounds", "ProblemError"]
+__all__ = ["make_problem", "default_bounds", "scored_vs", "ProblemError"]
 
 #: the largest recorded-efd gain the kernel may apply (recorder_gain upper physical limit)
 _MAX_GAIN = PARAMS["GAIN"].hi
@@ -207,6 +209,9 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
     if w_efd == 0 and not any(c.vt is not None for c in caps):
         raise ProblemError("efd weight is 0 and no capture has a vt channel: nothing to fit")
     w_q = float(unit.weights.get("q", 1.0))
+    w_vs = float(unit.weights.get("vs", VS_WEIGHT))
+    if w_vs < 0:
+        raise ProblemError(f"signal weight vs = {w_vs}: need >= 0")
 
     if segment is not None and fit_window is not None:
         raise ProblemError("give either segment or fit_window, not both")
@@ -232,7 +237,8 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         e_max = (_MAX_GAIN * BLOWUP + float(np.max(np.abs(c.efd)))) ** 2 * w_efd
         v_max = (BLOWUP + float(np.max(np.abs(vt)))) ** 2 * w_vt if vt is not None else 0.0
         q_max = (BLOWUP + float(np.max(np.abs(r.q)))) ** 2 * w_q if r.q is not None else 0.0
-        bound_total += a * (e_max + v_max + q_max) * dur
+        s_max = (BLOWUP + float(np.max(np.abs(r.vs)))) ** 2 * w_vs if r.vs is not None else 0.0
+        bound_total += a * (e_max + v_max + q_max + s_max) * dur
     if grid_names and not any(r.machine is not None for r in recs):
         raise ProblemError(f"{', '.join(grid_names)} fitted (--set {grid_names[0]}.min/max): only an on-line record "
                            "(a capture with p and q) determines the grid; these captures are at no load")
@@ -241,13 +247,25 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
                    constraints=tuple(fitted), constraint_texts=tuple(texts),
                    fixed_constraints=tuple(fixed), weights=tuple(alphas), w_efd=w_efd, w_vt=w_vt,
                    base=base, records=tuple(recs), window=window_used,
-                   penalty_base=max(1.0e20, 10.0 * bound_total), w_q=w_q, grid_names=grid_names)
+                   penalty_base=max(1.0e20, 10.0 * bound_total), w_q=w_q, grid_names=grid_names,
+                   w_vs=w_vs)
+
+
+def scored_vs(c: Capture) -> np.ndarray | None:
+    """The stabiliser's output a fit scores on capture c, as recorded: its `vs` channel on an
+    on-line record taken with the PSS's output on; None otherwise (not recorded, at no load, or
+    the PSS's output switched off, when the model's is held at 0 whatever the PSS computes)."""
+    vs = c.channel("vs")
+    return vs if vs is not None and c.on_line and not pss_switched_off(c) else None
 
 
 def _on_line(c: Capture, unit: Unit, owner: str) -> dict[str, Any]:
     """A capture with P and Q channels is an on-line record: the unit's machine on the grid at the
     record's pre-step P, Q and Vt (FitRecord.machine, vt0, q), its stabiliser's output held at 0
-    when the record was taken with the PSS off (`grid_as_recorded`); a no-load record: nothing."""
+    when the record was taken with the PSS off (`grid_as_recorded`); the recorded stabiliser
+    output `vs` less its pre-step level (the model's is 0 there, every stabiliser's washouts see
+    to it: a recorder channel's offset is not the model's to fit) where a fit scores it
+    (`scored_vs`); a no-load record: nothing."""
     p, q = c.channel("p"), c.channel("q")
     if p is None and q is None:
         return {}
@@ -266,6 +284,9 @@ def _on_line(c: Capture, unit: Unit, owner: str) -> dict[str, Any]:
         machine = machine_matrix(unit_machine(unit, grid_as_recorded(as_taken, c)))[0]
     except ValueError as exc:
         raise ProblemError(f"{owner}: {exc}") from None
+    vs = scored_vs(c)
+    if vs is not None:
+        vs = np.ascontiguousarray(vs - pre_step_mean(c.usetp, vs, float(c.dt)), dtype=float)
     return {"machine": machine, "vt0": point["Vt0"], "q": np.ascontiguousarray(q, dtype=float),
-            "grid_cols": tuple(MCOL[k] for k in unit.grid_identify)}
+            "grid_cols": tuple(MCOL[k] for k in unit.grid_identify), "vs": vs}
 

@@ -38,9 +38,10 @@ import numpy as np
 
 from bench_ctl.capture import Capture
 from bench_ctl.signals.edges import EdgeSearch
-from bench_ctl.units.unit import Unit
+from bench_ctl.units.unit import VS_WEIGHT, Unit
 
 from .check_records import BlocksCheck, CheckDescription, CheckWindow, HoldoutCheck, Span, Validation
+from .construction import scored_vs
 from .localize import DiagnosisError, NoiseFloor, noise_floor, pulse_edges, segments
 from .model_fits import Budget, ModelFit, Part, Setup, Views, Window, coarse_factor, mid
 from .polish import FD_STEP, polish
@@ -288,7 +289,8 @@ def _windows(capture: Capture, edges: EdgeSearch) -> tuple[Window, ...]:
 def _fit_floor(capture: Capture, unit: Unit, edges: EdgeSearch, efd_floor: NoiseFloor, source: str) -> NoiseFloor:
     """The noise floor of the mean objective every fit is ranked by: efd's at its weight, plus
     Vt's at its weight when the unit weights a recorded Vt (the default: efd's alone), plus on line
-    Q's at its weight (default 1: `Problem`'s)."""
+    Q's at its weight (default 1: `Problem`'s) and the stabiliser output's where a fit scores it
+    (`scored_vs`; weight `vs`, default `VS_WEIGHT`)."""
     weighted = [(float(unit.weights.get("efd", 1.0)), efd_floor)]
     w_vt = float(unit.weights.get("vt", 0.0))
     if capture.vt is not None and w_vt > 0.0:
@@ -296,6 +298,9 @@ def _fit_floor(capture: Capture, unit: Unit, edges: EdgeSearch, efd_floor: Noise
     w_q = float(unit.weights.get("q", 1.0))
     if capture.on_line and w_q > 0.0:
         weighted.append((w_q, noise_floor(capture.channel("q"), capture.dt, edges, source)))
+    w_vs, vs = float(unit.weights.get("vs", VS_WEIGHT)), scored_vs(capture)
+    if vs is not None and w_vs > 0.0:
+        weighted.append((w_vs, noise_floor(vs, capture.dt, edges, source)))
     return replace(efd_floor, variance=sum(w * f.variance for w, f in weighted),
                    rel_se=max(f.rel_se for _, f in weighted))
 

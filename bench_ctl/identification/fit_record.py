@@ -44,6 +44,9 @@ class FitRecord:
     q: np.ndarray | None = None
     #: the machine columns of the [grid] values the problem fits (`Problem.grid_names`)
     grid_cols: tuple[int, ...] = ()
+    #: an on-line record's stabiliser output as recorded, less its pre-step level (None: not
+    #: recorded, or the record was taken with the PSS's output switched off)
+    vs: np.ndarray | None = None
 
     @property
     def full(self) -> bool:
@@ -93,7 +96,8 @@ def decimated(r: FitRecord, q: int, n_max: int | None, offset: int) -> FitRecord
     return replace(r, usetp=np.ascontiguousarray(r.usetp[idx]), efd=np.ascontiguousarray(r.efd[idx]),
                    vt=None if r.vt is None else np.ascontiguousarray(r.vt[idx]), dt=r.dt * q, i0=i0,
                    i1=max(i1, i0 + 2), edges=edges,
-                   q=None if r.q is None else np.ascontiguousarray(r.q[idx]))
+                   q=None if r.q is None else np.ascontiguousarray(r.q[idx]),
+                   vs=None if r.vs is None else np.ascontiguousarray(r.vs[idx]))
 
 
 def segment_window(seg: slice, cap: Capture) -> tuple[float, float]:

@@ -6,7 +6,9 @@ list of parameter names to fit, and evaluates a whole population with ONE engine
     OF(x) = sum_k alpha_k * integral sum_n w_n (y_n(x) - y_n,meas)^2 dt   (trapezoidal rule)
 
 over captures k and signals n (efd with the unit's efd weight; vt when the capture has it and
-its weight is > 0; Q of an on-line record, weight `q`, default 1), docs/identification.md.
+its weight is > 0; Q of an on-line record, weight `q`, default 1; the stabiliser's output vs of an
+on-line record that recorded it, weight `vs`, default `units.unit.VS_WEIGHT`),
+docs/identification.md.
 
 A capture with P and Q channels is an on-line record: it runs on the machine on the grid
 (`bench_ctl.engine.machines.grid`, the unit's [grid] data) from the record's own pre-step P, Q and Vt.
@@ -81,6 +83,8 @@ class Problem:
     w_q: float = 0.0
     #: the trailing names that are [grid] values fitted on the on-line records (`Unit.grid_identify`)
     grid_names: tuple[str, ...] = ()
+    #: the weight of the stabiliser's output, on the records that have one (`FitRecord.vs`)
+    w_vs: float = 0.0
 
     # ------------------------------------------------------------------ basics
     @property
@@ -244,7 +248,7 @@ class Problem:
         fail_frac = np.zeros(n)  # sum over captures of the share of the record lost to a failure
         for k, r in enumerate(self.records):
             if r.full:
-                out = _simulate(P, r, measured=True, w_efd=self.w_efd, w_vt=self.w_vt, w_q=self.w_q)
+                out = _simulate(P, r, measured=True, w_efd=self.w_efd, w_vt=self.w_vt, w_q=self.w_q, w_vs=self.w_vs)
                 obj = out["obj"]
             else:
                 out, res = self._window_residuals(P, r)
@@ -261,8 +265,8 @@ class Problem:
 
     def simulate(self, x: Sequence[float]) -> list[dict[str, Any]]:
         """Full-record traces per capture: [{efd, vt, fail_step}] (efd as recorded; an on-line
-        record's p, q, ifd too)."""
-        return [{name: o[name][0] for name in ("efd", "vt", "p", "q", "ifd") if name in o}
+        record's p, q, vs, ifd too)."""
+        return [{name: o[name][0] for name in ("efd", "vt", "p", "q", "vs", "ifd") if name in o}
                 | {"fail_step": int(o["fail_step"][0])} for o in self._runs(np.reshape(x, (1, -1)))]
 
     def efd_traces(self, X: np.ndarray) -> list[np.ndarray]:
@@ -288,23 +292,23 @@ class Problem:
         return vt0 + (b * (vt0 - a) ** 2 if vt0 > a else 0.0)
 
     def mse(self, x: Sequence[float], signal: str = "efd") -> list[float]:
-        """Per capture, mean squared sample error of `signal` (efd or vt, whatever its weight)
+        """Per capture, mean squared sample error of `signal` (efd, vt, q or vs, whatever its weight)
         over the window (inf when the run failed, nan when the capture lacks the signal)."""
         return [float(v) for v in self.mse_many(np.asarray(x, dtype=float).reshape(1, -1), signal)[:, 0]]
 
     def mse_many(self, X: np.ndarray, signal: str = "efd") -> np.ndarray:
         """Per-capture MSE of `signal` for a population: shape (n_captures, n)."""
-        if signal not in ("efd", "vt", "q"):
-            raise ValueError(f"signal {signal!r}: choose 'efd', 'vt' or 'q'")
+        if signal not in _SCORED:
+            raise ValueError(f"signal {signal!r}: choose 'efd', 'vt', 'q' or 'vs'")
         P = self.matrix(X)
         rows = []
         for r in self.records:
-            meas = {"efd": r.efd, "vt": r.vt, "q": r.q}[signal]
+            meas = _measured(r)[signal]
             if meas is None:
                 rows.append(np.full(P.shape[0], np.nan))
                 continue
             if r.full:
-                out = _simulate(P, r, measured=True, **{f"w_{s}": float(s == signal) for s in ("efd", "vt", "q")})
+                out = _simulate(P, r, measured=True, **{f"w_{s}": float(s == signal) for s in _SCORED})
                 m = out["sse_" + signal] / meas.size
             else:
                 out = _simulate(P, r, r.i1)
@@ -318,7 +322,8 @@ class Problem:
 
         Returns (R (n, m), failed (n,) bool). Sample j of capture k, signal s enters as
         sqrt(alpha_k w_s c_j dt) (y - y_meas), c_j = 1/2 at the window's ends (trapezoid).
-        Only efd and (when weighted) vt are included, in that order, capture by capture.
+        Only efd and (when recorded and weighted) vt, Q and vs are included, in that order, capture
+        by capture (`signals`).
         """
         R, f = self.residuals_and_objective(X)
         return R, f >= self.penalty_base
@@ -337,10 +342,11 @@ class Problem:
         return R, np.where(fail_frac > 0, self.penalty(fail_frac), f)
 
     def signals(self, r: FitRecord) -> list[str]:
-        """The signals of record r in the residual vector, in order: efd, then vt and Q when
+        """The signals of record r in the residual vector, in order: efd, then vt, Q and vs when
         recorded and weighted."""
         return ["efd"] + (["vt"] if r.vt is not None and self.w_vt > 0 else []) \
-            + (["q"] if r.q is not None and self.w_q > 0 else [])
+            + (["q"] if r.q is not None and self.w_q > 0 else []) \
+            + (["vs"] if r.vs is not None and self.w_vs > 0 else [])
 
     def residual_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For each entry of the `residuals` vector: its capture, its instant (s from the record's
@@ -365,8 +371,8 @@ class Problem:
         c = np.ones(r.i1 - r.i0)
         c[0] = c[-1] = 0.5
         scale = np.sqrt(c * r.dt)
-        weight = {"efd": self.w_efd, "vt": self.w_vt, "q": self.w_q}
-        meas = {"efd": r.efd, "vt": r.vt, "q": r.q}
+        weight = {"efd": self.w_efd, "vt": self.w_vt, "q": self.w_q, "vs": self.w_vs}
+        meas = _measured(r)
         res = [math.sqrt(weight[s]) * scale * (out[s][:, r.i0: r.i1] - meas[s][r.i0: r.i1]) for s in self.signals(r)]
         return out, np.hstack(res)
 
@@ -378,8 +384,17 @@ def _lost(fail_step: np.ndarray, r: FitRecord) -> np.ndarray:
     return np.where(fail_step >= 0, (r.i1 - np.minimum(fail_step, r.i1 - 1)) / max(1, r.i1), 0.0)
 
 
+#: the signals an objective scores, in the engine's order
+_SCORED = ("efd", "vt", "q", "vs")
+
+
+def _measured(r: FitRecord) -> dict[str, np.ndarray | None]:
+    """The record's scored signals as recorded (None: not recorded)."""
+    return {"efd": r.efd, "vt": r.vt, "q": r.q, "vs": r.vs}
+
+
 def _simulate(P: np.ndarray, r: FitRecord, n: int | None = None, *, measured: bool = False, w_efd: float = 1.0,
-              w_vt: float = 0.0, w_q: float = 0.0) -> dict:
+              w_vt: float = 0.0, w_q: float = 0.0, w_vs: float = 0.0) -> dict:
     """The candidates P over record r (its first n samples; all: without traces when `measured`,
     with the weighted errors of the signals it has): the engine at no load, or for an on-line
     record on the grid from the record's operating point."""
@@ -389,9 +404,10 @@ def _simulate(P: np.ndarray, r: FitRecord, n: int | None = None, *, measured: bo
         P, machine = _on_line_inputs(P, r)
     else:
         P = P[:, :len(KERNEL_PARAMS)]
-    meas = {"efd": r.efd, "vt": r.vt, "q": r.q} if measured else None
+    meas = _measured(r) if measured else None
     return engine.run(P, r.usetp[:n], r.dt, r.usetp_pre, machine=machine, measured=meas,
-                      weights={"efd": w_efd, "vt": w_vt, "q": w_q}, store=not measured, edges=r.edges_upto(n))
+                      weights={"efd": w_efd, "vt": w_vt, "q": w_q, "vs": w_vs}, store=not measured,
+                      edges=r.edges_upto(n))
 
 
 def _on_line_inputs(P: np.ndarray, r: FitRecord) -> tuple[np.ndarray, np.ndarray]:

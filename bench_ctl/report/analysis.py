@@ -59,7 +59,7 @@ class CaptureAnalysis:
     fit_mse: float        # MSE over the fit window (= figures.mse without a window)
     fit_objective: float  # objective over the fit window (unweighted by the capture weight)
     acceptance: Acceptance  # IEC 61400-27-2 windows (bench_ctl.signals.acceptance)
-    online: dict[str, np.ndarray] | None = None   # an on-line record's simulated p, q, ifd
+    online: dict[str, np.ndarray] | None = None   # an on-line record's simulated p, q, vs, ifd
 
     @property
     def residual(self) -> np.ndarray:
@@ -182,7 +182,7 @@ def _analyse_capture(lc: LoadedCapture, values: dict[str, float],
             fit_obj += w_vt * trapezoid_sq(cap.vt[sl] - vt[sl], cap.dt)
     suffix = "" if single else f"_{lc.index + 1}"
     acc = evaluate(cap.time, cap.efd, efd, *edge_times(edges), limits)
-    online = {k: sim[k] for k in ("p", "q", "ifd")} if "p" in sim else None
+    online = {k: sim[k] for k in ("p", "q", "vs", "ifd")} if "p" in sim else None
     return CaptureAnalysis(lc, efd, vt, fail, edges, figs, suffix, fit_mse, fit_obj, acc, online)
 
 
@@ -240,7 +240,7 @@ def simulate_record(values: Mapping[str, float], cap: Any, grid: Mapping[str, fl
                     where: str) -> dict[str, Any]:
     """efd, vt and fail_step of the fitted values on a capture: at no load, or on the grid when
     the capture has P and Q (from its own operating point and the result's [grid], the stabiliser
-    as the record was taken: `grid_as_recorded`; then p, q and ifd too)."""
+    as the record was taken: `grid_as_recorded`; then p, q, vs and ifd too)."""
     p, q = cap.channel("p"), cap.channel("q")
     if p is None or q is None or cap.vt is None:
         efd, vt, fail = simulate(values, cap.usetp, cap.dt, edges=spec)

@@ -72,16 +72,17 @@ def draw_response(fig: Canvas, time: np.ndarray, usetp: np.ndarray, meas: np.nda
 
 def draw_online(fig: Canvas, time: np.ndarray, meas: Mapping[str, np.ndarray], sim: Mapping[str, np.ndarray],
                 edges: EdgeSearch) -> None:
-    """An on-line record: efd, Vt, P and Q measured vs simulated, one panel each, dotted lines at
-    the setpoint edges."""
-    axes = fig.subplots(4, 1, sharex=True)
-    for ax, (name, unit) in zip(axes, (("efd", "pu"), ("vt", "pu"), ("p", "pu"), ("q", "pu"))):
+    """An on-line record: efd, Vt, P, Q and, when `meas` has it, the stabiliser's output vs measured
+    vs simulated, one panel each, dotted lines at the setpoint edges."""
+    names = [name for name in ("efd", "vt", "p", "q", "vs") if meas.get(name) is not None]
+    axes = fig.subplots(len(names), 1, sharex=True)
+    for ax, name in zip(axes, names):
         ax.plot(time, meas[name], color=COLORS["measured"], lw=0.8, label=f"{name} measured")
         ax.plot(time, sim[name], color=COLORS["simulated"], lw=1.3, label=f"{name} simulated")
         for t_edge in edge_times(edges):
             if t_edge is not None:
                 ax.axvline(t_edge, color="0.5", ls=":", lw=0.8)
-        ax.set_ylabel(f"{name} ({unit})")
+        ax.set_ylabel(f"{name} (pu)")
         ax.grid(alpha=0.3)
         ax.legend(loc="upper right", fontsize=7)
     axes[0].set_title("On line: measured vs simulated", fontsize=10)

@@ -10,7 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from bench_ctl.engine.simulate import pre_trigger_mean, simulate
+from bench_ctl.engine.simulate import pre_step_mean, pre_trigger_mean, simulate
+from bench_ctl.identification.construction import scored_vs
 from bench_ctl.identification.result_file import CandidateEntry
 from bench_ctl.identification.selection import separation_text, where_left
 from bench_ctl.identification.timing import fitted_edge_plan
@@ -143,8 +144,10 @@ def response(d: ReportData) -> Section:
 
 
 def online(d: ReportData) -> Section | None:
-    """An on-line record's P, Q, Vt and efd, measured vs simulated, and the electromechanical mode
-    in P after the first edge, measured vs simulated (`model.mode`). None without one."""
+    """An on-line record's P, Q, Vt and efd, measured vs simulated (and the stabiliser's output
+    where a fit scores it: `scored_vs`, less its pre-step level as fitted), and the
+    electromechanical mode in P after the first edge, measured vs simulated (`model.mode`). None
+    without one."""
     blocks: list[Block] = []
     for a in d.captures:
         if a.online is None:
@@ -154,9 +157,15 @@ def online(d: ReportData) -> Section | None:
             blocks.append(Heading(a.label))
         meas = {"efd": cap.efd, "vt": cap.vt, "p": cap.channel("p"), "q": cap.channel("q")}
         sim = {"efd": a.efd_sim, "vt": a.vt_sim, "p": a.online["p"], "q": a.online["q"]}
-        blocks.append(Fig(f"online{a.suffix}", "On line: efd, terminal voltage, active and reactive power, "
-                          "measured and simulated; dotted lines mark the setpoint edges.",
-                          partial(F.draw_online, time=cap.time, meas=meas, sim=sim, edges=a.edges), size=(7.5, 8.0)))
+        vs = scored_vs(cap)
+        caption = "On line: efd, terminal voltage, active and reactive power"
+        if vs is not None:
+            meas["vs"] = vs - pre_step_mean(cap.usetp, vs, cap.dt)
+            sim["vs"] = a.online["vs"]
+            caption += " and the stabiliser's output vs (less its pre-step level, as fitted)"
+        blocks.append(Fig(f"online{a.suffix}", f"{caption}, measured and simulated; dotted lines mark the "
+                          "setpoint edges.", partial(F.draw_online, time=cap.time, meas=meas, sim=sim, edges=a.edges),
+                          size=(7.5, 8.0 if vs is None else 9.5)))
         rows = []
         for name, p in (("measured", meas["p"]), ("simulated", sim["p"])):
             lead_s = edge_times(a.edges)[0]

@@ -223,7 +223,13 @@ def check_value(d: Dialect, kernel_name: str, value: float, where: str) -> None:
 
 
 #: the signals a unit's [weights] may weigh
-WEIGHT_KEYS = {"efd", "vt", "q"}
+WEIGHT_KEYS = {"efd", "vt", "q", "vs"}
+#: the default weight of the stabiliser's output `vs`, counted only where a capture records it (0
+#: otherwise). A reference step moves a PSS's output about a hundredth as much as efd (the PSS2B
+#: records of tests/pss2_cases.py: 0.00075 against 0.13 pu rms over the response, 1/170), so that
+#: at 1e4 its squared errors count comparably with efd's at 1 (a third as much there, as its noise
+#: does: 5e-5 pu against efd's 0.01); not more, so that a noisier vs channel does not drown efd
+VS_WEIGHT = 1.0e4
 
 
 def _num(value: object, where: str) -> float:

@@ -130,6 +130,21 @@ def test_comtrade_capture_can_be_written_and_read_back(tmp_path: Path) -> None:
                                   "IFD": "A"}
 
 
+def test_the_stabilisers_output_maps_to_the_vs_channel(tmp_path: Path) -> None:
+    """A PSS output channel mapped to `vs` is a named channel in pu, written and read back."""
+    from bench_ctl.capture import write_capture
+
+    sig = _signals()
+    vs = 0.01 * np.sin(2 * np.pi * 2.0 * np.arange(N) / RATE_HZ)
+    pss = Analog("PSS_OUT", "V", 1e-4, 0.0, np.round(vs * 10.0 / 1e-4).astype(np.int64))   # 10 V = 1 pu
+    cfg = write_comtrade_1999(tmp_path, "rec", ft="BINARY", analog=[*sig.values(), pss])
+    cap = read_comtrade(cfg, {**MAP, "vs": "PSS_OUT"}, scale={"vt": 1 / 18.0, "vs": 0.1})
+    assert np.allclose(cap.channel("vs"), vs, rtol=0, atol=1e-5) and "PSS_OUT" not in cap.extra
+    write_capture(tmp_path / "cap.csv", cap)
+    back = read_capture(tmp_path / "cap.csv")
+    assert np.array_equal(back.channel("vs"), cap.channel("vs")) and back.meta["units"]["vs"] == "pu"
+
+
 def test_unknown_channel_names_file_channel_and_available(tmp_path: Path) -> None:
     cfg = write_comtrade_1999(tmp_path, "rec", ft="ASCII", analog=list(_signals().values()))
     with pytest.raises(CaptureError) as info:

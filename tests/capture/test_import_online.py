@@ -46,3 +46,41 @@ def test_an_export_in_mw_and_mvar_is_put_on_the_machine_base(tmp_path):
     problem = make_problem([got], online_unit("sexs_xe02", true_values=False))
     assert problem.records[0].machine is not None
     assert set(problem.signals(problem.records[0])) >= {"efd", "q"}
+
+
+def test_the_stabilisers_output_is_imported_as_vs_and_fitted_with_efd_and_q(tmp_path):
+    """`--map vs=COLUMN` (issue 49, item 2): the PSS's output, recorded in volts (10 V = 1 pu here),
+    becomes the capture's `vs` channel in pu, read back as written; identification scores it on
+    the on-line record (less its pre-step level) at the default weight, and not with weight 0."""
+    from bench_ctl.units.overrides import apply_overrides
+    from bench_ctl.units.unit import VS_WEIGHT
+
+    cap = online_capture("sexs_xe02")
+    cols = cap.columns()
+    t = cols["time"]
+    vs_pu = 0.003 + 0.004 * np.sin(2 * np.pi * 1.5 * t) * (t > 1.0)   # an offset, then a swing
+    lines = ["t_s;Uref;Ufd;Ug;P;Q;PSS_V"]
+    for k in range(cap.n):
+        lines.append(";".join(repr(float(x)) for x in (t[k], cols["usetp"][k], cols["efd"][k], cols["vt"][k],
+                                                       cols["p"][k], cols["q"][k], 10.0 * vs_pu[k])))
+    src = tmp_path / "export.csv"
+    src.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    out = tmp_path / "cap.csv"
+    assert main(["import", str(src), "-o", str(out), "--time-column", "t_s", "--delimiter", ";",
+                 "--map", "usetp=Uref", "--map", "efd=Ufd", "--map", "vt=Ug", "--map", "p=P", "--map", "q=Q",
+                 "--map", "vs=PSS_V", "--scale", "vs=0.1"]) == 0
+    got = read_capture(out)
+    np.testing.assert_allclose(got.channel("vs"), vs_pu, rtol=0, atol=1e-12)
+    assert got.unit("vs") == "pu" and got.meta["units"]["vs"] == "pu"
+    unit = online_unit("sexs_xe02", true_values=False)
+    problem = make_problem([got], unit)
+    r = problem.records[0]
+    assert problem.signals(r) == ["efd", "q", "vs"] and problem.w_vs == VS_WEIGHT
+    assert abs(float(np.mean(r.vs[:int(0.9 / got.dt)]))) < 1e-12          # its pre-step level taken off
+    np.testing.assert_allclose(r.vs, vs_pu - 0.003, rtol=0, atol=1e-12)
+    off = make_problem([got], apply_overrides(unit, ["weights.vs=0"]))
+    assert off.signals(off.records[0]) == ["efd", "q"]
+    plain = make_problem([cap], unit)                                     # the record without vs
+    x = plain.x_start()[None, :]
+    assert off.objective(x)[0] == plain.objective(x)[0]
+    assert problem.objective(x)[0] > plain.objective(x)[0]

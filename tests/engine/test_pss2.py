@@ -7,8 +7,10 @@ The equations here differ in form from the engine's where they can: the inputs a
 washed out as absolute signals (the washouts' states start at the operating point's input), the
 ramp-tracking filter is the transfer function (1 + s T8)^N / (1 + s T9)^(M N) in state-space form
 (scipy.signal.tf2ss), not a chain of lags. Each case compares efd (1e-3 pu: the SEXS gain of 200
-makes that 5e-6 pu of the stabiliser's output), Vt, P and Q (1e-4 pu); a mutation of the equations
-(M and N swapped, a washout dropped) must fail the same comparison."""
+makes that 5e-6 pu of the stabiliser's output), Vt, P and Q (1e-4 pu) and the stabiliser's output
+vs, the engine's signal (1e-5 pu); a mutation of the equations (M and N swapped, a washout
+dropped) must fail the same comparison. The engine scores vs like the other signals, and a run
+that does not weigh it is the run without it to the last bit."""
 from __future__ import annotations
 
 import numpy as np
@@ -122,11 +124,12 @@ def reference(pss: dict, *, drop_tw2: bool = False, swap_mn: bool = False):
 
 def errors(out, ref) -> dict[str, float]:
     k = ref.shape[1]
-    return {name: float(np.abs(out[name][0, :k] - ref[q]).max()) for q, name in enumerate(("efd", "vt", "p", "q"))}
+    return {name: float(np.abs(out[name][0, :k] - ref[q]).max())
+            for q, name in enumerate(("efd", "vt", "p", "q", "vs"))}
 
 
 def _within(err: dict[str, float]) -> bool:
-    return err["efd"] < 1e-3 and err["vt"] < 1e-4 and err["p"] < 1e-4 and err["q"] < 1e-4
+    return err["efd"] < 1e-3 and err["vt"] < 1e-4 and err["p"] < 1e-4 and err["q"] < 1e-4 and err["vs"] < 1e-5
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
@@ -174,6 +177,32 @@ def test_pss2b_damps_the_swing_and_ks1_zero_is_none():
     assert on.damping > off.damping + 0.05, (on, off)
     zero = engine_run({**PSS2B, "KS1": 0.0})
     assert np.array_equal(zero["efd"], without["efd"]) and np.array_equal(zero["p"], without["p"])
+
+
+def test_the_stabilisers_output_is_scored_like_the_other_signals():
+    """vs measured and weighted adds its weighted trapezoidal squared error to the objective
+    (`sse_vs`); measured with weight 0 the objective is the one without it, to the last bit."""
+    P = param_matrix(_unit().values())
+    M = machine_matrix(_grid(PSS2B))
+    sim = engine_run(PSS2B)
+    usetp = np.ones(sim["efd"].shape[1])
+    usetp[int(round(STEPS[0][0] / DT)):] += STEPS[0][1]
+    rng = np.random.default_rng(5)
+    efd = sim["efd"][0] + rng.normal(0.0, 0.01, usetp.size)
+    vs = sim["vs"][0] + rng.normal(0.0, 1e-4, usetp.size)
+    assert np.ptp(sim["vs"][0]) > 1e-3 and np.all(engine_run(None)["vs"] == 0.0)
+
+    def obj(measured, weights):
+        return run(P, usetp, DT, 1.0, machine=M, measured=measured, weights=weights, store=False)
+
+    base = obj({"efd": efd}, {"efd": 1.0})
+    unweighted = obj({"efd": efd, "vs": vs}, {"efd": 1.0, "vs": 0.0})
+    assert unweighted["obj"][0] == base["obj"][0] and "sse_vs" not in unweighted
+    scored = obj({"efd": efd, "vs": vs}, {"efd": 1.0, "vs": 100.0})
+    e2 = (sim["vs"][0] - vs) ** 2
+    trapezoid = DT * (e2.sum() - 0.5 * (e2[0] + e2[-1]))
+    assert scored["sse_vs"][0] == pytest.approx(e2.sum(), rel=1e-9)
+    assert scored["obj"][0] - base["obj"][0] == pytest.approx(100.0 * trapezoid, rel=1e-9)
 
 
 def test_pss2_values_that_do_not_go_together_are_refused():

@@ -46,3 +46,30 @@ def test_a_result_without_the_pair_has_no_stabiliser_section(tmp_path):
     assert main(["identify", str(on), *PSS, "--evals", "32", "--json", str(res)]) in (0, 1)
     assert main(["report", str(res), "-o", str(html)]) in (0, 1)
     assert 'id="sec-stabiliser"' not in html.read_text()
+
+
+def test_an_on_line_capture_with_the_stabilisers_output_shows_it_measured_and_simulated(tmp_path):
+    """A capture with a `vs` channel (issue 49, item 2): the on-line figure gets a fifth panel, vs
+    measured (less its pre-step level, as fitted) and simulated; without vs it keeps its four."""
+    from matplotlib.figure import Figure
+
+    from bench_ctl.capture import read_capture
+    from bench_ctl.report import figures as F
+    from bench_ctl.report.metrics import setpoint_edges
+    from pss2_cases import make_case
+
+    case = make_case(tmp_path, 0, with_vs=True)
+    res, html = tmp_path / "result.json", tmp_path / "report.html"
+    assert main(["identify", str(case.capture), "--unit", str(case.unit), "--evals", "32", "--json", str(res)]) \
+        in (0, 1)
+    assert main(["report", str(res), "-o", str(html)]) in (0, 1)
+    text = html.read_text().replace("&#x27;", "'")
+    assert "and the stabiliser's output vs (less its pre-step level, as fitted)" in text
+    assert (tmp_path / "report_online.png").is_file()
+    cap = read_capture(case.capture)
+    meas = {name: cap.channel(name) for name in ("efd", "vt", "p", "q", "vs")}
+    for with_vs, panels in ((True, 5), (False, 4)):
+        shown = meas if with_vs else {k: v for k, v in meas.items() if k != "vs"}
+        fig = Figure()
+        F.draw_online(fig, cap.time, shown, shown, setpoint_edges(cap.time, cap.usetp))
+        assert len(fig.axes) == panels
