@@ -157,8 +157,9 @@ def _edge(ss, exc, delta: float, step: float = STEP, fine_step: float = FINE_STE
     ss.TDS.config.tstep = step
 
 
-def make_capture(andes, model: str, params: dict, amplitude: float, ss=None) -> dict:
-    """A pulse of `amplitude` on the unit's reference; `ss`: a ready system (else built here)."""
+def make_capture(andes, model: str, params: dict, amplitude: float, ss=None, duration: float = DURATION) -> dict:
+    """A pulse of `amplitude` on the unit's reference; `ss`: a ready system (else built here);
+    `duration`: the first that many seconds of the record (the same samples as the whole one's)."""
     ss = _system(andes, model, params) if ss is None else ss
     exc = getattr(ss, model)
     t_on = RECORD_START + EDGE_ON
@@ -169,7 +170,7 @@ def make_capture(andes, model: str, params: dict, amplitude: float, ss=None) -> 
     _edge(ss, exc, step)
     _run_until(ss, t_off)
     _edge(ss, exc, -step)
-    _run_until(ss, RECORD_START + DURATION + 0.01)
+    _run_until(ss, RECORD_START + duration + 0.01)
     ts = ss.dae.ts
     t_raw = np.asarray(ts.t, float)
     y = np.asarray(ts.y, float)
@@ -179,7 +180,7 @@ def make_capture(andes, model: str, params: dict, amplitude: float, ss=None) -> 
     # ANDES keeps the state before and after an event at the same instant: take the last one
     keep = np.r_[np.diff(t_raw) > 0, True]
     t_raw, efd_raw, vt_raw, ifd_raw = t_raw[keep], efd_raw[keep], vt_raw[keep], ifd_raw[keep]
-    n = int(round(DURATION * RATE)) + 1
+    n = int(round(duration * RATE)) + 1
     t = np.arange(n) / RATE
     ta = RECORD_START + t
     usetp = 1.0 + np.where((t >= EDGE_ON) & (t < EDGE_ON + WIDTH), step, 0.0)
@@ -227,8 +228,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--amplitudes", default=None,
                     help="comma-separated step amplitudes (fractions of Vt0) among " + ",".join(map(str, AMPLITUDES))
                     + " (default: all)")
+    ap.add_argument("--duration", type=float, default=DURATION,
+                    help=f"record only the first seconds (<= {DURATION:g}, after both edges): the test that "
+                         "regenerates a fixture compares that part, in half the time")
     ap.add_argument("--json", dest="json_out", default=None)
     args = ap.parse_args(argv)
+    if not EDGE_ON + WIDTH < args.duration <= DURATION:
+        ap.error(f"--duration {args.duration:g}: between {EDGE_ON + WIDTH:.3f} (both edges) and {DURATION:g} s")
     with tempfile.TemporaryDirectory(prefix="andes-home-") as home:
         os.environ["HOME"] = home  # ANDES writes generated code under $HOME/.andes
         import andes
@@ -258,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
                 scale = 1.0 + 0.08 * ((3 * i + j) % 5 - 2)  # 0.84 .. 1.16: no single memorisable set
                 params = {k: (v * scale if k in SCALED else v) for k, v in EXCITERS[model].items()}
                 t0 = time.perf_counter()
-                cap = make_capture(andes, model, params, amp)
+                cap = make_capture(andes, model, params, amp, duration=args.duration)
                 name = f"{model.lower()}_{int(round(amp * 100)):02d}pct"
                 sha = _write_csv(out / f"{name}.csv", cap["data"])
                 d = cap["data"]
