@@ -210,8 +210,9 @@ def make_problem(captures: Sequence[Capture], unit: Unit, *, names: Sequence[str
         raise ProblemError("efd weight is 0 and no capture has a vt channel: nothing to fit")
     w_q = float(unit.weights.get("q", 1.0))
     w_vs = float(unit.weights.get("vs", VS_WEIGHT))
-    if w_vs < 0:
-        raise ProblemError(f"signal weight vs = {w_vs}: need >= 0")
+    for name, w in (("q", w_q), ("vs", w_vs)):
+        if not (math.isfinite(w) and w >= 0):
+            raise ProblemError(f"signal weight {name} = {w}: need a finite value >= 0")
 
     if segment is not None and fit_window is not None:
         raise ProblemError("give either segment or fit_window, not both")

@@ -55,6 +55,18 @@ def test_vt_weight_and_capture_weights_enter_the_sum(unit, cap):
     assert p.objective(X)[0] == pytest.approx(want, rel=1e-12)
 
 
+@pytest.mark.parametrize("setting", ["weights.q=-1", "weights.vs=-0.5", "weights.q=nan"])
+def test_a_negative_or_nan_signal_weight_is_refused_by_name(unit, cap, setting):
+    name = setting.split("=")[0].split(".")[1]
+    try:
+        u2 = apply_overrides(unit, [setting])
+    except ValueError as exc:   # refused where it is read: as good
+        assert name in str(exc)
+        return
+    with pytest.raises(ProblemError, match=rf"signal weight {name} = .*: need a finite value >= 0"):
+        make_problem([cap], u2, fit_edges=False)
+
+
 def test_failed_candidates_rank_below_every_finite_one_and_earlier_is_worse(unit, cap):
     p = make_problem([cap], unit, fit_edges=False)
     good = p.x_start()
