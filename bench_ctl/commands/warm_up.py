@@ -9,9 +9,14 @@ import time
 import click
 
 from bench_ctl.exitcodes import ExitCode
+from bench_ctl.units.overrides import apply_overrides
 from bench_ctl.units.unit import Unit, UnitError
 
 from .options import build_unit, unit_options
+
+#: the on-line plants `--all` compiles the real-time loop of, as `--set` values on the unit: the
+#: unit alone (`online_step`'s simulated bench), and with an IEEEST (`pss_step`'s)
+ONLINE_BENCH_SETS: tuple[tuple[str, ...], ...] = ((), ("PSS_MODEL=IEEEST", "PSS_KS=5"))
 
 
 def unit_keys(unit: Unit) -> list:
@@ -34,7 +39,8 @@ def unit_keys(unit: Unit) -> list:
 @click.command("warm-up")
 @click.option("--all", "everything", is_flag=True,
               help="Every variant of the engine (each machine under each class of blocks, with and without a "
-                   "stabiliser): what the test suite and `identify --model auto` run.")
+                   "stabiliser): what the test suite and `identify --model auto` run; and the simulated "
+                   "bench's real-time loops, no load and on line.")
 @unit_options
 def warm_up(everything: bool, unit_path: str | None, overrides: tuple[str, ...], effects: tuple[str, ...],
             **model: str | None) -> int:
@@ -54,7 +60,10 @@ def warm_up(everything: bool, unit_path: str | None, overrides: tuple[str, ...],
     click.echo(f"{len(keys)} engine variant(s): {len(keys) - len(todo)} in the cache, {len(todo)} to compile")
     warm.warm(todo, report=lambda key, s: click.echo(f"  compiled the {key.words()} in {s:.0f} s"))
     plant_warm_up(unit)
-    if len(keys) > 1 and keys[1].machine == "grid" and not everything:
+    if everything:   # the simulated bench's plants on line too: alone, and with the IEEEST of pss_step's bench
+        for extra in ONLINE_BENCH_SETS:
+            plant_warm_up(apply_overrides(unit, list(extra)) if extra else unit, online=True)
+    elif len(keys) > 1 and keys[1].machine == "grid":
         plant_warm_up(unit, online=True)
     click.echo(f"the engine is ready ({time.perf_counter() - t0:.0f} s)")
     return ExitCode.OK
