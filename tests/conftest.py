@@ -14,18 +14,6 @@ from records import assert_round_trip
 from truth import TRUTH
 
 RECORD_TAGS = ("bench-ctl/result/", "bench-ctl/diagnosis/")
-#: the tests that wait on a simulated bench's clock (dry runs, the simulated devices, the drivers
-#: against them, the demo's dry run), marked `realtime`: `make test` runs them beside the others,
-#: which it runs at a lower priority, so that a computing test cannot delay a real-time one
-REALTIME = ("runner", "simulators", "drivers", "commands/test_demo.py")
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    here = Path(__file__).parent
-    for item in items:
-        where = Path(item.fspath).relative_to(here).as_posix()
-        if any(where == r or where.startswith(r + "/") for r in REALTIME):
-            item.add_marker(pytest.mark.realtime)
 
 
 @pytest.fixture(autouse=True)
