@@ -80,6 +80,20 @@ def install(notice: Notice | None) -> Notice:
     return old
 
 
+_said = threading.local()   # how deep this thread is inside a notice
+
+
 def compiling(what: str, estimate_s: float) -> contextlib.AbstractContextManager:
-    """The context a compilation runs in: the installed notice."""
-    return _notice(what, estimate_s)
+    """The context a compilation runs in: the installed notice; inside another notice on this
+    thread nothing more (the outer one covers the wait: one line, not one per function)."""
+    return contextlib.nullcontext() if getattr(_said, "depth", 0) else _counted(_notice(what, estimate_s))
+
+
+@contextlib.contextmanager
+def _counted(notice: contextlib.AbstractContextManager) -> Iterator[None]:
+    with notice:
+        _said.depth = getattr(_said, "depth", 0) + 1
+        try:
+            yield
+        finally:
+            _said.depth -= 1

@@ -10,20 +10,25 @@ it does (`compiling`): a fresh machine pays that once.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from types import FunctionType
 
 import numba as nb
+import numpy as np
 from numba.core.registry import CPUDispatcher
 
 from bench_ctl.compile_notice import compiling
+from bench_ctl.model.params import KERNEL_PARAMS, REFERENCE_VALUES, neutral_values
 
 from . import exciter, runner, step, substep
+from .derived import derive
 from .exciter import ST4_ALL, ST4_NONE, ST4_SOME
 from .jit import prune_stale, specialise
-from .layout import X_FULL, X_REF, X_ST4, X_ST4_ONLY
+from .layout import N_SCORED, X_FULL, X_REF, X_ST4, X_ST4_ONLY
 from .machines import grid, noload, recorded
+from .runner import N_KEEP, Drive, Edges, Out, Switches
 from .stabilisers import ieeest, none, pss2
 
 log = logging.getLogger(__name__)
@@ -38,7 +43,7 @@ _WORDS = {"noload": "no-load", "grid": "on-line", "recorded": "open-loop",
           "pss2": "with a PSS2A/PSS2B stabiliser"}
 #: seconds a variant's first compilation took on a 2-core machine of this project's CI (measured:
 #: docs/benchmarks.md, "The engine"), what a command says before it waits
-ESTIMATE_S = {"ref": 20.0, "full": 30.0, "st4": 35.0, "st4only": 30.0}
+ESTIMATE_S = {"ref": 30.0, "full": 30.0, "st4": 35.0, "st4only": 30.0}
 
 _SLOT = ("ST4", "SPAN", "ROWS")
 _SLOT_PREFIX = ("exc_", "gen_", "pss_")
@@ -119,16 +124,22 @@ class Variant:
             copy.py_func.__globals__.update(copies)
         self.functions = copies
         self._ready: set[str] = set()
+        self._whole = False   # compile_key called: every function compiled for a run's types
 
     def call(self, name: str, *args):
         """Function `name` of the variant called with `args`, compiled first (and said) when numba's
-        disk cache does not hold it for these argument types."""
+        disk cache does not hold it for these argument types; `new_work`, a run's first call,
+        compiles the variant's run with it (`compile_key`: a run's argument types), so that a
+        first run says one notice for the variant, not one per function."""
         dispatcher = self.functions[name]
         if name not in self._ready:
             sig = tuple(nb.typeof(a) for a in args)
             if sig not in dispatcher.overloads and not cached(dispatcher, sig):
                 with compiling(self.key.words(), ESTIMATE_S[EXCITERS[self.key.exciter]]):
                     dispatcher.compile(sig)
+                    if name == "new_work" and not self._whole:   # a run's first step: the rest
+                        self._whole = True                       # under the same notice, one line
+                        compile_key(self.key)
                 prune_stale()
             self._ready.add(name)
         return dispatcher(*args)
@@ -152,3 +163,27 @@ def variant(key: Key) -> Variant:
     if v is None:
         v = _VARIANTS[key] = Variant(key)
     return v
+
+
+def run_arguments(key: Key):
+    """Arguments of the types a run passes `new_work` and `advance` (a 4-sample record)."""
+    values = {**{n: 0.0 for n in KERNEL_PARAMS}, **neutral_values(), **REFERENCE_VALUES}
+    P = np.array([[values[n] for n in KERNEL_PARAMS]])
+    D = grid.derive_grid(P, grid.machine_matrix(grid.TYPICAL_MACHINE)) if key.machine == "grid" else derive(P)
+    T = 4
+    ext = np.ones((2, T)) if key.machine == "recorded" else np.zeros((2, 1))
+    drive = Drive(np.array([1.0, 1.0, 1.05, 1.05]), 1.0, 1e-3, np.zeros((N_SCORED, T)), np.ones(N_SCORED), ext)
+    edges = Edges(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0, np.int64), np.zeros(T, np.uint8))
+    out = Out(np.zeros((2, 1, T)), np.full(N_KEEP, -1, np.int64), np.zeros((N_SCORED, 1)), np.zeros((N_SCORED, 1)),
+              np.full(1, -1, np.int64))
+    return np.ascontiguousarray(D.T), drive, edges, out, Switches(False, False, False, False, True, 1, 1)
+
+
+def compile_key(key: Key) -> float:
+    """Compile (or load) variant `key` in this process; seconds."""
+    t0 = time.perf_counter()
+    Dt, drive, edges, out, sw = run_arguments(key)
+    v = variant(key)
+    w = v.call("new_work", Dt, 0, 1, 1, 1, 0, drive.ext)
+    v.call("advance", w, drive, edges, out, 0, 4, 3, sw)
+    return time.perf_counter() - t0

@@ -12,19 +12,12 @@ import logging
 import os
 import subprocess
 import sys
-import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numba as nb
-import numpy as np
 
-from bench_ctl.model.params import KERNEL_PARAMS, REFERENCE_VALUES, neutral_values
-
-from .derived import derive
-from .layout import N_SCORED, X_FULL, X_REF, X_ST4, X_ST4_ONLY
-from .machines import grid
-from .runner import N_KEEP, Drive, Edges, Out, Switches
-from .variants import EXCITERS, Key, cached, variant
+from .layout import X_FULL, X_REF, X_ST4, X_ST4_ONLY
+from .variants import EXCITERS, Key, cached, compile_key, run_arguments, variant
 
 log = logging.getLogger(__name__)
 
@@ -47,35 +40,11 @@ def key_named(name: str) -> Key:
         raise ValueError(f"unknown engine variant {name!r}; known: {', '.join(_BY_NAME)}") from None
 
 
-def _arguments(key: Key):
-    """Arguments of the types a run passes `new_work` and `advance` (a 4-sample record)."""
-    values = {**{n: 0.0 for n in KERNEL_PARAMS}, **neutral_values(), **REFERENCE_VALUES}
-    P = np.array([[values[n] for n in KERNEL_PARAMS]])
-    D = grid.derive_grid(P, grid.machine_matrix(grid.TYPICAL_MACHINE)) if key.machine == "grid" else derive(P)
-    T = 4
-    ext = np.ones((2, T)) if key.machine == "recorded" else np.zeros((2, 1))
-    drive = Drive(np.array([1.0, 1.0, 1.05, 1.05]), 1.0, 1e-3, np.zeros((N_SCORED, T)), np.ones(N_SCORED), ext)
-    edges = Edges(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0, np.int64), np.zeros(T, np.uint8))
-    out = Out(np.zeros((2, 1, T)), np.full(N_KEEP, -1, np.int64), np.zeros((N_SCORED, 1)), np.zeros((N_SCORED, 1)),
-              np.full(1, -1, np.int64))
-    return np.ascontiguousarray(D.T), drive, edges, out, Switches(False, False, False, False, True, 1, 1)
-
-
-def compile_key(key: Key) -> float:
-    """Compile (or load) variant `key` in this process; seconds."""
-    t0 = time.perf_counter()
-    Dt, drive, edges, out, sw = _arguments(key)
-    v = variant(key)
-    w = v.call("new_work", Dt, 0, 1, 1, 1, 0, drive.ext)
-    v.call("advance", w, drive, edges, out, 0, 4, 3, sw)
-    return time.perf_counter() - t0
-
-
 def missing(keys: tuple[Key, ...]) -> list[Key]:
     """The variants among `keys` numba's disk cache lacks."""
     out = []
     for key in keys:
-        Dt, drive, edges, out_, sw = _arguments(key)
+        Dt, drive, edges, out_, sw = run_arguments(key)
         v = variant(key)
         sig = tuple(nb.typeof(a) for a in (Dt, 0, 1, 1, 1, 0, drive.ext))
         if not cached(v.functions["new_work"], sig):

@@ -173,7 +173,7 @@ def test_the_rk4_loops_are_vectorised(key, tmp_path):
 
     compile_key(key)
     v = variants.variant(key)
-    w = v.call("new_work", *warm._arguments(key)[:1], 0, 1, 1, 1, 0, np.zeros((2, 1)))
+    w = v.call("new_work", *warm.run_arguments(key)[:1], 0, 1, 1, 1, 0, np.zeros((2, 1)))
     v.call("step_all", w.D, w.S, w.R, w.U, w.M, 0, 1e-3, 1, np.zeros((2, 1)))   # (loaded from the cache)
     obj = tmp_path / "step_all.o"
     obj.write_bytes(_object_code(v.functions["step_all"]))
