@@ -32,10 +32,10 @@ HAZARDS
     Those of online_step, and the unit without its stabiliser during the first step: a poorly
     damped swing after the step. The P swing limit (limits.p_swing_max_mw) and the bands end the
     step at once, and a step ended early puts the PSS switch back as found at once, right after
-    the setpoint (not when the record ends); whatever ends the test (an abort, an error, a lost link, Ctrl-C, SIGTERM, a
-    refusal after the switch was written) the runner's safe state restores the setpoint and the
-    PSS switch as found. A host that dies leaves the device to its watchdog (the simulated one
-    puts the switch back with the setpoint).
+    the setpoint (not when the record ends); whatever ends the test (an abort, an error, a lost
+    link, Ctrl-C, SIGTERM, a refusal after the switch was written) the runner's safe state
+    restores the setpoint and the PSS switch as found. A host that dies leaves the device to its
+    watchdog (the simulated one puts the switch back with the setpoint).
 
 PASS CRITERIA
     - Each step passes online_step's criteria (named "PSS off: ...", "PSS on: ...").

@@ -55,14 +55,13 @@ def _ac8b(s: dict[str, float], amp: float, width: float, n: int, dt: float, s10:
                 (vr - vfe) / te, (efd - ifd) / td0p, (eqp - eqpp) / td0pp]
 
     t = np.arange(n) * dt
-    sol = solve_pieces(f, t, [1.0, vfe0 / ka, 0.0, vfe0, ve0, 1.0, 1.0], (0.5, 0.5 + width))
-    assert sol.success
-    eqp = sol.y[5]
+    Y = solve_pieces(f, t, [1.0, vfe0 / ka, 0.0, vfe0, ve0, 1.0, 1.0], (0.5, 0.5 + width))
+    eqp = Y[5]
     ifd = eqp + np.array([sat(v) for v in eqp])
-    efd = np.array([ve * _fex(kc * i / ve) for ve, i in zip(sol.y[4], ifd)])
-    e = 1.0 + np.where((t >= 0.5) & (t < 0.5 + width), amp, 0.0) - (sol.y[0] if tr > 0 else sol.y[6])
-    y = np.array([pid(a, b, c)[0] for a, b, c in zip(e, sol.y[1], sol.y[2])])
-    return efd, y, sol.y[3]
+    efd = np.array([ve * _fex(kc * i / ve) for ve, i in zip(Y[4], ifd)])
+    e = 1.0 + np.where((t >= 0.5) & (t < 0.5 + width), amp, 0.0) - (Y[0] if tr > 0 else Y[6])
+    y = np.array([pid(a, b, c)[0] for a, b, c in zip(e, Y[1], Y[2])])
+    return efd, y, Y[3]
 
 
 # The derivative (KDR / TDR = 100 at the typical values) makes a setpoint edge a spike of the PID's

@@ -66,11 +66,10 @@ def _reference(v: dict[str, float], amp: float, n: int, dt: float, kpp: float, k
         return [(vt - xm) / tr, (e - x1) / tb1, (y1 - x2) / tb2, de, deqp, deqpp]
 
     t = np.arange(n) * dt
-    sol = solve_pieces(f, t, [1.0, e0, e0, fld0, 1.0, 1.0], (0.5, 1.5))
-    assert sol.success
-    vt = sol.y[5] + kpp * (sol.y[4] - sol.y[5])
-    efd = np.clip(sol.y[3], vt * vrmin, vt * vrmax)
-    y = [parts(t[k], sol.y[:, k]) for k in range(n)]
+    Y = solve_pieces(f, t, [1.0, e0, e0, fld0, 1.0, 1.0], (0.5, 1.5))
+    vt = Y[5] + kpp * (Y[4] - Y[5])
+    efd = np.clip(Y[3], vt * vrmin, vt * vrmax)
+    y = [parts(t[k], Y[:, k]) for k in range(n)]
     return efd, kr * np.array([p[7] for p in y]), kr * np.array([p[4] for p in y])
 
 

@@ -52,12 +52,11 @@ def _reference(s: dict[str, float], amp: float, width: float, n: int, dt: float,
                 (vfe - xf) / tf, deqp, (eqp - eqpp) / td0pp]
 
     t = np.arange(n) * dt
-    sol = solve_pieces(f, t, [1.0, y0, vfe0, ve0, vfe0, 1.0, 1.0], (0.5, 0.5 + width))
-    assert sol.success
-    eqp, eqpp = sol.y[5], sol.y[6]
+    Y = solve_pieces(f, t, [1.0, y0, vfe0, ve0, vfe0, 1.0, 1.0], (0.5, 0.5 + width))
+    eqp, eqpp = Y[5], Y[6]
     vt = eqpp + kpp * (eqp - eqpp)
     ifd = eqp + kda * (eqp - eqpp) + np.array([sat(v) for v in (vt if kpp > 0 else eqp)])
-    return np.array([ve * _fex(kc * i / ve) for ve, i in zip(sol.y[3], ifd)]), np.clip(sol.y[2], -1e9, 1e9)
+    return np.array([ve * _fex(kc * i / ve) for ve, i in zip(Y[3], ifd)]), np.clip(Y[2], -1e9, 1e9)
 
 
 # VRMIN = 0 (a diode rectifier's regulator, as ANDES' default): with a negative one the trailing edge

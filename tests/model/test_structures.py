@@ -179,11 +179,11 @@ def test_esst4b_blocks_match_solve_ivp(amp, kg, kim, limited):
     fld0 = 1.0 + sat(1.0)
     vb0 = v["KPV"] * _fex(v["KC"] * fld0 / v["KPV"])
     t = np.arange(n) * dt
-    sol = solve_pieces(f, t, [1.0, kg * fld0, kg * fld0, fld0 / vb0, 1.0, 1.0], (0.5, 1.5))
-    ref = np.array([out(sol.y[:, k])[0] for k in range(n)])
+    Y = solve_pieces(f, t, [1.0, kg * fld0, kg * fld0, fld0 / vb0, 1.0, 1.0], (0.5, 1.5))
+    ref = np.array([out(Y[:, k])[0] for k in range(n)])
     assert np.max(np.abs(efd - ref)) < 1e-3, np.max(np.abs(efd - ref))
-    vms = np.array([out(sol.y[:, k])[1] for k in range(n)])
-    ys1 = v["KPI"] * (1.0 + amp * ((t >= 0.5) & (t < 1.5)) - sol.y[0]) + sol.y[1]
+    vms = np.array([out(Y[:, k])[1] for k in range(n)])
+    ys1 = v["KPI"] * (1.0 + amp * ((t >= 0.5) & (t < 1.5)) - Y[0]) + Y[1]
     hits = (np.sum(vms >= v["VMMAX"] - 1e-12), np.sum(ys1 > v["VPMAX"]), np.sum(ys1 < v["VPMIN"]))
     assert (max(hits) > 10) == limited, hits
     if limited and kg == 0.0:   # VM at VMMAX, the regulator's PI at both of its limits
