@@ -10,7 +10,7 @@ from types import MappingProxyType
 from typing import Any
 
 __all__ = ["IDENTIFY", "WHOLE_BOX", "PROFILE", "BLACK_BOX", "EDGE_POLISH_SHARE", "EDGE_POLISH_MAX",
-           "SWAP_RESERVE_SHARE", "SWAP_RESERVE_MAX"]
+           "RESTART_RESERVE_SHARE", "RESTART_RESERVE_MAX"]
 
 #: identification of a whole record (`bench-ctl identify`, the diagnosis' base model): 32
 #: particles, since a generation is one kernel call whose cost per candidate falls with the batch;
@@ -38,8 +38,9 @@ BLACK_BOX: Mapping[str, Any] = MappingProxyType({"fd_scheme": "central", "fd_ste
 EDGE_POLISH_SHARE = 0.15
 EDGE_POLISH_MAX = 200
 
-#: share of an identification's budget (at most SWAP_RESERVE_MAX evaluations) kept from MVMO for
-#: the restarts from the structure's exchanged pairs: without it MVMO and the polish leave them
-#: some 30 evaluations, too few to polish out of an exchanged basin
-SWAP_RESERVE_SHARE = 0.15
-SWAP_RESERVE_MAX = 150
+#: share of an identification's budget (at most RESTART_RESERVE_MAX evaluations) kept from MVMO
+#: for the restarts, from the start point (the unit's values) and from the structure's exchanged
+#: pairs: without it MVMO and the polish leave them some 30 evaluations, too few to polish out of
+#: an exchanged basin
+RESTART_RESERVE_SHARE = 0.15
+RESTART_RESERVE_MAX = 150

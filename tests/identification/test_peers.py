@@ -148,6 +148,38 @@ def test_the_reference_polishes_again_from_its_exchanged_lags(problem):
     assert res.fun <= 1.001 * truth_fit
 
 
+def test_the_start_point_is_polished_again_and_the_better_end_kept(problem):
+    """A fit stalled in another basin (the second lead-lag cancelled, TA3 = TA4 = 1 s: MVMO's end
+    on a real record at some seeds) and the caller's start point near the truth: the restart from
+    the start reaches the truth's fit. From a start worse than the fit, the fit is kept as it is."""
+    from bench_ctl.identification import peers
+
+    stalled = {**TRUTH, "TA3": 1.0, "TA4": 1.0}
+    x = np.array([stalled[n] for n in problem.names])
+    f = float(problem.objective(x[None])[0])
+    fit = Result(x=x, fun=f, nfev=0, success=True, names=problem.names)
+    near = np.array([1.3 * TRUTH[n] for n in problem.names])
+    res = peers._restarts(problem, SearchSpace(problem), near, [], 150, fit, None)
+    entry = res.settings["start_restart"]
+    assert entry["kept"] and entry["objective_before"] == f and res.nfev <= 150
+    truth_fit = float(problem.objective(np.array([[TRUTH[n] for n in problem.names]]))[0])
+    assert res.fun <= 1.001 * truth_fit < 0.5 * f
+    truth = Result(x=np.array([TRUTH[n] for n in problem.names]), fun=truth_fit, nfev=0, success=True,
+                   names=problem.names)
+    kept = peers._restarts(problem, SearchSpace(problem), x, [], 150, truth, None)
+    assert not kept.settings["start_restart"]["kept"] and np.array_equal(kept.x, truth.x) and kept.fun == truth_fit
+
+
+def test_mvmo_from_a_start_point_keeps_the_restarts_within_the_budget(problem):
+    """With x0 MVMO leaves the restarts their share and the whole run stays within max_evals; the
+    diagnosis' searches, which split the budget themselves (polish_evals), get no start restart."""
+    x0 = np.array([1.3 * TRUTH[n] for n in problem.names])
+    r = run_optimizer("mvmo", problem, max_evals=300, seed=0, x0=x0)
+    assert "objective" in r.settings["start_restart"] and r.nfev <= 300
+    r2 = run_optimizer("mvmo", problem, max_evals=300, seed=0, x0=x0, options={"polish_evals": 60})
+    assert "start_restart" not in r2.settings and r2.nfev <= 300
+
+
 def test_an_exchange_that_breaks_a_constraint_restarts_with_the_leads_exchanged_too(problem):
     """Stalled with TA2 and TE exchanged and the leads too (TA1 below TE's bound, TA3 above it):
     TA2 <-> TE alone gives TA2 = 0.2 s > TA1 and breaks TA2 <= TA1. The restart exchanges the
