@@ -7,7 +7,7 @@ plant model: the import's checks look at levels, edges and time, which these hol
 `Export` says what to make: on line (P, Q recorded; the grid holds Vt: vt moves `vt_share` of the
 step) or at no load (vt moves the step); a field-current regulator's step (ifd moves the step) or
 an AVR's; a Q change before the test; a second test; the clock shortened to MM:SS.f as a
-spreadsheet saves it; rows dropped (a gap).
+spreadsheet saves it; rows dropped (a gap); a channel refreshed every other row, or quantised.
 """
 from __future__ import annotations
 
@@ -44,6 +44,12 @@ class Export:
     q_change: tuple[float, float, float] | None = None
     short_clock: bool = False
     drop_rows: tuple[int, int] | None = None
+    #: the field voltage's forcing at each edge (its sign; decaying in 50 ms), pu of the export
+    efd_kick: float = 0.0
+    #: columns the recorder refreshes every other row (the row between repeats the one before)
+    held: tuple[str, ...] = ()
+    #: columns written rounded to this step (a quantised channel: it repeats where it is flat)
+    quantum: dict[str, float] = field(default_factory=dict)
     seed: int = 0
     extra: dict[str, float] = field(default_factory=dict)
 
@@ -102,7 +108,8 @@ def channels(e: Export) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         + rng.normal(0.0, 0.02, n),
         "SFS_Meas_IfRel": 0.50 + ifd_gain * step_slow + 0.9 * q_pre + rng.normal(0.0, 4e-4, n),
         "SFS_Meas_UgRel": 0.98 + vt_gain * a * step_slow + 0.1 * q_pre + rng.normal(0.0, 2e-4, n),
-        "SFS_Meas_UfRel": 0.375 + 0.7 * a * step_slow + 0.6 * q_pre + rng.normal(0.0, 0.004, n),
+        "SFS_Meas_UfRel": 0.375 + 0.7 * a * step_slow + e.efd_kick * _kick(t, e, 0.05) + 0.6 * q_pre
+        + rng.normal(0.0, 0.004, n),
         "SFS_Meas_IgRel": 0.2 + 0.3 * a * step_slow + rng.normal(0.0, 0.002, n),
         "SFS_Meas_QRel": q0 + 1.2 * a * step_slow + q_pre + rng.normal(0.0, 0.002, n),
         "SFS_Meas_PRel": p0 + rng.normal(0.0, 0.003, n),
@@ -114,6 +121,10 @@ def write(path: Path, e: Export) -> Path:
     """The export as the recorder writes it: date, time (the host's stamps: the even sampling
     plus a wander of +-0.25 ms), then COLUMNS."""
     t, cols = channels(e)
+    for c in e.held:
+        cols[c] = np.repeat(cols[c][::2], 2)[:t.size]
+    for c, q in e.quantum.items():
+        cols[c] = np.round(cols[c] / q) * q
     rng = np.random.default_rng(e.seed + 1000)
     stamps = CLOCK0_S + t + rng.uniform(-2.5e-4, 2.5e-4, t.size)
     keep = np.ones(t.size, bool)

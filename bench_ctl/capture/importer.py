@@ -34,6 +34,7 @@ from bench_ctl.capture.capture import CHANNEL_UNITS, Capture, read_capture, writ
 from bench_ctl.capture.errors import CaptureError, SpecError
 from bench_ctl.capture.field_base import EfdBase, NoLoad, auto_factor, explicit_block, from_no_load, pre_step
 from bench_ctl.capture.found_test import FoundTest, find_test, tolerance_on
+from bench_ctl.capture.held import held_channels
 from bench_ctl.capture.plausible import implausible
 from bench_ctl.capture.steady import pre_step_steadiness
 from bench_ctl.capture.timebase import check_time, resample_linear, step_stats
@@ -378,6 +379,7 @@ def import_export(
     test, found = _the_test(file, spec, rec, raw, time, on_line is not None, origin_s)
     edge_lo = _first_edge_lo(test, found, rec, raw, stats["median_s"])
     factors, efd_block, ifd_block = _field_factors(file, spec, rec, raw, edge_lo, on_line)
+    held = held_channels(raw, spec.columns)
     steady = None
     if edge_lo is not None:
         hi = found.edges[0].latest_s if found is not None else edge_lo
@@ -412,6 +414,7 @@ def import_export(
             "window": window_block,
             "on_line": on_line,
             "pre_step_steady": steady,
+            "held_samples": held,
         },
     }
     if ifd_block is not None:

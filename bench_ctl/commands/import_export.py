@@ -42,6 +42,7 @@ from typing import Any
 import click
 
 from bench_ctl import outputs
+from bench_ctl.capture import held
 from bench_ctl.capture.capture import Capture
 from bench_ctl.capture.errors import SpecError
 from bench_ctl.capture.field_base import NoLoad, parse_efd_base
@@ -200,6 +201,7 @@ def summary(capture: Capture) -> list[str]:
     steady = imp.get("pre_step_steady")
     if steady:
         lines += warning_lines(steady)
+    lines += held.warning_lines(imp.get("held_samples") or {})
     return lines
 
 

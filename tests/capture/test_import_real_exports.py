@@ -193,3 +193,28 @@ def test_a_full_clock_rebuilt_from_the_rate_keeps_within_its_stamps(tmp_path):
     assert np.allclose(np.diff(cap.time), STEP_S, rtol=0, atol=1e-9)
     side = json.loads(out.with_suffix(".json").read_text())
     assert side["import"]["resampled"] is False
+
+
+# ---- issue 49 item 4: a channel the recorder refreshes slower than it writes rows ---------------------
+
+def test_a_field_voltage_refreshed_every_other_row_is_warned_of_and_a_quantised_q_is_not(tmp_path, capsys):
+    """efd (forced at each edge, as a field voltage is) repeats the row before on every other row,
+    also through the edges: held, warned of. Q rounded to 0.01 pu repeats on most rows where it is
+    flat, never while it moves fast (its step is 0.12 pu): not held."""
+    src = write(tmp_path / "h.csv", Export(held=("SFS_Meas_UfRel",), quantum={"SFS_Meas_QRel": 0.01}, efd_kick=1.0,
+                                           seed=3))
+    out = tmp_path / "h_cap.csv"
+    assert run(src, out, "--resample", "200", *MAPS, *PQ_MAPS, "--test", "step:amplitude=0.1") == 0
+    printed = capsys.readouterr().out
+    held = read_capture(out).meta["import"]["held_samples"]
+    rows = {r["channel"]: r for r in held["channels"]}
+    assert held["held"] == ["efd"], held
+    assert 0.4 < rows["efd"]["share_fast"] <= 0.6 and rows["efd"]["longest_run"] == 2
+    assert rows["q"]["share"] > 0.5 and rows["q"]["held"] is False
+    assert "warning: efd (column 'SFS_Meas_UfRel') repeats the row before" in printed
+    assert "warning: q" not in printed and "warning: vt" not in printed
+    # the same export refreshed on every row: no warning
+    calm = write(tmp_path / "calm.csv", Export(quantum={"SFS_Meas_QRel": 0.01}, efd_kick=1.0, seed=3))
+    assert run(calm, tmp_path / "calm_cap.csv", "--resample", "200", *MAPS, *PQ_MAPS,
+               "--test", "step:amplitude=0.1") == 0
+    assert "repeats the row before" not in capsys.readouterr().out
