@@ -26,7 +26,7 @@ effect of its.
 Without a record it runs nothing and exits 0 (`make bench`).
 
 Usage: python benchmarks/real_online.py RECORD.csv --dyr unit.dyr [--dyr-ignore PSS2B] [--efd-base 0.33869rf]
-           [--xe-bounds 0.02,0.8] [--weights vt=100,q=10] [--evals 1000] [--seed 1] [--diagnose]
+           [--xe-bounds 0.02,0.8] [--weights vt=100,q=10] [--evals 1000] [--seed 1] [--diagnose] [--held interpolate]
            [--json OUT]
 """
 from __future__ import annotations
@@ -105,6 +105,8 @@ def main_(argv: list[str] | None = None) -> int:
     ap.add_argument("--efd-base", default="0.33869rf")
     ap.add_argument("--test", default="step:amplitude=0.05")
     ap.add_argument("--resample", type=float, default=200.0)
+    ap.add_argument("--held", choices=("keep", "interpolate"), default="keep",
+                    help="the import's --held: a channel refreshed slower than the rows kept or interpolated")
     ap.add_argument("--xe-bounds", default="0.02,0.8")
     ap.add_argument("--weights", default="vt=100,q=10", help="signal weights beside efd's 1 (the unit's [weights])")
     ap.add_argument("--evals", type=int, default=1000)
@@ -122,7 +124,8 @@ def main_(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="real-online-") as tmp:
         cap_path, res_path = Path(tmp) / "cap.csv", Path(tmp) / "result.json"
         imp = ["import", args.record, "-o", str(cap_path), *MOSTAR_CLOCK, "--resample", str(args.resample),
-               "--test", args.test, "--efd-base", args.efd_base] + [a for m in MAPS for a in ("--map", m)]
+               "--test", args.test, "--efd-base", args.efd_base, "--held", args.held]
+        imp += [a for m in MAPS for a in ("--map", m)]
         rc, out, err, imp_s = _run(imp)
         if rc != 0:
             print(f"import refused: {err.strip()}")

@@ -22,7 +22,7 @@ import logging
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Literal
@@ -34,7 +34,7 @@ from bench_ctl.capture.capture import CHANNEL_UNITS, Capture, read_capture, writ
 from bench_ctl.capture.errors import CaptureError, SpecError
 from bench_ctl.capture.field_base import EfdBase, NoLoad, auto_factor, explicit_block, from_no_load, pre_step
 from bench_ctl.capture.found_test import FoundTest, find_test, tolerance_on
-from bench_ctl.capture.held import held_channels
+from bench_ctl.capture.held import HELD_TREATMENTS, held_channels, interpolated
 from bench_ctl.capture.plausible import implausible
 from bench_ctl.capture.steady import pre_step_steadiness
 from bench_ctl.capture.timebase import check_time, resample_linear, step_stats
@@ -140,6 +140,9 @@ class ImportSpec:
     rate_hz: the recorder's rate: time rebuilt as k / rate and checked against the file's own
     time marks (CSV only; `bench_ctl.capture.rate`).
     ifd_from: the no-load capture whose `import.ifd_base` factor puts ifd on the model's base.
+    held: a channel the recorder refreshes slower than it writes rows (`bench_ctl.capture.held`):
+    "keep" its rows as written (a warning), or "interpolate" each repeated row between the fresh
+    rows around it.
     """
 
     columns: Mapping[str, str]
@@ -161,6 +164,7 @@ class ImportSpec:
     window: Window | None = None
     rate_hz: float | None = None
     ifd_from: str | None = None
+    held: str = "keep"
 
     def __post_init__(self) -> None:
         comtrade_io.check_mapping(self.columns, required=("efd",))
@@ -181,6 +185,8 @@ class ImportSpec:
             raise SpecError("ifd from a no-load import needs ifd mapped and no other scale for it")
         if self.rate_hz is not None:
             _finite(self.rate_hz, "rate_hz", positive=True)
+        if self.held not in HELD_TREATMENTS:
+            raise SpecError(f"held {self.held!r}: choose {' or '.join(HELD_TREATMENTS)}")
         if (self.ifd_auto or (self.efd_base is not None and self.efd_base.mode == "auto")) \
                 and self.no_load is None:
             raise SpecError("an auto base needs the unit's no-load field (no_load)")
@@ -359,6 +365,13 @@ def import_export(
     window_block = None
     if spec.window is not None:
         rec, window_block = cut(rec, spec.window, file)
+    # a channel refreshed slower than the rows, on the rows as written; with `held` interpolate,
+    # its repeated rows put between the fresh ones before anything else reads it
+    held = held_channels({our: rec.columns[name] for our, name in spec.columns.items()}, spec.columns)
+    held["treatment"] = spec.held
+    if spec.held == "interpolate" and held["held"]:
+        fixed = {spec.columns[c]: interpolated(rec.time, rec.columns[spec.columns[c]]) for c in held["held"]}
+        rec = replace(rec, columns={**rec.columns, **fixed})
     where = {"file": rec.file, "rows": rec.rows, "row_kind": rec.row_kind,
              "column": rec.time_column}
     stats = step_stats(rec.time)
@@ -379,7 +392,6 @@ def import_export(
     test, found = _the_test(file, spec, rec, raw, time, on_line is not None, origin_s)
     edge_lo = _first_edge_lo(test, found, rec, raw, stats["median_s"])
     factors, efd_block, ifd_block = _field_factors(file, spec, rec, raw, edge_lo, on_line)
-    held = held_channels(raw, spec.columns)
     steady = None
     if edge_lo is not None:
         hi = found.edges[0].latest_s if found is not None else edge_lo

@@ -239,6 +239,10 @@ def summary(capture: Capture) -> list[str]:
 @click.option("--window", "window_text", default=None, metavar="START:END",
               help="Take the test out of a long export: seconds from its first sample (120:150, 120:) or clock "
                    "times (12:53:58.5:12:54:30).")
+@click.option("--held", "held_rows", type=click.Choice(["keep", "interpolate"]), default="keep", show_default=True,
+              help="A channel the recorder refreshes slower than it writes rows (its rows repeat the one before, also "
+                   "at an edge): keep its rows as written (with a warning), or interpolate each repeated row between "
+                   "the fresh rows around it.")
 @click.option("--test", "test_text", default=None, metavar="KIND:key=value,...",
               help="e.g. pulse:start=1.0,amplitude=0.05,width=1.0 (synthesises usetp when it is not "
                    "mapped); step:amplitude=0.1 without a start: the edges are found in the record.")
@@ -249,7 +253,7 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
                   date_column: str | None, clock_column: str | None, date_format: str,
                   delimiter: str, decimal_comma: bool, header_line: int, efd_scale: float | None,
                   efd_base: str | None, scales: tuple[str, ...], resample_hz: float | None,
-                  rate_hz: float | None, window_text: str | None,
+                  rate_hz: float | None, window_text: str | None, held_rows: str,
                   test_text: str | None, keep: tuple[str, ...], unit_path: str | None, overrides: tuple[str, ...],
                   effects: tuple[str, ...], model: str | None, from_dyr: str | None, dyr_bus: int | None,
                   dyr_id: str | None, dyr_ignore: tuple[str, ...] = ()) -> int:
@@ -281,7 +285,7 @@ def import_export(src: str, out: str, maps: tuple[str, ...], time_column: str | 
             decimal="," if decimal_comma else ".", header_line=header_line,
             efd_base_scale=1.0 if efd_scale is None else efd_scale, efd_base=base, scale=factors,
             ifd_auto=ifd_auto, no_load=no_load, resample_hz=resample_hz, test=test, keep_columns=keep,
-            window=window, rate_hz=rate_hz, ifd_from=ifd_from)
+            window=window, rate_hz=rate_hz, ifd_from=ifd_from, held=held_rows)
     except SpecError as exc:
         raise click.UsageError(str(exc)) from None
     if not str(out).lower().endswith(".csv"):

@@ -213,8 +213,28 @@ def test_a_field_voltage_refreshed_every_other_row_is_warned_of_and_a_quantised_
     assert rows["q"]["share"] > 0.5 and rows["q"]["held"] is False
     assert "warning: efd (column 'SFS_Meas_UfRel') repeats the row before" in printed
     assert "warning: q" not in printed and "warning: vt" not in printed
+    assert "--held interpolate puts each repeated row between the fresh rows" in printed
+    # interpolated: the note instead of the warning, efd changed on the held rows, q as written
+    out2 = tmp_path / "h_interp.csv"
+    assert run(src, out2, "--resample", "200", *MAPS, *PQ_MAPS, "--test", "step:amplitude=0.1",
+               "--held", "interpolate") == 0
+    printed = capsys.readouterr().out
+    assert "note: efd (column 'SFS_Meas_UfRel') repeats the row before" in printed and "warning: efd" not in printed
+    kept, interp = read_capture(out), read_capture(out2)
+    assert interp.meta["import"]["held_samples"]["treatment"] == "interpolate"
+    assert np.array_equal(kept.extra["q"], interp.extra["q"])
+    moved = np.abs(kept.efd - interp.efd)
+    assert np.count_nonzero(moved > 1e-6) > 0.2 * moved.size
     # the same export refreshed on every row: no warning
     calm = write(tmp_path / "calm.csv", Export(quantum={"SFS_Meas_QRel": 0.01}, efd_kick=1.0, seed=3))
     assert run(calm, tmp_path / "calm_cap.csv", "--resample", "200", *MAPS, *PQ_MAPS,
                "--test", "step:amplitude=0.1") == 0
     assert "repeats the row before" not in capsys.readouterr().out
+
+
+def test_a_held_row_is_put_on_the_line_between_the_fresh_rows_around_it():
+    from bench_ctl.capture.held import interpolated
+
+    t = np.array([0.0, 1.0, 2.0, 3.0, 5.0, 6.0, 7.0])
+    v = np.array([0.0, 0.0, 2.0, 2.0, 2.0, 8.0, 8.0])
+    assert np.allclose(interpolated(t, v), [0.0, 1.0, 2.0, 3.5, 6.5, 8.0, 8.0])
