@@ -39,6 +39,7 @@ import numpy as np
 
 from bench_ctl.model.dialect import Note, slots
 from bench_ctl.model.params import RECORD_PARAMS
+from bench_ctl.model.stabilisers import IEEEST, stabiliser
 from bench_ctl.model.structures import DEFAULT as DEFAULT_MODEL
 
 from .problem import Problem
@@ -199,9 +200,10 @@ def _num(v: float) -> float | None:
 
 def exchanges(problem: Problem) -> list[tuple[Note, dict[str, str]]]:
     """Every exchange to examine, as (note, mapping new_name -> source_name, kernel names): the
-    reference AVR's lead-lag symmetries (in a standard structure only where all four are fitted)
-    and every pair the structure declares (`Structure.swaps`, its note in its own names), fitted
-    or not, so that one left out is said."""
+    reference AVR's lead-lag symmetries (in a standard structure only where all four are fitted),
+    every pair the structure declares (`Structure.swaps`, its note in its own names), fitted or
+    not, so that one left out is said, and on line the stabiliser's exchanged leads and lags
+    (`Stabiliser.exchanges`) where both are fitted."""
     st = problem.unit.structure
     names = list(problem.names)
     swaps = list(SWAPS) if st.name == DEFAULT_MODEL else [(n, m) for n, m in SWAPS if set(m) <= set(names)]
@@ -210,6 +212,11 @@ def exchanges(problem: Problem) -> list[tuple[Note, dict[str, str]]]:
         mapping = {a: b, b: a}
         if all(m != mapping for _, m in swaps):
             swaps.append((Note(note), mapping))
+    if any(n.startswith("PSS") for n in problem.grid_names):
+        pss = stabiliser(problem.unit.grid.get("PSS_MODEL", IEEEST))
+        for a, b in pss.exchanges():
+            if {a, b} <= set(names):
+                swaps.append((Note(f"{pss.name} {{}} <-> {{}} swapped (lead-lags in series)", a, b), {a: b, b: a}))
     return swaps
 
 

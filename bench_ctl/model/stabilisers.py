@@ -28,6 +28,14 @@ class Stabiliser:
     params: tuple[str, ...]
     diagram: tuple[str, ...]
     remarks: tuple[str, ...] = ()
+    #: the time constants of its lead-lags in series with nothing between them: two leads (or two
+    #: lags) exchanged give the same stabiliser (the identifiability analysis examines each pair)
+    leads: tuple[str, ...] = ()
+    lags: tuple[str, ...] = ()
+
+    def exchanges(self) -> list[tuple[str, str]]:
+        """Every pair of leads, then every pair of lags, whose exchange gives the same stabiliser."""
+        return [(a, b) for group in (self.leads, self.lags) for i, a in enumerate(group) for b in group[i + 1:]]
 
     def describe(self) -> str:
         """The block diagram, every parameter (unit, default, range, meaning) and the remarks."""
@@ -51,7 +59,8 @@ _IEEEST = Stabiliser(
     "IEEEST", 1, "IEEE ST stabiliser on the rotor speed, without its notch filters (PSS/E IEEEST, MODE 1)",
     ("PSS_KS", "PSS_T1", "PSS_T2", "PSS_T3", "PSS_T4", "PSS_TW", "PSS_LSMAX"),
     ("vs = clamp(KS (1 + s T1)/(1 + s T2) (1 + s T3)/(1 + s T4) s TW/(1 + s TW) (omega - 1), -LSMAX, LSMAX)",
-     "added to the voltage reference; KS = 0: no stabiliser"))
+     "added to the voltage reference; KS = 0: no stabiliser"),
+    leads=("PSS_T1", "PSS_T3"), lags=("PSS_T2", "PSS_T4"))
 
 _PSS2_DIAGRAM = (
     "u1 = omega - 1 (PSS/E ICS1 = 1, rotor speed deviation)        u2 = Pe (ICS2 = 3, electrical power)",
@@ -84,7 +93,8 @@ _PSS2B_PARAMS = ("PSS2_T10", "PSS2_T11", "PSS2_VS1MIN", "PSS2_VS1MAX", "PSS2_VS2
 
 _PSS2A = Stabiliser(
     "PSS2A", 2, "IEEE dual-input stabiliser PSS2A (IEEE 421.5-2005; PSS/E PSS2A): speed and electrical power",
-    _PSS2_PARAMS + ("PSS2_VSTMAX", "PSS2_VSTMIN"), _PSS2_DIAGRAM, _PSS2_REMARKS)
+    _PSS2_PARAMS + ("PSS2_VSTMAX", "PSS2_VSTMIN"), _PSS2_DIAGRAM, _PSS2_REMARKS,
+    leads=("PSS2_T1", "PSS2_T3"), lags=("PSS2_T2", "PSS2_T4"))
 _PSS2B = Stabiliser(
     "PSS2B", 3, "IEEE dual-input stabiliser PSS2B (IEEE 421.5-2016; PSS/E PSS2B): PSS2A with a third lead-lag "
                 "and input limits",
@@ -94,7 +104,8 @@ _PSS2B = Stabiliser(
     + ("vs = clamp(KS1 (1 + s T1)/(1 + s T2) (1 + s T3)/(1 + s T4) (1 + s T10)/(1 + s T11) V3, VSTMIN, VSTMAX)",)
     + _PSS2_DIAGRAM[5:],
     _PSS2_REMARKS + ("The input limits act on the signals themselves: VS2MIN, VS2MAX bound the electrical power, "
-                     "not its deviation (OpenIPSL, PowerSimulationsDynamics).",))
+                     "not its deviation (OpenIPSL, PowerSimulationsDynamics).",),
+    leads=("PSS2_T1", "PSS2_T3", "PSS2_T10"), lags=("PSS2_T2", "PSS2_T4", "PSS2_T11"))
 
 #: the stabilisers by name
 STABILISERS: dict[str, Stabiliser] = {s.name: s for s in (_IEEEST, _PSS2A, _PSS2B)}

@@ -36,3 +36,19 @@ def test_the_pss2b_in_the_unit_fits_an_independent_record_to_its_noise_and_leavi
     bare, _res = _identify(case, case.unit_without_pss, tmp_path / "without.json", [])
     print(f"PSS2B left out: efd MSE {bare:.4f}x the noise")
     assert bare > 1.15, bare
+
+
+def test_the_stabilisers_two_leads_fitted_are_an_equivalent_set(tmp_path):
+    """KS1, T1 and T3 of the PSS2B fitted: the two lead-lags are in series with nothing between them,
+    so T1 and T3 exchanged give the same response; the identifiability analysis examines that
+    exchange and finds it equally good and allowed (the record cannot tell which lead is which).
+    The lags T2, T4 (not fitted) are not examined."""
+    case = make_case(tmp_path, 0)
+    _ratio, res = _identify(case, case.unit, tmp_path / "leads.json", pss_sets(("KS1", "T1", "T3")))
+    sets = {s["note"]: s for s in res["identifiability"]["equivalent_sets"]}
+    swap = sets["PSS2B PSS2_T1 <-> PSS2_T3 swapped (lead-lags in series)"]
+    grid = res["unit"]["grid"]
+    assert swap["equivalent"] and swap["allowed"], swap
+    assert swap["params"]["PSS2_T1"] == pytest.approx(grid["PSS2_T3"]) and \
+        swap["params"]["PSS2_T3"] == pytest.approx(grid["PSS2_T1"])
+    assert not any("PSS2_T2" in note for note in sets)
