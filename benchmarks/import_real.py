@@ -17,7 +17,7 @@ saved (`--json`) per file:
   the samples before the first setpoint change less 2 (the definition of the diagnosis' noise
   floor, bench_ctl/identification/localize.py), and its standard deviation.
 
-Usage: python benchmarks/import_real.py PATH... [--test step:amplitude=0.1] [--resample 200]
+Usage: python benchmarks/import_real.py PATH... [--test step:amplitude=0.1] [--resample 200] [--held interpolate]
            [--map NAME=COLUMN ...] [--set S10=0.1 --set S12=0.48] [--json OUT]
 Exits 0 when every file imported (or none was given: `make bench` runs it without files), 1 when
 one was refused (its reason printed), 2 on bad options.
@@ -66,7 +66,7 @@ def pre_step_disturbance(time_s: np.ndarray, usetp: np.ndarray, efd: np.ndarray)
 def import_one(path: Path, args: argparse.Namespace, folder: Path) -> dict:
     out = folder / f"{label(path)}.csv"
     argv = ["import", str(path), "-o", str(out), *MOSTAR_CLOCK, "--resample", str(args.resample),
-            "--test", args.test, "--efd-base", "auto", "--scale", "ifd=auto"]
+            "--test", args.test, "--efd-base", "auto", "--scale", "ifd=auto", "--held", args.held]
     for m in args.maps or MOSTAR_MAPS:
         argv += ["--map", m]
     for s in args.sets:
@@ -100,6 +100,8 @@ def add_import_options(ap: argparse.ArgumentParser) -> None:
     """The import's options (`import_one` reads them), shared with benchmarks/real_unit.py."""
     ap.add_argument("--test", default="step:amplitude=0.1")
     ap.add_argument("--resample", type=float, default=200.0, help="Hz (the exports are jittered)")
+    ap.add_argument("--held", choices=("keep", "interpolate"), default="keep",
+                    help="the import's --held (a channel refreshed slower than the rows)")
     ap.add_argument("--map", dest="maps", action="append", default=None, metavar="NAME=COLUMN")
     ap.add_argument("--set", dest="sets", action="append", default=None, metavar="NAME=VALUE",
                     help="unit values (default: the Mostar unit's S10=0.1, S12=0.48)")

@@ -8,9 +8,12 @@ are flat (their quantisation). Such a channel shows an edge up to a row late, as
 model of the unit follows: what a diagnosis leaves in the first samples after each edge is partly this.
 The import measures it and warns; with `--held interpolate` it puts each repeated row of a held
 channel between the fresh rows around it (linear in time), before anything else reads the channel.
-On the Mostar on-line 5 % step that takes what the diagnosis leaves after its last explained step from
-4.82x to 4.08x the pre-step disturbance over the part diagnosed (2.05x to 1.90x over the whole record;
-docs/benchmarks.md, real_online.py).
+That is no neutral repair: an edge then spreads over the held rows. On the Mostar on-line 5 % step
+what the diagnosis leaves after its last explained step goes from 4.82x to 4.02x the pre-step
+disturbance over the part diagnosed, with the same effects; on the no-load 10 % step the diagnosis
+reads the spread edge as a setpoint ramp where the rows as written gave a recorder time skew (the
+held rows' own signature: the channel shows an edge late). docs/benchmarks.md, real_online.py and
+diagnose_seeds.py.
 
 The rule, per mapped channel other than usetp: a row "moves fast" when the channel changes over the
 two rows around it by more than FAST_STEPS times its typical row-to-row change (the median of its
@@ -85,5 +88,6 @@ def warning_lines(block: Mapping[str, Any]) -> list[str]:
                          "interpolate)")
         else:
             lines.append(f"warning: {what}, so an edge shows up to a row late there, as a staircase no model "
-                         "follows; --held interpolate puts each repeated row between the fresh rows around it")
+                         "follows (a diagnosis may name it a time skew); --held interpolate puts each repeated row "
+                         "between the fresh rows around it (the edge then spreads over them, as a short ramp)")
     return lines
