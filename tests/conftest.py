@@ -53,10 +53,13 @@ _guard: Guard | None = None
 _guard_lines: list[str] = []
 
 
-def pytest_sessionstart(session: pytest.Session) -> None:
+@pytest.hookimpl(wrapper=True)
+def pytest_sessionstart(session: pytest.Session):
+    result = yield   # pytest-xdist's workers start first: the guard's imports (1 s) overlap theirs
     global _guard
     if not hasattr(session.config, "workerinput"):
         _guard = Guard.start()
+    return result
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
