@@ -1,6 +1,7 @@
-"""Fixtures shared by the tests: the reference unit and a synthetic truth; and, around every
-test, the check that each result or diagnosis it wrote reads back into its class and gives the
-same JSON (docs/formats.md)."""
+"""Fixtures shared by the tests: the reference unit and a synthetic truth; around every test, the
+check that each result or diagnosis it wrote reads back into its class and gives the same JSON
+(docs/formats.md); and around the session, the check that nothing compiled inside the tests
+(tests/compile_guard.py)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,6 +11,7 @@ import pytest
 from bench_ctl import outputs
 from bench_ctl.units.overrides import apply_overrides
 from bench_ctl.units.unit import Unit, reference_unit
+from compile_guard import Guard
 from records import assert_round_trip
 from truth import TRUTH
 
@@ -44,3 +46,38 @@ def unit() -> Unit:
 @pytest.fixture(scope="session")
 def truth_unit(unit: Unit) -> Unit:
     return apply_overrides(unit, [f"{k}={v}" for k, v in TRUTH.items()])
+
+
+#: the compile guard of this session (the controller's; None in a pytest-xdist worker)
+_guard: Guard | None = None
+_guard_lines: list[str] = []
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_sessionstart(session: pytest.Session):
+    result = yield   # pytest-xdist's workers start first: the guard's imports (1 s) overlap theirs
+    global _guard
+    if not hasattr(session.config, "workerinput"):
+        _guard = Guard.start()
+    return result
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    if _guard is not None:
+        _guard.runs.append((report.nodeid, report.start, report.stop))
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    global _guard_lines
+    if _guard is None:
+        return
+    failed, _guard_lines = _guard.finish()
+    if failed and session.exitstatus == pytest.ExitCode.OK:
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def pytest_terminal_summary(terminalreporter) -> None:
+    if _guard_lines:
+        terminalreporter.write_sep("=", "compile guard")
+        for line in _guard_lines:
+            terminalreporter.write_line(line)

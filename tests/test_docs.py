@@ -37,6 +37,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 #: this file is not scanned: its fixtures are bad pointers on purpose. Its patterns and fixtures
 #: spell the lost names in parts all the same, so that a script that rewrites such pointers
@@ -393,15 +395,20 @@ def identifier_findings(root: Path, names: CodeNames | None = None,
     return found
 
 
-def test_every_identifier_the_docs_name_exists():
-    assert identifier_findings(ROOT) == []
+@pytest.fixture(scope="module")
+def names() -> CodeNames:
+    """The tree's code names, read once (3 s) for the two tests below."""
+    return code_names(ROOT)
 
 
-def test_a_stale_identifier_fails_the_check(tmp_path):
+def test_every_identifier_the_docs_name_exists(names):
+    assert identifier_findings(ROOT, names) == []
+
+
+def test_a_stale_identifier_fails_the_check(tmp_path, names):
     """Mutations: a page naming a function that is not in the code, and the code losing a name a
     page names (as a rename would), each make the check fail; a qualified name of another
     library, a key template and a file name do not."""
-    names = code_names(ROOT)
     page = tmp_path / "docs" / "page.md"
     page.parent.mkdir()
     page.write_text("The report's `bench_ctl.model.dialect.kernel_sections` and `Dialect.kernel_text`;\n"

@@ -1,10 +1,12 @@
 """`bench-ctl warm-up`: compile the engine ahead of its first use (a newcomer's machine, CI, an
 offline laptop before a site visit, a Dask worker): the variants a unit's records run (no load, and
 on the grid when the unit has the machine's data) and its plant's real-time loop, or `--all` of
-them, side by side in child processes, into numba's disk cache."""
+them (or those a file names, `--variants`: what CI's tests run), side by side in child processes,
+into numba's disk cache."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import click
 
@@ -36,16 +38,30 @@ def unit_keys(unit: Unit) -> list:
     return keys + [grid_key(D)]
 
 
+def read_variants(path: str | Path) -> list:
+    """The engine variants a file names (`Key.name`, e.g. grid_full_pss2), one a line; `#` starts a
+    comment. ValueError names an unknown one."""
+    from bench_ctl.engine.warm import key_named
+
+    names = [line.split("#", 1)[0].strip() for line in Path(path).read_text(encoding="utf-8").splitlines()]
+    return [key_named(name) for name in names if name]
+
+
 @click.command("warm-up")
 @click.option("--all", "everything", is_flag=True,
               help="Every variant of the engine (each machine under each class of blocks, with and without a "
-                   "stabiliser): what the test suite and `identify --model auto` run; and the simulated "
-                   "bench's real-time loops, no load and on line.")
+                   "stabiliser: what `identify --model auto` may run), and the simulated bench's real-time loops, no "
+                   "load and on line.")
+@click.option("--variants", "variants_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              metavar="FILE",
+              help="The variants FILE names (one a line, `#` comments; names as `--all` compiles them, e.g. "
+                   "grid_full_pss2) instead of all of them, with the same real-time loops as --all: what "
+                   "`make test` compiles ahead (tests/engine_variants.txt).")
 @unit_options
-def warm_up(everything: bool, unit_path: str | None, overrides: tuple[str, ...], effects: tuple[str, ...],
-            **model: str | None) -> int:
-    """Compile the engine's variants (and the plant's real-time loop) a unit needs, or --all of them;
-    nothing when numba's cache holds them already."""
+def warm_up(everything: bool, variants_file: str | None, unit_path: str | None, overrides: tuple[str, ...],
+            effects: tuple[str, ...], **model: str | None) -> int:
+    """Compile the engine's variants (and the plant's real-time loop) a unit needs, or --all of them,
+    or those a file names (--variants); nothing when numba's cache holds them already."""
     from bench_ctl.engine import warm
     from bench_ctl.plants import warm_up as plant_warm_up
 
@@ -54,13 +70,23 @@ def warm_up(everything: bool, unit_path: str | None, overrides: tuple[str, ...],
     except UnitError as exc:
         click.secho(f"refused: {exc}", fg="red", err=True)
         return ExitCode.ABORTED
+    if everything and variants_file:
+        click.secho("refused: --all or --variants, not both", fg="red", err=True)
+        return ExitCode.ABORTED
+    if variants_file:
+        try:
+            keys = tuple(read_variants(variants_file))
+        except ValueError as exc:   # an unknown name
+            click.secho(f"refused: {variants_file}: {exc}", fg="red", err=True)
+            return ExitCode.ABORTED
+    else:
+        keys = tuple(warm.ALL) if everything else tuple(unit_keys(unit))
     t0 = time.perf_counter()
-    keys = tuple(warm.ALL) if everything else tuple(unit_keys(unit))
     todo = warm.missing(keys)
     click.echo(f"{len(keys)} engine variant(s): {len(keys) - len(todo)} in the cache, {len(todo)} to compile")
     warm.warm(todo, report=lambda key, s: click.echo(f"  compiled the {key.words()} in {s:.0f} s"))
     plant_warm_up(unit)
-    if everything:   # the simulated bench's plants on line too: alone, and with the IEEEST of pss_step's bench
+    if everything or variants_file:   # the simulated bench's plants on line: alone, with pss_step's IEEEST
         for extra in ONLINE_BENCH_SETS:
             plant_warm_up(apply_overrides(unit, list(extra)) if extra else unit, online=True)
     elif len(keys) > 1 and keys[1].machine == "grid":

@@ -133,3 +133,12 @@ def test_a_refused_problem_is_said_in_the_structures_names_by_identify_and_diagn
         assert rc == 2 and "contradict each other" in err, (argv, err)
         assert "'TE <= 0.5*TA', 'TA <= 0.5*TE'" in err and "KA in [" in err, (argv, err)
         assert "TEX" not in err and "KAVR" not in err, (argv, err)
+
+
+def test_warm_up_refuses_an_unknown_variant_and_all_with_a_list_before_compiling(tmp_path, capsys):
+    listed = tmp_path / "variants.txt"
+    listed.write_text("# the suite's\nnoload_ref_none\ngrid_full_pss3\n")
+    rc, err = _run(["warm-up", "--variants", str(listed)], capsys)
+    assert rc == 2 and "unknown engine variant 'grid_full_pss3'" in err
+    rc, err = _run(["warm-up", "--all", "--variants", str(listed)], capsys)
+    assert rc == 2 and "--all or --variants, not both" in err

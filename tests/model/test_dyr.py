@@ -184,7 +184,8 @@ def test_a_units_stabiliser_is_exported_as_ieeest_and_read_back(tmp_path, capsys
 def test_andes_reads_what_bench_ctl_writes(tmp_path, monkeypatch):
     """ANDES' own PSS/E reader loads the exported records beside a GENROU (needs ANDES)."""
     pytest.importorskip("yaml")
-    monkeypatch.setenv("HOME", str(tmp_path))           # ANDES writes generated code under $HOME
+    # ANDES writes generated code under $HOME (~20 s, unless its package holds it: .ci/run makes it there)
+    monkeypatch.setenv("HOME", str(tmp_path))
     andes = pytest.importorskip("andes")
     import sys
     from pathlib import Path

@@ -80,8 +80,10 @@ def test_online_step_is_refused_near_a_limit_before_any_write(tmp_path, limits, 
 
 
 def test_online_step_ends_at_once_when_q_leaves_its_band_and_keeps_the_record(tmp_path):
-    # Q starts at 10 Mvar, inside -40..18 by 10 % of the band; the +2 % step takes it to ~20 Mvar
-    out = _run(tmp_path, _config(q_max_mvar=18.0))
+    # Q starts at 10 Mvar, inside -40..18 by 10 % of the band; the +2 % step takes it to ~20 Mvar.
+    # Recorded 0.1 s past the hold: the step ended early still waits for its record to end
+    out = _run(tmp_path, _config(q_max_mvar=18.0),
+               params={"record_s": SHORT["pre_trigger_s"] + SHORT["hold_s"] + 0.1})
     assert out.exit_code == ExitCode.FAILED, out.message
     failed = [c.name for c in out.criteria if not c.passed]
     assert "unit inside its bands" in failed

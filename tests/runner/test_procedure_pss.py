@@ -17,7 +17,7 @@ from bench_ctl.exitcodes import ExitCode
 from bench_ctl.runner.audit import read_audit
 from bench_ctl.runner.config import ConfigError, config_from_dict
 from bench_ctl.runner.runner import run_procedure
-from procedures.pss_step import SIMULATED_BENCH
+from procedures.pss_step import MODE_SPAN_S, SIMULATED_BENCH
 from pulse_bench import ROOT
 from simulators.bench import SimBench
 from simulators.faults import Fault
@@ -25,6 +25,9 @@ from wire_proxy import WireProxy
 
 #: a short test: a 3 % step held 4.5 s (the mode fitted over 4 s of it), 7 s recorded, steady over 0.5 s
 FAST = {"amplitude_pu": 0.03, "hold_s": 4.5, "pre_trigger_s": 0.5, "record_s": 7.0, "steady_timeout_s": 5.0}
+#: the faults' runs: the shortest step pss_step takes (held the mode's 4 s, recorded 0.1 s past the
+#: step back); a run ended early still waits for its record to end, which none of their claims reads
+FAULTS = {**FAST, "hold_s": MODE_SPAN_S, "record_s": FAST["pre_trigger_s"] + MODE_SPAN_S + 0.1}
 
 
 def _doc(**limits):
@@ -78,7 +81,7 @@ def _run(sim, tmp_path, *faults: Fault, params=None, url=None, limits=None, **kw
     doc["exciter"]["url"] = url or f"tcp://{host}:{port}"
     doc["recorder"]["url"] = sim.endpoints.recorder_serial
     return run_procedure("pss_step", config_from_dict(doc, source="test-bench.toml"), tmp_path / "run", yes=True,
-                         params={**FAST, **(params or {})}, **kwargs)
+                         params={**FAULTS, **(params or {})}, **kwargs)
 
 
 def _as_found(sim, out) -> None:
@@ -138,7 +141,7 @@ def test_a_step_ended_by_a_loss_of_load_keeps_its_record_and_leaves_the_pss_as_f
     assert out.exit_code == ExitCode.FAILED, out.message
     assert (tmp_path / "run" / "capture_pss_off.csv").exists()
     assert not (tmp_path / "run" / "capture_pss_on.csv").exists()    # no second step after an abort
-    # the PSS back on right after the setpoint, not when the record ends (FAST records 7 s)
+    # the PSS back on right after the setpoint, not when the record ends (4.1 s after the step)
     writes = pss_writes(out)
     assert writes[0] == "PSS off for the step (pss_off)" and len(writes) == 2, writes
     assert writes[1].startswith("abort (") and writes[1].endswith("PSS back on at once (pss_off)"), writes
