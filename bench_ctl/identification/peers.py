@@ -180,7 +180,7 @@ def _restarts(problem: Problem, space: SearchSpace, start: np.ndarray | None, sw
     whatever the seed (docs/benchmarks.md, "Identification: edge instants held, restarts")."""
     if start is None:
         return _swap_restarts(problem, space, swaps, max_evals, res, progress)
-    runs = 1 + sum(len(_exchanged(problem, res.x, a, b)[1]) < 2 for _, a, b in swaps)
+    runs = 1 + _polished_swaps(problem, res.x, swaps)
     budget = (max_evals - res.nfev) // runs
     entry: dict[str, Any] = {"objective_before": float(res.fun)}
     if budget < 3 * (problem.d + 1):
@@ -232,7 +232,7 @@ def _swap_restarts(problem: Problem, space: SearchSpace, swaps: list[tuple[str, 
         elif violated:
             entry["skipped"] = f"the exchanged point violates {', '.join(violated)}"
         else:
-            runs = 1 + sum(len(_exchanged(problem, x, a, b)[1]) < 2 for _, a, b in swaps[k + 1:])
+            runs = 1 + _polished_swaps(problem, x, swaps[k + 1:])
             budget = (max_evals - nfev) // runs
             if budget < 3 * (problem.d + 1):
                 tried.append({"swap": note, "skipped": f"{max_evals - nfev} evaluations left of {max_evals}"})
@@ -247,6 +247,11 @@ def _swap_restarts(problem: Problem, space: SearchSpace, swaps: list[tuple[str, 
         tried.append(entry)
     settings = {**res.settings, "swap_restarts": tried} if tried else res.settings
     return replace(best, x=x, fun=f, nfev=nfev, history=history, settings=settings, message=res.message)
+
+
+def _polished_swaps(problem: Problem, x: np.ndarray, swaps: list[tuple[str, int, int]]) -> int:
+    """How many of `swaps` get a polish from x (not both exchanged values outside their bounds)."""
+    return sum(len(_exchanged(problem, x, a, b)[1]) < 2 for _, a, b in swaps)
 
 
 def _repaired(problem: Problem, xs: np.ndarray, held: tuple[int, int]) -> tuple[np.ndarray, str] | None:
