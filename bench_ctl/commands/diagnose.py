@@ -123,6 +123,10 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
     from bench_ctl.identification.identify import model_entry
 
     base_params = {k: float(v) for k, v in d.kernel_base_params().items() if v is not None}
+    # [grid] values fitted on line (XE) go to the unit's [grid], as an identification's do
+    grid = {k: base_params.pop(k) for k in list(base_params) if k in unit.grid_identify}
+    entry = unit.entry()
+    entry = replace(entry, grid={**(entry.grid or {}), **grid}) if grid else entry
     values = unit.values()
     values.update(base_params)
     edges = tuple(replace(e, capture=None) for e in d.edges if e.capture == "capture")
@@ -139,7 +143,7 @@ def base_result(d: Diagnosis, capture: Capture, unit: Unit) -> IdentificationRes
                  for c in parse_constraints(unit.constraints, names))
     result = IdentificationResult(
         schema=RESULT_SCHEMA, software_version=d.software_version,
-        command_line=d.command_line, created_utc=d.created_utc, unit=unit.entry(),
+        command_line=d.command_line, created_utc=d.created_utc, unit=entry,
         captures=(CaptureEntry(path=os.path.abspath(capture.source) if capture.source else d.capture.path,
                                sha256=d.capture.sha256, n=capture.n, rate_hz=capture.rate_hz,
                                meta=plain(dict(capture.meta)), mse=mse, objective=objective, weight=1.0,

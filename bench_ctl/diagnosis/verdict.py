@@ -48,8 +48,10 @@ def gap(mse_base: float | None, mse_eff: float | None, floor: float, floor_se: f
 
 
 def model_params(unit: Unit, m: ModelFit) -> dict[str, float | None]:
+    """The model's own fitted values in m: the unit's identified parameters and, on line, the
+    [grid] values it fits (XE with --set XE.min/max), without which the model is not the one fitted."""
     params = m.params
-    return {n: params[n] for n in unit.identified_names}
+    return {n: params[n] for n in (*unit.identified_names, *unit.grid_identify) if n in params}
 
 
 def rank_entries(unit: Unit, st: Setup, base: ModelFit, fits: Mapping[str, ModelFit],
