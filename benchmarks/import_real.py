@@ -40,6 +40,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from bench_ctl.capture import read_capture  # noqa: E402
+from bench_ctl.capture.held import HELD_TREATMENTS  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
 
 MOSTAR_MAPS = ["efd=SFS_Meas_UfRel", "vt=SFS_Meas_UgRel", "vr=SFS_Reg_Uc", "ifd=SFS_Meas_IfRel"]
@@ -100,7 +101,7 @@ def add_import_options(ap: argparse.ArgumentParser) -> None:
     """The import's options (`import_one` reads them), shared with benchmarks/real_unit.py."""
     ap.add_argument("--test", default="step:amplitude=0.1")
     ap.add_argument("--resample", type=float, default=200.0, help="Hz (the exports are jittered)")
-    ap.add_argument("--held", choices=("keep", "interpolate"), default="keep",
+    ap.add_argument("--held", choices=HELD_TREATMENTS, default="keep",
                     help="the import's --held (a channel refreshed slower than the rows)")
     ap.add_argument("--map", dest="maps", action="append", default=None, metavar="NAME=COLUMN")
     ap.add_argument("--set", dest="sets", action="append", default=None, metavar="NAME=VALUE",

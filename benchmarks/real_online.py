@@ -47,6 +47,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import numpy as np  # noqa: E402
 
 from bench_ctl.capture import read_capture  # noqa: E402
+from bench_ctl.capture.held import HELD_TREATMENTS  # noqa: E402
 from bench_ctl.cli import main  # noqa: E402
 from bench_ctl.identification.timing import fitted_edge_plan  # noqa: E402
 from bench_ctl.model.dialect import kernel_sections  # noqa: E402
@@ -105,7 +106,7 @@ def main_(argv: list[str] | None = None) -> int:
     ap.add_argument("--efd-base", default="0.33869rf")
     ap.add_argument("--test", default="step:amplitude=0.05")
     ap.add_argument("--resample", type=float, default=200.0)
-    ap.add_argument("--held", choices=("keep", "interpolate"), default="keep",
+    ap.add_argument("--held", choices=HELD_TREATMENTS, default="keep",
                     help="the import's --held: a channel refreshed slower than the rows kept or interpolated")
     ap.add_argument("--xe-bounds", default="0.02,0.8")
     ap.add_argument("--weights", default="vt=100,q=10", help="signal weights beside efd's 1 (the unit's [weights])")

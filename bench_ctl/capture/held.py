@@ -9,11 +9,10 @@ model of the unit follows: what a diagnosis leaves in the first samples after ea
 The import measures it and warns; with `--held interpolate` it puts each repeated row of a held
 channel between the fresh rows around it (linear in time), before anything else reads the channel.
 That is no neutral repair: an edge then spreads over the held rows. On the Mostar on-line 5 % step
-what the diagnosis leaves after its last explained step goes from 4.82x to 4.02x the pre-step
-disturbance over the part diagnosed, with the same effects; on the no-load 10 % step the diagnosis
-reads the spread edge as a setpoint ramp where the rows as written gave a recorder time skew (the
-held rows' own signature: the channel shows an edge late). docs/benchmarks.md, real_online.py and
-diagnose_seeds.py.
+it lowers what the diagnosis leaves after its last explained step, with the same effects; on the
+no-load 10 % step the diagnosis reads the spread edge as a setpoint ramp where the rows as written
+gave a recorder time skew (the held rows' own signature: the channel shows an edge late). The
+figures: docs/benchmarks.md (real_online.py, diagnose_seeds.py).
 
 The rule, per mapped channel other than usetp: a row "moves fast" when the channel changes over the
 two rows around it by more than FAST_STEPS times its typical row-to-row change (the median of its

@@ -239,7 +239,7 @@ def summary(capture: Capture) -> list[str]:
 @click.option("--window", "window_text", default=None, metavar="START:END",
               help="Take the test out of a long export: seconds from its first sample (120:150, 120:) or clock "
                    "times (12:53:58.5:12:54:30).")
-@click.option("--held", "held_rows", type=click.Choice(["keep", "interpolate"]), default="keep", show_default=True,
+@click.option("--held", "held_rows", type=click.Choice(held.HELD_TREATMENTS), default="keep", show_default=True,
               help="A channel the recorder refreshes slower than it writes rows (its rows repeat the one before, also "
                    "at an edge): keep its rows as written (with a warning), or interpolate each repeated row between "
                    "the fresh rows around it.")
