@@ -6,10 +6,21 @@ A variant's functions are copies of the generic ones whose slot globals (ST4, SP
 gen_*, pss_*) name its plug-ins; numba prunes what those constants rule out before typing, so a variant
 compiles its own blocks only. A command compiles the variants its records need, and says so while
 it does (`compiling`): a fresh machine pays that once.
+
+A variant is compiled in a child process that writes the disk cache, and every process runs it as
+loaded from there: the code numba runs in the process that compiled it rounds apart from the same
+code loaded from the cache (a batch of candidates on line, ~1e-13 pu in efd; on one real record that
+moved an identification from 9.9x to 10.3x the disturbance), so a first run gave another answer
+than every later one, and a Dask worker that compiled a variant another answer than the workers
+that loaded it (docs/decisions/0023).
 """
 from __future__ import annotations
 
+import json
 import logging
+import os
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -136,13 +147,26 @@ class Variant:
             sig = tuple(nb.typeof(a) for a in args)
             if sig not in dispatcher.overloads and not cached(dispatcher, sig):
                 with compiling(self.key.words(), ESTIMATE_S[EXCITERS[self.key.exciter]]):
-                    dispatcher.compile(sig)
-                    if name == "new_work" and not self._whole:   # a run's first step: the rest
-                        self._whole = True                       # under the same notice, one line
-                        compile_key(self.key)
+                    if not self._from_child(dispatcher, sig):
+                        dispatcher.compile(sig)
+                        if name == "new_work" and not self._whole:   # a run's first step: the rest
+                            self._whole = True                       # under the same notice, one line
+                            compile_key(self.key)
                 prune_stale()
             self._ready.add(name)
         return dispatcher(*args)
+
+    def _from_child(self, dispatcher: CPUDispatcher, sig: tuple) -> bool:
+        """Whether a child process compiled the variant into the cache and `sig` loads from there
+        (module docstring); False in such a child, and (warned) when the cache cannot be written or
+        the child failed: the caller compiles it here."""
+        if _COMPILING_CHILD:
+            return False
+        if writable(dispatcher) and compile_in_child(self.key) is not None and cached(dispatcher, sig):
+            return True
+        log.warning("the %s is compiled in this process: its results may differ in the last digits from a "
+                    "run that loads it from numba's cache", self.key.words())
+        return False
 
 
 def cached(dispatcher: CPUDispatcher, sig: tuple) -> bool:
@@ -152,6 +176,45 @@ def cached(dispatcher: CPUDispatcher, sig: tuple) -> bool:
         return cache is not None and cache.load_overload(sig, dispatcher.targetctx) is not None
     except Exception:  # pragma: no cover - an unreadable cache entry: compile it afresh
         return False
+
+
+def writable(dispatcher: CPUDispatcher) -> bool:
+    """Whether numba's disk cache of `dispatcher` can be written (a child's compilation kept)."""
+    path = getattr(getattr(dispatcher, "_cache", None), "_cache_path", None)  # no public API
+    while path and not os.path.isdir(path):   # numba makes the folder when it first writes
+        parent = os.path.dirname(path)
+        path = parent if parent != path else None
+    return bool(path) and os.access(path, os.W_OK)
+
+
+#: this process is a child of `compile_in_child`: it compiles what it is asked here
+_COMPILING_CHILD = False
+#: what a child process runs to compile variants (not `-m`: the package imports this module first)
+CHILD = "import sys; from bench_ctl.engine.variants import child_main; child_main(sys.argv[1:])"
+
+
+def compile_in_child(key: Key) -> float | None:
+    """Compile variant `key` in a child process that writes numba's disk cache; the seconds it
+    took, None when the child failed (logged)."""
+    spec = f"{key.machine}:{key.exciter}:{key.stabiliser}"
+    done = subprocess.run([sys.executable, "-c", CHILD, spec], capture_output=True, text=True)
+    if done.returncode != 0:
+        log.warning("compiling the %s in a child process failed (exit %s): %s", key.words(), done.returncode,
+                    done.stderr.strip()[-2000:])
+        return None
+    return float(json.loads(done.stdout.strip().splitlines()[-1])[spec])
+
+
+def child_main(specs: list[str]) -> None:
+    """A child process of `compile_in_child`: compile the variants MACHINE:EXCITER:STABILISER in
+    this process (the disk cache keeps them), print the seconds of each as JSON."""
+    global _COMPILING_CHILD
+    _COMPILING_CHILD = True
+    seconds = {}
+    for spec in specs:
+        machine, exciter, stabiliser = spec.split(":")
+        seconds[spec] = compile_key(Key(machine, int(exciter), stabiliser))
+    print(json.dumps(seconds))
 
 
 _VARIANTS: dict[Key, Variant] = {}

@@ -7,17 +7,14 @@ need not guard itself.)
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
-import subprocess
-import sys
 from concurrent.futures import ThreadPoolExecutor
 
 import numba as nb
 
 from .layout import X_FULL, X_REF, X_ST4, X_ST4_ONLY
-from .variants import EXCITERS, Key, cached, compile_key, run_arguments, variant
+from .variants import EXCITERS, Key, cached, compile_in_child, compile_key, run_arguments, variant
 
 log = logging.getLogger(__name__)
 
@@ -59,39 +56,22 @@ def missing(keys: tuple[Key, ...]) -> list[Key]:
 
 def warm(keys: tuple[Key, ...], workers: int | None = None, report=None) -> dict[str, float]:
     """Compile the variants among `keys` the cache lacks, up to `workers` at once (default one a
-    core), each in a child process that writes the cache; `report(name, seconds)` after each.
-    Returns the seconds each took (empty when the cache held them all)."""
+    core), each in a child process that writes the cache (in this process when the child fails:
+    `variants` says why not here); `report(name, seconds)` after each. Returns the seconds each
+    took (empty when the cache held them all)."""
     todo = missing(tuple(keys))
     workers = max(1, min(len(todo), workers or os.cpu_count() or 1))
     seconds: dict[str, float] = {}
 
     def child(key: Key) -> None:
-        done = subprocess.run([sys.executable, "-c", CHILD, key.name], stdout=subprocess.PIPE, text=True)
-        if done.returncode == 0:
-            seconds.update(json.loads(done.stdout.strip().splitlines()[-1]))
-        else:
-            log.warning("compiling %s in a child process failed (exit %s)", key.name, done.returncode)
-            seconds[key.name] = compile_key(key)
+        took = compile_in_child(key)
+        seconds[key.name] = took if took is not None else compile_key(key)
         if report:
             report(key, seconds[key.name])
 
-    if workers > 1:
-        with ThreadPoolExecutor(workers) as pool:  # threads that wait on the children
-            list(pool.map(child, todo))
-    else:
-        for key in todo:
-            seconds[key.name] = compile_key(key)
-            if report:
-                report(key, seconds[key.name])
+    with ThreadPoolExecutor(workers) as pool:  # threads that wait on the children
+        list(pool.map(child, todo))
     return seconds
 
-
-def child_main(names: list[str]) -> None:
-    """A child process of `warm`: compile `names`, print their seconds as JSON."""
-    print(json.dumps({name: compile_key(key_named(name)) for name in names}))
-
-
-#: what a child process runs (not `-m` on this module: the package imports it first)
-CHILD = "import sys; from bench_ctl.engine.warm import child_main; child_main(sys.argv[1:])"
 
 __all__ = ["ALL", "EXCITERS", "Key", "compile_key", "key_named", "missing", "warm"]
