@@ -222,9 +222,11 @@ def identify(captures: tuple[str, ...], unit_path: str | None, model: str | None
     command_line = _command_line(captures, unit_path, overrides, model_kw, chosen, compare, evals, seed,
                                  json_out, plot_out)
     try:
+        # a planning record's values are the unit's own: they join the initial swarm (as structure
+        # selection's typical values and the diagnosis' base fit do)
         ident = run_identification(caps, unit, optimizer=chosen[0], compare=others, max_evals=evals,
                                    seed=seed, command_line=command_line, problem=problem,
-                                   progress_factory=factory)
+                                   x0=problem.x_start() if from_dyr else None, progress_factory=factory)
     finally:
         for b in bars:
             b.close()
