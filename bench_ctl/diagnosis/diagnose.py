@@ -354,7 +354,7 @@ def _vocabulary(views: Views) -> Vocabulary:
         if name in tried:
             continue
         if views.on_line and not e.on_line:
-            why[name] = "not simulated on line yet"
+            why[name] = "not tried on line yet"
         elif not views.on_line and not e.at_no_load:
             why[name] = "acts on line only"
         else:

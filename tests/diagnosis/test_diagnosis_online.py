@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from andes_units import online_capture, online_entry, online_unit
@@ -22,8 +23,9 @@ NOISE = {"noise": 0.01, "q_noise": 0.002, "vt_noise": 0.0005}
 def test_the_vocabulary_on_line_is_what_the_machine_on_the_grid_runs():
     on, off = vocabulary(True), vocabulary(False)
     assert {"grid_reactance", "pss"} <= set(on) and not {"grid_reactance", "pss"} & set(off)
-    assert not {"dead_time", "setpoint_ramp", "time_skew"} & set(on)
-    assert {"ceiling_limit", "saturation", "transducer_lag", "rate_limit", "recorder_gain"} <= set(on) & set(off)
+    assert not {"dead_time", "setpoint_ramp"} & set(on) and {"dead_time", "setpoint_ramp"} <= set(off)
+    assert {"ceiling_limit", "saturation", "transducer_lag", "rate_limit", "recorder_gain",
+            "time_skew"} <= set(on) & set(off)
     # a unit that already fits XE has no grid_reactance effect
     assert "grid_reactance" not in vocabulary(True, ("XE",))
 
@@ -72,3 +74,18 @@ def test_an_on_line_record_the_model_explains_has_no_effect(name):
     d = diagnose(online_capture(name, seed=1, **NOISE), online_unit(name), seed=0).to_json()
     assert d["verdict"] == "none", [(e["name"], e["delta_bic"], e["delta_check"]) for e in d["effects"]]
     assert d["base"]["at_noise_floor"]
+
+
+@pytest.mark.slow
+def test_an_efd_channel_recorded_late_on_line_is_found_with_its_skew():
+    """ANDES' on-line capture with its efd channel written 15 ms late (15 samples: the noise kept
+    as drawn), the other channels on time: the diagnosis names the recorder skew, finds 15 ms, and
+    what is left is the noise."""
+    name = "esst1a_xe04"
+    cap = online_capture(name, seed=3, **NOISE)
+    k = round(0.015 / (cap.time[1] - cap.time[0]))
+    late = replace(cap, efd=np.concatenate([np.full(k, cap.efd[0]), cap.efd[:-k]]))
+    d = diagnose(late, online_unit(name), seed=0).to_json()
+    assert d["verdict"] == "time_skew", [(e["name"], e["significant"]) for e in d["effects"]]
+    assert d["explained_by"][-1]["params"]["SKEW"] == pytest.approx(0.015, abs=0.001)
+    assert d["explained_by"][-1]["mse_over_floor"] < 1.15 < d["base"]["mse"] / d["noise_floor"]

@@ -5,6 +5,8 @@ linear system rather than in closed form, the steady state found by a root finde
 operating point rather than by ANDES' closed-form initialisation the machine uses."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -34,10 +36,11 @@ def _unit(model: str, values: dict[str, float], vt0: float, g: dict = GEN):
 
 
 def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float, steps, t_end: float, dt: float,
-               g: dict = GEN, pss: dict | None = None):
+               g: dict = GEN, pss: dict | None = None, ramp: float = math.inf, skew: float = 0.0):
     """efd, Vt, P, Q of the exciter `model` on the machine by solve_ivp; `steps`: (instant, change
     of the reference); `pss`: an IEEEST on the speed (KS, T1..T4, TW, LSMAX; lead-lags, gain,
-    washout, limit) whose output adds to the reference."""
+    washout, limit) whose output adds to the reference; `ramp`: the reference moves to each new
+    value at that rate (pu/s) instead of stepping; `skew`: efd as recorded that late (s)."""
     from scipy.integrate import solve_ivp
 
     mach = Machine(xe, g=g)
@@ -60,39 +63,49 @@ def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float,
         vs = min(max(v - c, -pss["LSMAX"]), pss["LSMAX"])
         return vs, [(dw - a) / pss["T2"], (y1 - b) / pss["T4"], (v - c) / pss["TW"]]
 
-    def f(t, z, vref):
+    def vref(t):
+        """The reference at t: each change reached at the rate `ramp` (at once when infinite)."""
+        return vref0 + sum(math.copysign(min(abs(c), ramp * (t - a)), c) for a, c in steps if t > a)
+
+    def f(t, z):
         m, x, xs = z[:6], z[6:6 + ne], z[6 + ne:]
         vt, ifd, *_ = mach.algebra(*m[:5], vinf)
         vs, dxs = stabiliser(m[5], xs)
-        dx, efd = exc(x, vt, ifd, vref + vs)
+        dx, efd = exc(x, vt, ifd, vref(t) + vs)
         return mach.derivatives(m, efd, vinf) + dx + dxs
 
     t = np.arange(int(round(t_end / dt)) + 1) * dt
     z = np.array(m0 + x0 + [0.0, 0.0, 0.0])
-    cuts = [0.0] + [a for a, _ in steps] + [t[-1] + dt]
-    vref = vref0
-    ys = []
-    for j in range(len(cuts) - 1):   # one integration between reference changes
-        sol = solve_ivp(f, (cuts[j], cuts[j + 1]), z, args=(vref,), method="DOP853", rtol=1e-10,
-                        atol=1e-12, dense_output=True)
+    # one integration between the reference's breaks: each change and the end of its ramp
+    breaks = {a for a, _ in steps} | ({a + abs(c) / ramp for a, c in steps} if math.isfinite(ramp) else set())
+    cuts = [0.0, *sorted(b for b in breaks if 0.0 < b < t[-1]), t[-1] + dt]
+    sols = []
+    for j in range(len(cuts) - 1):
+        sol = solve_ivp(f, (cuts[j], cuts[j + 1]), z, method="DOP853", rtol=1e-10, atol=1e-12, dense_output=True)
         assert sol.success
-        seg = t[(t >= cuts[j] - 1e-9) & (t < cuts[j + 1] - 1e-9)]
-        ys.append(sol.sol(seg))
+        sols.append(sol)
         z = sol.y[:, -1]
-        if j < len(steps):
-            vref += steps[j][1]
-    Y = np.concatenate(ys, axis=1)
-    out = np.empty((4, Y.shape[1]))
-    for k in range(Y.shape[1]):
-        m, x = Y[:6, k], Y[6:6 + ne, k]
+
+    def state(tk):
+        j = min(max(int(np.searchsorted(cuts, tk, side="right")) - 1, 0), len(sols) - 1)
+        return sols[j].sol(tk)
+
+    out = np.empty((4, t.size))
+    for k, tk in enumerate(t):
+        m = state(tk)[:6]
         vt, ifd, _cid, _ciq, p, q, _xaq = mach.algebra(*m[:5], vinf)
-        out[:, k] = [exc(x, vt, ifd, vref0)[1], vt, p, q]
-    assert ne + 3 == Y.shape[0] - 6
+        # efd as recorded `skew` late: the state then (steady before 0)
+        late = state(max(tk - skew, 0.0))
+        m_late, x_late = late[:6], late[6:6 + ne]
+        vt_late, ifd_late, *_ = mach.algebra(*m_late[:5], vinf)
+        out[:, k] = [exc(x_late, vt_late, ifd_late, vref0)[1], vt, p, q]
     return out
 
 
-def _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt, g=GEN, pss=None):
+def _kernel(model, s, xe, p0, q0, vt0, steps, t_end, dt, g=GEN, pss=None, effects=None):
     unit = _unit(model, s, vt0, g)
+    if effects:
+        unit = unit.with_effects({**unit.effects, **effects})
     P = param_matrix(unit.values())
     M = machine_matrix({**_machine(xe, p0, q0, g), **{f"PSS_{k}": v for k, v in (pss or {}).items()}})
     n = int(round(t_end / dt)) + 1
@@ -156,6 +169,25 @@ def test_online_stabiliser_matches_its_equations_and_damps_the_swing():
     # a stabiliser with KS = 0 is none: the same run to the last bit
     zero, _unit_ = _kernel("SEXS", SEXS, 0.4, 0.8, 0.2, 1.0, steps, 6.0, dt, pss={**PSS, "KS": 0.0})
     assert np.array_equal(zero["efd"], plain["efd"]) and np.array_equal(zero["p"], plain["p"])
+
+
+@pytest.mark.parametrize("model,s,effects,ramp,skew", [
+    # ESST1A: the ramped 5 % reference drives efd onto its bus-fed ceiling and back
+    ("ESST1A", ESST1A, {"setpoint_ramp": {"RAMP": 0.1}}, 0.1, 0.0),
+    # SEXS: the recorded efd read between the engine's samples (cubic Hermite; across the kink
+    # where ESST1A's ceiling engages that readout was 2.2e-3 pu off for one sample)
+    ("SEXS", SEXS, {"time_skew": {"SKEW": 0.0123}}, math.inf, 0.0123)], ids=["setpoint_ramp", "time_skew"])
+def test_online_ramp_and_skew_match_their_equations(model, s, effects, ramp, skew):
+    """The setpoint ramp (the reference moves at RAMP pu/s) and the recorder skew (efd recorded
+    SKEW late) on the unit on the grid, against solve_ivp with the ramp in the reference and the
+    recorded efd read from the solution SKEW earlier (the diagnosis tries the skew on line, not yet the ramp)."""
+    dt, steps = 1e-3, [(0.5, 0.05), (2.0, -0.05)]
+    out, _unit_ = _kernel(model, s, 0.2, 0.8, 0.1, 1.02, steps, 4.0, dt, effects=effects)
+    ref = _reference(model, s, 0.2, 0.8, 0.1, 1.02, steps, 4.0, dt, ramp=ramp, skew=skew)
+    plain, _unit_ = _kernel(model, s, 0.2, 0.8, 0.1, 1.02, steps, 4.0, dt)
+    errs = {name: np.abs(out[name][0] - ref[q]).max() for q, name in enumerate(("efd", "vt", "p", "q"))}
+    assert errs["efd"] < 1e-3 and errs["vt"] < 1e-4 and errs["q"] < 1e-4 and errs["p"] < 1e-4, errs
+    assert np.abs(out["efd"][0] - plain["efd"][0]).max() > 0.1   # the effect acted
 
 
 def test_online_steady_state_is_steady():
