@@ -63,15 +63,18 @@ def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float,
         vs = min(max(v - c, -pss["LSMAX"]), pss["LSMAX"])
         return vs, [(dw - a) / pss["T2"], (y1 - b) / pss["T4"], (v - c) / pss["TW"]]
 
-    def vref(t):
-        """The reference at t: each change reached at the rate `ramp` (at once when infinite)."""
-        return vref0 + sum(math.copysign(min(abs(c), ramp * (t - a)), c) for a, c in steps if t > a)
+    def vref(t, start):
+        """The reference at t in the integration that starts at `start` (a change acts from its
+        instant on: every change is a start): each reached at the rate `ramp` (at once when
+        infinite)."""
+        return vref0 + sum(c if math.isinf(ramp) else math.copysign(min(abs(c), ramp * (t - a)), c)
+                           for a, c in steps if a <= start)
 
-    def f(t, z):
+    def f(t, z, start):
         m, x, xs = z[:6], z[6:6 + ne], z[6 + ne:]
         vt, ifd, *_ = mach.algebra(*m[:5], vinf)
         vs, dxs = stabiliser(m[5], xs)
-        dx, efd = exc(x, vt, ifd, vref(t) + vs)
+        dx, efd = exc(x, vt, ifd, vref(t, start) + vs)
         return mach.derivatives(m, efd, vinf) + dx + dxs
 
     t = np.arange(int(round(t_end / dt)) + 1) * dt
@@ -81,7 +84,8 @@ def _reference(model: str, s: dict, xe: float, p0: float, q0: float, vt0: float,
     cuts = [0.0, *sorted(b for b in breaks if 0.0 < b < t[-1]), t[-1] + dt]
     sols = []
     for j in range(len(cuts) - 1):
-        sol = solve_ivp(f, (cuts[j], cuts[j + 1]), z, method="DOP853", rtol=1e-10, atol=1e-12, dense_output=True)
+        sol = solve_ivp(f, (cuts[j], cuts[j + 1]), z, args=(cuts[j],), method="DOP853", rtol=1e-10, atol=1e-12,
+                        dense_output=True)
         assert sol.success
         sols.append(sol)
         z = sol.y[:, -1]
