@@ -160,7 +160,7 @@ class Variant:
         """Whether a child process compiled the variant into the cache and `sig` loads from there
         (module docstring); False in such a child, and (warned) when the cache cannot be written or
         the child failed: the caller compiles it here."""
-        if _COMPILING_CHILD:
+        if _COMPILING_CHILD or self.key in _CHILD_FAILED:   # (said when it failed)
             return False
         if writable(dispatcher) and compile_in_child(self.key) is not None and cached(dispatcher, sig):
             return True
@@ -189,6 +189,8 @@ def writable(dispatcher: CPUDispatcher) -> bool:
 
 #: this process is a child of `compile_in_child`: it compiles what it is asked here
 _COMPILING_CHILD = False
+#: the variants a child failed to compile in this process: compiled here, not asked of a child again
+_CHILD_FAILED: set[Key] = set()
 #: what a child process runs to compile variants (not `-m`: the package imports this module first)
 CHILD = "import sys; from bench_ctl.engine.variants import child_main; child_main(sys.argv[1:])"
 
@@ -201,6 +203,7 @@ def compile_in_child(key: Key) -> float | None:
     if done.returncode != 0:
         log.warning("compiling the %s in a child process failed (exit %s): %s", key.words(), done.returncode,
                     done.stderr.strip()[-2000:])
+        _CHILD_FAILED.add(key)
         return None
     return float(json.loads(done.stdout.strip().splitlines()[-1])[spec])
 
